@@ -1,0 +1,67 @@
+// A small command-line reader: positional arguments and --key value /
+// --flag options, with an error for anything unknown.
+#pragma once
+
+#include <map>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace lf::cli {
+
+class UsageError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
+class Args {
+public:
+    // `valued`: options that take a value; `flags`: options that do not.
+    Args(int argc, char** argv, int first, const std::set<std::string>& valued, const std::set<std::string>& flags) {
+        for (int i = first; i < argc; ++i) {
+            std::string a = argv[i];
+            if (a.rfind("--", 0) != 0 || a == "--") {
+                positional_.push_back(a);
+                continue;
+            }
+            std::string value;
+            const size_t eq = a.find('=');
+            std::string key = a.substr(0, eq);
+            if (flags.count(key)) {
+                if (eq != std::string::npos) throw UsageError(key + " takes no value");
+                flags_.insert(key);
+            } else if (valued.count(key)) {
+                if (eq != std::string::npos) value = a.substr(eq + 1);
+                else if (i + 1 < argc) value = argv[++i];
+                else throw UsageError(key + " needs a value");
+                values_[key] = value;
+            } else {
+                throw UsageError("unknown option " + key);
+            }
+        }
+    }
+    const std::vector<std::string>& positional() const { return positional_; }
+    bool flag(const std::string& key) const { return flags_.count(key) > 0; }
+    bool has(const std::string& key) const { return values_.count(key) > 0; }
+    std::string get(const std::string& key, const std::string& fallback = "") const {
+        auto it = values_.find(key);
+        return it == values_.end() ? fallback : it->second;
+    }
+    double number(const std::string& key, double fallback) const {
+        if (!has(key)) return fallback;
+        const std::string& text = values_.at(key);
+        size_t used = 0;
+        double v = 0.0;
+        try { v = std::stod(text, &used); } catch (const std::exception&) { used = 0; }
+        if (used != text.size() || text.empty()) throw UsageError(key + ": '" + text + "' is not a number");
+        return v;
+    }
+
+private:
+    std::vector<std::string> positional_;
+    std::set<std::string> flags_;
+    std::map<std::string, std::string> values_;
+};
+
+}  // namespace lf::cli

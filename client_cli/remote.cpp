@@ -1,0 +1,345 @@
+#include "remote.h"
+
+#include "args.h"
+#include "job_spec.h"
+#include "job_status.h"
+
+#include <httplib.h>
+#include <nlohmann/json.hpp>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <set>
+#include <thread>
+
+namespace lf::cli {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+const char* const kRemoteUsage = R"(remote commands (a lightfarmd server):
+  submit SCENE [bake options] [--seed N] [--wait [--out DIR] [--json]]
+                                     upload SCENE (a .glb, or a .gltf with its files),
+                                     create a job, print its id; --wait follows it and
+                                     downloads the results into --out (default ./JOB)
+  watch JOB [--json]                 follow a job's progress until it ends
+  fetch JOB [--out DIR] [--latest]   download a job's files (--latest: the newest snapshot)
+  cancel JOB                         cancel a queued or running job
+  jobs [--json]                      list your jobs
+  every remote command: --server URL (default http://127.0.0.1:8750)
+                        --token TOKEN (default $LIGHTFARM_TOKEN)
+)";
+
+namespace {
+
+// Any failure that ends the command: one line for the user.
+struct RemoteError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
+class Remote {
+public:
+    explicit Remote(const Args& args)
+        : server_(args.get("--server", "http://127.0.0.1:8750")), client_(server_) {
+        std::string token = args.get("--token");
+        if (token.empty()) {
+            const char* env = std::getenv("LIGHTFARM_TOKEN");
+            token = env ? env : "";
+        }
+        if (token.empty()) throw UsageError("no token: pass --token TOKEN or set LIGHTFARM_TOKEN");
+        if (!client_.is_valid()) throw UsageError("--server: '" + server_ + "' is not a URL like http://host:port");
+        client_.set_bearer_token_auth(token);
+        client_.set_connection_timeout(5);
+        client_.set_read_timeout(60);
+    }
+
+    // Sends and returns the answer's JSON; a non-2xx answer becomes a
+    // RemoteError carrying the server's own message.
+    json call(httplib::Result r, const std::string& what) {
+        check(r, what);
+        const json body = json::parse(r->body, nullptr, false);
+        return body.is_discarded() ? json::object() : body;
+    }
+    void check(const httplib::Result& r, const std::string& what) {
+        if (!r) throw RemoteError("cannot reach " + server_ + " (" + httplib::to_string(r.error()) + ") to " + what);
+        if (r->status >= 200 && r->status < 300) return;
+        const json body = json::parse(r->body, nullptr, false);
+        const std::string message = body.is_object() && body.contains("error") ? body["error"].get<std::string>() : r->body;
+        throw RemoteError(message + " (HTTP " + std::to_string(r->status) + ")");
+    }
+    httplib::Client& http() { return client_; }
+    const std::string& server() const { return server_; }
+
+private:
+    std::string server_;
+    httplib::Client client_;
+};
+
+std::string read_file(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw RemoteError("cannot read " + path.string());
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+std::string percent_decode(const std::string& s) {
+    std::string out;
+    for (size_t i = 0; i < s.size(); ++i) {
+        if (s[i] == '%' && i + 2 < s.size()) {
+            out += char(std::stoi(s.substr(i + 1, 2), nullptr, 16));
+            i += 2;
+        } else {
+            out += s[i];
+        }
+    }
+    return out;
+}
+
+// Uploads a .glb as the body, or a .gltf with every file its buffers and
+// images name as multipart parts. Returns the scene id.
+std::string upload_scene(Remote& remote, const fs::path& scene) {
+    const std::string bytes = read_file(scene);
+    std::string ext = scene.extension().string();
+    for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    if (ext == ".glb") {
+        return remote.call(remote.http().Post("/v1/scenes", bytes, "model/gltf-binary"), "upload " + scene.string())["id"];
+    }
+    if (ext == ".gltf") {
+        const json doc = json::parse(bytes, nullptr, false);
+        if (!doc.is_object()) throw RemoteError(scene.string() + " is not JSON");
+        httplib::MultipartFormDataItems items = {{"scene", bytes, scene.filename().string(), "model/gltf+json"}};
+        std::set<std::string> sent;
+        for (const char* array : {"buffers", "images"}) {
+            if (!doc.contains(array) || !doc[array].is_array()) continue;
+            for (const json& item : doc[array]) {
+                if (!item.is_object() || !item.contains("uri") || !item["uri"].is_string()) continue;
+                const std::string uri = item["uri"];
+                if (uri.rfind("data:", 0) == 0) continue;
+                const std::string name = percent_decode(uri);
+                if (!sent.insert(name).second) continue;
+                items.push_back({"file", read_file(scene.parent_path() / name), name, "application/octet-stream"});
+            }
+        }
+        return remote.call(remote.http().Post("/v1/scenes", items), "upload " + scene.string())["id"];
+    }
+    throw UsageError("SCENE must be a .glb or .gltf file, not " + scene.string());
+}
+
+std::string format_seconds(double s) {
+    char buf[32];
+    if (s >= 3600) std::snprintf(buf, sizeof buf, "%dh%02dm", int(s / 3600), int(s / 60) % 60);
+    else if (s >= 60) std::snprintf(buf, sizeof buf, "%dm%02ds", int(s / 60), int(s) % 60);
+    else std::snprintf(buf, sizeof buf, "%.0fs", s);
+    return buf;
+}
+
+// Follows a job's events until its final one, reconnecting with
+// Last-Event-ID when the connection drops. Returns the final event.
+protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_lines) {
+    const bool tty = isatty(2);
+    int64_t last = 0;
+    protocol::JobEvent final_event;
+    for (int tries = 0; tries < 10 && final_event.type.empty(); ++tries) {
+        httplib::Headers headers;
+        if (last > 0) headers.emplace("Last-Event-ID", std::to_string(last));
+        protocol::SseParser parser;
+        std::string error_body;
+        int status = 0;
+        auto r = remote.http().Get(
+            "/v1/jobs/" + job + "/events", headers,
+            [&](const httplib::Response& res) {
+                status = res.status;
+                return true;
+            },
+            [&](const char* data, size_t n) {
+                if (status != 200) {
+                    error_body.append(data, n);
+                    return true;
+                }
+                for (const protocol::JobEvent& e : parser.feed(std::string(data, n))) {
+                    last = e.id;
+                    if (json_lines) {
+                        std::cout << json{{"id", e.id}, {"event", e.type}, {"data", e.data}}.dump() << std::endl;
+                    } else if (e.type == "progress" && tty) {
+                        const protocol::Progress p = protocol::progress_from_json(e.data);
+                        std::cerr << "\r" << job.substr(0, 12) << "  pass " << p.pass;
+                        if (p.error_estimate) std::cerr << "  error " << *p.error_estimate;
+                        if (p.eta_seconds) std::cerr << "  ETA " << format_seconds(*p.eta_seconds);
+                        std::cerr << "      " << std::flush;
+                    } else if (e.type == "snapshot" && !tty) {
+                        std::cerr << "snapshot " << e.data.value("file", "") << "\n";
+                    } else if (e.type == "retrying") {
+                        std::cerr << (tty ? "\n" : "") << "attempt " << e.data.value("attempt", 0)
+                                  << " failed: " << e.data.value("cause", "") << "; retrying\n";
+                    }
+                    if (protocol::is_final_event(e.type)) {
+                        final_event = e;
+                        return false;
+                    }
+                }
+                return true;
+            });
+        if (status != 0 && status != 200) {
+            const json body = json::parse(error_body, nullptr, false);
+            throw RemoteError((body.is_object() && body.contains("error") ? body["error"].get<std::string>() : error_body) +
+                              " (HTTP " + std::to_string(status) + ")");
+        }
+        if (final_event.type.empty()) std::this_thread::sleep_for(std::chrono::seconds(1));
+    }
+    if (tty && !json_lines) std::cerr << "\n";
+    if (final_event.type.empty()) throw RemoteError("lost the event stream of job " + job + " at " + remote.server());
+    return final_event;
+}
+
+// Downloads artifacts into `dir` (temp file + rename, like the server's own).
+void fetch(Remote& remote, const std::string& job, const fs::path& dir, bool latest_only) {
+    const json listing = remote.call(remote.http().Get("/v1/jobs/" + job + "/artifacts"), "list the files of job " + job);
+    std::vector<std::string> names;
+    for (const json& a : listing["artifacts"]) names.push_back(a["name"]);
+    if (latest_only) {
+        // The newest snapshot (names sort by pass), and the final files if any.
+        std::vector<std::string> keep;
+        std::string newest;
+        for (const std::string& n : names) {
+            if (n.find(".pass-") != std::string::npos) newest = std::max(newest, n);
+            else keep.push_back(n);
+        }
+        if (!newest.empty()) keep.push_back(newest);
+        names = keep;
+    }
+    if (names.empty()) throw RemoteError("job " + job + " has no files yet");
+    fs::create_directories(dir);
+    for (const std::string& name : names) {
+        const fs::path tmp = dir / ("." + name + ".tmp");
+        {
+            std::ofstream out(tmp, std::ios::binary);
+            auto r = remote.http().Get("/v1/jobs/" + job + "/artifacts/" + name, [&](const char* data, size_t n) {
+                out.write(data, std::streamsize(n));
+                return bool(out);
+            });
+            remote.check(r, "download " + name);
+            if (!out) throw RemoteError("cannot write " + tmp.string());
+        }
+        fs::rename(tmp, dir / name);
+        std::cerr << "fetched " << (dir / name).string() << "\n";
+    }
+}
+
+int finish_with(const protocol::JobEvent& e, const std::string& job) {
+    if (e.type == "done") return 0;
+    if (e.type == "failed")
+        std::cerr << "lightfarm: job " << job << " failed: " << e.data.value("error", "") << ": " << e.data.value("cause", "") << "\n";
+    else std::cerr << "lightfarm: job " << job << " was cancelled\n";
+    return 1;
+}
+
+const std::set<std::string> kCommon = {"--server", "--token"};
+
+std::set<std::string> with_common(std::set<std::string> s) {
+    s.insert(kCommon.begin(), kCommon.end());
+    return s;
+}
+
+std::string one_job(const Args& args, const std::string& command) {
+    if (args.positional().size() != 1) throw UsageError(command + " takes exactly one JOB argument");
+    return args.positional()[0];
+}
+
+int submit(int argc, char** argv) {
+    std::set<std::string> valued = with_common({"--seed", "--out"});
+    for (const std::string& f : protocol::bake_option_flags()) valued.insert(f);
+    const Args args(argc, argv, 2, valued, {"--wait", "--json"});
+    if (args.positional().size() != 1) throw UsageError("submit takes exactly one SCENE argument");
+    std::map<std::string, std::string> bake_values;
+    for (const std::string& f : protocol::bake_option_flags())
+        if (args.has(f)) bake_values[f] = args.get(f);
+
+    json spec = {{"outputs", json::object()}, {"seed", 1}};
+    try {
+        for (auto& [name, settings] : protocol::outputs_from_bake_options(bake_values)) spec["outputs"][name] = settings;
+    } catch (const protocol::SpecError& e) {
+        throw UsageError(e.what());
+    }
+    if (args.has("--seed")) spec["seed"] = uint64_t(args.number("--seed", 1));
+
+    Remote remote(args);
+    spec["scene"] = upload_scene(remote, args.positional()[0]);
+    const json job = remote.call(remote.http().Post("/v1/jobs", spec.dump(), "application/json"), "create the job");
+    const std::string id = job["id"];
+    std::cout << id << std::endl;
+    if (!args.flag("--wait")) return 0;
+    const protocol::JobEvent end = follow(remote, id, args.flag("--json"));
+    if (end.type == "done") fetch(remote, id, args.get("--out", id), false);
+    return finish_with(end, id);
+}
+
+int watch(int argc, char** argv) {
+    const Args args(argc, argv, 2, kCommon, {"--json"});
+    const std::string id = one_job(args, "watch");
+    Remote remote(args);
+    return finish_with(follow(remote, id, args.flag("--json")), id);
+}
+
+int fetch_command(int argc, char** argv) {
+    const Args args(argc, argv, 2, with_common({"--out"}), {"--latest"});
+    const std::string id = one_job(args, "fetch");
+    Remote remote(args);
+    fetch(remote, id, args.get("--out", id), args.flag("--latest"));
+    return 0;
+}
+
+int cancel(int argc, char** argv) {
+    const Args args(argc, argv, 2, kCommon, {});
+    const std::string id = one_job(args, "cancel");
+    Remote remote(args);
+    const json status = remote.call(remote.http().Post("/v1/jobs/" + id + "/cancel"), "cancel job " + id);
+    std::cout << id << " " << status.value("state", "") << "\n";
+    return 0;
+}
+
+int jobs(int argc, char** argv) {
+    const Args args(argc, argv, 2, kCommon, {"--json"});
+    if (!args.positional().empty()) throw UsageError("jobs takes no arguments");
+    Remote remote(args);
+    const json list = remote.call(remote.http().Get("/v1/jobs"), "list jobs");
+    if (args.flag("--json")) {
+        std::cout << list.dump(2) << "\n";
+        return 0;
+    }
+    for (const json& j : list["jobs"]) {
+        const protocol::JobStatus s = protocol::status_from_json(j);
+        std::cout << s.id << "  " << protocol::to_string(s.state) << "  pass " << s.progress.pass;
+        if (s.progress.error_estimate) std::cout << "  error " << *s.progress.error_estimate;
+        if (!s.error.empty()) std::cout << "  " << s.error << ": " << s.cause;
+        std::cout << "\n";
+    }
+    return 0;
+}
+
+}  // namespace
+
+bool is_remote_command(const std::string& command) {
+    return command == "submit" || command == "watch" || command == "fetch" || command == "cancel" || command == "jobs";
+}
+
+int run_remote_command(const std::string& command, int argc, char** argv) {
+    try {
+        if (command == "submit") return submit(argc, argv);
+        if (command == "watch") return watch(argc, argv);
+        if (command == "fetch") return fetch_command(argc, argv);
+        if (command == "cancel") return cancel(argc, argv);
+        if (command == "jobs") return jobs(argc, argv);
+        throw UsageError("unknown command '" + command + "'");
+    } catch (const UsageError& e) {
+        std::cerr << "lightfarm " << command << ": " << e.what() << "\n" << kRemoteUsage;
+        return 2;
+    } catch (const std::exception& e) {
+        std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
+        return 1;
+    }
+}
+
+}  // namespace lf::cli

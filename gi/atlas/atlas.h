@@ -1,0 +1,72 @@
+// The lightmap atlas: where every triangle's lightmap texels are.
+//
+// Image space follows DESIGN.md: glTF UV (u,v) maps to pixel (u·W, v·H) from
+// the top-left corner; texel (x, y) covers [x, x+1) x [y, y+1), centre at
+// half-integers. A scene whose every primitive has TEXCOORD_1 keeps it
+// (use_existing_lightmap_uvs); otherwise generate_lightmap_uvs builds one:
+//
+//   1. charts: connected triangles (edges matched by position, so split glTF
+//      vertices and separate meshes that touch still connect) whose normals are
+//      within `max_chart_angle_degrees` of the chart's first (largest)
+//      triangle and whose projections onto that triangle's plane do not
+//      overlap each other;
+//   2. each chart projected to that plane, turned to its minimum-area
+//      bounding rectangle, and scaled so its UV area is exactly its world area
+//      x density² (one texel density for the whole scene);
+//   3. charts packed (skyline, tallest first) into whole-texel rectangles with
+//      `padding` empty texels between any two, so bilinear lookups and
+//      dilation never mix charts; if they do not fit, the density shrinks;
+//   4. vertices on chart borders split (one copy per chart), UV1 written.
+#pragma once
+
+#include "scene/scene.h"
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace lf {
+
+struct AtlasOptions {
+    int resolution = 0;         // square atlas side in texels; 0 = derive from texel_density
+    float texel_density = 0.0f; // texels per metre; 0 = derive from resolution
+                                // (both 0: resolution 1024; both set: density shrinks if it does not fit)
+    int padding = 2;            // empty texels between any two charts
+    float max_chart_angle_degrees = 40.0f;  // how far a chart's normals may turn from its first triangle's
+    int max_resolution = 8192;  // a density-derived atlas is never larger; the density shrinks instead
+};
+
+struct AtlasReport {
+    int width = 0;
+    int height = 0;
+    float texel_density = 0.0f;  // texels per metre (for existing or baseline UVs: the average)
+    size_t charts = 0;           // charts (existing UVs: islands of triangles sharing vertices)
+    double utilisation = 0.0;    // texels touched by some triangle / all texels
+    bool generated = false;      // this call wrote Scene::uv1
+    std::vector<uint32_t> triangle_chart;  // chart of every triangle (generated atlases only)
+};
+
+// Builds charts, packs them, splits vertices on chart borders and writes
+// Scene::uv1, Scene::source_vertex and PrimitiveInstance::has_uv1 for every
+// instance (each instance's vertices stay one contiguous range). Throws
+// std::runtime_error when even the smallest charts cannot fit the resolution.
+AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options);
+
+// The atlas size and texel density for a scene that keeps its TEXCOORD_1:
+// resolution as given (it wins when both are set: the file fixes the ratio),
+// or derived from the density and the ratio of the UV-mapped area to the
+// world area (capped at max_resolution), or 1024 when neither is set.
+AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& options);
+
+// TEXCOORD_1 when every primitive has it, else a generated atlas.
+AtlasReport prepare_lightmap_atlas(Scene& scene, const AtlasOptions& options);
+
+// The baseline: the thesis's triangle-pair atlas (Moreno-Fortuny 2005, §4.2 and
+// Appendix C.1). Neighbouring triangles are paired, pairs sorted by area, and
+// the texture recursively halved along its longer axis (balancing 1.5 x
+// triangle share + area share) until each pair has a cell; each pair fills its
+// cell as two right triangles, inset by half a texel (Carr and Hart). For
+// comparisons only: it distorts triangles and cuts a seam around every pair.
+AtlasReport generate_triangle_pair_uvs(Scene& scene, const AtlasOptions& options);
+
+}  // namespace lf

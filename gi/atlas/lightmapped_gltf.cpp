@@ -1,0 +1,315 @@
+#include "atlas/lightmapped_gltf.h"
+
+#include <tiny_gltf.h>
+
+#include <algorithm>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <unistd.h>
+
+namespace lf {
+namespace {
+
+[[noreturn]] void fail(const std::filesystem::path& file, const std::string& what) {
+    throw std::runtime_error(file.filename().string() + ": " + what);
+}
+
+// tinygltf's default path expansion runs wordexp (shell expansion) on URIs;
+// paths are taken verbatim instead.
+std::string verbatim_path(const std::string& path, void*) { return path; }
+
+// Keeps each image's encoded bytes (PNG/JPEG as in the file) so they can be
+// embedded unchanged; nothing is decoded.
+bool keep_image_bytes(tinygltf::Image*, const int index, std::string*, std::string*, int, int,
+                      const unsigned char* bytes, int size, void* user) {
+    auto& images = *static_cast<std::vector<std::vector<unsigned char>>*>(user);
+    if (index < 0) return false;
+    if (images.size() <= size_t(index)) images.resize(size_t(index) + 1);
+    images[size_t(index)].assign(bytes, bytes + std::max(size, 0));
+    return true;
+}
+
+struct LoadedModel {
+    tinygltf::Model model;
+    std::vector<std::vector<unsigned char>> image_bytes;
+};
+
+void load_model(const std::filesystem::path& source, LoadedModel& loaded) {
+    tinygltf::TinyGLTF gltf;
+    tinygltf::FsCallbacks fs{&tinygltf::FileExists, &verbatim_path, &tinygltf::ReadWholeFile,
+                             &tinygltf::WriteWholeFile, nullptr};
+    gltf.SetFsCallbacks(fs);
+    gltf.SetImageLoader(&keep_image_bytes, &loaded.image_bytes);
+
+    char magic[4] = {};
+    std::ifstream(source, std::ios::binary).read(magic, 4);
+    std::string err, warn;
+    const bool ok = std::memcmp(magic, "glTF", 4) == 0
+                        ? gltf.LoadBinaryFromFile(&loaded.model, &err, &warn, source.string())
+                        : gltf.LoadASCIIFromFile(&loaded.model, &err, &warn, source.string());
+    if (!ok) fail(source, "cannot re-read for writing: " + err);
+}
+
+size_t align_up(size_t n, size_t alignment) { return (n + alignment - 1) / alignment * alignment; }
+
+// All buffers become buffer 0, which the GLB stores in its binary chunk.
+void merge_buffers(tinygltf::Model& model) {
+    if (model.buffers.empty()) model.buffers.emplace_back();
+    std::vector<size_t> offset(model.buffers.size());
+    std::vector<unsigned char> data;
+    for (size_t b = 0; b < model.buffers.size(); ++b) {
+        data.resize(align_up(data.size(), 16));
+        offset[b] = data.size();
+        data.insert(data.end(), model.buffers[b].data.begin(), model.buffers[b].data.end());
+    }
+    for (tinygltf::BufferView& view : model.bufferViews) {
+        view.byteOffset += offset[size_t(view.buffer)];
+        view.buffer = 0;
+    }
+    tinygltf::Buffer merged;
+    merged.data = std::move(data);
+    model.buffers = {std::move(merged)};
+}
+
+// Appends bytes as a new buffer view of buffer 0; returns its index.
+int append_view(tinygltf::Model& model, const std::vector<unsigned char>& bytes, int target, size_t stride = 0) {
+    auto& data = model.buffers[0].data;
+    data.resize(align_up(data.size(), 16));
+    tinygltf::BufferView view;
+    view.buffer = 0;
+    view.byteOffset = data.size();
+    view.byteLength = bytes.size();
+    view.byteStride = stride;
+    view.target = target;
+    data.insert(data.end(), bytes.begin(), bytes.end());
+    model.bufferViews.push_back(view);
+    return int(model.bufferViews.size() - 1);
+}
+
+std::string mime_type_of(const std::vector<unsigned char>& bytes, const std::string& declared) {
+    if (!declared.empty()) return declared;
+    if (bytes.size() >= 4 && bytes[0] == 0x89 && bytes[1] == 'P' && bytes[2] == 'N' && bytes[3] == 'G') return "image/png";
+    return "image/jpeg";
+}
+
+// Images referenced by URI (files beside the .gltf, or data: URIs) are
+// stored in the binary chunk, so the .glb stands alone.
+void embed_images(LoadedModel& loaded) {
+    tinygltf::Model& model = loaded.model;
+    for (size_t i = 0; i < model.images.size(); ++i) {
+        tinygltf::Image& image = model.images[i];
+        if (image.bufferView >= 0 || i >= loaded.image_bytes.size() || loaded.image_bytes[i].empty()) continue;
+        image.mimeType = mime_type_of(loaded.image_bytes[i], image.mimeType);
+        image.bufferView = append_view(model, loaded.image_bytes[i], 0);
+        image.uri.clear();
+        image.image.clear();
+    }
+}
+
+// An accessor's elements as tightly packed bytes, sparse substitution applied.
+std::vector<unsigned char> accessor_bytes(const tinygltf::Model& model, const tinygltf::Accessor& accessor,
+                                          size_t element_size) {
+    std::vector<unsigned char> out(accessor.count * element_size, 0);
+    if (accessor.bufferView >= 0) {
+        const tinygltf::BufferView& view = model.bufferViews[size_t(accessor.bufferView)];
+        const auto& data = model.buffers[size_t(view.buffer)].data;
+        const size_t stride = view.byteStride ? view.byteStride : element_size;
+        for (size_t i = 0; i < accessor.count; ++i) {
+            const size_t at = view.byteOffset + accessor.byteOffset + i * stride;
+            if (at + element_size > data.size()) throw std::runtime_error("accessor outside its buffer");
+            std::memcpy(&out[i * element_size], &data[at], element_size);
+        }
+    }
+    if (accessor.sparse.isSparse) {
+        const auto& s = accessor.sparse;
+        const tinygltf::BufferView& iv = model.bufferViews[size_t(s.indices.bufferView)];
+        const tinygltf::BufferView& vv = model.bufferViews[size_t(s.values.bufferView)];
+        const auto& idata = model.buffers[size_t(iv.buffer)].data;
+        const auto& vdata = model.buffers[size_t(vv.buffer)].data;
+        const size_t isize = size_t(tinygltf::GetComponentSizeInBytes(uint32_t(s.indices.componentType)));
+        for (size_t k = 0; k < size_t(s.count); ++k) {
+            const size_t ia = iv.byteOffset + size_t(s.indices.byteOffset) + k * isize;
+            const size_t va = vv.byteOffset + size_t(s.values.byteOffset) + k * element_size;
+            if (ia + isize > idata.size() || va + element_size > vdata.size())
+                throw std::runtime_error("sparse accessor outside its buffer");
+            uint32_t index = 0;
+            if (isize == 1) index = idata[ia];
+            else if (isize == 2) { uint16_t v; std::memcpy(&v, &idata[ia], 2); index = v; }
+            else std::memcpy(&index, &idata[ia], 4);
+            if (index >= accessor.count) throw std::runtime_error("sparse index out of range");
+            std::memcpy(&out[size_t(index) * element_size], &vdata[va], element_size);
+        }
+    }
+    return out;
+}
+
+// A new accessor holding the elements of `source_accessor` listed in
+// `source_vertex`, in that order. Vertex attribute elements are kept 4-byte
+// aligned as glTF requires.
+int gather_accessor(tinygltf::Model& model, int source_accessor, const std::vector<uint32_t>& source_vertex,
+                    bool is_position) {
+    const tinygltf::Accessor src = model.accessors[size_t(source_accessor)];
+    const size_t element_size = size_t(tinygltf::GetComponentSizeInBytes(uint32_t(src.componentType))) *
+                                size_t(tinygltf::GetNumComponentsInType(uint32_t(src.type)));
+    const std::vector<unsigned char> dense = accessor_bytes(model, src, element_size);
+    const size_t stride = align_up(element_size, 4);
+    std::vector<unsigned char> bytes(source_vertex.size() * stride, 0);
+    for (size_t i = 0; i < source_vertex.size(); ++i)
+        std::memcpy(&bytes[i * stride], &dense[size_t(source_vertex[i]) * element_size], element_size);
+
+    tinygltf::Accessor out;
+    out.name = src.name;
+    out.componentType = src.componentType;
+    out.type = src.type;
+    out.normalized = src.normalized;
+    out.count = source_vertex.size();
+    out.bufferView = append_view(model, bytes, TINYGLTF_TARGET_ARRAY_BUFFER, stride == element_size ? 0 : stride);
+    if (is_position && src.componentType == TINYGLTF_COMPONENT_TYPE_FLOAT && src.type == TINYGLTF_TYPE_VEC3) {
+        // POSITION must carry exact bounds of what it holds.
+        out.minValues.assign(3, 1e300);
+        out.maxValues.assign(3, -1e300);
+        for (size_t i = 0; i < source_vertex.size(); ++i) {
+            float p[3];
+            std::memcpy(p, &bytes[i * stride], sizeof p);
+            for (int c = 0; c < 3; ++c) {
+                out.minValues[size_t(c)] = std::min(out.minValues[size_t(c)], double(p[c]));
+                out.maxValues[size_t(c)] = std::max(out.maxValues[size_t(c)], double(p[c]));
+            }
+        }
+    }
+    model.accessors.push_back(out);
+    return int(model.accessors.size() - 1);
+}
+
+int add_uv1_accessor(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst) {
+    std::vector<unsigned char> bytes(size_t(inst.vertex_count) * sizeof(glm::vec2));
+    std::memcpy(bytes.data(), &scene.uv1[inst.first_vertex], bytes.size());
+    tinygltf::Accessor accessor;
+    accessor.componentType = TINYGLTF_COMPONENT_TYPE_FLOAT;
+    accessor.type = TINYGLTF_TYPE_VEC2;
+    accessor.count = inst.vertex_count;
+    accessor.bufferView = append_view(model, bytes, TINYGLTF_TARGET_ARRAY_BUFFER);
+    model.accessors.push_back(accessor);
+    return int(model.accessors.size() - 1);
+}
+
+// The instance's triangles as glTF indices local to the primitive, in the
+// file's own winding: the loader turned mirrored nodes' triangles around to
+// make them counter-clockwise in world space; turning them back restores it.
+int add_index_accessor(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst) {
+    std::vector<unsigned char> bytes(size_t(inst.triangle_count) * 3 * sizeof(uint32_t));
+    uint32_t max_index = 0;
+    for (uint32_t i = 0; i < inst.triangle_count; ++i) {
+        glm::uvec3 tri = scene.triangles[inst.first_triangle + i] - glm::uvec3(inst.first_vertex);
+        if (inst.mirrored) std::swap(tri.y, tri.z);
+        max_index = std::max({max_index, tri.x, tri.y, tri.z});
+        std::memcpy(&bytes[size_t(i) * 12], &tri, 12);
+    }
+    tinygltf::Accessor accessor;
+    accessor.componentType = TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT;
+    accessor.type = TINYGLTF_TYPE_SCALAR;
+    accessor.count = size_t(inst.triangle_count) * 3;
+    accessor.bufferView = append_view(model, bytes, TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER);
+    model.accessors.push_back(accessor);
+    return int(model.accessors.size() - 1);
+}
+
+// The glTF vertex of each of the instance's vertices.
+std::vector<uint32_t> instance_sources(const Scene& scene, const PrimitiveInstance& inst) {
+    std::vector<uint32_t> sources(inst.vertex_count);
+    for (uint32_t k = 0; k < inst.vertex_count; ++k)
+        sources[k] = scene.source_vertex.empty() ? k : scene.source_vertex[inst.first_vertex + k];
+    return sources;
+}
+
+void add_lightmap_uvs(tinygltf::Model& model, tinygltf::Primitive& primitive, const Scene& scene,
+                      const PrimitiveInstance& inst, const std::filesystem::path& source) {
+    auto position = primitive.attributes.find("POSITION");
+    if (position == primitive.attributes.end()) fail(source, "mesh " + std::to_string(inst.mesh) + " has no POSITION");
+    const size_t gltf_count = model.accessors[size_t(position->second)].count;
+    const std::vector<uint32_t> sources = instance_sources(scene, inst);
+    for (uint32_t s : sources)
+        if (s >= gltf_count) fail(source, "scene does not match the file (mesh " + std::to_string(inst.mesh) + ")");
+
+    bool identity = sources.size() == gltf_count;
+    for (uint32_t k = 0; identity && k < sources.size(); ++k) identity = sources[k] == k;
+    if (!identity) {
+        // Split vertices: every per-vertex array is gathered anew, and the
+        // triangles are written against the new vertices.
+        for (auto& [name, accessor] : primitive.attributes)
+            if (name != "TEXCOORD_1") accessor = gather_accessor(model, accessor, sources, name == "POSITION");
+        for (auto& target : primitive.targets)
+            for (auto& [name, accessor] : target) accessor = gather_accessor(model, accessor, sources, false);
+        primitive.indices = add_index_accessor(model, scene, inst);
+        primitive.mode = TINYGLTF_MODE_TRIANGLES;
+    }
+    primitive.attributes["TEXCOORD_1"] = add_uv1_accessor(model, scene, inst);
+}
+
+void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) {
+    const std::filesystem::path temp =
+        out.parent_path() / ("." + out.filename().string() + ".tmp-" + std::to_string(::getpid()));
+    {
+        std::ofstream stream(temp, std::ios::binary | std::ios::trunc);
+        if (!stream) fail(out, "cannot create " + temp.string());
+        tinygltf::TinyGLTF gltf;
+        const bool ok = gltf.WriteGltfSceneToStream(&model, stream, false, true);
+        stream.flush();
+        if (!ok || !stream) {
+            stream.close();
+            std::filesystem::remove(temp);
+            fail(out, "write failed");
+        }
+    }
+    std::error_code ec;
+    std::filesystem::rename(temp, out, ec);
+    if (ec) {
+        std::filesystem::remove(temp);
+        fail(out, "cannot rename into place: " + ec.message());
+    }
+}
+
+}  // namespace
+
+void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
+                           const std::filesystem::path& out_glb) {
+    LoadedModel loaded;
+    load_model(source_gltf, loaded);
+    tinygltf::Model& model = loaded.model;
+    merge_buffers(model);
+    embed_images(loaded);
+
+    // Each node placement of a mesh gets its own mesh: the first node keeps
+    // the original, every further node a copy.
+    std::map<int, int> mesh_of_node;  // node -> mesh index written for it
+    std::vector<bool> mesh_taken(model.meshes.size(), false);
+    for (const PrimitiveInstance& inst : scene.instances) {
+        if (auto seen = mesh_of_node.find(inst.node); seen != mesh_of_node.end()) {
+            if (model.nodes[size_t(inst.node)].mesh != seen->second) fail(source_gltf, "scene does not match the file");
+            continue;
+        }
+        if (inst.node < 0 || size_t(inst.node) >= model.nodes.size() || inst.mesh < 0 ||
+            size_t(inst.mesh) >= mesh_taken.size() || model.nodes[size_t(inst.node)].mesh != inst.mesh)
+            fail(source_gltf, "scene does not match the file (node " + std::to_string(inst.node) + ")");
+        int mesh = inst.mesh;
+        if (mesh_taken[size_t(mesh)]) {
+            model.meshes.push_back(model.meshes[size_t(mesh)]);
+            mesh = int(model.meshes.size() - 1);
+            model.nodes[size_t(inst.node)].mesh = mesh;
+        }
+        mesh_taken[size_t(inst.mesh)] = true;
+        mesh_of_node[inst.node] = mesh;
+    }
+    for (const PrimitiveInstance& inst : scene.instances) {
+        auto& primitives = model.meshes[size_t(mesh_of_node[inst.node])].primitives;
+        if (inst.primitive < 0 || size_t(inst.primitive) >= primitives.size())
+            fail(source_gltf, "scene does not match the file (mesh " + std::to_string(inst.mesh) + ")");
+        add_lightmap_uvs(model, primitives[size_t(inst.primitive)], scene, inst, source_gltf);
+    }
+    write_atomically(model, out_glb);
+}
+
+}  // namespace lf

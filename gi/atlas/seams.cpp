@@ -1,0 +1,173 @@
+#include "atlas/seams.h"
+
+#include "atlas/mesh_topology.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <stdexcept>
+#include <unordered_map>
+
+namespace lf {
+namespace {
+
+constexpr float kUvTolerance = 1e-6f;
+const float kSmoothCos = std::cos(glm::radians(10.0f));
+
+struct Tap {
+    uint32_t pixel;
+    float weight;
+};
+
+// The four texels a bilinear lookup at `uv` reads, and their weights.
+std::array<Tap, 4> bilinear_taps(int width, int height, glm::vec2 uv) {
+    const double x = double(uv.x) * width - 0.5, y = double(uv.y) * height - 0.5;
+    const double fx0 = std::floor(x), fy0 = std::floor(y);
+    const float fx = float(x - fx0), fy = float(y - fy0);
+    auto clamp_x = [&](double v) { return uint32_t(std::clamp(v, 0.0, double(width - 1))); };
+    auto clamp_y = [&](double v) { return uint32_t(std::clamp(v, 0.0, double(height - 1))); };
+    const uint32_t x0 = clamp_x(fx0), x1 = clamp_x(fx0 + 1), y0 = clamp_y(fy0), y1 = clamp_y(fy0 + 1);
+    const auto w = uint32_t(width);
+    return {{{y0 * w + x0, (1 - fx) * (1 - fy)},
+             {y0 * w + x1, fx * (1 - fy)},
+             {y1 * w + x0, (1 - fx) * fy},
+             {y1 * w + x1, fx * fy}}};
+}
+
+void check_image(const std::vector<glm::vec4>& image, int width, int height) {
+    if (width <= 0 || height <= 0 || image.size() != size_t(width) * size_t(height))
+        throw std::invalid_argument("seams: image size does not match width x height");
+}
+
+double max_component(glm::dvec4 v) { return std::max(std::max(v.x, v.y), std::max(v.z, v.w)); }
+
+glm::vec2 seam_point(glm::vec2 p0, glm::vec2 p1, int k, int samples) {
+    return glm::mix(p0, p1, (float(k) + 0.5f) / float(samples));
+}
+
+}  // namespace
+
+std::vector<SeamEdge> find_seams(const Scene& scene) {
+    const auto weld = atlas_detail::weld_positions(scene.positions, atlas_detail::weld_tolerance(scene));
+    const atlas_detail::SharedEdges shared = atlas_detail::find_shared_edges(scene.triangles, weld);
+    std::vector<SeamEdge> seams;
+    auto compare = [&](atlas_detail::EdgeRef a, atlas_detail::EdgeRef b) {
+        const glm::uvec3& ta = scene.triangles[a.triangle];
+        const glm::uvec3& tb = scene.triangles[b.triangle];
+        const uint32_t a0 = ta[int(a.edge)], a1 = ta[int((a.edge + 1) % 3)];
+        uint32_t b0 = tb[int(b.edge)], b1 = tb[int((b.edge + 1) % 3)];
+        if (weld[b0] != weld[a0]) std::swap(b0, b1);
+        SeamEdge seam{scene.uv1[a0], scene.uv1[a1], scene.uv1[b0], scene.uv1[b1]};
+        const float apart = std::max(glm::length(seam.a0 - seam.b0), glm::length(seam.a1 - seam.b1));
+        if (!(apart > kUvTolerance)) return;
+        seam.smooth = glm::dot(scene.normals[a0], scene.normals[b0]) >= kSmoothCos &&
+                      glm::dot(scene.normals[a1], scene.normals[b1]) >= kSmoothCos;
+        seams.push_back(seam);
+    };
+    constexpr uint32_t kAllPairsUpTo = 8;
+    for (size_t g = 0; g < shared.group_count(); ++g) {
+        const uint32_t begin = shared.group_start[g], end = shared.group_start[g + 1];
+        if (end - begin <= kAllPairsUpTo) {
+            for (uint32_t i = begin; i < end; ++i)
+                for (uint32_t j = i + 1; j < end; ++j) compare(shared.edges[i], shared.edges[j]);
+        } else {
+            for (uint32_t i = begin; i + 1 < end; ++i) compare(shared.edges[i], shared.edges[i + 1]);
+        }
+    }
+    return seams;
+}
+
+glm::vec4 sample_bilinear(const std::vector<glm::vec4>& image, int width, int height, glm::vec2 uv) {
+    check_image(image, width, height);
+    glm::vec4 sum(0.0f);
+    for (const Tap& tap : bilinear_taps(width, height, uv)) sum += tap.weight * image[tap.pixel];
+    return sum;
+}
+
+double seam_metric(const std::vector<SeamEdge>& seams, const std::vector<glm::vec4>& image, int width, int height,
+                   int samples_per_edge) {
+    check_image(image, width, height);
+    if (seams.empty() || samples_per_edge <= 0) return 0.0;
+    double sum = 0.0;
+    for (const SeamEdge& seam : seams)
+        for (int k = 0; k < samples_per_edge; ++k) {
+            const glm::vec4 a = sample_bilinear(image, width, height, seam_point(seam.a0, seam.a1, k, samples_per_edge));
+            const glm::vec4 b = sample_bilinear(image, width, height, seam_point(seam.b0, seam.b1, k, samples_per_edge));
+            const glm::vec3 d = glm::abs(glm::vec3(a) - glm::vec3(b));
+            sum += (double(d.x) + d.y + d.z) / 3.0;
+        }
+    return sum / (double(seams.size()) * samples_per_edge);
+}
+
+void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
+                  int samples_per_edge, float lambda, int iterations) {
+    check_image(image, width, height);
+    if (seams.empty() || samples_per_edge <= 0) return;
+
+    // Unknowns: the texels some seam lookup reads. Each seam point is one
+    // row: +bilinear weights on side A, -bilinear weights on side B.
+    std::unordered_map<uint32_t, uint32_t> unknown_of_pixel;
+    std::vector<uint32_t> pixel_of_unknown;
+    struct RowTap { uint32_t unknown; float weight; };
+    std::vector<std::array<RowTap, 8>> rows;
+    rows.reserve(seams.size() * size_t(samples_per_edge));
+    auto unknown = [&](uint32_t pixel) {
+        auto [it, inserted] = unknown_of_pixel.try_emplace(pixel, uint32_t(pixel_of_unknown.size()));
+        if (inserted) pixel_of_unknown.push_back(pixel);
+        return it->second;
+    };
+    for (const SeamEdge& seam : seams)
+        for (int k = 0; k < samples_per_edge; ++k) {
+            const auto a = bilinear_taps(width, height, seam_point(seam.a0, seam.a1, k, samples_per_edge));
+            const auto b = bilinear_taps(width, height, seam_point(seam.b0, seam.b1, k, samples_per_edge));
+            std::array<RowTap, 8> row;
+            for (size_t i = 0; i < 4; ++i) {
+                row[i] = {unknown(a[i].pixel), a[i].weight};
+                row[4 + i] = {unknown(b[i].pixel), -b[i].weight};
+            }
+            rows.push_back(row);
+        }
+
+    // Normal equations (MᵀM + λI) x = λ x0, solved by conjugate gradients
+    // from x0; the matrix is symmetric positive definite for λ > 0.
+    const size_t n = pixel_of_unknown.size();
+    std::vector<glm::vec4> original(n), x(n);
+    for (size_t i = 0; i < n; ++i) original[i] = x[i] = image[pixel_of_unknown[i]];
+    auto apply = [&](const std::vector<glm::vec4>& v, std::vector<glm::vec4>& out) {
+        for (size_t i = 0; i < n; ++i) out[i] = lambda * v[i];
+        for (const auto& row : rows) {
+            glm::vec4 residual(0.0f);
+            for (const RowTap& tap : row) residual += tap.weight * v[tap.unknown];
+            for (const RowTap& tap : row) out[tap.unknown] += tap.weight * residual;
+        }
+    };
+    auto dot = [&](const std::vector<glm::vec4>& a, const std::vector<glm::vec4>& b) {
+        glm::dvec4 sum(0.0);
+        for (size_t i = 0; i < n; ++i) sum += glm::dvec4(a[i] * b[i]);
+        return sum;
+    };
+    std::vector<glm::vec4> r(n), p(n), ap(n);
+    apply(x, ap);
+    for (size_t i = 0; i < n; ++i) r[i] = lambda * original[i] - ap[i];
+    p = r;
+    glm::dvec4 rr = dot(r, r);
+    const double tolerance = 1e-12 * std::max(1.0, max_component(dot(original, original)));
+    for (int it = 0; it < iterations && max_component(rr) > tolerance; ++it) {
+        apply(p, ap);
+        const glm::dvec4 pap = dot(p, ap);
+        glm::vec4 alpha, beta;
+        glm::dvec4 rr_next;
+        for (int c = 0; c < 4; ++c) alpha[c] = pap[c] > 0.0 ? float(rr[c] / pap[c]) : 0.0f;
+        for (size_t i = 0; i < n; ++i) {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * ap[i];
+        }
+        rr_next = dot(r, r);
+        for (int c = 0; c < 4; ++c) beta[c] = rr[c] > 0.0 ? float(rr_next[c] / rr[c]) : 0.0f;
+        for (size_t i = 0; i < n; ++i) p[i] = r[i] + beta * p[i];
+        rr = rr_next;
+    }
+    for (size_t i = 0; i < n; ++i) image[pixel_of_unknown[i]] = x[i];
+}
+
+}  // namespace lf

@@ -1,0 +1,259 @@
+#include "bake/radiosity_map_baker.h"
+
+#include "gpu/context.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <stdexcept>
+
+namespace lf {
+
+namespace {
+
+constexpr int kAccumulatorVec4s = 5;  // per covered texel, see radiosity_texels.glsl
+
+float uint_bits(uint32_t u) {
+    float f;
+    std::memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
+
+}  // namespace
+
+const char* to_string(RadiosityScheme scheme) {
+    return scheme == RadiosityScheme::Thesis ? "thesis" : "epochs";
+}
+
+RadiosityScheme parse_radiosity_scheme(const std::string& text) {
+    if (text == "thesis") return RadiosityScheme::Thesis;
+    if (text == "epochs") return RadiosityScheme::DoublingEpochs;
+    throw std::invalid_argument("scheme must be 'epochs' or 'thesis', not '" + text + "'");
+}
+
+RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& texels, const Tracer& tracer,
+                                     const RadiosityMapSettings& settings)
+    : tracer_(tracer), settings_(settings), width_(texels.width), height_(texels.height) {
+    upload_scene(scene);
+    upload_texels(texels);
+}
+
+// Scene data the passes read: what a ray needs where it lands (lightmap UVs,
+// sidedness, emission and its emitter-sampling density), emitters, lights.
+void RadiosityMapBaker::upload_scene(const Scene& scene) {
+    // Emissive triangles, chosen in proportion to their power (area x radiance).
+    std::vector<uint32_t> emitter_triangles;
+    std::vector<double> power;
+    double total = 0.0;
+    for (size_t t = 0; t < scene.triangles.size(); ++t) {
+        const Material& m = scene.materials[scene.triangle_material[t]];
+        if (!m.is_emissive() || scene.triangle_area(t) <= 0.0f) continue;
+        const glm::vec3 radiance = scene.emission_at(t, glm::vec2(1.0f / 3.0f));
+        const double p = double(scene.triangle_area(t)) * double(channel_mean(radiance)) * (m.double_sided ? 2.0 : 1.0);
+        if (p <= 0.0) continue;
+        emitter_triangles.push_back(uint32_t(t));
+        power.push_back(p);
+        total += p;
+    }
+
+    std::vector<glm::vec4> surfaces(3 * std::max<size_t>(scene.triangles.size(), 1), glm::vec4(0.0f));
+    for (size_t t = 0; t < scene.triangles.size(); ++t) {
+        const glm::uvec3 tri = scene.triangles[t];
+        const bool two_sided = scene.materials[scene.triangle_material[t]].double_sided;
+        surfaces[3 * t] = glm::vec4(scene.uv1[tri.x], scene.uv1[tri.y]);
+        surfaces[3 * t + 1] = glm::vec4(scene.uv1[tri.z], uint_bits(two_sided ? 1u : 0u), 0.0f);
+    }
+
+    std::vector<glm::vec4> emitters;
+    double running = 0.0;
+    for (size_t e = 0; e < emitter_triangles.size(); ++e) {
+        const uint32_t t = emitter_triangles[e];
+        const glm::uvec3 tri = scene.triangles[t];
+        const float area = scene.triangle_area(t);
+        const float pdf_choose = float(power[e] / total);
+        const glm::vec3 radiance = scene.emission_at(t, glm::vec2(1.0f / 3.0f));
+        running += power[e];
+        const float cdf = e + 1 == emitter_triangles.size() ? 1.0f : float(running / total);
+        emitters.push_back(glm::vec4(scene.positions[tri.x], cdf));
+        emitters.push_back(glm::vec4(scene.positions[tri.y], pdf_choose));
+        emitters.push_back(glm::vec4(scene.positions[tri.z], area));
+        emitters.push_back(glm::vec4(radiance, scene.materials[scene.triangle_material[t]].double_sided ? 1.0f : 0.0f));
+        surfaces[3 * t + 1].w = pdf_choose / area;
+        surfaces[3 * t + 2] = glm::vec4(radiance, 0.0f);
+    }
+    emitter_count_ = uint32_t(emitter_triangles.size());
+    emitters_ = GpuBuffer(emitters);
+    surface_triangles_ = GpuBuffer(surfaces);
+
+    std::vector<glm::vec4> lights;
+    for (const PunctualLight& l : scene.lights) {
+        const float type = l.type == PunctualLight::Type::Point ? 0.0f : l.type == PunctualLight::Type::Spot ? 1.0f : 2.0f;
+        lights.push_back(glm::vec4(l.position, type));
+        lights.push_back(glm::vec4(glm::normalize(l.direction), l.range));
+        lights.push_back(glm::vec4(l.intensity, std::cos(l.inner_cone)));
+        lights.push_back(glm::vec4(std::cos(l.outer_cone), 0.0f, 0.0f, 0.0f));
+    }
+    punctual_count_ = uint32_t(scene.lights.size());
+    punctual_lights_ = GpuBuffer(lights);
+}
+
+void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
+    covered_count_ = texels.covered_count();
+    std::vector<glm::vec4> points;
+    points.reserve(3 * texels.samples.size());
+    std::vector<glm::uvec4> covered(covered_count_);
+    std::vector<glm::vec4> accumulators(kAccumulatorVec4s * covered_count_, glm::vec4(0.0f));
+    covered_atlas_index_ = texels.texels;
+    for (size_t i = 0; i < covered_count_; ++i) {
+        covered[i] = glm::uvec4(texels.first_sample[i], texels.sample_count(i), texels.texels[i], 0u);
+        accumulators[kAccumulatorVec4s * i + 4] = glm::vec4(texels.albedo[i], 0.0f);
+        for (uint32_t k = texels.first_sample[i]; k < texels.first_sample[i + 1]; ++k) {
+            const TexelSample& s = texels.samples[k];
+            // The geometric normal on the shading normal's side: rays leave from there.
+            glm::vec3 ng = s.geometric_normal;
+            if (glm::dot(ng, s.normal) < 0.0f) ng = -ng;
+            points.push_back(glm::vec4(s.position, texels.texel_world_size[i]));
+            points.push_back(glm::vec4(s.normal, 0.0f));
+            points.push_back(glm::vec4(ng, 0.0f));
+        }
+    }
+    sample_points_ = GpuBuffer(points);
+    covered_ = GpuBuffer(covered);
+    accumulators_ = GpuBuffer(accumulators);
+    reflected_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
+    reflected_.clear_zero();
+    dilation_ = texels.dilation;
+    std::vector<glm::uvec2> pairs;
+    for (const auto& [to, from] : dilation_) pairs.emplace_back(to, from);
+    dilation_pairs_ = GpuBuffer(pairs);
+    error_partials_ = GpuBuffer((covered_count_ / 64 + 1) * sizeof(glm::vec4));
+    active_texels_ = covered_count_;
+    rays_per_texel_ = uint64_t(1 + punctual_count_ + (emitter_count_ ? settings_.light_samples : 0));
+    relocate_samples_inside_geometry(texels.samples.size());
+}
+
+void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
+    ComputeProgram relocate("texel_relocate.comp");
+    relocate.use();
+    tracer_.bind();
+    sample_points_.bind(2);
+    glUniform1ui(relocate.uniform("sample_count"), GLuint(sample_count));
+    relocate.dispatch_1d(sample_count);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+}
+
+PassStats RadiosityMapBaker::step() {
+    const auto start = std::chrono::steady_clock::now();
+    tracer_.bind();
+    sample_points_.bind(2);
+    covered_.bind(3);
+    accumulators_.bind(4);
+    reflected_.bind(5);
+    surface_triangles_.bind(6);
+    emitters_.bind(7);
+    punctual_lights_.bind(8);
+    error_partials_.bind(9);
+    dilation_pairs_.bind(10);
+
+    const float far = 1e30f;  // rays end at the scene's bounds anyway
+    gather_.use();
+    glUniform1ui(gather_.uniform("covered_count"), GLuint(covered_count_));
+    glUniform1ui(gather_.uniform("pass"), GLuint(stats_.pass));
+    glUniform1ui(gather_.uniform("pass_in_epoch"), GLuint(pass_in_epoch_));
+    glUniform1ui(gather_.uniform("seed"), settings_.seed);
+    glUniform1ui(gather_.uniform("light_samples"), GLuint(std::max(1, settings_.light_samples)));
+    glUniform3fv(gather_.uniform("background"), 1, &settings_.background.x);
+    glUniform1f(gather_.uniform("far"), far);
+    glUniform2ui(gather_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
+    glUniform1ui(gather_.uniform("emitter_count"), emitter_count_);
+    glUniform1ui(gather_.uniform("punctual_count"), punctual_count_);
+    gather_.dispatch_1d(covered_count_);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+
+    ++pass_in_epoch_;
+    const bool end_epoch = settings_.scheme == RadiosityScheme::DoublingEpochs && pass_in_epoch_ == epoch_length_;
+    resolve_.use();
+    glUniform1ui(resolve_.uniform("covered_count"), GLuint(covered_count_));
+    glUniform1ui(resolve_.uniform("end_epoch"), end_epoch ? 1u : 0u);
+    glUniform1f(resolve_.uniform("converged_error"), float(settings_.converged_texel_error));
+    glUniform1ui(resolve_.uniform("min_samples"), 16u);
+    glUniform2ui(resolve_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
+    resolve_.dispatch_1d(covered_count_);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+
+    copy_.use();
+    glUniform1ui(copy_.uniform("pair_count"), GLuint(dilation_.size()));
+    copy_.dispatch_1d(dilation_.size());
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+
+    // Totals of the error estimate; reading them back also waits for the pass.
+    const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();
+    double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0;
+    for (const glm::vec4& p : partials) {
+        variance += p.x;
+        level += p.y;
+        active_next += p.z;
+        covered += p.w;
+    }
+    // Rays of this pass: every texel that was active when it began.
+    stats_.rays += rays_per_texel_ * uint64_t(active_texels_);
+    active_texels_ = size_t(active_next);
+    if (end_epoch) {
+        pass_in_epoch_ = 0;
+        epoch_length_ = stats_.pass + 1;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
+    }
+    ++stats_.pass;
+    stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    stats_.error_estimate = level > 0.0 ? std::sqrt(variance / covered) / (level / covered) : 0.0;
+    return stats_;
+}
+
+FloatImage RadiosityMapBaker::snapshot() const {
+    const std::vector<glm::vec4> acc = accumulators_.read<glm::vec4>();
+    FloatImage image;
+    image.width = width_;
+    image.height = height_;
+    std::vector<float>* rgb[3] = {&image.channel("R"), &image.channel("G"), &image.channel("B")};
+    std::vector<float>* direct[3] = {&image.channel("direct.R"), &image.channel("direct.G"), &image.channel("direct.B")};
+    std::vector<float>* indirect[3] = {&image.channel("indirect.R"), &image.channel("indirect.G"),
+                                       &image.channel("indirect.B")};
+    std::vector<float>& samples = image.channel("samples");
+    std::vector<float>& error = image.channel("error");
+    for (size_t i = 0; i < covered_count_; ++i) {
+        const glm::vec4 d = acc[kAccumulatorVec4s * i], moments = acc[kAccumulatorVec4s * i + 1];
+        const glm::vec4 cur = acc[kAccumulatorVec4s * i + 2], prev = acc[kAccumulatorVec4s * i + 3];
+        const glm::vec3 direct_mean = d.w > 0.0f ? glm::vec3(d) / d.w : glm::vec3(0.0f);
+        // The indirect estimate with more samples behind it: the running
+        // epoch once it has caught up with the previous one.
+        const bool use_current = cur.w > 0.0f && cur.w >= prev.w;
+        const glm::vec3 ind = use_current ? glm::vec3(cur) / cur.w : glm::vec3(prev);
+        const float n = use_current ? cur.w : prev.w;
+        auto var_of_mean = [](float sum, float sum_sq, float count) {
+            if (count < 2.0f) return 0.0f;
+            const float mean = sum / count;
+            return std::max(0.0f, sum_sq / count - mean * mean) / (count - 1.0f);
+        };
+        const float var = var_of_mean(channel_mean(glm::vec3(d)), moments.x, d.w) +
+                          (use_current ? var_of_mean(channel_mean(glm::vec3(cur)), moments.y, cur.w) : moments.z);
+        const size_t a = covered_atlas_index_[i];
+        for (int c = 0; c < 3; ++c) {
+            (*rgb[c])[a] = direct_mean[c] + ind[c];
+            (*direct[c])[a] = direct_mean[c];
+            (*indirect[c])[a] = ind[c];
+        }
+        samples[a] = n;
+        error[a] = std::sqrt(var);
+    }
+    for (auto& [name, data] : image.channels)
+        for (const auto& [to, from] : dilation_) data[to] = data[from];
+    image.number_attributes["lightfarm.pass"] = stats_.pass;
+    image.number_attributes["lightfarm.rays"] = double(stats_.rays);
+    image.number_attributes["lightfarm.seconds"] = stats_.seconds;
+    image.number_attributes["lightfarm.errorEstimate"] = stats_.error_estimate;
+    image.string_attributes["lightfarm.scheme"] = to_string(settings_.scheme);
+    return image;
+}
+
+}  // namespace lf

@@ -1,0 +1,89 @@
+// Radiosity maps (Moreno-Fortuny 2005): a lightmap atlas whose texels gather
+// direct light by shadow rays to the emitters and indirect light by
+// cosine-distributed rays that read the current radiosity map, pass by pass.
+#pragma once
+
+#include "atlas/texel_samples.h"
+#include "bake/progressive.h"
+#include "gpu/shader.h"
+#include "io/image_files.h"
+#include "scene/scene.h"
+#include "trace/tracer.h"
+
+#include <glm/glm.hpp>
+
+#include <string>
+#include <vector>
+
+namespace lf {
+
+// How the indirect estimate is refined from pass to pass.
+enum class RadiosityScheme {
+    // The thesis's single-sample transport (eq. 3.14-3.15): one running
+    // average of every indirect sample, each read from the solution as it
+    // was. Early samples saw a dark scene, so bounce k is weighted by
+    // kappa_k < 1 (eq. 3.17-3.18): biased at any finite pass count.
+    Thesis,
+    // Doubling epochs (passes 1 | 2 | 3-4 | 5-8 | …): the indirect average
+    // restarts at each epoch, from a solution that already holds the previous
+    // epochs' bounces, so old dark samples are dropped and the bias falls
+    // geometrically with the epoch count instead of like 1/passes.
+    DoublingEpochs,
+};
+
+const char* to_string(RadiosityScheme scheme);
+RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "thesis" | "epochs"
+
+struct RadiosityMapSettings {
+    RadiosityScheme scheme = RadiosityScheme::DoublingEpochs;
+    int light_samples = 1;          // emitter samples per texel per pass
+    uint32_t seed = 1;
+    glm::vec3 background{0.0f};     // radiance of escaping rays (W/(sr·m²))
+    // > 0: a texel whose own relative standard error falls below this stops
+    // tracing (adaptive sampling); set from the bake's target error.
+    double converged_texel_error = 0.0;
+};
+
+class RadiosityMapBaker : public ProgressiveMethod {
+public:
+    // The scene must carry lightmap UVs (uv1) matching `texels`. The tracer
+    // is shared: one BVH for every method of a bake.
+    RadiosityMapBaker(const Scene& scene, const TexelSamples& texels, const Tracer& tracer,
+                      const RadiosityMapSettings& settings);
+
+    PassStats step() override;
+
+    // The current lightmap: RGB = combined, direct.* and indirect.* layers,
+    // "samples" (indirect samples behind the value), "error" (standard error
+    // of the texel's value); dilated past chart borders. Uncovered texels are 0.
+    FloatImage snapshot() const;
+
+    size_t covered_texels() const { return covered_count_; }
+
+private:
+    void upload_scene(const Scene& scene);
+    void upload_texels(const TexelSamples& texels);
+    void relocate_samples_inside_geometry(size_t sample_count);
+
+    const Tracer& tracer_;
+    RadiosityMapSettings settings_;
+    int width_ = 0, height_ = 0;
+    size_t covered_count_ = 0;
+    uint32_t punctual_count_ = 0, emitter_count_ = 0;
+    std::vector<uint32_t> covered_atlas_index_;
+    std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices
+
+    ComputeProgram gather_{"radiosity_gather.comp"};
+    ComputeProgram resolve_{"radiosity_resolve.comp"};
+    ComputeProgram copy_{"copy_texels.comp"};
+    GpuBuffer sample_points_, covered_, accumulators_, reflected_, surface_triangles_;
+    GpuBuffer emitters_, punctual_lights_, error_partials_, dilation_pairs_;
+
+    PassStats stats_;
+    int pass_in_epoch_ = 0;
+    int epoch_length_ = 1;
+    uint64_t rays_per_texel_ = 0;
+    size_t active_texels_ = 0;  // texels the next pass traces for
+};
+
+}  // namespace lf

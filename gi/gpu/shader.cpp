@@ -1,0 +1,168 @@
+#include "gpu/shader.h"
+
+#include "gpu/context.h"
+#include "gpu/embedded_shaders.h"
+
+#include <algorithm>
+#include <map>
+#include <regex>
+#include <set>
+#include <sstream>
+
+namespace lf {
+
+namespace {
+
+const std::string& embedded_source(const std::string& name, const std::string& included_from) {
+    static std::map<std::string, std::string> cache;
+    auto cached = cache.find(name);
+    if (cached != cache.end()) return cached->second;
+    const auto& all = embedded_shaders();
+    auto it = all.find(name);
+    if (it == all.end())
+        throw GpuError("shader '" + name + "' not found among the embedded shaders" +
+                       (included_from.empty() ? "" : " (included from " + included_from + ")"));
+    return cache.emplace(name, std::string(it->second)).first->second;
+}
+
+void append_with_includes(const std::string& name, const std::string& from, std::string& out,
+                          std::vector<std::string>& files, std::set<std::string>& seen) {
+    if (!seen.insert(name).second) return;  // each file once: includes act as if guarded
+    const std::string& text = embedded_source(name, from);
+    const size_t file_number = files.size();
+    files.push_back(name);
+    static const std::regex include_re(R"(^\s*#\s*include\s+"([^"]+)\"\s*$)");
+    std::istringstream lines(text);
+    std::string line;
+    int line_number = 0;
+    if (file_number > 0) out += "#line 1 " + std::to_string(file_number) + "\n";
+    while (std::getline(lines, line)) {
+        ++line_number;
+        std::smatch m;
+        if (std::regex_match(line, m, include_re)) {
+            append_with_includes(m[1], name, out, files, seen);
+            out += "#line " + std::to_string(line_number + 1) + " " + std::to_string(file_number) + "\n";
+        } else {
+            out += line;
+            out += '\n';
+        }
+    }
+}
+
+// Turns the driver's "N:LINE(COL)" / "N(LINE)" prefixes into a readable
+// listing of which number is which file.
+std::string file_legend(const std::vector<std::string>& files) {
+    std::string s = " [source numbers:";
+    for (size_t i = 0; i < files.size(); ++i) s += " " + std::to_string(i) + "=" + files[i];
+    return s + "]";
+}
+
+}  // namespace
+
+std::pair<std::string, std::vector<std::string>> assemble_shader_source(
+    const std::string& name, const std::vector<std::pair<std::string, std::string>>& defines) {
+    std::string body;
+    std::vector<std::string> files;
+    std::set<std::string> seen;
+    append_with_includes(name, "", body, files, seen);
+    // The #version line must come first; defines go right after it.
+    std::string version = "#version 450 core\n";
+    const size_t v = body.find("#version");
+    if (v != std::string::npos) {
+        const size_t end = body.find('\n', v);
+        version = body.substr(v, end - v + 1);
+        body.erase(v, end - v + 1);
+    }
+    std::string out = version;
+    for (const auto& [key, value] : defines) out += "#define " + key + " " + value + "\n";
+    out += "#line 1 0\n" + body;
+    return {out, files};
+}
+
+ComputeProgram::ComputeProgram(const std::string& name,
+                               const std::vector<std::pair<std::string, std::string>>& defines)
+    : name_(name) {
+    auto [source, files] = assemble_shader_source(name, defines);
+    GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
+    const char* text = source.c_str();
+    glShaderSource(shader, 1, &text, nullptr);
+    glCompileShader(shader);
+    GLint ok = 0;
+    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        GLint length = 0;
+        glGetShaderiv(shader, GL_INFO_LOG_LENGTH, &length);
+        std::string log(size_t(std::max(length, 1)), '\0');
+        glGetShaderInfoLog(shader, length, nullptr, log.data());
+        glDeleteShader(shader);
+        throw GpuError("compiling " + name + " failed" + file_legend(files) + ": " + log.c_str());
+    }
+    id_ = glCreateProgram();
+    glAttachShader(id_, shader);
+    glLinkProgram(id_);
+    glDeleteShader(shader);
+    glGetProgramiv(id_, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        GLint length = 0;
+        glGetProgramiv(id_, GL_INFO_LOG_LENGTH, &length);
+        std::string log(size_t(std::max(length, 1)), '\0');
+        glGetProgramInfoLog(id_, length, nullptr, log.data());
+        glDeleteProgram(id_);
+        id_ = 0;
+        throw GpuError("linking " + name + " failed: " + log.c_str());
+    }
+    GLint size[3] = {1, 1, 1};
+    glGetProgramiv(id_, GL_COMPUTE_WORK_GROUP_SIZE, size);
+    local_size_x_ = size[0];
+}
+
+ComputeProgram::~ComputeProgram() {
+    if (id_) glDeleteProgram(id_);
+}
+
+void ComputeProgram::dispatch_1d(size_t n) const {
+    if (n == 0) return;
+    const size_t groups = (n + size_t(local_size_x_) - 1) / size_t(local_size_x_);
+    // GL guarantees at least 65535 groups per dimension; spill into y beyond that.
+    const size_t max_x = 65535;
+    const GLuint gx = GLuint(std::min(groups, max_x));
+    const GLuint gy = GLuint((groups + max_x - 1) / max_x);
+    glDispatchCompute(gx, gy, 1);
+    check_gl(name_.c_str());
+}
+
+GpuBuffer::GpuBuffer(size_t bytes, const void* data) : bytes_(bytes) {
+    glCreateBuffers(1, &id_);
+    // Zero-sized SSBOs are not allowed; keep a 16-byte minimum so empty inputs still bind.
+    glNamedBufferStorage(id_, GLsizeiptr(std::max<size_t>(bytes, 16)), bytes ? data : nullptr,
+                         GL_DYNAMIC_STORAGE_BIT);
+    check_gl("allocating a GPU buffer");
+}
+
+GpuBuffer::~GpuBuffer() {
+    if (id_) glDeleteBuffers(1, &id_);
+}
+
+GpuBuffer& GpuBuffer::operator=(GpuBuffer&& o) noexcept {
+    if (this != &o) {
+        if (id_) glDeleteBuffers(1, &id_);
+        id_ = std::exchange(o.id_, 0);
+        bytes_ = std::exchange(o.bytes_, 0);
+    }
+    return *this;
+}
+
+void GpuBuffer::upload(const void* data, size_t bytes, size_t offset) {
+    glNamedBufferSubData(id_, GLintptr(offset), GLsizeiptr(bytes), data);
+}
+
+void GpuBuffer::download(void* data, size_t bytes, size_t offset) const {
+    glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    glGetNamedBufferSubData(id_, GLintptr(offset), GLsizeiptr(bytes), data);
+}
+
+void GpuBuffer::clear_zero() {
+    glClearNamedBufferData(id_, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, nullptr);
+}
+
+}  // namespace lf

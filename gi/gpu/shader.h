@@ -1,0 +1,76 @@
+// Compute programs built from the embedded GLSL files, and the GPU buffers
+// they read and write.
+#pragma once
+
+#include <epoxy/gl.h>
+
+#include <cstddef>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace lf {
+
+// Resolves `#include "name.glsl"` against the embedded shaders (each file at
+// most once) and inserts `#define`s after the #version line. Each file gets a
+// `#line 1 N` so the driver's messages can be mapped back to file names.
+// Returns the source and the file names in source-string-number order.
+std::pair<std::string, std::vector<std::string>> assemble_shader_source(
+    const std::string& name, const std::vector<std::pair<std::string, std::string>>& defines);
+
+class ComputeProgram {
+public:
+    // Compiles and links the embedded file `name`; a compile or link failure
+    // throws GpuError with the file name and the driver's log.
+    explicit ComputeProgram(const std::string& name,
+                            const std::vector<std::pair<std::string, std::string>>& defines = {});
+    ~ComputeProgram();
+    ComputeProgram(ComputeProgram&& other) noexcept : id_(std::exchange(other.id_, 0)), name_(std::move(other.name_)) {}
+    ComputeProgram(const ComputeProgram&) = delete;
+    ComputeProgram& operator=(const ComputeProgram&) = delete;
+
+    void use() const { glUseProgram(id_); }
+    GLint uniform(const char* name) const { return glGetUniformLocation(id_, name); }
+    // Dispatches ceil(n / local_size_x) groups in x, for 1D work of n items.
+    void dispatch_1d(size_t n) const;
+    GLuint id() const { return id_; }
+    const std::string& name() const { return name_; }
+
+private:
+    GLuint id_ = 0;
+    std::string name_;
+    GLint local_size_x_ = 1;
+};
+
+// A shader storage buffer that owns its GL name.
+class GpuBuffer {
+public:
+    GpuBuffer() = default;
+    explicit GpuBuffer(size_t bytes, const void* data = nullptr);
+    template <class T>
+    explicit GpuBuffer(const std::vector<T>& v) : GpuBuffer(v.size() * sizeof(T), v.data()) {}
+    ~GpuBuffer();
+    GpuBuffer(GpuBuffer&& o) noexcept : id_(std::exchange(o.id_, 0)), bytes_(std::exchange(o.bytes_, 0)) {}
+    GpuBuffer& operator=(GpuBuffer&& o) noexcept;
+    GpuBuffer(const GpuBuffer&) = delete;
+    GpuBuffer& operator=(const GpuBuffer&) = delete;
+
+    void bind(GLuint binding) const { glBindBufferBase(GL_SHADER_STORAGE_BUFFER, binding, id_); }
+    void upload(const void* data, size_t bytes, size_t offset = 0);
+    void download(void* data, size_t bytes, size_t offset = 0) const;
+    template <class T>
+    std::vector<T> read() const {
+        std::vector<T> v(bytes_ / sizeof(T));
+        download(v.data(), v.size() * sizeof(T));
+        return v;
+    }
+    void clear_zero();
+    size_t bytes() const { return bytes_; }
+    GLuint id() const { return id_; }
+
+private:
+    GLuint id_ = 0;
+    size_t bytes_ = 0;
+};
+
+}  // namespace lf

@@ -1,0 +1,81 @@
+#include "io/reference_error.h"
+
+#include <cmath>
+#include <stdexcept>
+
+namespace lf {
+
+FloatImage downsample(const FloatImage& image, int factor, bool is_mask) {
+    FloatImage out;
+    out.width = image.width / factor;
+    out.height = image.height / factor;
+    for (const auto& [name, data] : image.channels) {
+        std::vector<float>& d = out.channel(name);
+        for (int y = 0; y < out.height; ++y)
+            for (int x = 0; x < out.width; ++x) {
+                double sum = 0.0;
+                bool all = true;
+                for (int j = 0; j < factor; ++j)
+                    for (int i = 0; i < factor; ++i) {
+                        const float v = data[size_t(y * factor + j) * size_t(image.width) + size_t(x * factor + i)];
+                        sum += v;
+                        all = all && v > 0.5f;
+                    }
+                d[size_t(y) * size_t(out.width) + size_t(x)] =
+                    is_mask ? (all ? 1.0f : 0.0f) : float(sum / double(factor * factor));
+            }
+    }
+    return out;
+}
+
+ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& full_reference,
+                                    const FloatImage* full_mask) {
+    const int factor = bake.width > 0 ? full_reference.width / bake.width : 0;
+    FloatImage reduced_reference, reduced_mask;
+    const FloatImage* reference_ptr = &full_reference;
+    const FloatImage* mask = full_mask;
+    if (factor > 1 && bake.width * factor == full_reference.width && bake.height * factor == full_reference.height) {
+        reduced_reference = downsample(full_reference, factor, false);
+        reference_ptr = &reduced_reference;
+        if (full_mask) {
+            reduced_mask = downsample(*full_mask, factor, true);
+            mask = &reduced_mask;
+        }
+    }
+    const FloatImage& reference = *reference_ptr;
+    if (bake.width != reference.width || bake.height != reference.height)
+        throw std::runtime_error("the bake is " + std::to_string(bake.width) + "x" + std::to_string(bake.height) +
+                                 " but the reference is " + std::to_string(reference.width) + "x" +
+                                 std::to_string(reference.height));
+    if (mask && (mask->width != bake.width || mask->height != bake.height))
+        throw std::runtime_error("the mask's size differs from the bake's");
+    const char* names[3] = {"R", "G", "B"};
+    const std::vector<float>* mask_channel = mask ? &mask->channels.begin()->second : nullptr;
+    double sum_sq = 0.0, sum_bake = 0.0, sum_ref = 0.0;
+    size_t texels = 0;
+    for (size_t i = 0; i < size_t(bake.width) * size_t(bake.height); ++i) {
+        if (mask_channel) {
+            if (!((*mask_channel)[i] > 0.5f)) continue;
+        } else if (reference.at("R")[i] == 0.0f && reference.at("G")[i] == 0.0f && reference.at("B")[i] == 0.0f) {
+            continue;
+        }
+        ++texels;
+        for (const char* c : names) {
+            const double b = bake.at(c)[i], r = reference.at(c)[i];
+            sum_sq += (b - r) * (b - r);
+            sum_bake += b;
+            sum_ref += r;
+        }
+    }
+    ReferenceError e;
+    e.texels = texels;
+    if (texels == 0) return e;
+    const double n = 3.0 * double(texels);
+    e.rmse = std::sqrt(sum_sq / n);
+    e.reference_mean = sum_ref / n;
+    e.relative_rmse = e.reference_mean > 0.0 ? e.rmse / e.reference_mean : 0.0;
+    e.bias = sum_ref > 0.0 ? sum_bake / sum_ref - 1.0 : 0.0;
+    return e;
+}
+
+}  // namespace lf

@@ -1,0 +1,29 @@
+// Error of a lightmap against a reference (DESIGN.md "Conventions"): RMSE over
+// the covered texels and the three channels, relative to the reference's mean
+// there; bias = mean / reference mean - 1. The same definition as the Cycles
+// reference figures in shared/scenes/SOURCES.md, so numbers compare directly.
+#pragma once
+
+#include "io/image_files.h"
+
+namespace lf {
+
+struct ReferenceError {
+    double rmse = 0.0;
+    double relative_rmse = 0.0;
+    double bias = 0.0;          // mean / reference mean - 1
+    double reference_mean = 0.0;
+    size_t texels = 0;          // texels compared
+};
+
+// `mask`: texels with a first channel > 0.5 are compared; no mask means every
+// texel whose reference is non-zero. A reference (and mask) k times larger
+// than the bake in both directions is box-filtered down first, a texel
+// counting only when all k² texels under it are in the mask: the same atlas
+// baked at 64² compares with a 256² reference.
+// Box-filters `image` by an integer factor; a channel "Y" or the first
+// channel of a mask image keeps 1 only where every source texel was > 0.5.
+FloatImage downsample(const FloatImage& image, int factor, bool is_mask);
+ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& reference, const FloatImage* mask);
+
+}  // namespace lf

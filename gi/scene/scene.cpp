@@ -1,0 +1,87 @@
+#include "scene/scene.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lf {
+
+glm::vec4 Texture::sample(glm::vec2 uv) const {
+    if (width <= 0 || height <= 0 || texels.empty()) return glm::vec4(1.0f);
+    // A NaN or huge coordinate must not reach an int conversion (undefined
+    // behaviour); wrapping to [0,1) first in double keeps REPEAT exact.
+    if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) return fetch(0, 0);
+    double u = double(uv.x) - std::floor(double(uv.x));
+    double v = double(uv.y) - std::floor(double(uv.y));
+
+    // Texel centres sit at half-integers: texel x covers [x, x+1) / width.
+    double x = u * width - 0.5;
+    double y = v * height - 0.5;
+    double x0f = std::floor(x);
+    double y0f = std::floor(y);
+    float fx = float(x - x0f);
+    float fy = float(y - y0f);
+    auto wrap = [](int i, int n) { return ((i % n) + n) % n; };
+    int x0 = wrap(int(x0f), width);
+    int y0 = wrap(int(y0f), height);
+    int x1 = wrap(x0 + 1, width);
+    int y1 = wrap(y0 + 1, height);
+
+    glm::vec4 top = glm::mix(fetch(x0, y0), fetch(x1, y0), fx);
+    glm::vec4 bottom = glm::mix(fetch(x0, y1), fetch(x1, y1), fx);
+    return glm::mix(top, bottom, fy);
+}
+
+bool Scene::all_have_lightmap_uvs() const {
+    // An empty scene has nothing to bake into, so it does not count as "has UVs".
+    return !instances.empty() &&
+           std::all_of(instances.begin(), instances.end(), [](const PrimitiveInstance& i) { return i.has_uv1; });
+}
+
+size_t Scene::emissive_triangle_count() const {
+    return size_t(std::count_if(triangle_material.begin(), triangle_material.end(),
+                                [&](uint32_t m) { return materials[m].is_emissive(); }));
+}
+
+float Scene::triangle_area(size_t t) const {
+    const glm::uvec3& tri = triangles[t];
+    glm::vec3 e1 = positions[tri.y] - positions[tri.x];
+    glm::vec3 e2 = positions[tri.z] - positions[tri.x];
+    return 0.5f * glm::length(glm::cross(e1, e2));
+}
+
+glm::vec3 Scene::geometric_normal(size_t t) const {
+    const glm::uvec3& tri = triangles[t];
+    glm::vec3 n = glm::cross(positions[tri.y] - positions[tri.x], positions[tri.z] - positions[tri.x]);
+    float len = glm::length(n);
+    if (!(len > 0.0f) || !std::isfinite(len)) return glm::vec3(0.0f);
+    return n / len;
+}
+
+namespace {
+
+glm::vec2 interpolate_uv0(const Scene& scene, size_t t, glm::vec2 bary) {
+    const glm::uvec3& tri = scene.triangles[t];
+    float b0 = 1.0f - bary.x - bary.y;
+    return b0 * scene.uv0[tri.x] + bary.x * scene.uv0[tri.y] + bary.y * scene.uv0[tri.z];
+}
+
+}  // namespace
+
+glm::vec3 Scene::albedo_at(size_t t, glm::vec2 bary) const {
+    const Material& m = materials[triangle_material[t]];
+    glm::vec3 albedo(m.base_color);
+    if (m.base_color_texture >= 0)
+        albedo *= glm::vec3(textures[size_t(m.base_color_texture)].sample(interpolate_uv0(*this, t, bary)));
+    return albedo;
+}
+
+glm::vec3 Scene::emission_at(size_t t, glm::vec2 bary) const {
+    const Material& m = materials[triangle_material[t]];
+    if (!m.is_emissive()) return glm::vec3(0.0f);
+    glm::vec3 emission = m.emission;
+    if (m.emissive_texture >= 0)
+        emission *= glm::vec3(textures[size_t(m.emissive_texture)].sample(interpolate_uv0(*this, t, bary)));
+    return emission;
+}
+
+}  // namespace lf

@@ -1,0 +1,123 @@
+// The Scene: only what a bake needs, in world space (DESIGN.md "Data flow").
+//
+// Units: metres; radiance W/(sr·m²), linear RGB. Every primitive of every node
+// instance is flattened into shared vertex/triangle arrays; `instances` maps
+// the flattened ranges back to glTF nodes, meshes, primitives and vertices so
+// writers can add attributes (TEXCOORD_1, SH transfer) to the original file.
+#pragma once
+
+#include <glm/glm.hpp>
+
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace lf {
+
+struct Bounds {
+    glm::vec3 lo{std::numeric_limits<float>::max()};
+    glm::vec3 hi{-std::numeric_limits<float>::max()};
+    void extend(const glm::vec3& p) { lo = glm::min(lo, p); hi = glm::max(hi, p); }
+    void extend(const Bounds& b) { lo = glm::min(lo, b.lo); hi = glm::max(hi, b.hi); }
+    bool empty() const { return lo.x > hi.x; }
+    glm::vec3 centre() const { return 0.5f * (lo + hi); }
+    glm::vec3 extent() const { return empty() ? glm::vec3(0.0f) : hi - lo; }
+    float surface_area() const {
+        glm::vec3 d = extent();
+        return 2.0f * (d.x * d.y + d.y * d.z + d.z * d.x);
+    }
+};
+
+// A decoded texture in linear RGBA float (sRGB already decoded for colour
+// textures), row 0 at the top as in the image file.
+struct Texture {
+    std::string name;
+    int width = 0;
+    int height = 0;
+    std::vector<glm::vec4> texels;
+    glm::vec4 fetch(int x, int y) const { return texels[size_t(y) * size_t(width) + size_t(x)]; }
+    // Bilinear lookup with glTF's default REPEAT wrapping; uv (0,0) is the top-left corner.
+    glm::vec4 sample(glm::vec2 uv) const;
+};
+
+struct Material {
+    std::string name;
+    glm::vec4 base_color{1.0f};   // linear, multiplied by the texture
+    int base_color_texture = -1;  // index into Scene::textures, sampled with TEXCOORD_0
+    // Emitted radiance in W/(sr·m²): emissiveFactor x KHR_materials_emissive_strength.
+    glm::vec3 emission{0.0f};
+    int emissive_texture = -1;    // index into Scene::textures, sampled with TEXCOORD_0
+    bool double_sided = false;    // emits (and receives) on both sides
+    bool is_emissive() const { return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f; }
+};
+
+// KHR_lights_punctual, read radiometrically (DESIGN.md "Conventions").
+struct PunctualLight {
+    enum class Type { Point, Spot, Directional };
+    Type type = Type::Point;
+    std::string name;
+    glm::vec3 position{0.0f};             // world space (point, spot)
+    glm::vec3 direction{0.0f, 0.0f, -1.0f}; // world space, the way light travels (spot, directional)
+    // Point/spot: radiant intensity in W/sr; directional: irradiance in W/m².
+    glm::vec3 intensity{0.0f};
+    float range = 0.0f;                   // 0 = infinite
+    float inner_cone = 0.0f;              // radians (spot)
+    float outer_cone = 0.785398163f;      // radians (spot), glTF default pi/4
+};
+
+// One glTF primitive as placed by one node: its slice of the flattened arrays.
+struct PrimitiveInstance {
+    int node = -1;
+    int mesh = -1;
+    int primitive = -1;
+    uint32_t first_vertex = 0;   // into Scene::positions etc.
+    uint32_t vertex_count = 0;   // vertex k of the glTF primitive is first_vertex + k (see Scene::source_vertex once an atlas split vertices)
+    uint32_t first_triangle = 0; // into Scene::triangles
+    uint32_t triangle_count = 0;
+    bool has_uv1 = false;        // the glTF primitive had TEXCOORD_1
+    bool mirrored = false;       // the node transform has negative determinant
+};
+
+struct Scene {
+    std::string source;  // file the scene was loaded from, for messages
+
+    // Per-vertex, world space.
+    std::vector<glm::vec3> positions;
+    std::vector<glm::vec3> normals;  // unit length; area-weighted when the file had none
+    std::vector<glm::vec2> uv0;      // TEXCOORD_0, or zero
+    std::vector<glm::vec2> uv1;      // TEXCOORD_1 (lightmap UVs), or zero
+    // Per-vertex: the index of the vertex within its glTF primitive. Empty
+    // means identity (vertex v of instance i is glTF vertex v - first_vertex).
+    // A generated atlas splits vertices that lie on a chart border into one
+    // copy per chart; the copies stay inside their instance's range and map
+    // back to the glTF vertex they were copied from.
+    std::vector<uint32_t> source_vertex;
+
+    // Per-triangle: vertex indices (counter-clockwise = front, mirroring
+    // already undone) and material index.
+    std::vector<glm::uvec3> triangles;
+    std::vector<uint32_t> triangle_material;
+
+    std::vector<PrimitiveInstance> instances;
+    std::vector<Material> materials;  // glTF materials, plus a default at the end if any primitive had none
+    std::vector<Texture> textures;    // decoded, indexed by materials
+    std::vector<PunctualLight> lights;
+
+    Bounds bounds;
+    // Things the user should know that do not make the file invalid
+    // ("no light source", "no geometry with area", ignored extensions).
+    std::vector<std::string> warnings;
+
+    size_t triangle_count() const { return triangles.size(); }
+    bool all_have_lightmap_uvs() const;
+    size_t emissive_triangle_count() const;
+    // Area of triangle t (world space).
+    float triangle_area(size_t t) const;
+    glm::vec3 geometric_normal(size_t t) const;  // unit; zero for a degenerate triangle
+    // Albedo and emission of triangle t at barycentrics (b1, b2), textures included.
+    glm::vec3 albedo_at(size_t t, glm::vec2 bary) const;
+    glm::vec3 emission_at(size_t t, glm::vec2 bary) const;
+};
+
+}  // namespace lf

@@ -1,0 +1,88 @@
+#include "scene/scene_summary.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <set>
+#include <sstream>
+
+namespace lf {
+
+nlohmann::json summarize(const Scene& scene) {
+    std::set<int> meshes;
+    size_t with_uv1 = 0;
+    for (const PrimitiveInstance& inst : scene.instances) {
+        meshes.insert(inst.mesh);
+        with_uv1 += inst.has_uv1 ? 1 : 0;
+    }
+    size_t point = 0, spot = 0, directional = 0;
+    for (const PunctualLight& light : scene.lights) {
+        switch (light.type) {
+            case PunctualLight::Type::Point: ++point; break;
+            case PunctualLight::Type::Spot: ++spot; break;
+            case PunctualLight::Type::Directional: ++directional; break;
+        }
+    }
+    int largest = 0;
+    for (const Texture& t : scene.textures) largest = std::max({largest, t.width, t.height});
+    double area = 0.0;
+    for (size_t t = 0; t < scene.triangles.size(); ++t) area += scene.triangle_area(t);
+
+    nlohmann::json bounds = nullptr;
+    if (!scene.bounds.empty()) {
+        const Bounds& b = scene.bounds;
+        bounds = {{"lo", {b.lo.x, b.lo.y, b.lo.z}}, {"hi", {b.hi.x, b.hi.y, b.hi.z}}};
+    }
+    return {
+        {"source", scene.source},
+        {"triangles", scene.triangles.size()},
+        {"vertices", scene.positions.size()},
+        {"meshes", meshes.size()},
+        {"primitive_instances", scene.instances.size()},
+        {"materials", scene.materials.size()},
+        {"emissive_triangles", scene.emissive_triangle_count()},
+        {"punctual_lights", {{"point", point}, {"spot", spot}, {"directional", directional}}},
+        {"textures", {{"count", scene.textures.size()}, {"largest_dimension", largest}}},
+        {"lightmap_uvs", {{"all_primitives", scene.all_have_lightmap_uvs()}, {"primitives_with_texcoord_1", with_uv1}}},
+        {"bounds", bounds},
+        {"surface_area", area},
+        {"warnings", scene.warnings},
+    };
+}
+
+std::string format_summary(const Scene& scene) {
+    const nlohmann::json s = summarize(scene);
+    std::ostringstream out;
+    char line[256];
+    out << "scene:        " << scene.source << "\n";
+    out << "geometry:     " << s["triangles"] << " triangles, " << s["vertices"] << " vertices in "
+        << s["primitive_instances"] << " primitive instances of " << s["meshes"] << " meshes\n";
+    out << "materials:    " << s["materials"] << " (" << s["emissive_triangles"] << " emissive triangles)\n";
+    const nlohmann::json& lights = s["punctual_lights"];
+    out << "lights:       " << lights["point"] << " point, " << lights["spot"] << " spot, " << lights["directional"]
+        << " directional\n";
+    out << "textures:     " << s["textures"]["count"];
+    if (s["textures"]["count"].get<size_t>() > 0) out << ", largest " << s["textures"]["largest_dimension"] << " px";
+    out << "\n";
+    const nlohmann::json& uvs = s["lightmap_uvs"];
+    out << "lightmap UVs: TEXCOORD_1 on " << uvs["primitives_with_texcoord_1"] << " of " << s["primitive_instances"]
+        << " primitive instances" << (uvs["all_primitives"].get<bool>() ? " (all: kept)" : " (atlas will be generated)")
+        << "\n";
+    if (!scene.bounds.empty()) {
+        const Bounds& b = scene.bounds;
+        const glm::vec3 e = b.extent();
+        std::snprintf(line, sizeof line, "bounds:       (%.3g, %.3g, %.3g) .. (%.3g, %.3g, %.3g) m, size %.3g x %.3g x %.3g m\n",
+                      b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z, e.x, e.y, e.z);
+        out << line;
+    }
+    std::snprintf(line, sizeof line, "surface area: %.4g m²\n", s["surface_area"].get<double>());
+    out << line;
+    if (scene.warnings.empty()) {
+        out << "warnings:     none\n";
+    } else {
+        out << "warnings:\n";
+        for (const std::string& w : scene.warnings) out << "  - " << w << "\n";
+    }
+    return out.str();
+}
+
+}  // namespace lf

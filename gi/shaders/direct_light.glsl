@@ -1,0 +1,112 @@
+// Direct light at a surface point (thesis §3.3): shadow rays to points
+// sampled on the emissive triangles, and exact punctual lights.
+// Returns irradiance E (W/m²); callers divide by pi for a lightmap value.
+#ifndef LF_DIRECT_LIGHT_GLSL
+#define LF_DIRECT_LIGHT_GLSL
+
+#include "random.glsl"
+#include "sampling.glsl"
+#include "trace.glsl"
+
+// Emissive triangle e: (v0, cdf), (v1, pdf of choosing it), (v2, area), (radiance, double-sided flag).
+layout(std430, binding = 7) readonly buffer Emitters { vec4 emitters[]; };
+// Punctual light l: (position, type), (direction of travel, range), (intensity rgb, cos inner), (cos outer, 0, 0, 0).
+layout(std430, binding = 8) readonly buffer PunctualLights { vec4 punctual_lights[]; };
+
+uniform uint emitter_count;
+uniform uint punctual_count;
+
+const uint LIGHT_POINT = 0u;
+const uint LIGHT_SPOT = 1u;
+const uint LIGHT_DIRECTIONAL = 2u;
+
+// Picks emitter e with probability pdf_e by inverting the power CDF.
+uint choose_emitter(float u) {
+    uint lo = 0u, hi = emitter_count - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (emitters[4u * mid].w < u) lo = mid + 1u; else hi = mid;
+    }
+    return lo;
+}
+
+// Multiple importance sampling (Veach 1997, balance heuristic) of the
+// emitters' light: `light_samples` points chosen on the emitters (eq. 3.12,
+// area sampling of a power-chosen triangle) and the indirect pass's one
+// cosine-distributed ray, which may land on an emitter too. Each strategy's
+// sample of E = ∫ Le cos dω is weighted by 1 / (n_l p_l + p_b), both
+// densities over solid angle; neither alone is robust (area sampling fails
+// next to large emitters, cosine rays on small ones).
+float mis_weight(float pdf_light_solid_angle, float pdf_cosine, float light_samples) {
+    return 1.0 / (light_samples * pdf_light_solid_angle + pdf_cosine);
+}
+
+// Solid-angle density of emitter sampling for a direction that meets an
+// emitter at distance² dist2 with cosine cos_y there.
+float light_pdf_solid_angle(float area_pdf, float dist2, float cos_y) {
+    return cos_y > 0.0 ? area_pdf * dist2 / cos_y : 0.0;
+}
+
+// One emitter sample's MIS-weighted contribution to E at x.
+vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, float light_samples) {
+    if (emitter_count == 0u) return vec3(0.0);
+    uint e = choose_emitter(u_choose.x);
+    vec4 a = emitters[4u * e], b = emitters[4u * e + 1u], c = emitters[4u * e + 2u], le = emitters[4u * e + 3u];
+    vec2 bary = sample_triangle(u_point);
+    vec3 y = (1.0 - bary.x - bary.y) * a.xyz + bary.x * b.xyz + bary.y * c.xyz;
+    vec3 ny = normalize(cross(b.xyz - a.xyz, c.xyz - a.xyz));
+    vec3 d = y - x;
+    float dist2 = dot(d, d);
+    if (dist2 <= 0.0) return vec3(0.0);
+    vec3 w = d * inversesqrt(dist2);
+    float cos_x = dot(n, w);
+    float cos_y = -dot(ny, w);
+    if (le.w == 0.0 && cos_y <= 0.0) return vec3(0.0);  // one-sided emitters light their front only
+    cos_y = abs(cos_y);
+    if (cos_x <= 0.0 || cos_y <= 0.0) return vec3(0.0);
+    float pdf_light = light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
+    // Stop just short of the light's surface so the light does not occlude itself.
+    if (trace_occluded(origin, y - origin, 0.9999)) return vec3(0.0);
+    return le.rgb * cos_x * mis_weight(pdf_light, cos_x / PI, light_samples);
+}
+
+// glTF's recommended spot falloff (KHR_lights_punctual): smooth between the cones.
+float spot_attenuation(vec3 light_dir, vec3 to_point, float cos_inner, float cos_outer) {
+    float scale = 1.0 / max(0.001, cos_inner - cos_outer);
+    float t = clamp((dot(light_dir, to_point) - cos_outer) * scale, 0.0, 1.0);
+    return t * t;
+}
+
+// Irradiance from every punctual light, with a shadow ray each.
+vec3 punctual_irradiance(vec3 x, vec3 n, vec3 origin, float far) {
+    vec3 e = vec3(0.0);
+    for (uint l = 0u; l < punctual_count; ++l) {
+        vec4 p0 = punctual_lights[4u * l], p1 = punctual_lights[4u * l + 1u];
+        vec4 p2 = punctual_lights[4u * l + 2u], p3 = punctual_lights[4u * l + 3u];
+        uint type = uint(p0.w);
+        if (type == LIGHT_DIRECTIONAL) {
+            float cos_x = -dot(n, p1.xyz);
+            if (cos_x <= 0.0) continue;
+            if (trace_occluded(origin, -p1.xyz, far)) continue;
+            e += p2.rgb * cos_x;  // intensity is irradiance (W/m²) for directional lights
+            continue;
+        }
+        vec3 d = p0.xyz - x;
+        float dist2 = dot(d, d);
+        vec3 w = d * inversesqrt(dist2);
+        float cos_x = dot(n, w);
+        if (cos_x <= 0.0) continue;
+        float falloff = 1.0 / dist2;  // intensity is W/sr
+        if (p1.w > 0.0) {  // glTF's range window
+            float r = sqrt(dist2) / p1.w;
+            falloff *= pow(clamp(1.0 - r * r * r * r, 0.0, 1.0), 2.0);
+        }
+        if (type == LIGHT_SPOT) falloff *= spot_attenuation(p1.xyz, -w, p2.w, p3.x);
+        if (falloff <= 0.0) continue;
+        if (trace_occluded(origin, p0.xyz - origin, 1.0)) continue;
+        e += p2.rgb * cos_x * falloff;
+    }
+    return e;
+}
+
+#endif

@@ -1,0 +1,80 @@
+#version 450 core
+// One pass of the radiosity map (thesis §3.2-3.5): every covered texel
+// gathers direct light by shadow rays to the emitters and indirect light by
+// one cosine-distributed ray that reads the current radiosity map.
+layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
+
+#include "random.glsl"
+#include "sampling.glsl"
+#include "trace.glsl"
+#include "lightmap_lookup.glsl"
+#include "direct_light.glsl"
+#include "radiosity_texels.glsl"
+
+
+uniform uint pass;            // 0-based pass count since the bake began
+uniform uint pass_in_epoch;   // 0-based; the stratification restarts with each epoch
+uniform uint seed;
+uniform uint light_samples;   // emitter samples per texel per pass
+uniform vec3 background;      // radiance of rays that escape (W/(sr·m²))
+uniform float far;            // longer than any ray inside the scene
+
+void main() {
+    uint i = covered_index();
+    if (i >= covered_count) return;
+    vec4 flags = accumulators[5u * i + 1u];
+    if (flags.w != 0.0) return;  // converged: this texel costs no more rays
+
+    uvec4 texel = covered_texels[i];
+    Rng rng = rng_start(i, pass, seed);
+    // Cycle through the texel's sample points so the estimate averages its footprint.
+    uint s = texel.x + (pass + pcg_hash(i)) % texel.y;
+    vec3 x = sample_points[3u * s].xyz;
+    vec3 n = sample_points[3u * s + 1u].xyz;
+    vec3 ng = sample_points[3u * s + 2u].xyz;
+    vec3 origin = offset_ray_origin(x, ng);
+
+    // Direct: eq. 3.12 for the emitters (MIS with the indirect ray below),
+    // punctual lights exactly. Stored as E / pi.
+    vec3 direct = vec3(0.0);
+    for (uint k = 0u; k < light_samples; ++k)
+        direct += sample_emitters(x, n, origin, rng_next2(rng), rng_next2(rng), float(light_samples));
+    direct += punctual_irradiance(x, n, origin, far);
+
+    // Indirect: eq. 3.7, one cosine-distributed ray. The hit point's emission
+    // is left out (the direct term already counts it); what it reflects is
+    // albedo x its current lightmap value. Directions follow an R2 sequence
+    // (Roberts 2018) rotated per texel, stratified across the epoch's passes.
+    vec2 rotation = vec2(float(pcg_hash(i ^ seed)), float(pcg_hash(i * 7u + seed))) * (1.0 / 4294967296.0);
+    vec2 u = fract(rotation + float(pass_in_epoch) * vec2(0.7548776662, 0.5698402910));
+    vec3 dir = sample_cosine_hemisphere(n, u);
+    vec3 indirect;
+    if (dot(dir, ng) <= 0.0) {
+        indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
+    } else {
+        Hit hit = trace_closest(origin, dir, far);
+        if (hit.triangle == LF_NO_HIT) {
+            indirect = background;
+        } else if (hit.front || hit_is_double_sided(hit)) {
+            indirect = reflected_radiance_at(hit_lightmap_uv(hit));
+            // Landing on an emitter: its light, MIS-weighted against emitter sampling.
+            float area_pdf = hit_emitter_area_pdf(hit);
+            if (area_pdf > 0.0) {
+                float cos_x = dot(n, dir);
+                float cos_y = abs(dot(normalize(hit.normal), dir));
+                float pdf_light = light_pdf_solid_angle(area_pdf, hit.t * hit.t, cos_y);
+                direct += hit_emission(hit) * cos_x * mis_weight(pdf_light, cos_x / PI, float(light_samples));
+            }
+        } else {
+            indirect = vec3(0.0);  // the back of a one-sided surface is the inside of something
+        }
+    }
+    direct *= 1.0 / PI;
+
+    vec4 acc_direct = accumulators[5u * i];
+    vec4 acc_indirect = accumulators[5u * i + 2u];
+    float d = channel_mean(direct), g = channel_mean(indirect);
+    accumulators[5u * i] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
+    accumulators[5u * i + 1u] = vec4(flags.x + d * d, flags.y + g * g, flags.zw);
+    accumulators[5u * i + 2u] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
+}

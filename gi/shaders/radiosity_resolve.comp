@@ -1,0 +1,72 @@
+#version 450 core
+// After each pass: turn the accumulators into the lightmap value of every
+// covered texel, publish albedo x value as the reflected radiance that the
+// next pass's indirect rays read, and estimate the error.
+layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
+
+#include "lightmap_lookup.glsl"
+#include "radiosity_texels.glsl"
+
+
+// Per workgroup: (sum of the variance of the mean, sum of the value, active texels, covered texels).
+layout(std430, binding = 9) writeonly buffer ErrorPartials { vec4 error_partials[]; };
+
+uniform uint end_epoch;        // 1 after the last pass of an epoch: the current indirect estimate becomes "previous"
+uniform float converged_error; // > 0: texels whose relative standard error is below this stop tracing
+uniform uint min_samples;      // before which no texel is called converged
+
+shared vec4 partial[64];
+
+// Variance of the mean of n samples with the given sum and sum of squares.
+float variance_of_mean(float sum, float sum_sq, float n) {
+    if (n < 2.0) return 0.0;
+    float mean = sum / n;
+    return max(0.0, (sum_sq / n - mean * mean)) / (n - 1.0);
+}
+
+void main() {
+    uint i = covered_index();
+    vec4 contribution = vec4(0.0);
+    if (i < covered_count) {
+        vec4 direct = accumulators[5u * i];
+        vec4 moments = accumulators[5u * i + 1u];
+        vec4 current = accumulators[5u * i + 2u];
+        vec4 previous = accumulators[5u * i + 3u];
+        vec3 albedo = accumulators[5u * i + 4u].rgb;
+
+        float current_var = variance_of_mean(channel_mean(current.rgb), moments.y, current.w);
+        if (end_epoch != 0u && current.w > 0.0) {
+            // Restart the indirect estimate from this epoch's result (see RadiosityScheme).
+            previous = vec4(current.rgb / current.w, current.w);
+            moments.z = current_var;
+            current = vec4(0.0);
+            moments.y = 0.0;
+            accumulators[5u * i + 2u] = current;
+            accumulators[5u * i + 3u] = previous;
+        }
+        vec3 direct_mean = direct.w > 0.0 ? direct.rgb / direct.w : vec3(0.0);
+        // Indirect rays read the current epoch's estimate once it has samples.
+        bool use_current = current.w > 0.0;
+        vec3 indirect = use_current ? current.rgb / current.w : previous.rgb;
+        vec3 value = direct_mean + indirect;
+        reflected_radiance[covered_texels[i].z] = vec4(albedo * value, 1.0);
+
+        float var = variance_of_mean(channel_mean(direct.rgb), moments.x, direct.w) +
+                    (use_current ? variance_of_mean(channel_mean(current.rgb), moments.y, current.w) : moments.z);
+        float level = channel_mean(value);
+        bool converged = converged_error > 0.0 && direct.w >= float(min_samples) && level > 0.0 &&
+                         sqrt(var) < converged_error * level;
+        moments.w = converged ? 1.0 : 0.0;
+        accumulators[5u * i + 1u] = moments;
+        contribution = vec4(var, level, converged ? 0.0 : 1.0, 1.0);
+    }
+    partial[gl_LocalInvocationIndex] = contribution;
+    barrier();
+    for (uint stride = 32u; stride > 0u; stride >>= 1u) {
+        if (gl_LocalInvocationIndex < stride)
+            partial[gl_LocalInvocationIndex] += partial[gl_LocalInvocationIndex + stride];
+        barrier();
+    }
+    if (gl_LocalInvocationIndex == 0u)
+        error_partials[gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x] = partial[0];
+}

@@ -1,0 +1,31 @@
+// The per-texel state of a radiosity-map bake, shared by its passes.
+#ifndef LF_RADIOSITY_TEXELS_GLSL
+#define LF_RADIOSITY_TEXELS_GLSL
+
+// Sample points inside texel footprints: (position, world texel size),
+// (shading normal, 0), (geometric normal on the shading normal's side, 0).
+#ifndef LF_SAMPLE_POINTS_ACCESS
+#define LF_SAMPLE_POINTS_ACCESS readonly
+#endif
+layout(std430, binding = 2) LF_SAMPLE_POINTS_ACCESS buffer TexelSamplePoints { vec4 sample_points[]; };
+// Per covered texel: (first sample point, sample count, atlas index, 0).
+layout(std430, binding = 3) readonly buffer CoveredTexels { uvec4 covered_texels[]; };
+
+// Per covered texel, five vec4 of running sums (thesis Algorithm 4.1's
+// accumulators Eu_e, Eu_i, with second moments for the error estimate):
+//   [0] direct:   sum of E/pi samples (rgb), sample count
+//   [1] second moments (of the channel mean): direct, current indirect; previous epoch's variance of the mean; active flag
+//   [2] indirect, current epoch: sum (rgb), sample count
+//   [3] indirect, previous epoch: mean (rgb), sample count
+//   [4] albedo (rgb), 0
+layout(std430, binding = 4) buffer TexelAccumulators { vec4 accumulators[]; };
+
+uniform uint covered_count;
+
+uint covered_index() {
+    return gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+}
+
+float channel_mean(vec3 c) { return (c.r + c.g + c.b) * (1.0 / 3.0); }
+
+#endif

@@ -1,0 +1,38 @@
+// Sampling directions and points. Shared by every method.
+#ifndef LF_SAMPLING_GLSL
+#define LF_SAMPLING_GLSL
+
+const float PI = 3.14159265358979;
+
+// An orthonormal basis around unit n (Duff et al. 2017, "Building an
+// Orthonormal Basis, Revisited"): no branches on the normal's direction.
+void orthonormal_basis(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+// Cosine-distributed direction about n from u in [0,1)^2; pdf = cos / pi.
+// Malley's method: uniform on the disk (concentric map), lifted to the hemisphere.
+vec3 sample_cosine_hemisphere(vec3 n, vec2 u) {
+    vec2 d = 2.0 * u - 1.0;
+    float r, phi;
+    if (d.x == 0.0 && d.y == 0.0) { r = 0.0; phi = 0.0; }
+    else if (abs(d.x) > abs(d.y)) { r = d.x; phi = (PI / 4.0) * (d.y / d.x); }
+    else { r = d.y; phi = (PI / 2.0) - (PI / 4.0) * (d.x / d.y); }
+    vec2 disk = r * vec2(cos(phi), sin(phi));
+    float z = sqrt(max(0.0, 1.0 - dot(disk, disk)));
+    vec3 t, b;
+    orthonormal_basis(n, t, b);
+    return normalize(disk.x * t + disk.y * b + z * n);
+}
+
+// Uniform barycentrics (b1, b2) on a triangle from u in [0,1)^2.
+vec2 sample_triangle(vec2 u) {
+    float s = sqrt(u.x);
+    return vec2(1.0 - s, u.y * s);
+}
+
+#endif

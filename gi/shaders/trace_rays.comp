@@ -1,0 +1,21 @@
+#version 450 core
+// Batched tracing: rays in, hits out. For tools, tests and any caller that
+// has its rays on the CPU; the bake methods trace from their own shaders.
+#include "trace.glsl"
+
+layout(local_size_x = 64) in;
+
+// Ray: (origin, t_max), (direction, any-hit flag as uint bits: nonzero = occlusion query).
+layout(std430, binding = 2) readonly buffer Rays { vec4 rays[]; };
+// Hit: (t, triangle bits, b1, b2); triangle = LF_NO_HIT on a miss.
+layout(std430, binding = 3) writeonly buffer Hits { vec4 hits[]; };
+
+uniform uint ray_count;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    if (i >= ray_count) return;
+    vec4 o = rays[2u * i], d = rays[2u * i + 1u];
+    Hit h = lf_traverse(o.xyz, d.xyz, o.w, floatBitsToUint(d.w) != 0u);
+    hits[i] = vec4(h.t, uintBitsToFloat(h.triangle), h.bary);
+}

@@ -1,0 +1,34 @@
+#include "trace/tracer.h"
+
+#include "gpu/context.h"
+
+namespace lf {
+
+Tracer::Tracer(const Scene& scene) {
+    Bvh bvh = build_bvh(scene);
+    stats_ = bvh.stats;
+    nodes_ = GpuBuffer(bvh.nodes);
+    triangles_ = GpuBuffer(bvh.triangles);
+}
+
+void Tracer::bind() const {
+    nodes_.bind(0);
+    triangles_.bind(1);
+}
+
+std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
+    static_assert(sizeof(Ray) == 32 && sizeof(RayHit) == 16);
+    if (rays.empty()) return {};
+    if (!trace_program_) trace_program_ = std::make_unique<ComputeProgram>("trace_rays.comp");
+    GpuBuffer ray_buffer(rays);
+    GpuBuffer hit_buffer(rays.size() * sizeof(RayHit));
+    bind();
+    ray_buffer.bind(2);
+    hit_buffer.bind(3);
+    trace_program_->use();
+    glUniform1ui(trace_program_->uniform("ray_count"), GLuint(rays.size()));
+    trace_program_->dispatch_1d(rays.size());
+    return hit_buffer.read<RayHit>();
+}
+
+}  // namespace lf

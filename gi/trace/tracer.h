@@ -1,0 +1,54 @@
+// The one ray tracer: the scene's BVH on the GPU.
+//
+// Two ways to use it:
+//  * from a method's own compute shader, which includes trace.glsl and calls
+//    trace_closest / trace_occluded after Tracer::bind(). This is how the bake
+//    methods use it: a ray is generated, traced and shaded in one invocation,
+//    so rays and hits never travel through memory (32-48 bytes per ray each
+//    way would cost more bandwidth than the traversal itself on small scenes).
+//  * batched, Tracer::trace(rays): rays from the CPU, hits back. For tests,
+//    tools, and the rare caller whose rays come from the CPU.
+#pragma once
+
+#include "gpu/shader.h"
+#include "scene/scene.h"
+#include "trace/bvh.h"
+
+#include <glm/glm.hpp>
+
+#include <memory>
+#include <vector>
+
+namespace lf {
+
+struct Ray {
+    glm::vec3 origin;
+    float t_max;
+    glm::vec3 direction;
+    uint32_t any_hit = 0;  // 1: occlusion query, stop at the first hit
+};
+
+constexpr uint32_t kNoHit = 0xffffffffu;
+
+struct RayHit {
+    float t = 0.0f;
+    uint32_t triangle = kNoHit;  // scene triangle index
+    glm::vec2 bary{0.0f};        // weights of the triangle's 2nd and 3rd vertex
+};
+
+class Tracer {
+public:
+    explicit Tracer(const Scene& scene);
+    // Binds the BVH at the binding points trace.glsl declares (0 and 1).
+    void bind() const;
+    std::vector<RayHit> trace(const std::vector<Ray>& rays) const;
+    const BvhStats& bvh_stats() const { return stats_; }
+
+private:
+    BvhStats stats_;
+    GpuBuffer nodes_;
+    GpuBuffer triangles_;
+    mutable std::unique_ptr<ComputeProgram> trace_program_;  // built on first use
+};
+
+}  // namespace lf

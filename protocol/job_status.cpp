@@ -1,0 +1,143 @@
+#include "job_status.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lf::protocol {
+
+using nlohmann::json;
+
+std::string to_string(JobState s) {
+    switch (s) {
+        case JobState::Queued: return "queued";
+        case JobState::Running: return "running";
+        case JobState::Succeeded: return "succeeded";
+        case JobState::Failed: return "failed";
+        case JobState::Cancelled: return "cancelled";
+    }
+    return "unknown";
+}
+
+std::optional<JobState> parse_job_state(const std::string& s) {
+    for (JobState st : {JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled})
+        if (to_string(st) == s) return st;
+    return std::nullopt;
+}
+
+bool is_final(JobState s) {
+    return s == JobState::Succeeded || s == JobState::Failed || s == JobState::Cancelled;
+}
+
+json to_json(const Progress& p) {
+    json j = {{"pass", p.pass}, {"rays", p.rays}, {"seconds", p.seconds}};
+    j["error_estimate"] = p.error_estimate ? json(*p.error_estimate) : json(nullptr);
+    j["eta_seconds"] = p.eta_seconds ? json(*p.eta_seconds) : json(nullptr);
+    return j;
+}
+
+Progress progress_from_json(const json& j) {
+    Progress p;
+    if (!j.is_object()) return p;
+    p.pass = j.value("pass", 0);
+    p.rays = j.value("rays", uint64_t(0));
+    p.seconds = j.value("seconds", 0.0);
+    if (j.contains("error_estimate") && j["error_estimate"].is_number()) p.error_estimate = j["error_estimate"].get<double>();
+    if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
+    return p;
+}
+
+std::optional<double> estimate_eta(const json& settings, const Progress& p) {
+    if (p.pass <= 0 || p.seconds <= 0.0 || !settings.is_object()) return std::nullopt;
+    const double per_pass = p.seconds / p.pass;
+    std::optional<double> eta;
+    auto consider = [&](double left) {
+        left = std::max(0.0, left);
+        eta = eta ? std::min(*eta, left) : left;
+    };
+    if (settings.contains("passes")) consider(per_pass * (settings["passes"].get<double>() - p.pass));
+    if (settings.contains("time_limit")) consider(settings["time_limit"].get<double>() - p.seconds);
+    if (settings.contains("target_error") && p.error_estimate && *p.error_estimate > 0.0) {
+        // Monte Carlo error falls as 1/sqrt(passes): passes needed = pass * (E / target)^2.
+        const double ratio = *p.error_estimate / settings["target_error"].get<double>();
+        consider(per_pass * p.pass * (ratio * ratio - 1.0));
+    }
+    return eta;
+}
+
+json to_json(const JobStatus& s) {
+    json j = {{"id", s.id},
+              {"scene", s.scene},
+              {"state", to_string(s.state)},
+              {"spec", s.spec},
+              {"progress", to_json(s.progress)},
+              {"attempts", s.attempts},
+              {"max_attempts", s.max_attempts},
+              {"cached", s.cached},
+              {"created_at", s.created_at}};
+    j["started_at"] = s.started_at > 0 ? json(s.started_at) : json(nullptr);
+    j["finished_at"] = s.finished_at > 0 ? json(s.finished_at) : json(nullptr);
+    if (!s.error.empty()) j["error"] = s.error;
+    if (!s.cause.empty()) j["cause"] = s.cause;
+    return j;
+}
+
+JobStatus status_from_json(const json& j) {
+    JobStatus s;
+    s.id = j.value("id", "");
+    s.scene = j.value("scene", "");
+    s.state = parse_job_state(j.value("state", "")).value_or(JobState::Queued);
+    s.spec = j.value("spec", json::object());
+    s.progress = progress_from_json(j.value("progress", json::object()));
+    s.attempts = j.value("attempts", 0);
+    s.max_attempts = j.value("max_attempts", 0);
+    s.cached = j.value("cached", false);
+    s.error = j.value("error", "");
+    s.cause = j.value("cause", "");
+    auto time = [&](const char* key) { return j.contains(key) && j[key].is_number() ? j[key].get<double>() : 0.0; };
+    s.created_at = time("created_at");
+    s.started_at = time("started_at");
+    s.finished_at = time("finished_at");
+    return s;
+}
+
+bool is_final_event(const std::string& type) {
+    return type == "done" || type == "failed" || type == "cancelled";
+}
+
+std::string format_sse(const JobEvent& e) {
+    // dump() never emits a raw newline, so the data fits on one line.
+    return "id: " + std::to_string(e.id) + "\nevent: " + e.type + "\ndata: " + e.data.dump() + "\n\n";
+}
+
+std::vector<JobEvent> SseParser::feed(const std::string& chunk) {
+    std::vector<JobEvent> events;
+    buffer_ += chunk;
+    size_t start = 0;
+    for (size_t nl; (nl = buffer_.find('\n', start)) != std::string::npos; start = nl + 1) {
+        std::string line = buffer_.substr(start, nl - start);
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (line.empty()) {  // a blank line ends an event
+            if (!current_.type.empty() || !data_.empty()) {
+                current_.data = json::parse(data_, nullptr, false);
+                if (current_.data.is_discarded()) current_.data = data_;
+                if (current_.type.empty()) current_.type = "message";
+                events.push_back(current_);
+            }
+            current_ = JobEvent{};
+            data_.clear();
+            continue;
+        }
+        if (line[0] == ':') continue;
+        const size_t colon = line.find(':');
+        const std::string field = line.substr(0, colon);
+        std::string value = colon == std::string::npos ? "" : line.substr(colon + 1);
+        if (!value.empty() && value[0] == ' ') value.erase(0, 1);
+        if (field == "id") current_.id = std::atoll(value.c_str());
+        else if (field == "event") current_.type = value;
+        else if (field == "data") data_ += (data_.empty() ? "" : "\n") + value;
+    }
+    buffer_.erase(0, start);
+    return events;
+}
+
+}  // namespace lf::protocol

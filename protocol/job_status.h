@@ -1,0 +1,80 @@
+// A job's status and its events, as the server reports them and clients read
+// them: GET /v1/jobs/{id} and the Server-Sent Events of /v1/jobs/{id}/events.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace lf::protocol {
+
+enum class JobState { Queued, Running, Succeeded, Failed, Cancelled };
+
+std::string to_string(JobState s);
+std::optional<JobState> parse_job_state(const std::string& s);
+// Succeeded, failed and cancelled jobs never change again.
+bool is_final(JobState s);
+
+// The worker's latest progress line plus the server's estimate of what is left.
+struct Progress {
+    int pass = 0;
+    uint64_t rays = 0;
+    double seconds = 0.0;
+    std::optional<double> error_estimate;
+    std::optional<double> eta_seconds;
+};
+nlohmann::json to_json(const Progress& p);
+Progress progress_from_json(const nlohmann::json& j);
+
+// Seconds left, from the stopping rules of the job's outputs (passes,
+// time_limit, target_error) and the progress so far; empty when no rule
+// gives an answer yet. With several rules the bake stops at the first one met.
+std::optional<double> estimate_eta(const nlohmann::json& output_settings, const Progress& p);
+
+struct JobStatus {
+    std::string id;
+    std::string scene;
+    JobState state = JobState::Queued;
+    nlohmann::json spec;  // the validated job spec (to_json(JobSpec))
+    Progress progress;
+    int attempts = 0;     // worker runs started so far
+    int max_attempts = 0;
+    std::string error;    // when failed: what went wrong, for a person
+    std::string cause;    // when failed: the last attempt's cause (exit status, stderr line, timeout)
+    bool cached = false;  // artifacts reused from an identical earlier bake
+    double created_at = 0, started_at = 0, finished_at = 0;  // Unix seconds, 0 = not yet
+};
+nlohmann::json to_json(const JobStatus& s);
+JobStatus status_from_json(const nlohmann::json& j);
+
+// One event of a job's stream. Ids count 1, 2, 3 ... per job.
+// Types: "started" (an attempt began), "progress", "snapshot" (a new
+// intermediate artifact), "retrying" (an attempt failed, another follows),
+// and exactly one final "done", "failed" or "cancelled".
+struct JobEvent {
+    int64_t id = 0;
+    std::string type;
+    nlohmann::json data;
+};
+bool is_final_event(const std::string& type);
+
+// "id: 3\nevent: progress\ndata: {...}\n\n"
+std::string format_sse(const JobEvent& e);
+
+// Reads a Server-Sent Events stream fed in arbitrary chunks.
+class SseParser {
+public:
+    // Returns the events completed by this chunk. Comments (": keep-alive")
+    // are skipped; data that is not JSON is kept as a JSON string.
+    std::vector<JobEvent> feed(const std::string& chunk);
+
+private:
+    std::string buffer_;
+    JobEvent current_;
+    std::string data_;
+};
+
+}  // namespace lf::protocol

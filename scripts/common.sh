@@ -1,0 +1,37 @@
+# Shared by scripts/run and scripts/test: install what is missing, then build.
+# Sourced, not run.
+
+LIGHTFARM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+# Debian 12 packages the build, the tests and the service need.
+LIGHTFARM_PACKAGES=(
+  build-essential cmake pkg-config
+  libegl-dev libgl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
+  libtinygltf-dev nlohmann-json3-dev libstb-dev libglm-dev libopenexr-dev
+  libgtest-dev libcpp-httplib-dev libsqlite3-dev libssl-dev
+)
+
+# Installs only the packages that are not installed yet (apt-get only when needed).
+ensure_packages() {
+  local missing=()
+  local p
+  for p in "${LIGHTFARM_PACKAGES[@]}" "$@"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  if [ ${#missing[@]} -gt 0 ]; then
+    echo "lightfarm: installing ${missing[*]}" >&2
+    local sudo=""
+    [ "$(id -u)" -eq 0 ] || sudo="sudo"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >&2
+  fi
+}
+
+# build_tree DIR [cmake options...]: configure once, then build incrementally.
+build_tree() {
+  local dir="$1"; shift
+  if [ ! -f "$dir/CMakeCache.txt" ]; then
+    cmake -S "$LIGHTFARM_ROOT" -B "$dir" -DCMAKE_BUILD_TYPE=RelWithDebInfo "$@" >&2
+  fi
+  cmake --build "$dir" -j "$(nproc)" >&2
+}

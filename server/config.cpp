@@ -1,0 +1,115 @@
+#include "config.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <stdexcept>
+
+namespace lf::server {
+
+namespace fs = std::filesystem;
+
+const char* const kServerUsage = R"(usage: lightfarmd [options]
+
+  --listen HOST:PORT     address to serve on (default 127.0.0.1:8750; port 0 = any free port)
+  --data DIR             jobs, scenes and artifacts (default ./lightfarm-data)
+  --tokens FILE          bearer tokens, one per line (default DATA/tokens, created
+                         with a new random token when missing)
+  --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)
+  --workers N            concurrent bakes (default 1)
+  --attempts N           worker runs per job before it fails (default 3)
+  --stall-timeout S      kill a worker silent for S seconds (default 300)
+  --job-timeout S        kill an attempt running longer than S seconds (default 14400)
+  --http-threads N       request threads; each event stream holds one (default 64)
+  --limit KEY=VALUE      upload_bytes, triangles, texture_size, queued_jobs,
+                         res, passes, time_limit, max_seconds, max_attempts
+)";
+
+namespace {
+double parse_number(const std::string& option, const std::string& text) {
+    size_t used = 0;
+    double v = 0;
+    try {
+        v = std::stod(text, &used);
+    } catch (const std::exception&) {
+        used = 0;
+    }
+    if (text.empty() || used != text.size()) throw std::invalid_argument(option + ": '" + text + "' is not a number");
+    return v;
+}
+
+void set_limit(ServerLimits& limits, const std::string& assignment) {
+    const size_t eq = assignment.find('=');
+    if (eq == std::string::npos) throw std::invalid_argument("--limit takes KEY=VALUE, not '" + assignment + "'");
+    const std::string key = assignment.substr(0, eq);
+    const double v = parse_number("--limit " + key, assignment.substr(eq + 1));
+    if (key == "upload_bytes") limits.upload_bytes = uint64_t(v);
+    else if (key == "triangles") limits.triangles = int64_t(v);
+    else if (key == "texture_size") limits.texture_size = int64_t(v);
+    else if (key == "queued_jobs") limits.queued_jobs = int(v);
+    else if (limits.spec.caps.count(key)) limits.spec.caps[key] = v;
+    else throw std::invalid_argument("--limit: unknown key '" + key + "'");
+}
+}  // namespace
+
+ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help) {
+    ServerConfig c;
+    help = false;
+    for (size_t i = 0; i < args.size(); ++i) {
+        const std::string& a = args[i];
+        if (a == "--help" || a == "-h") {
+            help = true;
+            continue;
+        }
+        if (i + 1 >= args.size()) throw std::invalid_argument(a.rfind("--", 0) == 0 ? a + " needs a value" : "unexpected argument '" + a + "'");
+        const std::string& v = args[++i];
+        if (a == "--listen") {
+            const size_t colon = v.rfind(':');
+            if (colon == std::string::npos) throw std::invalid_argument("--listen takes HOST:PORT, not '" + v + "'");
+            c.host = v.substr(0, colon);
+            c.port = int(parse_number("--listen port", v.substr(colon + 1)));
+        } else if (a == "--data") c.data_dir = v;
+        else if (a == "--tokens") c.tokens_file = v;
+        else if (a == "--engine") c.engine = v;
+        else if (a == "--workers") c.workers = int(parse_number(a, v));
+        else if (a == "--attempts") c.default_attempts = int(parse_number(a, v));
+        else if (a == "--stall-timeout") c.stall_seconds = parse_number(a, v);
+        else if (a == "--job-timeout") c.default_max_seconds = parse_number(a, v);
+        else if (a == "--http-threads") c.http_threads = int(parse_number(a, v));
+        else if (a == "--limit") set_limit(c.limits, v);
+        else throw std::invalid_argument("unknown option " + a);
+    }
+    if (c.workers < 1) throw std::invalid_argument("--workers must be at least 1");
+    if (c.default_attempts < 1) throw std::invalid_argument("--attempts must be at least 1");
+    if (c.http_threads < 4) throw std::invalid_argument("--http-threads must be at least 4");
+    return c;
+}
+
+std::string find_engine(const std::string& configured) {
+    if (!configured.empty()) return configured;
+    std::error_code ec;
+    const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+    if (!ec) {
+        for (const fs::path& candidate : {self.parent_path() / ".." / "client_cli" / "lightfarm",
+                                          self.parent_path() / "lightfarm"}) {
+            if (access(candidate.c_str(), X_OK) == 0) return fs::weakly_canonical(candidate).string();
+        }
+    }
+    return "lightfarm";
+}
+
+std::vector<std::string> read_tokens(const std::string& path) {
+    std::ifstream in(path);
+    if (!in) throw std::runtime_error("cannot read tokens file " + path);
+    std::vector<std::string> tokens;
+    for (std::string line; std::getline(in, line);) {
+        const size_t b = line.find_first_not_of(" \t\r");
+        if (b == std::string::npos || line[b] == '#') continue;
+        const size_t e = line.find_last_not_of(" \t\r");
+        tokens.push_back(line.substr(b, e - b + 1));
+    }
+    return tokens;
+}
+
+}  // namespace lf::server

@@ -1,0 +1,41 @@
+// Counters for GET /metrics, in Prometheus' text exposition format.
+#pragma once
+
+#include "job_status.h"
+
+#include <atomic>
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace lf::server {
+
+class Metrics {
+public:
+    std::atomic<uint64_t> worker_starts{0};
+    std::atomic<uint64_t> worker_failures{0};  // attempts that crashed, hung or timed out
+    std::atomic<uint64_t> rays_total{0};
+
+    // The latest rays/s of a running job (its progress); cleared when it stops.
+    void set_job_rate(const std::string& job, double rays_per_second);
+    void clear_job(const std::string& job);
+    // One answered request, by route pattern ("/v1/jobs/{id}").
+    void observe_request(const std::string& route, int status, double seconds);
+
+    std::string render(const std::map<protocol::JobState, int>& jobs_by_state) const;
+
+private:
+    struct Histogram {
+        std::vector<uint64_t> buckets;  // cumulative counts per kBuckets bound
+        uint64_t count = 0;
+        double sum = 0;
+    };
+    mutable std::mutex mutex_;
+    std::map<std::string, double> job_rates_;
+    std::map<std::string, Histogram> latency_;
+    std::map<std::pair<std::string, int>, uint64_t> requests_;
+};
+
+}  // namespace lf::server

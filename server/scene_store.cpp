@@ -1,0 +1,209 @@
+#include "scene_store.h"
+
+#include "hash.h"
+#include "http_error.h"
+#include "log.h"
+#include "subprocess.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+namespace lf::server {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+std::string unsafe_path_reason(const std::string& path) {
+    if (path.empty()) return "is empty";
+    if (path[0] == '/') return "is an absolute path";
+    if (path.size() > 1 && path[1] == ':') return "is an absolute path";
+    if (path.find(':') != std::string::npos) return "names a scheme or drive (':')";
+    for (unsigned char c : path) {
+        if (c < 0x20 || c == 0x7f) return "contains a control character";
+        if (c == '\\') return "contains a backslash";
+        if (c == '$' || c == '`') return "contains a shell character ('$' or '`')";
+    }
+    size_t start = 0;
+    while (start <= path.size()) {
+        const size_t slash = std::min(path.find('/', start), path.size());
+        const std::string part = path.substr(start, slash - start);
+        if (part == "..") return "leaves the upload ('..')";
+        if (part.empty() || part == ".") return "has an empty or '.' path segment";
+        start = slash + 1;
+    }
+    return "";
+}
+
+namespace {
+
+bool ends_with(const std::string& s, const std::string& suffix) {
+    if (s.size() < suffix.size()) return false;
+    return std::equal(suffix.rbegin(), suffix.rend(), s.rbegin(),
+                      [](char a, char b) { return std::tolower(static_cast<unsigned char>(a)) == b; });
+}
+
+std::string percent_decode(const std::string& s) {
+    std::string out;
+    for (size_t i = 0; i < s.size(); ++i) {
+        if (s[i] == '%' && i + 2 < s.size() && std::isxdigit(static_cast<unsigned char>(s[i + 1])) &&
+            std::isxdigit(static_cast<unsigned char>(s[i + 2]))) {
+            out += char(std::stoi(s.substr(i + 1, 2), nullptr, 16));
+            i += 2;
+        } else {
+            out += s[i];
+        }
+    }
+    return out;
+}
+
+// Every external URI of a .gltf must name a file of the same upload. The
+// loader checks this too; the server refuses before a file ever reaches it.
+void check_gltf_uris(const std::string& gltf_name, const std::string& text, const std::set<std::string>& names) {
+    const json doc = json::parse(text, nullptr, false);
+    if (doc.is_discarded() || !doc.is_object()) throw HttpError(400, gltf_name + " is not JSON", {{"field", gltf_name}});
+    const fs::path base = fs::path(gltf_name).parent_path();
+    for (const char* array : {"buffers", "images"}) {
+        if (!doc.contains(array) || !doc[array].is_array()) continue;
+        for (size_t i = 0; i < doc[array].size(); ++i) {
+            const json& item = doc[array][i];
+            if (!item.is_object() || !item.contains("uri")) continue;
+            const std::string field = std::string(array) + "[" + std::to_string(i) + "].uri";
+            if (!item["uri"].is_string()) throw HttpError(400, field + ": must be a string", {{"field", field}});
+            const std::string uri = item["uri"];
+            if (uri.rfind("data:", 0) == 0) continue;
+            const std::string path = percent_decode(uri);
+            const std::string why = unsafe_path_reason(path);
+            if (!why.empty()) throw HttpError(400, field + ": '" + uri + "' " + why, {{"field", field}});
+            const std::string full = (base / path).lexically_normal().string();
+            if (!names.count(full))
+                throw HttpError(400, field + ": '" + uri + "' is not part of the upload", {{"field", field}});
+        }
+    }
+}
+
+void write_file(const fs::path& path, const std::string& bytes) {
+    fs::create_directories(path.parent_path());
+    std::ofstream out(path, std::ios::binary);
+    out.write(bytes.data(), std::streamsize(bytes.size()));
+    if (!out) throw std::runtime_error("cannot write " + path.string());
+}
+
+// The loader's own message without its "lightfarm inspect: error: " prefix.
+std::string loader_message(const std::string& line) {
+    const std::string marker = "error: ";
+    const size_t at = line.find(marker);
+    return at == std::string::npos ? line : line.substr(at + marker.size());
+}
+
+// Largest texture side in an inspect summary, if it says.
+int64_t largest_texture(const json& summary) {
+    int64_t largest = 0;
+    if (summary.contains("max_texture_size") && summary["max_texture_size"].is_number())
+        largest = summary["max_texture_size"].get<int64_t>();
+    if (summary.contains("textures") && summary["textures"].is_array()) {
+        for (const json& t : summary["textures"]) {
+            if (!t.is_object()) continue;
+            for (const char* side : {"width", "height"})
+                if (t.contains(side) && t[side].is_number()) largest = std::max(largest, t[side].get<int64_t>());
+        }
+    }
+    return largest;
+}
+
+}  // namespace
+
+SceneStore::SceneStore(const ServerConfig& config, JobStore& store)
+    : config_(config), store_(store), engine_(find_engine(config.engine)) {}
+
+SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, const std::string& owner) {
+    if (files.empty()) throw HttpError(400, "the upload holds no file");
+    std::set<std::string> names;
+    std::vector<const UploadFile*> mains;
+    for (const UploadFile& f : files) {
+        const std::string why = unsafe_path_reason(f.name);
+        if (!why.empty()) throw HttpError(400, "file name '" + f.name + "' " + why, {{"field", f.name}});
+        const std::string name = fs::path(f.name).lexically_normal().string();
+        if (!names.insert(name).second) throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
+        if (ends_with(name, ".gltf") || ends_with(name, ".glb")) mains.push_back(&f);
+    }
+    if (mains.size() != 1)
+        throw HttpError(400, "an upload holds exactly one .gltf or .glb file, this one holds " + std::to_string(mains.size()));
+    const UploadFile& main = *mains.front();
+    if (ends_with(main.name, ".glb") && main.bytes.compare(0, 4, "glTF") != 0)
+        throw HttpError(400, main.name + " is not a binary glTF (no 'glTF' magic)", {{"field", main.name}});
+    if (ends_with(main.name, ".gltf")) check_gltf_uris(main.name, main.bytes, names);
+
+    // The id is the content hash: of the file itself for one file (so it
+    // equals `sha256sum scene.glb`), else of every (name, size, bytes) in
+    // name order.
+    std::string id;
+    if (files.size() == 1) {
+        id = sha256_hex(main.bytes);
+    } else {
+        std::vector<const UploadFile*> sorted;
+        for (const UploadFile& f : files) sorted.push_back(&f);
+        std::sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->name < b->name; });
+        Sha256 h;
+        for (const UploadFile* f : sorted) {
+            h.update(f->name);
+            h.update(std::string(1, '\0') + std::to_string(f->bytes.size()) + std::string(1, '\0'));
+            h.update(f->bytes);
+        }
+        id = h.hex();
+    }
+
+    if (std::optional<SceneRecord> known = store_.scene(id)) {
+        const bool created = store_.add_scene_owner(id, owner);
+        return {*known, created};
+    }
+
+    // Write into a private temporary directory, validate there, then move it
+    // into place in one rename: a scene directory is never half written.
+    const fs::path tmp = fs::path(config_.data_dir) / "tmp" / ("upload-" + random_hex(8));
+    struct Cleanup {
+        fs::path dir;
+        ~Cleanup() {
+            std::error_code ec;
+            fs::remove_all(dir, ec);
+        }
+    } cleanup{tmp};
+    for (const UploadFile& f : files) write_file(tmp / fs::path(f.name).lexically_normal(), f.bytes);
+    const std::string main_name = fs::path(main.name).lexically_normal().string();
+
+    const RunResult r = run_command({engine_, "inspect", (tmp / main_name).string(), "--json"},
+                                    std::chrono::milliseconds(int64_t(config_.inspect_seconds * 1000)));
+    if (r.timed_out)
+        throw HttpError(400, "scene rejected: the loader took longer than " + std::to_string(int(config_.inspect_seconds)) + " s");
+    if (!r.status.exited)
+        throw HttpError(400, "scene rejected: the loader crashed on it (" + r.status.describe() + ")");
+    if (r.status.code != 0) {
+        const std::string why = r.err_last_line.empty() ? r.status.describe() : loader_message(r.err_last_line);
+        throw HttpError(400, "scene rejected: " + why);
+    }
+    json summary = json::parse(r.out, nullptr, false);
+    if (!summary.is_object()) {
+        log_line("`" + engine_ + " inspect --json` printed no JSON object for an upload");
+        throw HttpError(500, "the scene loader gave no summary");
+    }
+
+    const int64_t triangles = summary.contains("triangles") && summary["triangles"].is_number() ? summary["triangles"].get<int64_t>() : 0;
+    if (triangles > config_.limits.triangles)
+        throw HttpError(413, "triangles: " + std::to_string(triangles) + " exceeds the limit " + std::to_string(config_.limits.triangles),
+                        {{"field", "triangles"}, {"limit", config_.limits.triangles}});
+    if (const int64_t side = largest_texture(summary); side > config_.limits.texture_size)
+        throw HttpError(413, "textures: a texture of " + std::to_string(side) + " pixels exceeds the limit " + std::to_string(config_.limits.texture_size),
+                        {{"field", "textures"}, {"limit", config_.limits.texture_size}});
+
+    const fs::path final_dir = fs::path(config_.data_dir) / "scenes" / id;
+    fs::create_directories(final_dir.parent_path());
+    std::error_code ec;
+    fs::rename(tmp, final_dir, ec);  // fails harmlessly when a concurrent upload of the same bytes won
+    SceneRecord record{id, main_name, summary};
+    store_.add_scene(record);
+    const bool created = store_.add_scene_owner(id, owner);
+    return {record, created};
+}
+
+}  // namespace lf::server

@@ -1,0 +1,42 @@
+// Scene uploads: checked, stored once per content under DATA/scenes/<id>/,
+// and validated by running `lightfarm inspect --json` on them in a separate
+// process, so that a file that crashes the loader costs a 400, not the server.
+#pragma once
+
+#include "config.h"
+#include "job_store.h"
+
+#include <string>
+#include <vector>
+
+namespace lf::server {
+
+struct UploadFile {
+    std::string name;   // relative path inside the upload ("scene.gltf", "textures/a.png")
+    std::string bytes;
+};
+
+class SceneStore {
+public:
+    SceneStore(const ServerConfig& config, JobStore& store);
+
+    struct Result {
+        SceneRecord scene;
+        bool created;  // false: this token had uploaded these bytes before
+    };
+    // One .glb or .gltf (with data: URIs), or a .gltf with the files it
+    // references. Throws HttpError (400 bad input, 413 over a limit).
+    Result upload(const std::vector<UploadFile>& files, const std::string& owner);
+
+private:
+    const ServerConfig& config_;
+    JobStore& store_;
+    std::string engine_;
+};
+
+// Checks a relative path from an upload or a glTF URI: no absolute paths, no
+// "..", no backslashes, control or shell characters. Returns the reason it is
+// refused, or "" when it is fine.
+std::string unsafe_path_reason(const std::string& path);
+
+}  // namespace lf::server

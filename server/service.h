@@ -1,0 +1,99 @@
+// lightfarmd's HTTP API (protocol/openapi.json): routes, authentication,
+// limits. Owns the job store, the scene store and the worker supervisor.
+#pragma once
+
+#include "config.h"
+#include "events.h"
+#include "job_store.h"
+#include "metrics.h"
+#include "scene_store.h"
+#include "supervisor.h"
+
+#include <map>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <string>
+#include <vector>
+
+namespace httplib {
+class Server;
+struct Request;
+struct Response;
+}  // namespace httplib
+
+namespace lf::server {
+
+class Service {
+public:
+    // `tokens`: the bearer tokens that may use the API.
+    Service(ServerConfig config, const std::vector<std::string>& tokens);
+    ~Service();
+
+    // Binds config.host:config.port (port 0: any free one) and returns the
+    // port. Throws std::runtime_error when it cannot.
+    int bind();
+    // Starts the workers and serves until stop(). Blocks.
+    void run();
+    // From any thread (a signal handler thread): ends run().
+    void stop();
+
+    // Every route, as the API document names it. The server registers
+    // exactly these, so a test can hold them against protocol/openapi.json.
+    struct RouteInfo {
+        std::string method;  // "GET", "POST"
+        std::string path;    // "/v1/jobs/{id}"
+        bool needs_token;
+    };
+    static std::vector<RouteInfo> route_table();
+
+private:
+    struct Caller {
+        std::string owner;  // a hash of the token: the store never holds tokens
+    };
+    using Handler = void (Service::*)(const httplib::Request&, httplib::Response&, const Caller&);
+    enum class Auth { None, Token, Page };
+    struct Route {
+        const char* method;
+        const char* path;
+        Auth auth;
+        Handler handler;
+    };
+    static const std::vector<Route>& routes();
+
+    std::optional<Caller> authenticate(const httplib::Request& req, bool allow_cookie) const;
+    JobRecord owned_job(const httplib::Request& req, const Caller& caller);
+    nlohmann::json status_json(const JobRecord& job) const;
+
+    void healthz(const httplib::Request&, httplib::Response&, const Caller&);
+    void metrics(const httplib::Request&, httplib::Response&, const Caller&);
+    void status_page(const httplib::Request&, httplib::Response&, const Caller&);
+    void post_scene(const httplib::Request&, httplib::Response&, const Caller&);
+    void get_scene(const httplib::Request&, httplib::Response&, const Caller&);
+    void post_job(const httplib::Request&, httplib::Response&, const Caller&);
+    void list_jobs(const httplib::Request&, httplib::Response&, const Caller&);
+    void get_job(const httplib::Request&, httplib::Response&, const Caller&);
+    void job_events(const httplib::Request&, httplib::Response&, const Caller&);
+    void list_artifacts(const httplib::Request&, httplib::Response&, const Caller&);
+    void get_artifact(const httplib::Request&, httplib::Response&, const Caller&);
+    void preview(const httplib::Request&, httplib::Response&, const Caller&);
+    void cancel_job(const httplib::Request&, httplib::Response&, const Caller&);
+
+    ServerConfig config_;
+    std::set<std::string> owners_;  // hashes of the valid tokens
+    std::unique_ptr<JobStore> store_;
+    ChangeSignal changes_;
+    Metrics metrics_;
+    std::unique_ptr<SceneStore> scenes_;
+    std::unique_ptr<Supervisor> supervisor_;
+    std::unique_ptr<httplib::Server> http_;
+
+    struct CachedPreview {
+        std::string source;  // path + size + mtime of the EXR it came from
+        std::string png;
+    };
+    std::mutex preview_mutex_;
+    std::map<std::string, CachedPreview> previews_;  // by job id
+};
+
+}  // namespace lf::server

@@ -1,0 +1,52 @@
+// JobStore in one SQLite file (DATA/jobs.sqlite). One connection behind a
+// mutex: the store is tiny next to a bake, and this keeps transactions simple.
+#pragma once
+
+#include "job_store.h"
+
+#include <mutex>
+#include <string>
+
+struct sqlite3;
+
+namespace lf::server {
+
+class SqliteJobStore : public JobStore {
+public:
+    explicit SqliteJobStore(const std::string& path);  // creates the schema if needed
+    ~SqliteJobStore() override;
+
+    std::optional<SceneRecord> scene(const std::string& id) override;
+    void add_scene(const SceneRecord& scene) override;
+    bool add_scene_owner(const std::string& id, const std::string& owner) override;
+    bool scene_owned_by(const std::string& id, const std::string& owner) override;
+
+    void insert_job(const JobRecord& job, const std::vector<JobEvent>& events) override;
+    std::optional<JobRecord> job(const std::string& id) override;
+    std::vector<JobRecord> jobs_of(const std::string& owner) override;
+    int queued_count(const std::string& owner) override;
+    std::map<JobState, int> count_by_state() override;
+    std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) override;
+
+    std::optional<JobRecord> claim_next() override;
+    void set_progress(const std::string& id, const Progress& p) override;
+    bool requeue(const std::string& id, const JobEvent& event, bool refund_attempt) override;
+    bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
+                const JobEvent& event) override;
+    std::vector<JobRecord> running_jobs() override;
+
+    int64_t append_event(const std::string& id, const JobEvent& event) override;
+    std::vector<JobEvent> events_after(const std::string& id, int64_t after) override;
+
+private:
+    class Statement;
+    void exec(const char* sql);
+    std::vector<JobRecord> select_jobs(const std::string& where, const std::vector<std::string>& args);
+    int64_t insert_event_locked(const std::string& id, const JobEvent& event);
+
+    std::mutex mutex_;
+    sqlite3* db_ = nullptr;
+    std::string path_;
+};
+
+}  // namespace lf::server

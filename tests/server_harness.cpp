@@ -1,0 +1,235 @@
+#include "server_harness.h"
+
+#include <OpenEXR/ImfArray.h>
+#include <OpenEXR/ImfRgbaFile.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+extern char** environ;
+
+namespace lf::test {
+
+using nlohmann::json;
+
+TempDir::TempDir() {
+    std::random_device rd;
+    path = fs::temp_directory_path() / ("lightfarm-test-" + std::to_string(getpid()) + "-" + std::to_string(rd()));
+    fs::create_directories(path);
+}
+
+TempDir::~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+}
+
+void write_text(const fs::path& path, const std::string& text) {
+    fs::create_directories(path.parent_path());
+    std::ofstream(path, std::ios::binary) << text;
+}
+
+std::string read_text(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+void write_exr(const fs::path& path, int w, int h, float r, float g, float b) {
+    std::vector<Imf::Rgba> pixels(size_t(w) * size_t(h), Imf::Rgba(r, g, b, 1.0f));
+    Imf::RgbaOutputFile file(path.c_str(), w, h, Imf::WRITE_RGBA);
+    file.setFrameBuffer(pixels.data(), 1, size_t(w));
+    file.writePixels(h);
+}
+
+namespace {
+// The fake `lightfarm`. Plain POSIX sh; files appear by temp + rename as the
+// real engine's do.
+constexpr const char* kFakeEngine = R"sh(#!/bin/sh
+state="$(dirname "$0")"
+cmd="$1"; shift
+if [ "$cmd" = inspect ]; then
+  if grep -q BROKEN "$1"; then echo "lightfarm inspect: error: $1: not a glTF" >&2; exit 1; fi
+  if grep -q SEGV "$1"; then kill -SEGV $$; fi
+  echo "{\"triangles\": $(cat "$state/triangles" 2>/dev/null || echo 12), \"textures\": []}"
+  exit 0
+fi
+[ "$cmd" = bake ] || { echo "fake lightfarm: unknown command $cmd" >&2; exit 2; }
+echo "$@" > "$state/last_args"
+out=""; passes=4
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --out) out="$2"; shift 2;;
+    --passes) passes="$2"; shift 2;;
+    *) shift;;
+  esac
+done
+runs=$(( $(cat "$state/runs" 2>/dev/null || echo 0) + 1 ))
+echo $runs > "$state/runs.tmp" && mv "$state/runs.tmp" "$state/runs"
+mode=$(cat "$state/mode" 2>/dev/null || echo ok)
+delay=$(cat "$state/delay" 2>/dev/null || echo 0)
+echo '{"event":"start","renderer":"fake","vendor":"tests","texels":16}'
+case "$mode" in
+  crash_first) if [ $runs -eq 1 ]; then echo "lightfarm bake: error: lost the GPU context" >&2; exit 3; fi;;
+  always_crash) echo "lightfarm bake: error: about to die" >&2; kill -KILL $$;;
+  hang_first) if [ $runs -eq 1 ]; then sleep 60; fi;;
+  hang_always) sleep 60;;
+esac
+p=1
+while [ $p -le $passes ]; do
+  [ "$delay" = 0 ] || sleep "$delay"
+  echo "{\"event\":\"progress\",\"pass\":$p,\"rays\":$((p * 1000)),\"seconds\":$p,\"error_estimate\":$((100 / p))}"
+  case $p in 1|2|4|8|16|32|64)
+    name=$(printf 'lightmap.pass-%04d.exr' $p)
+    cp "$state/snapshot.exr" "$out/.$name.tmp" && mv "$out/.$name.tmp" "$out/$name"
+    echo "{\"event\":\"snapshot\",\"file\":\"$name\",\"pass\":$p}";;
+  esac
+  p=$((p + 1))
+done
+[ "$mode" = no_done ] && exit 0
+cp "$state/snapshot.exr" "$out/.lightmap.exr.tmp" && mv "$out/.lightmap.exr.tmp" "$out/lightmap.exr"
+echo "{\"passes\": $passes}" > "$out/.manifest.json.tmp" && mv "$out/.manifest.json.tmp" "$out/manifest.json"
+echo "{\"event\":\"done\",\"files\":[\"lightmap.exr\",\"manifest.json\"],\"pass\":$passes,\"rays\":$((passes * 1000)),\"seconds\":$passes,\"error_estimate\":1}"
+)sh";
+}  // namespace
+
+FakeEngine::FakeEngine(const fs::path& d) : dir(d), script(d / "lightfarm") {
+    write_text(script, kFakeEngine);
+    fs::permissions(script, fs::perms::owner_all);
+    write_exr(dir / "snapshot.exr", 8, 4, 0.5f, 0.25f, 0.125f);
+}
+
+int FakeEngine::runs() const {
+    const std::string text = read_text(dir / "runs");
+    return text.empty() ? 0 : std::stoi(text);
+}
+
+Lightfarmd::Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vector<std::string> extra)
+    : data_(std::move(data)), tokens_(std::move(tokens)), engine_(std::move(engine)), extra_(std::move(extra)) {}
+
+Lightfarmd::~Lightfarmd() { stop(); }
+
+void Lightfarmd::start() {
+    if (pid_ > 0) throw std::runtime_error("lightfarmd already running");
+    fs::create_directories(data_);
+    std::error_code ec;
+    fs::remove(data_ / "lightfarmd.url", ec);
+    std::vector<std::string> args = {LIGHTFARMD, "--listen", "127.0.0.1:0", "--data", data_.string(),
+                                     "--tokens", tokens_.string(), "--engine", engine_.string()};
+    args.insert(args.end(), extra_.begin(), extra_.end());
+    std::vector<char*> argv;
+    for (std::string& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    const std::string log_path = (data_.parent_path() / ("lightfarmd-" + std::to_string(++starts_) + ".log")).string();
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, 1, log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_adddup2(&actions, 1, 2);
+    const int rc = posix_spawn(&pid_, argv[0], &actions, nullptr, argv.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    if (rc != 0) throw std::runtime_error("cannot start " + args[0]);
+
+    // Bounded wait for the URL file, then for /healthz.
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(15);
+    while (std::chrono::steady_clock::now() < deadline) {
+        std::string text = read_text(data_ / "lightfarmd.url");
+        if (!text.empty()) {
+            url = text.substr(0, text.find('\n'));
+            port = std::stoi(url.substr(url.rfind(':') + 1));
+            httplib::Client c(host, port);
+            c.set_connection_timeout(1);
+            if (auto r = c.Get("/healthz"); r && r->status == 200) return;
+        }
+        int status = 0;
+        if (waitpid(pid_, &status, WNOHANG) == pid_) {
+            pid_ = -1;
+            throw std::runtime_error("lightfarmd exited at start:\n" + read_text(log_path));
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    throw std::runtime_error("lightfarmd did not come up in 15 s:\n" + read_text(log_path));
+}
+
+void Lightfarmd::stop() {
+    if (pid_ <= 0) return;
+    ::kill(pid_, SIGTERM);
+    for (int i = 0; i < 500; ++i) {
+        int status = 0;
+        if (waitpid(pid_, &status, WNOHANG) == pid_) {
+            pid_ = -1;
+            return;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    kill9();
+}
+
+void Lightfarmd::kill9() {
+    if (pid_ <= 0) return;
+    ::kill(pid_, SIGKILL);
+    int status = 0;
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+}
+
+std::string Lightfarmd::log() const {
+    std::string all;
+    for (int i = 1; i <= starts_; ++i) all += read_text(data_.parent_path() / ("lightfarmd-" + std::to_string(i) + ".log"));
+    return all;
+}
+
+httplib::Client Lightfarmd::client(const std::string& token) const {
+    httplib::Client c(host, port);
+    c.set_connection_timeout(2);
+    c.set_read_timeout(10);
+    if (!token.empty()) c.set_default_headers(bearer(token));
+    return c;
+}
+
+Headers bearer(const std::string& token) { return {{"Authorization", "Bearer " + token}}; }
+
+json wait_for_job(httplib::Client& c, const std::string& id, const std::function<bool(const json&)>& pred,
+                  std::chrono::milliseconds timeout) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    json last;
+    while (std::chrono::steady_clock::now() < deadline) {
+        auto r = c.Get("/v1/jobs/" + id);
+        if (r && r->status == 200) {
+            last = json::parse(r->body);
+            if (pred(last)) return last;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    }
+    return last;
+}
+
+std::vector<protocol::JobEvent> read_events(const std::string& host, int port, const std::string& token,
+                                            const std::string& id, int64_t last_event_id, size_t stop_after,
+                                            std::chrono::milliseconds timeout) {
+    httplib::Client c(host, port);
+    c.set_connection_timeout(2);
+    c.set_read_timeout(std::chrono::duration_cast<std::chrono::seconds>(timeout).count() + 1);
+    Headers headers = bearer(token);
+    if (last_event_id >= 0) headers.emplace("Last-Event-ID", std::to_string(last_event_id));
+    protocol::SseParser parser;
+    std::vector<protocol::JobEvent> events;
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    c.Get("/v1/jobs/" + id + "/events", headers, [&](const char* data, size_t n) {
+        for (protocol::JobEvent& e : parser.feed(std::string(data, n))) {
+            events.push_back(e);
+            if (protocol::is_final_event(e.type)) return false;
+            if (stop_after > 0 && events.size() >= stop_after) return false;
+        }
+        return std::chrono::steady_clock::now() < deadline;
+    });
+    return events;
+}
+
+}  // namespace lf::test

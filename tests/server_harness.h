@@ -1,0 +1,90 @@
+// Test helpers for the service: a temporary directory, a fake engine (a shell
+// script standing in for `lightfarm` so crashes and hangs can be staged), and
+// a real lightfarmd process on a loopback port with a real HTTP client.
+#pragma once
+
+#include "job_status.h"
+
+#include <httplib.h>
+#include <nlohmann/json.hpp>
+#include <sys/types.h>
+
+#include <chrono>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace lf::test {
+
+namespace fs = std::filesystem;
+
+struct TempDir {
+    TempDir();
+    ~TempDir();
+    fs::path path;
+};
+
+void write_text(const fs::path& path, const std::string& text);
+std::string read_text(const fs::path& path);
+
+// A tiny EXR (w x h, constant colour) for the fake engine to hand out.
+void write_exr(const fs::path& path, int w, int h, float r, float g, float b);
+
+// A shell script that speaks the worker contract. Its behaviour is read from
+// files in its state directory at every run, so a test can change it:
+//   mode     ok | crash_first | always_crash | hang_first | hang_always | no_done
+//   delay    seconds between passes (default 0)
+//   runs     incremented at every `bake` (how many workers were started)
+// `inspect` prints {"triangles": N} (N from the file `triangles`, default 12)
+// and fails with "not a glTF" for files containing the word BROKEN.
+struct FakeEngine {
+    explicit FakeEngine(const fs::path& dir);
+    void set(const std::string& name, const std::string& value) const { write_text(dir / name, value); }
+    int runs() const;
+    fs::path dir;
+    fs::path script;
+};
+
+// lightfarmd on 127.0.0.1 with a free port, its log in DATA/../lightfarmd-N.log.
+class Lightfarmd {
+public:
+    Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vector<std::string> extra = {});
+    ~Lightfarmd();  // stop()
+    void start();   // waits (bounded) until it answers /healthz
+    void stop();    // SIGTERM, then SIGKILL after a few seconds
+    void kill9();   // SIGKILL, as a crash
+    bool running() const { return pid_ > 0; }
+    std::string log() const;
+
+    std::string url;
+    std::string host = "127.0.0.1";
+    int port = 0;
+    httplib::Client client(const std::string& token) const;
+
+private:
+    fs::path data_, tokens_, engine_;
+    std::vector<std::string> extra_;
+    pid_t pid_ = -1;
+    int starts_ = 0;
+};
+
+using Headers = httplib::Headers;
+Headers bearer(const std::string& token);
+
+// Polls GET /v1/jobs/{id} until `pred` holds or `timeout` passes; returns the last status.
+nlohmann::json wait_for_job(httplib::Client& c, const std::string& id,
+                            const std::function<bool(const nlohmann::json&)>& pred,
+                            std::chrono::milliseconds timeout = std::chrono::seconds(20));
+inline bool is_finished(const nlohmann::json& s) {
+    const std::string st = s.value("state", "");
+    return st == "succeeded" || st == "failed" || st == "cancelled";
+}
+
+// Reads the event stream of a job (optionally from Last-Event-ID) until its
+// final event or `timeout`; `stop_after` > 0 stops after that many events.
+std::vector<protocol::JobEvent> read_events(const std::string& host, int port, const std::string& token,
+                                            const std::string& id, int64_t last_event_id = -1,
+                                            size_t stop_after = 0,
+                                            std::chrono::milliseconds timeout = std::chrono::seconds(20));
+
+}  // namespace lf::test

@@ -1,0 +1,595 @@
+// The lightmap atlas: generated charts, texel samples, dilation, seams and the
+// lightmapped glb. Scenes are built in code where a number must be known; the
+// shared scenes measure the atlas against the thesis's triangle-pair baseline.
+#include "atlas/atlas.h"
+#include "atlas/lightmapped_gltf.h"
+#include "atlas/seams.h"
+#include "atlas/texel_samples.h"
+#include "scene/gltf_loader.h"
+#include "scene_builders.h"
+
+#include <gtest/gtest.h>
+#include <tiny_gltf.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <random>
+#include <set>
+#include <unistd.h>
+
+namespace lf {
+namespace {
+
+namespace fs = std::filesystem;
+const fs::path kScenes = LIGHTFARM_SHARED_SCENES;
+
+// A scene with flat, curved, thin and tiny parts.
+Scene mixed_scene() {
+    Scene s;
+    const uint32_t white = test::add_material(s, glm::vec3(0.8f));
+    test::add_grid(s, {-2, 0, -2}, {4, 0, 0}, {0, 0, 4}, 8, 8, white);          // floor, one chart
+    test::add_box(s, {-0.5f, 0, -0.5f}, {0.5f, 1, 0.5f}, white);                // 6 charts, touches the floor
+    test::add_icosphere(s, {1.2f, 0.5f, 1.2f}, 0.4f, 2, white);                 // curved
+    test::add_quad(s, {-1.8f, 0.5f, 1.5f}, {1.5f, 0, 0}, {0, 0.7f, 0}, white);  // wall
+    test::add_mesh(s, {{0, 2, 0}, {1.5f, 2, 0}, {1.5f, 2.002f, 0}}, {{0, 1, 2}}, white);             // sliver
+    test::add_mesh(s, {{1, 2, 1}, {1.001f, 2, 1}, {1, 2, 1.001f}}, {{0, 2, 1}}, white);               // tiny
+    return s;
+}
+
+glm::vec2 uv_at(const Scene& s, uint32_t t, glm::vec2 bary) {
+    const glm::uvec3& tri = s.triangles[t];
+    return (1.0f - bary.x - bary.y) * s.uv1[tri.x] + bary.x * s.uv1[tri.y] + bary.y * s.uv1[tri.z];
+}
+
+double uv_pixel_area(const Scene& s, size_t t, int w, int h) {
+    const glm::uvec3& tri = s.triangles[t];
+    const glm::dvec2 a = glm::dvec2(s.uv1[tri.x]) * glm::dvec2(w, h), b = glm::dvec2(s.uv1[tri.y]) * glm::dvec2(w, h),
+                     c = glm::dvec2(s.uv1[tri.z]) * glm::dvec2(w, h);
+    return 0.5 * std::abs((b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x));
+}
+
+// Chart of every texel (-1 uncovered); fails the test where two charts share a texel.
+std::vector<int> chart_per_texel(const Scene& s, const AtlasReport& report, const TexelSamples& texels) {
+    std::vector<int> chart(size_t(texels.width) * size_t(texels.height), -1);
+    for (size_t i = 0; i < texels.covered_count(); ++i) {
+        std::set<uint32_t> charts;
+        for (uint32_t k = texels.first_sample[i]; k < texels.first_sample[i + 1]; ++k)
+            charts.insert(report.triangle_chart[texels.samples[k].triangle]);
+        EXPECT_EQ(charts.size(), 1u) << "texel " << texels.texels[i] << " is claimed by several charts";
+        chart[texels.texels[i]] = int(*charts.begin());
+    }
+    (void)s;
+    return chart;
+}
+
+// Any two texels of different charts are more than `padding` texels apart
+// (Chebyshev distance), i.e. at least `padding` empty texels lie between them.
+void expect_charts_apart(const std::vector<int>& chart, int w, int h, int padding) {
+    size_t violations = 0;
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+            const int c = chart[size_t(y) * size_t(w) + size_t(x)];
+            if (c < 0) continue;
+            for (int dy = -padding; dy <= padding; ++dy)
+                for (int dx = -padding; dx <= padding; ++dx) {
+                    const int xx = x + dx, yy = y + dy;
+                    if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
+                    const int other = chart[size_t(yy) * size_t(w) + size_t(xx)];
+                    if (other >= 0 && other != c) ++violations;
+                }
+        }
+    EXPECT_EQ(violations, 0u);
+}
+
+TEST(Atlas, GeneratedChartsNeitherOverlapNorTouch) {
+    Scene s = mixed_scene();
+    AtlasOptions options;
+    options.resolution = 128;
+    options.padding = 2;
+    const AtlasReport report = generate_lightmap_uvs(s, options);
+    ASSERT_TRUE(report.generated);
+    EXPECT_EQ(report.width, 128);
+    EXPECT_GT(report.charts, 8u);  // floor, 6 box faces, sphere charts, wall, sliver, tiny
+    const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height);
+    expect_charts_apart(chart_per_texel(s, report, texels), report.width, report.height, options.padding);
+    for (const glm::vec2& uv : s.uv1) {
+        EXPECT_GE(uv.x, 0.0f);
+        EXPECT_LE(uv.x, 1.0f);
+        EXPECT_GE(uv.y, 0.0f);
+        EXPECT_LE(uv.y, 1.0f);
+    }
+}
+
+TEST(Atlas, EveryTriangleOwnsATexelIncludingSliversAndTinyOnes) {
+    Scene s = mixed_scene();
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 64});
+    const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height);
+    std::vector<int> samples_of(s.triangles.size(), 0);
+    for (const TexelSample& sample : texels.samples) ++samples_of[sample.triangle];
+    for (size_t t = 0; t < s.triangles.size(); ++t) EXPECT_GT(samples_of[t], 0) << "triangle " << t;
+    // The sliver (1.5 m x 2 mm) and the tiny triangle (1 mm) are the last two.
+    EXPECT_GT(samples_of[s.triangles.size() - 2], 0);
+    EXPECT_GT(samples_of[s.triangles.size() - 1], 0);
+}
+
+TEST(Atlas, TexelDensityIsTheSameForEveryChart) {
+    Scene s = mixed_scene();
+    const AtlasReport report = generate_lightmap_uvs(s, {.texel_density = 20.0f});
+    EXPECT_FLOAT_EQ(report.texel_density, 20.0f);  // fits, so it is kept
+    std::vector<double> world(report.charts, 0.0), uv(report.charts, 0.0);
+    for (size_t t = 0; t < s.triangles.size(); ++t) {
+        world[report.triangle_chart[t]] += s.triangle_area(t);
+        uv[report.triangle_chart[t]] += uv_pixel_area(s, t, report.width, report.height);
+    }
+    for (size_t c = 0; c < report.charts; ++c) {
+        if (world[c] * 20.0 * 20.0 < 1.0) continue;  // charts under one texel take the minimum size
+        EXPECT_NEAR(std::sqrt(uv[c] / world[c]), 20.0, 0.02) << "chart " << c;
+    }
+}
+
+TEST(Atlas, ResolutionOnlyDerivesADensityThatFills) {
+    Scene s = mixed_scene();
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 256});
+    EXPECT_EQ(report.width, 256);
+    EXPECT_GT(report.texel_density, 0.0f);
+    EXPECT_GT(report.utilisation, 0.4);  // 10-odd charts of very different sizes
+    std::printf("mixed scene at 256²: %zu charts, density %.1f texels/m, utilisation %.1f%%\n", report.charts,
+                report.texel_density, 100.0 * report.utilisation);
+}
+
+TEST(Atlas, DensityTooHighForTheResolutionShrinks) {
+    Scene s = mixed_scene();
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 64, .texel_density = 1000.0f});
+    EXPECT_EQ(report.width, 64);
+    EXPECT_LT(report.texel_density, 1000.0f);
+    EXPECT_GT(report.texel_density, 1.0f);
+}
+
+TEST(Atlas, SplitVerticesKeepPositionsAndMapBack) {
+    Scene original = mixed_scene();
+    Scene s = original;
+    generate_lightmap_uvs(s, {.resolution = 128});
+    ASSERT_EQ(s.triangles.size(), original.triangles.size());
+    ASSERT_EQ(s.source_vertex.size(), s.positions.size());
+    EXPECT_GT(s.positions.size(), original.positions.size());  // the box's corners were split
+    for (size_t i = 0; i < s.instances.size(); ++i) {
+        const PrimitiveInstance& a = original.instances[i];
+        const PrimitiveInstance& b = s.instances[i];
+        EXPECT_TRUE(b.has_uv1);
+        for (uint32_t v = b.first_vertex; v < b.first_vertex + b.vertex_count; ++v) {
+            ASSERT_LT(s.source_vertex[v], a.vertex_count);
+            EXPECT_EQ(s.positions[v], original.positions[a.first_vertex + s.source_vertex[v]]);
+        }
+        for (uint32_t t = b.first_triangle; t < b.first_triangle + b.triangle_count; ++t)
+            for (int k = 0; k < 3; ++k) {
+                EXPECT_GE(s.triangles[t][k], b.first_vertex);
+                EXPECT_LT(s.triangles[t][k], b.first_vertex + b.vertex_count);
+                EXPECT_EQ(s.positions[s.triangles[t][k]], original.positions[original.triangles[t][k]]);
+            }
+    }
+}
+
+TEST(TexelSamples, SamplesLieOnTheirTriangleAndInsideTheirTexel) {
+    Scene s = mixed_scene();
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 96});
+    for (int n : {1, 2, 3}) {
+        const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height, n);
+        ASSERT_EQ(texels.first_sample.size(), texels.covered_count() + 1);
+        for (size_t i = 0; i < texels.covered_count(); ++i) {
+            const int x = int(texels.texels[i] % uint32_t(texels.width)), y = int(texels.texels[i] / uint32_t(texels.width));
+            ASSERT_GT(texels.sample_count(i), 0u);
+            EXPECT_GT(texels.texel_world_size[i], 0.0f);
+            for (uint32_t k = texels.first_sample[i]; k < texels.first_sample[i + 1]; ++k) {
+                const TexelSample& sample = texels.samples[k];
+                ASSERT_GE(sample.bary.x, 0.0f);
+                ASSERT_GE(sample.bary.y, 0.0f);
+                ASSERT_LE(sample.bary.x + sample.bary.y, 1.0f + 1e-6f);
+                const glm::vec2 pixel = uv_at(s, sample.triangle, sample.bary) * glm::vec2(texels.width, texels.height);
+                const float eps = 1e-3f;
+                EXPECT_GE(pixel.x, float(x) - eps);
+                EXPECT_LE(pixel.x, float(x + 1) + eps);
+                EXPECT_GE(pixel.y, float(y) - eps);
+                EXPECT_LE(pixel.y, float(y + 1) + eps);
+                EXPECT_NEAR(glm::length(sample.normal), 1.0f, 1e-4f);
+                const glm::uvec3& tri = s.triangles[sample.triangle];
+                const glm::vec3 p = (1 - sample.bary.x - sample.bary.y) * s.positions[tri.x] +
+                                    sample.bary.x * s.positions[tri.y] + sample.bary.y * s.positions[tri.z];
+                EXPECT_LT(glm::length(p - sample.position), 1e-5f);
+            }
+        }
+    }
+}
+
+TEST(TexelSamples, FullyCoveredTexelGetsStratifiedSubsamplesAndMaterial) {
+    Scene s;
+    const uint32_t red = test::add_material(s, glm::vec3(0.7f, 0.1f, 0.1f), glm::vec3(2.0f));
+    test::add_quad(s, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}, red);  // UV1 covers the whole square
+    const TexelSamples texels = rasterize_texel_samples(s, 4, 4, 2);
+    ASSERT_EQ(texels.covered_count(), 16u);
+    EXPECT_TRUE(texels.dilation.empty());
+    for (size_t i = 0; i < 16; ++i) {
+        // Texels on the quad's diagonal hold samples from both triangles; every
+        // sub-position is taken exactly once, except exactly on the diagonal.
+        EXPECT_GE(texels.sample_count(i), 4u);
+        EXPECT_NEAR(texels.albedo[i].x, 0.7f, 1e-6f);
+        EXPECT_NEAR(texels.emission[i].y, 2.0f, 1e-6f);
+        EXPECT_NEAR(texels.texel_world_size[i], 0.25f, 1e-5f);
+    }
+}
+
+TEST(TexelSamples, DilationFillsARingAroundEachChart) {
+    Scene s;
+    const uint32_t white = test::add_material(s, glm::vec3(1.0f));
+    // A 8x8-texel chart in the middle of a 32² atlas.
+    test::add_quad(s, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}, white, {12.0f / 32, 12.0f / 32, 20.0f / 32, 20.0f / 32});
+    const TexelSamples texels = rasterize_texel_samples(s, 32, 32, 2, 3);
+    ASSERT_EQ(texels.covered_count(), 64u);
+    std::vector<glm::vec4> image(32 * 32, glm::vec4(0.0f));
+    for (size_t i = 0; i < texels.covered_count(); ++i) {
+        const uint32_t p = texels.texels[i];
+        image[p] = glm::vec4(float(p % 32), float(p / 32), 1.0f, 1.0f);  // each texel says where it is
+    }
+    dilate(texels, image);
+    for (int y = 0; y < 32; ++y)
+        for (int x = 0; x < 32; ++x) {
+            const glm::vec4 v = image[size_t(y) * 32 + size_t(x)];
+            const int cx = std::clamp(x, 12, 19), cy = std::clamp(y, 12, 19);  // nearest covered texel
+            const int d2 = (x - cx) * (x - cx) + (y - cy) * (y - cy);
+            if (d2 <= 9) {
+                EXPECT_EQ(v.z, 1.0f) << x << "," << y;
+                EXPECT_EQ(v.x, float(cx));
+                EXPECT_EQ(v.y, float(cy));
+            } else {
+                EXPECT_EQ(v.z, 0.0f) << x << "," << y;
+            }
+        }
+}
+
+TEST(TexelSamples, CoverageMaskMatchesTheCoveredTexels) {
+    Scene s = mixed_scene();
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 64});
+    const TexelSamples texels = rasterize_texel_samples(s, 64, 64);
+    const std::vector<uint8_t> mask = coverage_mask(s, 64, 64);
+    size_t covered = 0;
+    for (uint8_t m : mask) covered += m;
+    EXPECT_EQ(covered, texels.covered_count());
+    for (uint32_t p : texels.texels) EXPECT_EQ(mask[p], 1);
+    EXPECT_NEAR(report.utilisation, double(covered) / (64.0 * 64.0), 1e-12);
+}
+
+// ---------------------------------------------------------------------------
+// Seams.
+
+TEST(Seams, ABoxWithOneChartPerFaceHasTwelveSeams) {
+    Scene s;
+    test::add_box(s, {0, 0, 0}, {1, 1, 1}, test::add_material(s, glm::vec3(1.0f)));
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 64});
+    EXPECT_EQ(report.charts, 6u);
+    const std::vector<SeamEdge> seams = find_seams(s);
+    EXPECT_EQ(seams.size(), 12u);
+}
+
+TEST(Seams, AFlatGridIsOneChartWithoutSeams) {
+    Scene s;
+    test::add_grid(s, {0, 0, 0}, {2, 0, 0}, {0, 0, 1}, 6, 3, test::add_material(s, glm::vec3(1.0f)));
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 64});
+    EXPECT_EQ(report.charts, 1u);
+    EXPECT_TRUE(find_seams(s).empty());
+}
+
+// A 2 x 2 m plane of 2 x 2 quads, cut along x = 1 into two UV islands.
+void add_cut_plane(Scene& s, uint32_t material, bool as_two_meshes) {
+    std::vector<glm::vec3> p;
+    std::vector<glm::vec2> uv;
+    std::vector<glm::uvec3> left, right;
+    for (int half = 0; half < 2; ++half) {
+        const auto base = uint32_t(p.size());
+        for (int j = 0; j <= 2; ++j)
+            for (int i = 0; i <= 1; ++i) {
+                p.push_back({float(half + i), 0.0f, float(j)});
+                uv.push_back({0.05f + 0.5f * half + 0.2f * i, 0.05f + 0.2f * j});
+            }
+        auto at = [&](int i, int j) { return base + uint32_t(j * 2 + i); };
+        auto& tris = half == 0 ? left : right;
+        for (int j = 0; j < 2; ++j) {
+            tris.push_back({at(0, j), at(1, j + 1), at(1, j)});
+            tris.push_back({at(0, j), at(0, j + 1), at(1, j + 1)});
+        }
+    }
+    if (as_two_meshes) {
+        auto sub = [&](size_t from) { return std::vector<glm::vec3>(p.begin() + long(from), p.begin() + long(from) + 6); };
+        auto sub_uv = [&](size_t from) { return std::vector<glm::vec2>(uv.begin() + long(from), uv.begin() + long(from) + 6); };
+        std::vector<glm::uvec3> right_local;
+        for (auto t : right) right_local.push_back(t - glm::uvec3(6));
+        test::add_mesh(s, sub(0), left, material, sub_uv(0));
+        test::add_mesh(s, sub(6), right_local, material, sub_uv(6));
+    } else {
+        std::vector<glm::uvec3> all = left;
+        all.insert(all.end(), right.begin(), right.end());
+        test::add_mesh(s, p, all, material, uv);
+    }
+}
+
+TEST(Seams, APlaneCutInTwoHasSeamsAlongTheCutWithinAndBetweenMeshes) {
+    for (bool two_meshes : {false, true}) {
+        Scene s;
+        add_cut_plane(s, test::add_material(s, glm::vec3(1.0f)), two_meshes);
+        const std::vector<SeamEdge> seams = find_seams(s);
+        ASSERT_EQ(seams.size(), 2u) << (two_meshes ? "two meshes" : "one mesh");
+        for (const SeamEdge& seam : seams) {
+            EXPECT_TRUE(seam.smooth);
+            // Side A and side B are the same points of the cut: x = 1 is u = 0.25 on the
+            // left island and u = 0.55 on the right one, v equal.
+            EXPECT_NEAR(std::abs(seam.a0.x - seam.b0.x), 0.3f, 1e-6f);
+            EXPECT_NEAR(seam.a0.y, seam.b0.y, 1e-6f);
+            EXPECT_NEAR(seam.a1.y, seam.b1.y, 1e-6f);
+        }
+    }
+}
+
+TEST(Seams, MetricIsZeroForAgreeingSidesAndMeasuresTheDifference) {
+    Scene s;
+    add_cut_plane(s, test::add_material(s, glm::vec3(1.0f)), false);
+    const std::vector<SeamEdge> seams = find_seams(s);
+    const int w = 40, h = 40;
+    std::vector<glm::vec4> image(w * h, glm::vec4(0.5f));
+    EXPECT_NEAR(seam_metric(seams, image, w, h), 0.0, 1e-9);
+    // Left island (u < 0.5) at 1, right at 0: the sides differ by exactly 1.
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) image[size_t(y * w + x)] = glm::vec4(x < w / 2 ? 1.0f : 0.0f);
+    EXPECT_NEAR(seam_metric(seams, image, w, h), 1.0, 1e-6);
+    EXPECT_EQ(sample_bilinear(image, w, h, {0.0f, 0.0f}), glm::vec4(1.0f));  // clamped at the border
+}
+
+TEST(Seams, StitchingMakesBothSidesAgree) {
+    Scene s;
+    test::add_icosphere(s, {0, 0, 0}, 1.0f, 2, test::add_material(s, glm::vec3(1.0f)));
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 128});
+    std::vector<SeamEdge> seams = find_seams(s);
+    ASSERT_FALSE(seams.empty());
+    std::erase_if(seams, [](const SeamEdge& e) { return !e.smooth; });
+    ASSERT_FALSE(seams.empty());
+    // A smooth "lighting" (a function of position) plus texel noise, dilated.
+    const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height);
+    std::vector<glm::vec4> image(size_t(report.width) * report.height, glm::vec4(0.0f));
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> noise(-0.1f, 0.1f);
+    for (size_t i = 0; i < texels.covered_count(); ++i) {
+        const glm::vec3 p = texels.samples[texels.first_sample[i]].position;
+        image[texels.texels[i]] = glm::vec4(glm::vec3(1.0f + 0.5f * p.y + noise(rng)), 1.0f);
+    }
+    dilate(texels, image);
+    const double before = seam_metric(seams, image, report.width, report.height);
+    stitch_seams(seams, image, report.width, report.height);
+    const double after = seam_metric(seams, image, report.width, report.height);
+    std::printf("icosphere: %zu smooth seams, metric %.4f before stitching, %.4f after\n", seams.size(), before, after);
+    EXPECT_GT(before, 0.01);
+    EXPECT_LT(after, 0.25 * before);
+}
+
+// ---------------------------------------------------------------------------
+// Against the thesis's triangle-pair atlas, on the shared scenes.
+
+struct AtlasFigures {
+    AtlasReport report;
+    size_t seams = 0;
+    double density_spread = 0.0;  // 90th / 10th percentile of the triangles' texel densities
+};
+
+AtlasFigures measure(Scene s, bool baseline, int resolution) {
+    AtlasFigures f;
+    AtlasOptions options;
+    options.resolution = resolution;
+    f.report = baseline ? generate_triangle_pair_uvs(s, options) : generate_lightmap_uvs(s, options);
+    f.seams = find_seams(s).size();
+    std::vector<double> density;
+    for (size_t t = 0; t < s.triangles.size(); ++t)
+        if (s.triangle_area(t) > 0.0f) density.push_back(std::sqrt(uv_pixel_area(s, t, resolution, resolution) / s.triangle_area(t)));
+    std::sort(density.begin(), density.end());
+    f.density_spread = density[density.size() * 9 / 10] / density[density.size() / 10];
+    return f;
+}
+
+TEST(AtlasVsTrianglePairs, FewerSeamsOnTheSharedScenes) {
+    for (const char* name : {"cornell_box.gltf", "monkey.glb", "packuv.glb"}) {
+        const fs::path file = kScenes / name;
+        if (!fs::exists(file)) GTEST_SKIP() << file << " missing";
+        const Scene scene = load_scene(file);  // cornell_box's own TEXCOORD_1 is ignored: both atlases are generated
+        for (int resolution : {256, 1024}) {
+            const AtlasFigures charts = measure(scene, false, resolution);
+            const AtlasFigures pairs = measure(scene, true, resolution);
+            std::printf("%-17s %4d² %5zu tris | charts: %4zu charts, %5zu seam edges, utilisation %5.1f%%, "
+                        "%6.1f texels/m, density p90/p10 %.2f | triangle pairs: %4zu pairs, %5zu seam edges, "
+                        "utilisation %5.1f%%, %6.1f texels/m, density p90/p10 %.2f\n",
+                        name, resolution, scene.triangles.size(), charts.report.charts, charts.seams,
+                        100.0 * charts.report.utilisation, charts.report.texel_density, charts.density_spread,
+                        pairs.report.charts, pairs.seams, 100.0 * pairs.report.utilisation,
+                        pairs.report.texel_density, pairs.density_spread);
+            EXPECT_LT(charts.seams, pairs.seams) << name;
+            EXPECT_LT(charts.report.charts, pairs.report.charts) << name;
+        }
+    }
+}
+
+TEST(Atlas, ExistingLightmapUVsDecideTheSizeFromTheDensity) {
+    const fs::path file = kScenes / "cornell_box.gltf";
+    if (!fs::exists(file)) GTEST_SKIP() << file << " missing";
+    const Scene scene = load_scene(file);
+    ASSERT_TRUE(scene.all_have_lightmap_uvs());
+    const AtlasReport at256 = use_existing_lightmap_uvs(scene, {.resolution = 256});
+    EXPECT_FALSE(at256.generated);
+    EXPECT_EQ(at256.width, 256);
+    EXPECT_EQ(at256.charts, 16u);  // one rectangle per quad (SOURCES.md)
+    EXPECT_GT(at256.utilisation, 0.3);
+    // Asking for that density back gives that resolution back.
+    const AtlasReport back = use_existing_lightmap_uvs(scene, {.texel_density = at256.texel_density * 0.999f});
+    EXPECT_NEAR(back.width, 256, 1);
+    std::printf("cornell_box TEXCOORD_1 at 256²: %.1f texels/m, utilisation %.1f%%\n", at256.texel_density,
+                100.0 * at256.utilisation);
+}
+
+// ---------------------------------------------------------------------------
+// scene.lightmapped.glb.
+
+// Loads `file`, generates an atlas, writes the lightmapped glb and loads that
+// back: same triangles at the same world positions, every primitive with the
+// generated TEXCOORD_1.
+void expect_round_trip(const fs::path& file, const fs::path& out) {
+    const Scene original = load_scene(file);
+    Scene atlas = original;
+    generate_lightmap_uvs(atlas, {.resolution = 256});
+    write_lightmapped_glb(file, atlas, out);
+    const Scene back = load_scene(out);
+
+    ASSERT_EQ(back.instances.size(), original.instances.size()) << file;
+    ASSERT_EQ(back.triangles.size(), original.triangles.size()) << file;
+    EXPECT_TRUE(back.all_have_lightmap_uvs());
+    size_t position_mismatches = 0, uv_mismatches = 0;
+    for (size_t t = 0; t < back.triangles.size(); ++t)
+        for (int k = 0; k < 3; ++k) {
+            if (back.positions[back.triangles[t][k]] != original.positions[original.triangles[t][k]]) ++position_mismatches;
+            if (back.uv1[back.triangles[t][k]] != atlas.uv1[atlas.triangles[t][k]]) ++uv_mismatches;
+        }
+    EXPECT_EQ(position_mismatches, 0u) << file;
+    EXPECT_EQ(uv_mismatches, 0u) << file;
+    for (size_t i = 0; i < back.instances.size(); ++i) EXPECT_TRUE(back.instances[i].has_uv1);
+}
+
+TEST(LightmappedGlb, RoundTripsTheSharedScenes) {
+    const fs::path dir = fs::temp_directory_path() / ("lightfarm_atlas_test_" + std::to_string(::getpid()));
+    fs::create_directories(dir);
+    for (const char* name : {"packuv.glb", "monkey.glb", "cornell_box.gltf"}) {
+        const fs::path file = kScenes / name;
+        if (!fs::exists(file)) continue;
+        expect_round_trip(file, dir / "scene.lightmapped.glb");
+        // Nothing but the result is left behind.
+        size_t files = 0;
+        for (const auto& entry : fs::directory_iterator(dir)) files += entry.is_regular_file();
+        EXPECT_EQ(files, 1u);
+    }
+    fs::remove_all(dir);
+}
+
+// A glTF with one box mesh (24 vertices, faces split as exporters do) placed
+// by two nodes, one of them mirrored.
+void write_instanced_box(const fs::path& file) {
+    tinygltf::Model model;
+    std::vector<float> positions;
+    std::vector<uint16_t> indices;
+    for (int axis = 0; axis < 3; ++axis)
+        for (int side = 0; side < 2; ++side) {
+            const auto base = uint16_t(positions.size() / 3);
+            for (int corner = 0; corner < 4; ++corner) {
+                float p[3];
+                p[axis] = side ? 0.5f : -0.5f;
+                p[(axis + 1) % 3] = (corner == 1 || corner == 2) ? 0.5f : -0.5f;
+                p[(axis + 2) % 3] = corner >= 2 ? 0.5f : -0.5f;
+                positions.insert(positions.end(), p, p + 3);
+            }
+            const bool flip = side == 0;
+            indices.insert(indices.end(), {base, uint16_t(base + (flip ? 2 : 1)), uint16_t(base + (flip ? 1 : 2)), base,
+                                           uint16_t(base + (flip ? 3 : 2)), uint16_t(base + (flip ? 2 : 3))});
+        }
+    tinygltf::Buffer buffer;
+    buffer.data.resize(positions.size() * 4 + indices.size() * 2);
+    std::memcpy(buffer.data.data(), positions.data(), positions.size() * 4);
+    std::memcpy(buffer.data.data() + positions.size() * 4, indices.data(), indices.size() * 2);
+    model.buffers.push_back(buffer);
+    tinygltf::BufferView pv, iv;
+    pv.buffer = iv.buffer = 0;
+    pv.byteLength = positions.size() * 4;
+    iv.byteOffset = pv.byteLength;
+    iv.byteLength = indices.size() * 2;
+    model.bufferViews = {pv, iv};
+    tinygltf::Accessor pa, ia;
+    pa.bufferView = 0;
+    pa.componentType = TINYGLTF_COMPONENT_TYPE_FLOAT;
+    pa.type = TINYGLTF_TYPE_VEC3;
+    pa.count = positions.size() / 3;
+    pa.minValues = {-0.5, -0.5, -0.5};
+    pa.maxValues = {0.5, 0.5, 0.5};
+    ia.bufferView = 1;
+    ia.componentType = TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT;
+    ia.type = TINYGLTF_TYPE_SCALAR;
+    ia.count = indices.size();
+    model.accessors = {pa, ia};
+    tinygltf::Primitive prim;
+    prim.attributes["POSITION"] = 0;
+    prim.indices = 1;
+    prim.mode = TINYGLTF_MODE_TRIANGLES;
+    tinygltf::Mesh mesh;
+    mesh.primitives.push_back(prim);
+    model.meshes.push_back(mesh);
+    tinygltf::Node a, b;
+    a.mesh = b.mesh = 0;
+    a.translation = {-1.0, 0.0, 0.0};
+    b.translation = {1.0, 0.0, 0.0};
+    b.scale = {-1.0, 1.0, 1.0};  // mirrored
+    model.nodes = {a, b};
+    tinygltf::Scene scene;
+    scene.nodes = {0, 1};
+    model.scenes.push_back(scene);
+    model.defaultScene = 0;
+    model.asset.version = "2.0";
+    tinygltf::TinyGLTF gltf;
+    ASSERT_TRUE(gltf.WriteGltfSceneToFile(&model, file.string(), true, true, true, false));
+}
+
+TEST(LightmappedGlb, InstancedAndMirroredMeshesGetTheirOwnUVs) {
+    const fs::path dir = fs::temp_directory_path() / ("lightfarm_atlas_box_" + std::to_string(::getpid()));
+    fs::create_directories(dir);
+    write_instanced_box(dir / "boxes.gltf");
+    const Scene original = load_scene(dir / "boxes.gltf");
+    ASSERT_EQ(original.instances.size(), 2u);
+    // Both boxes face outwards in the Scene (the loader undid the mirroring).
+    for (size_t t = 0; t < original.triangles.size(); ++t) {
+        const PrimitiveInstance& inst = original.instances[t < original.instances[1].first_triangle ? 0 : 1];
+        const glm::vec3 centre(inst.node == 0 ? -1.0f : 1.0f, 0.0f, 0.0f);
+        const glm::uvec3& tri = original.triangles[t];
+        const glm::vec3 mid = (original.positions[tri.x] + original.positions[tri.y] + original.positions[tri.z]) / 3.0f;
+        EXPECT_GT(glm::dot(original.geometric_normal(t), mid - centre), 0.0f) << t;
+    }
+    expect_round_trip(dir / "boxes.gltf", dir / "boxes.lightmapped.glb");
+
+    // Each node placement got its own mesh.
+    tinygltf::Model written;
+    tinygltf::TinyGLTF gltf;
+    std::string err, warn;
+    ASSERT_TRUE(gltf.LoadBinaryFromFile(&written, &err, &warn, (dir / "boxes.lightmapped.glb").string())) << err;
+    ASSERT_EQ(written.nodes.size(), 2u);
+    EXPECT_NE(written.nodes[0].mesh, written.nodes[1].mesh);
+    fs::remove_all(dir);
+}
+
+// ---------------------------------------------------------------------------
+// Speed on the big scenes (figures printed; bounds loose for shared machines).
+
+TEST(AtlasSpeed, BigScenesAt1024) {
+    for (const fs::path& file : {kScenes / "real/wooden_staircase/wooden_staircase.gltf", kScenes / "spheres.glb"}) {
+        if (!fs::exists(file)) continue;
+        Scene scene = load_scene(file);
+        using clock = std::chrono::steady_clock;
+        const auto t0 = clock::now();
+        const AtlasReport report = generate_lightmap_uvs(scene, {.resolution = 1024});
+        const auto t1 = clock::now();
+        const TexelSamples texels = rasterize_texel_samples(scene, 1024, 1024);
+        const auto t2 = clock::now();
+        const size_t seams = find_seams(scene).size();
+        const auto t3 = clock::now();
+        auto seconds = [](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
+        std::printf("%s: %zu triangles, %zu charts, %.1f texels/m, utilisation %.1f%%, %zu covered texels, "
+                    "%zu samples, %zu seam edges | atlas %.2f s, texel samples %.2f s, seams %.2f s\n",
+                    file.filename().c_str(), scene.triangles.size(), report.charts, report.texel_density,
+                    100.0 * report.utilisation, texels.covered_count(), texels.samples.size(), seams, seconds(t0, t1),
+                    seconds(t1, t2), seconds(t2, t3));
+        for (size_t t = 0; t < scene.triangles.size(); ++t) ASSERT_NE(report.triangle_chart[t], UINT32_MAX);
+        EXPECT_LT(seconds(t0, t2), 60.0);
+    }
+}
+
+}  // namespace
+}  // namespace lf

@@ -1,0 +1,116 @@
+// The CLI's remote commands (client_cli/remote.cpp) against a real lightfarmd
+// on loopback with the fake engine: submit --wait downloads the results,
+// jobs/fetch/cancel work, and a server error is one line and exit 1.
+#include "server_harness.h"
+
+#include "remote.h"
+
+#include <gtest/gtest.h>
+
+#include <sstream>
+
+namespace lf::test {
+namespace {
+
+const std::string kToken = "remote-test-token";
+
+// Runs `lightfarm ARGS...` through run_remote_command, capturing stdout and stderr.
+struct CliRun {
+    int status;
+    std::string out, err;
+};
+CliRun run(std::vector<std::string> args) {
+    args.insert(args.begin(), "lightfarm");
+    std::vector<char*> argv;
+    for (std::string& a : args) argv.push_back(a.data());
+    std::ostringstream out, err;
+    auto* old_out = std::cout.rdbuf(out.rdbuf());
+    auto* old_err = std::cerr.rdbuf(err.rdbuf());
+    const int status = cli::run_remote_command(args[1], int(argv.size()), argv.data());
+    std::cout.rdbuf(old_out);
+    std::cerr.rdbuf(old_err);
+    return {status, out.str(), err.str()};
+}
+
+class RemoteTest : public ::testing::Test {
+protected:
+    void SetUp() override {
+        write_text(tmp.path / "tokens", kToken + "\n");
+        server = std::make_unique<Lightfarmd>(tmp.path / "data", tmp.path / "tokens", engine.script);
+        server->start();
+        write_text(tmp.path / "scene.glb", std::string("glTF\x02\x00\x00\x00", 8) + " remote");
+        // A .gltf with a buffer file beside it, as multipart.
+        write_text(tmp.path / "gltf" / "scene.gltf",
+                   R"({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 4, "uri": "bin/data%20a.bin"}]})");
+        write_text(tmp.path / "gltf" / "bin" / "data a.bin", "abcd");
+    }
+    std::vector<std::string> common() { return {"--server", server->url, "--token", kToken}; }
+    std::vector<std::string> with_common(std::vector<std::string> args) {
+        for (const std::string& a : common()) args.push_back(a);
+        return args;
+    }
+    TempDir tmp;
+    FakeEngine engine{tmp.path / "engine"};
+    std::unique_ptr<Lightfarmd> server;
+};
+
+TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
+    const fs::path out = tmp.path / "out";
+    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "3", "--seed", "9", "--wait",
+                                   "--out", out.string()}));
+    ASSERT_EQ(r.status, 0) << r.err;
+    const std::string id = r.out.substr(0, r.out.find('\n'));
+    EXPECT_EQ(id.size(), 24u) << r.out;
+    EXPECT_EQ(read_text(out / "lightmap.exr"), read_text(engine.dir / "snapshot.exr"));
+    EXPECT_TRUE(fs::exists(out / "manifest.json"));
+    EXPECT_NE(read_text(engine.dir / "last_args").find("--passes 3 --seed 9"), std::string::npos);
+
+    const CliRun list = run(with_common({"jobs"}));
+    EXPECT_EQ(list.status, 0);
+    EXPECT_NE(list.out.find(id + "  succeeded"), std::string::npos) << list.out;
+
+    const CliRun latest = run(with_common({"fetch", id, "--latest", "--out", (tmp.path / "latest").string()}));
+    EXPECT_EQ(latest.status, 0) << latest.err;
+    EXPECT_TRUE(fs::exists(tmp.path / "latest" / "lightmap.pass-0002.exr"));
+    EXPECT_FALSE(fs::exists(tmp.path / "latest" / "lightmap.pass-0001.exr"));
+
+    const CliRun w = run(with_common({"watch", id, "--json"}));
+    EXPECT_EQ(w.status, 0);
+    EXPECT_NE(w.out.find("\"event\":\"done\""), std::string::npos) << w.out;
+}
+
+TEST_F(RemoteTest, SubmitsAGltfWithItsFiles) {
+    const CliRun r = run(with_common({"submit", (tmp.path / "gltf" / "scene.gltf").string()}));
+    ASSERT_EQ(r.status, 0) << r.err;
+    const std::string id = r.out.substr(0, r.out.find('\n'));
+    const CliRun w = run(with_common({"watch", id}));
+    EXPECT_EQ(w.status, 0) << w.err;
+}
+
+TEST_F(RemoteTest, CancelAndErrorsAreOneLine) {
+    engine.set("mode", "hang_always");
+    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string()}));
+    ASSERT_EQ(r.status, 0) << r.err;
+    const std::string id = r.out.substr(0, r.out.find('\n'));
+    const CliRun c = run(with_common({"cancel", id}));
+    EXPECT_EQ(c.status, 0) << c.err;
+    EXPECT_EQ(c.out, id + " cancelled\n");
+    const CliRun again = run(with_common({"cancel", id}));
+    EXPECT_EQ(again.status, 1);
+    EXPECT_EQ(again.err, "lightfarm cancel: error: job " + id + " already cancelled (HTTP 409)\n");
+    EXPECT_EQ(run(with_common({"watch", id})).status, 1);
+
+    const CliRun bad_token = run({"jobs", "--server", server->url, "--token", "wrong"});
+    EXPECT_EQ(bad_token.status, 1);
+    EXPECT_NE(bad_token.err.find("HTTP 401"), std::string::npos) << bad_token.err;
+    EXPECT_EQ(std::count(bad_token.err.begin(), bad_token.err.end(), '\n'), 1);
+
+    const CliRun too_big = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--res", "100000"}));
+    EXPECT_EQ(too_big.status, 1);
+    EXPECT_NE(too_big.err.find("lightmap.res: 100000 exceeds the limit 8192 (HTTP 400)"), std::string::npos) << too_big.err;
+    EXPECT_EQ(run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "x"})).status, 2);
+    EXPECT_EQ(run({"jobs", "--server", "http://127.0.0.1:1", "--token", "t"}).status, 1);
+}
+
+}  // namespace
+}  // namespace lf::test

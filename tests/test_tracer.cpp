@@ -1,0 +1,233 @@
+// The one tracer against a CPU brute-force reference, and the properties a
+// tracer must have: watertight shared edges, no self-intersection, occlusion
+// queries consistent with closest hits.
+#include "gpu_fixture.h"
+#include "scene_builders.h"
+
+#include "gpu/shader.h"
+#include "scene/gltf_loader.h"
+#include "trace/bvh.h"
+#include "trace/ray_reference.h"
+#include "trace/tracer.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+namespace lf {
+namespace {
+
+using test::gpu;
+
+glm::vec3 random_direction(std::mt19937& rng) {
+    std::normal_distribution<float> g;
+    glm::vec3 d;
+    do d = glm::vec3(g(rng), g(rng), g(rng)); while (glm::length(d) < 1e-3f);
+    return glm::normalize(d);
+}
+
+// Random rays from inside the scene's box and from its surfaces.
+std::vector<Ray> random_rays(const Scene& scene, size_t count, uint32_t seed) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::uniform_int_distribution<size_t> pick(0, scene.triangles.size() - 1);
+    const float far = 4.0f * glm::length(scene.bounds.extent());
+    std::vector<Ray> rays;
+    for (size_t i = 0; i < count; ++i) {
+        Ray r{};
+        if (i % 2 == 0) {
+            r.origin = scene.bounds.lo + glm::vec3(u(rng), u(rng), u(rng)) * scene.bounds.extent();
+        } else {
+            size_t t = pick(rng);
+            while (scene.triangle_area(t) <= 0.0f) t = pick(rng);
+            const glm::uvec3 tri = scene.triangles[t];
+            const float a = u(rng), b = u(rng) * (1.0f - a);
+            const glm::vec3 p = (1 - a - b) * scene.positions[tri.x] + a * scene.positions[tri.y] + b * scene.positions[tri.z];
+            const glm::vec3 n = scene.geometric_normal(t);
+            r.origin = offset_ray_origin(p, n);
+            r.direction = random_direction(rng);
+            if (glm::dot(r.direction, n) < 0.0f) r.direction = -r.direction;
+        }
+        if (i % 2 == 0) r.direction = random_direction(rng);
+        r.t_max = far;
+        rays.push_back(r);
+    }
+    return rays;
+}
+
+void expect_matches_brute_force(const Scene& scene, size_t ray_count) {
+    Tracer tracer(scene);
+    const std::vector<Ray> rays = random_rays(scene, ray_count, 12345);
+    const std::vector<RayHit> gpu_hits = tracer.trace(rays);
+    ASSERT_EQ(gpu_hits.size(), rays.size());
+    size_t hits = 0, ties = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+        const RayHit ref = trace_brute_force(scene, rays[i]);
+        const RayHit& got = gpu_hits[i];
+        ASSERT_EQ(ref.triangle == kNoHit, got.triangle == kNoHit) << "ray " << i << " (hit vs miss)";
+        if (ref.triangle == kNoHit) continue;
+        ++hits;
+        EXPECT_NEAR(got.t, ref.t, 1e-5f * std::max(1.0f, ref.t)) << "ray " << i;
+        if (got.triangle != ref.triangle) {
+            // Only an exact tie (a shared edge, coplanar overlap) may pick another triangle.
+            EXPECT_NEAR(got.t, ref.t, 1e-6f * std::max(1.0f, ref.t)) << "ray " << i << " different triangle, not a tie";
+            ++ties;
+        } else {
+            EXPECT_NEAR(got.bary.x, ref.bary.x, 1e-4f);
+            EXPECT_NEAR(got.bary.y, ref.bary.y, 1e-4f);
+        }
+    }
+    EXPECT_GT(hits, ray_count / 4) << "too few hits for the comparison to mean anything";
+    EXPECT_LT(ties, ray_count / 100 + 1);
+}
+
+TEST(Tracer, MatchesBruteForceOnCornellBox) {
+    gpu();
+    expect_matches_brute_force(load_scene(test::shared_scene("cornell_box.gltf")), 20000);
+}
+
+TEST(Tracer, MatchesBruteForceOnMonkey) {
+    gpu();
+    expect_matches_brute_force(load_scene(test::shared_scene("monkey.glb")), 4000);
+}
+
+TEST(Tracer, MatchesBruteForceOnRealStaircase) {
+    gpu();
+    expect_matches_brute_force(load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf")), 600);
+}
+
+// Rays aimed exactly at the vertices and edge midpoints of a closed mesh, from
+// inside and from outside, must hit it: no ray slips between two triangles.
+TEST(Tracer, WatertightOnSharedEdgesAndVertices) {
+    gpu();
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+    const glm::vec3 centre(0.3f, -0.2f, 0.1f);
+    test::add_icosphere(s, centre, 1.0f, 3, m);
+    Tracer tracer(s);
+    std::vector<Ray> rays;
+    auto aim = [&](glm::vec3 target) {
+        rays.push_back(Ray{centre, 10.0f, target - centre, 0});  // from inside, t in units of the offset
+        const glm::vec3 outside = centre + 3.0f * (target - centre);
+        rays.push_back(Ray{outside, 10.0f, target - outside, 0});
+    };
+    for (uint32_t v = 0; v < s.positions.size(); ++v) aim(s.positions[v]);
+    for (const glm::uvec3& t : s.triangles)
+        for (int k = 0; k < 3; ++k) aim(0.5f * (s.positions[t[k]] + s.positions[t[(k + 1) % 3]]));
+    const std::vector<RayHit> hits = tracer.trace(rays);
+    size_t escaped = 0;
+    for (const RayHit& h : hits) escaped += h.triangle == kNoHit;
+    EXPECT_EQ(escaped, 0u) << "of " << rays.size() << " rays through edges and vertices";
+}
+
+// Rays leaving a convex surface outward, far from the origin where float
+// spacing is coarse, must not hit the surface they start on.
+TEST(Tracer, OffsetOriginsDoNotSelfIntersect) {
+    gpu();
+    for (float distance : {0.0f, 1000.0f, 100000.0f}) {
+        Scene s;
+        const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+        test::add_icosphere(s, glm::vec3(distance, distance * 0.5f, -distance), 1.0f + distance * 1e-3f, 2, m);
+        Tracer tracer(s);
+        std::mt19937 rng(7);
+        std::uniform_real_distribution<float> u(0.0f, 1.0f);
+        std::vector<Ray> rays;
+        for (size_t t = 0; t < s.triangles.size(); ++t) {
+            const glm::uvec3 tri = s.triangles[t];
+            const float a = u(rng), b = u(rng) * (1.0f - a);
+            const glm::vec3 p = (1 - a - b) * s.positions[tri.x] + a * s.positions[tri.y] + b * s.positions[tri.z];
+            const glm::vec3 n = s.geometric_normal(t);
+            glm::vec3 d = random_direction(rng);
+            if (glm::dot(d, n) < 0.0f) d = -d;
+            rays.push_back(Ray{offset_ray_origin(p, n), 1e9f, d, 0});
+        }
+        size_t self_hits = 0;
+        for (const RayHit& h : tracer.trace(rays)) self_hits += h.triangle != kNoHit;
+        EXPECT_EQ(self_hits, 0u) << "at distance " << distance;
+    }
+}
+
+TEST(Tracer, OcclusionAgreesWithClosestHit) {
+    gpu();
+    const Scene scene = load_scene(test::shared_scene("monkey.glb"));
+    Tracer tracer(scene);
+    std::vector<Ray> rays = random_rays(scene, 4000, 99);
+    std::vector<Ray> shadow = rays;
+    for (size_t i = 0; i < rays.size(); ++i) {
+        shadow[i].any_hit = 1;
+        shadow[i].t_max = (i % 3 == 0) ? 0.05f : rays[i].t_max;  // short rays too
+    }
+    const auto closest = tracer.trace(rays);
+    const auto occluded = tracer.trace(shadow);
+    for (size_t i = 0; i < rays.size(); ++i) {
+        const bool blocked = closest[i].triangle != kNoHit && closest[i].t < shadow[i].t_max;
+        // Allow a hit within float rounding of t_max to go either way.
+        if (closest[i].triangle != kNoHit && std::abs(closest[i].t - shadow[i].t_max) < 1e-5f) continue;
+        EXPECT_EQ(occluded[i].triangle != kNoHit, blocked) << "ray " << i;
+    }
+}
+
+TEST(Tracer, EmptySceneMissesEverything) {
+    gpu();
+    Scene s;
+    Tracer tracer(s);
+    const auto hits = tracer.trace({Ray{glm::vec3(0), 100.0f, glm::vec3(0, 0, 1), 0}});
+    ASSERT_EQ(hits.size(), 1u);
+    EXPECT_EQ(hits[0].triangle, kNoHit);
+}
+
+TEST(Bvh, BoundsContainTheirTrianglesAndEveryTriangleIsInOneLeaf) {
+    const Scene scene = load_scene(test::shared_scene("monkey.glb"));
+    const Bvh bvh = build_bvh(scene);
+    std::vector<int> seen(scene.triangles.size(), 0);
+    auto check_leaf = [&](glm::vec3 lo, glm::vec3 hi, uint32_t first, uint32_t count) {
+        for (uint32_t i = first; i < first + count; ++i) {
+            const BvhTriangle& t = bvh.triangles[i];
+            for (glm::vec3 v : {t.v0, t.v1, t.v2}) {
+                EXPECT_TRUE(glm::all(glm::greaterThanEqual(v, lo)) && glm::all(glm::lessThanEqual(v, hi)));
+            }
+            ++seen[t.scene_triangle];
+        }
+    };
+    for (const BvhNode& n : bvh.nodes) {
+        if (n.left_count) check_leaf(n.left_lo, n.left_hi, n.left_index, n.left_count);
+        if (n.right_count) check_leaf(n.right_lo, n.right_hi, n.right_index, n.right_count);
+    }
+    for (size_t t = 0; t < seen.size(); ++t) EXPECT_EQ(seen[t], scene.triangle_area(t) > 0.0f ? 1 : 0) << t;
+    EXPECT_LE(bvh.stats.max_depth, size_t(kBvhMaxDepth));
+}
+
+TEST(GpuContext, ReportsDeviceAndRefusesAMissingGpu) {
+    const DeviceInfo& info = gpu().info();
+    EXPECT_FALSE(info.renderer.empty());
+    EXPECT_NE(info.version.find("4.5"), std::string::npos) << info.version;
+    EXPECT_THROW(parse_device_choice("tpu"), std::invalid_argument);
+    if (info.is_software) {
+        // Auto fell back to software: there is no GPU, so asking for one must fail clearly.
+        try {
+            GpuContext second(DeviceChoice::Gpu);
+            FAIL() << "--device gpu succeeded on a machine whose auto choice was software";
+        } catch (const GpuError& e) {
+            EXPECT_NE(std::string(e.what()).find("no GPU"), std::string::npos) << e.what();
+        }
+    }
+}
+
+TEST(Shaders, CompileErrorsNameTheFileAndCarryTheLog) {
+    gpu();
+    try {
+        ComputeProgram p("no_such_shader.comp");
+        FAIL();
+    } catch (const GpuError& e) {
+        EXPECT_NE(std::string(e.what()).find("no_such_shader.comp"), std::string::npos);
+    }
+    // Includes are resolved once each and carry #line markers.
+    auto [source, files] = assemble_shader_source("raybench.comp", {{"EXTRA", "1"}});
+    ASSERT_EQ(files.front(), "raybench.comp");
+    EXPECT_NE(std::find(files.begin(), files.end(), "trace.glsl"), files.end());
+    EXPECT_EQ(source.rfind("#version 450", 0), 0u);
+    EXPECT_NE(source.find("#define EXTRA 1"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace lf
