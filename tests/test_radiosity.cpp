@@ -213,7 +213,7 @@ TEST(RadiosityMap, ThinWallNeitherLeaksNorBlackensItsFoot) {
         const glm::vec3 p = r.texels.samples[r.texels.first_sample[i]].position;
         const float v = R[r.texels.texels[i]];
         if (p.x < -w - 2 * floor_texel) { a_sum += v; ++a_n; }
-        if (p.x > w + 2 * floor_texel) { if (v > b_max) std::printf("b_max %f at %f %f %f\n", v, p.x, p.y, p.z); b_max = std::max(b_max, double(v)); }
+        if (p.x > w + 2 * floor_texel) b_max = std::max(b_max, double(v));
         if (std::abs(p.y) < 1e-4f && p.x < -w && p.x > -w - 3 * floor_texel && std::abs(p.z) < 0.5f) foot.push_back({p.x, v});
     }
     const double a_mean = a_sum / a_n;

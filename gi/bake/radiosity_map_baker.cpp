@@ -134,6 +134,8 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     relocate_samples_inside_geometry(texels.samples.size());
 }
 
+// Moves sample points out of geometry, then records each texel's anchor
+// (where it gathers) for the leak check of reflected_radiance_at.
 void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     ComputeProgram relocate("texel_relocate.comp");
     relocate.use();
@@ -141,6 +143,34 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     sample_points_.bind(2);
     glUniform1ui(relocate.uniform("sample_count"), GLuint(sample_count));
     relocate.dispatch_1d(sample_count);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+
+    texel_anchors_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
+    texel_anchors_.clear_zero();
+    ComputeProgram anchor("texel_anchor.comp");
+    anchor.use();
+    tracer_.bind();
+    sample_points_.bind(2);
+    covered_.bind(3);
+    texel_anchors_.bind(11);
+    glUniform1ui(anchor.uniform("covered_count"), GLuint(covered_count_));
+    anchor.dispatch_1d(covered_count_);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    ComputeProgram wall_check("texel_wall_check.comp");
+    wall_check.use();
+    glUniform1ui(wall_check.uniform("covered_count"), GLuint(covered_count_));
+    glUniform2ui(wall_check.uniform("atlas_size"), GLuint(width_), GLuint(height_));
+    wall_check.dispatch_1d(covered_count_);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    copy_to_dilated_texels(texel_anchors_);
+}
+
+void RadiosityMapBaker::copy_to_dilated_texels(const GpuBuffer& atlas_buffer) {
+    copy_.use();
+    atlas_buffer.bind(5);
+    dilation_pairs_.bind(10);
+    glUniform1ui(copy_.uniform("pair_count"), GLuint(dilation_.size()));
+    copy_.dispatch_1d(dilation_.size());
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 }
 
@@ -155,7 +185,7 @@ PassStats RadiosityMapBaker::step() {
     emitters_.bind(7);
     punctual_lights_.bind(8);
     error_partials_.bind(9);
-    dilation_pairs_.bind(10);
+    texel_anchors_.bind(11);
 
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
@@ -183,10 +213,7 @@ PassStats RadiosityMapBaker::step() {
     resolve_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 
-    copy_.use();
-    glUniform1ui(copy_.uniform("pair_count"), GLuint(dilation_.size()));
-    copy_.dispatch_1d(dilation_.size());
-    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    copy_to_dilated_texels(reflected_);
 
     // Totals of the error estimate; reading them back also waits for the pass.
     const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();

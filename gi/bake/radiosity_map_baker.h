@@ -64,6 +64,7 @@ private:
     void upload_scene(const Scene& scene);
     void upload_texels(const TexelSamples& texels);
     void relocate_samples_inside_geometry(size_t sample_count);
+    void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
 
     const Tracer& tracer_;
     RadiosityMapSettings settings_;
@@ -77,7 +78,7 @@ private:
     ComputeProgram resolve_{"radiosity_resolve.comp"};
     ComputeProgram copy_{"copy_texels.comp"};
     GpuBuffer sample_points_, covered_, accumulators_, reflected_, surface_triangles_;
-    GpuBuffer emitters_, punctual_lights_, error_partials_, dilation_pairs_;
+    GpuBuffer emitters_, punctual_lights_, error_partials_, dilation_pairs_, texel_anchors_;
 
     PassStats stats_;
     int pass_in_epoch_ = 0;

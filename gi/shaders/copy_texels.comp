@@ -1,9 +1,10 @@
 #version 450 core
-// Dilation: copies reflected radiance from a chart's border texel to the
-// texels just outside it, so bilinear lookups near a border stay in the chart.
+// Dilation: copies an atlas-sized buffer's values (reflected radiance,
+// texel anchors) from a chart's border texels to the texels just outside it,
+// so bilinear lookups near a border stay in the chart.
 layout(local_size_x = 64) in;
 
-layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]; };
+layout(std430, binding = 5) buffer AtlasTexels { vec4 atlas_texels[]; };
 // (destination atlas index, source atlas index)
 layout(std430, binding = 10) readonly buffer CopyPairs { uvec2 copy_pairs[]; };
 
@@ -12,5 +13,5 @@ uniform uint pair_count;
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     if (i >= pair_count) return;
-    reflected_radiance[copy_pairs[i].x] = reflected_radiance[copy_pairs[i].y];
+    atlas_texels[copy_pairs[i].x] = atlas_texels[copy_pairs[i].y];
 }

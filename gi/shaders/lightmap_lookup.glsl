@@ -14,6 +14,10 @@ layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]
 //   (emitted radiance rgb, 0).
 layout(std430, binding = 6) readonly buffer SurfaceTriangles { vec4 surface_triangles[]; };
 
+// Per atlas texel: where its light was gathered; w = 0 uncovered, 1 covered,
+// 2 next to a wall (texel_anchor.comp, texel_wall_check.comp).
+layout(std430, binding = 11) buffer TexelAnchors { vec4 texel_anchors[]; };
+
 uniform uvec2 atlas_size;
 
 const uint TRIANGLE_DOUBLE_SIDED = 1u;
@@ -33,21 +37,41 @@ float hit_emitter_area_pdf(Hit hit) { return surface_triangles[3u * hit.triangle
 
 vec3 hit_emission(Hit hit) { return surface_triangles[3u * hit.triangle + 2u].rgb; }
 
-vec3 reflected_texel(int x, int y) {
-    x = clamp(x, 0, int(atlas_size.x) - 1);
-    y = clamp(y, 0, int(atlas_size.y) - 1);
-    return reflected_radiance[uint(y) * atlas_size.x + uint(x)].rgb;
+uint atlas_index(int x, int y) {
+    return uint(clamp(y, 0, int(atlas_size.y) - 1)) * atlas_size.x + uint(clamp(x, 0, int(atlas_size.x) - 1));
 }
 
-// Bilinear lookup; uv (0,0) is the atlas's top-left corner and texel centres
-// sit at half-integers (DESIGN.md). Charts are dilated, so the four texels
-// read near a chart's border hold that chart's values.
-vec3 reflected_radiance_at(vec2 uv) {
+// Bilinear lookup of the reflected radiance at a hit point y; uv (0,0) is
+// the atlas's top-left corner and texel centres sit at half-integers
+// (DESIGN.md). Charts are dilated, so the four texels read near a chart's
+// border hold that chart's values. A texel that straddles a wall gathered on
+// one side of it only; it is left out when the wall stands between it and y
+// (one short shadow ray, only next to walls), so light does not leak through.
+vec3 reflected_radiance_at(vec2 uv, vec3 y) {
     vec2 p = uv * vec2(atlas_size) - 0.5;
     vec2 f = fract(p);
     ivec2 i = ivec2(floor(p));
-    return mix(mix(reflected_texel(i.x, i.y), reflected_texel(i.x + 1, i.y), f.x),
-               mix(reflected_texel(i.x, i.y + 1), reflected_texel(i.x + 1, i.y + 1), f.x), f.y);
+    uint a[4];
+    float w[4];
+    bool near_wall = false;
+    for (int k = 0; k < 4; ++k) {
+        a[k] = atlas_index(i.x + (k & 1), i.y + (k >> 1));
+        w[k] = ((k & 1) == 1 ? f.x : 1.0 - f.x) * ((k >> 1) == 1 ? f.y : 1.0 - f.y);
+        near_wall = near_wall || (texel_anchors[a[k]].w == 2.0 && w[k] > 0.0);
+    }
+    if (near_wall) {
+        for (int k = 0; k < 4; ++k) {
+            vec4 anchor = texel_anchors[a[k]];
+            if (anchor.w == 2.0 && w[k] > 0.0 && trace_occluded(y, anchor.xyz - y, 0.999)) w[k] = 0.0;
+        }
+    }
+    vec3 sum = vec3(0.0);
+    float weight_sum = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        sum += w[k] * reflected_radiance[a[k]].rgb;
+        weight_sum += w[k];
+    }
+    return weight_sum > 0.0 ? sum / weight_sum : vec3(0.0);
 }
 
 #endif

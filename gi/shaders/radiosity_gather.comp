@@ -56,7 +56,10 @@ void main() {
         if (hit.triangle == LF_NO_HIT) {
             indirect = background;
         } else if (hit.front || hit_is_double_sided(hit)) {
-            indirect = reflected_radiance_at(hit_lightmap_uv(hit));
+            // The hit point, lifted off its surface on the ray's side.
+            vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);
+            vec3 y = offset_ray_origin(origin + hit.t * dir, n_hit);
+            indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
             // Landing on an emitter: its light, MIS-weighted against emitter sampling.
             float area_pdf = hit_emitter_area_pdf(hit);
             if (area_pdf > 0.0) {

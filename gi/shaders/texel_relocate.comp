@@ -40,5 +40,6 @@ void main() {
         vec3 moved = x + best_dir * (best_t + 0.05);
         moved -= ng * dot(moved - x, ng);
         sample_points[3u * s].xyz = moved;
+        sample_points[3u * s + 1u].w = 1.0;  // moved: the texel's anchor (texel_anchor.comp)
     }
 }

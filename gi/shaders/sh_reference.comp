@@ -1,0 +1,46 @@
+#version 450 core
+// Brute-force irradiance under an environment, for checking SH shading:
+// E(x) = ∫ V(x,ω) L(ω) max(0, n·ω) dω ≈ (pi/N) Σ V L over cosine-distributed
+// rays (shadowed only, like the T^0 transfer). L from an equirectangular map
+// (gi/sh/environment.h's convention), nearest texel, or a constant colour.
+layout(local_size_x = 64) in;
+
+#include "random.glsl"
+#include "sampling.glsl"
+#include "trace.glsl"
+
+layout(std430, binding = 2) readonly buffer ShVertices { vec4 sh_vertices[]; };
+layout(std430, binding = 3) readonly buffer EnvTexels { vec4 env_texels[]; };
+layout(std430, binding = 4) buffer Irradiance { vec4 irradiance[]; };
+
+uniform uint vertex_count;
+uniform uint samples;        // in this dispatch
+uniform uint chunk;          // dispatches so far: each adds its samples to the sum
+uniform float weight;        // pi / total samples
+uniform uint seed;
+uniform uvec2 env_size;     // (0, 0): constant environment env_constant
+uniform vec3 env_constant;
+
+vec3 environment(vec3 d) {
+    if (env_size.x == 0u) return env_constant;
+    float u = 0.5 + atan(d.z, d.x) / (2.0 * PI);
+    float v = acos(clamp(d.y, -1.0, 1.0)) / PI;
+    uint x = min(uint(u * float(env_size.x)), env_size.x - 1u);
+    uint y = min(uint(v * float(env_size.y)), env_size.y - 1u);
+    return env_texels[y * env_size.x + x].rgb;
+}
+
+void main() {
+    uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    if (i >= vertex_count) return;
+    vec3 p = sh_vertices[2u * i].xyz;
+    vec3 n = sh_vertices[2u * i + 1u].xyz;
+    vec3 origin = offset_ray_origin(p, n);
+    Rng rng = rng_start(i, chunk, seed);
+    vec3 sum = vec3(0.0);
+    for (uint s = 0u; s < samples; ++s) {
+        vec3 dir = sample_cosine_hemisphere(n, rng_next2(rng));
+        if (!trace_occluded(origin, dir, 1e30)) sum += environment(dir);
+    }
+    irradiance[i] += vec4(sum * weight, 0.0);
+}

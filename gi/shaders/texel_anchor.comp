@@ -1,0 +1,59 @@
+#version 450 core
+// After relocation, per covered texel: keep the texel on ONE side of any
+// geometry that cuts through its footprint, and record its anchor.
+//
+// A texel whose footprint straddles a thin wall has sample points on both
+// sides; averaged, it would be half lit on the dark side. The sample that
+// sees most of the others (short rays between points lifted a tenth of a
+// texel off the surface) becomes the reference; samples it cannot see take
+// its place. The anchor is where the texel now gathers; w = 1 for a covered
+// texel, 2 for one that was moved or cut (texel_wall_check.comp marks more),
+// which reflected_radiance_at checks for visibility before a ray on the other
+// side of the wall reads it.
+layout(local_size_x = 64) in;
+
+#define LF_SAMPLE_POINTS_ACCESS
+#include "lightmap_lookup.glsl"
+#include "radiosity_texels.glsl"
+
+const uint MAX_CHECKED = 16u;
+
+vec3 lifted(uint s) {
+    vec4 p = sample_points[3u * s];
+    return p.xyz + 0.1 * p.w * sample_points[3u * s + 2u].xyz;
+}
+
+bool sees(uint a, uint b) {
+    vec3 from = lifted(a);
+    return !trace_occluded(from, lifted(b) - from, 1.0);
+}
+
+void main() {
+    uint i = covered_index();
+    if (i >= covered_count) return;
+    uvec4 texel = covered_texels[i];
+    uint first = texel.x, count = min(texel.y, MAX_CHECKED);
+    bool marked = false;
+    for (uint s = first; s < first + texel.y; ++s) marked = marked || sample_points[3u * s + 1u].w != 0.0;
+
+    // The reference: the sample that sees the most others.
+    uint reference = first;
+    uint best = 0u;
+    for (uint a = first; a < first + count && count > 1u; ++a) {
+        uint seen = 0u;
+        for (uint b = first; b < first + count; ++b)
+            if (b != a && sees(a, b)) ++seen;
+        if (seen > best || a == first) { best = seen; reference = a; }
+    }
+    if (count > 1u && best + 1u < count) {
+        // Cut by geometry: samples on the far side take the reference's place.
+        for (uint s = first; s < first + count; ++s) {
+            if (s == reference || sees(reference, s)) continue;
+            sample_points[3u * s] = sample_points[3u * reference];
+            sample_points[3u * s + 1u] = sample_points[3u * reference + 1u];
+            sample_points[3u * s + 2u] = sample_points[3u * reference + 2u];
+        }
+        marked = true;
+    }
+    texel_anchors[texel.z] = vec4(sample_points[3u * reference].xyz, marked ? 2.0 : 1.0);
+}
