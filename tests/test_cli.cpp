@@ -1,0 +1,160 @@
+// `lightfarm bake` as a user runs it: the files it promises, its JSON lines,
+// its stop rules, and one clear line for every kind of failure.
+#include "gpu_fixture.h"
+
+#include "io/image_files.h"
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <unistd.h>
+#include <sys/wait.h>
+#include <sstream>
+#include <string>
+
+namespace lf {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CliRun {
+    int exit_code;
+    std::string out;  // stdout
+    std::string err;  // stderr
+};
+
+CliRun run_lightfarm(const std::string& args) {
+    const fs::path err_file = fs::temp_directory_path() / ("lightfarm-cli-stderr-" + std::to_string(getpid()));
+    const std::string command = std::string(LIGHTFARM_BIN) + " " + args + " 2>" + err_file.string();
+    FILE* pipe = popen(command.c_str(), "r");
+    std::string out;
+    char buffer[4096];
+    size_t n;
+    while ((n = fread(buffer, 1, sizeof buffer, pipe)) > 0) out.append(buffer, n);
+    const int status = pclose(pipe);
+    std::ifstream e(err_file);
+    std::stringstream err;
+    err << e.rdbuf();
+    fs::remove(err_file);
+    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out, err.str()};
+}
+
+fs::path fresh_dir(const std::string& name) {
+    const fs::path d = fs::temp_directory_path() / ("lightfarm-cli-" + name + "-" + std::to_string(getpid()));
+    fs::remove_all(d);
+    return d;
+}
+
+std::vector<nlohmann::json> json_lines(const std::string& text) {
+    std::vector<nlohmann::json> lines;
+    std::istringstream in(text);
+    std::string line;
+    while (std::getline(in, line)) lines.push_back(nlohmann::json::parse(line));
+    return lines;
+}
+
+TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
+    const fs::path out = fresh_dir("cornell");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+                                " --res 64 --passes 9 --json --seed 3");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto lines = json_lines(r.out);
+    ASSERT_GE(lines.size(), 3u);
+    EXPECT_EQ(lines.front()["event"], "start");
+    EXPECT_FALSE(lines.front()["renderer"].get<std::string>().empty());
+    int progress = 0, snapshots = 0;
+    uint64_t last_rays = 0;
+    for (const auto& l : lines) {
+        if (l["event"] == "progress") {
+            ++progress;
+            EXPECT_EQ(l["pass"], progress);
+            EXPECT_GT(l["rays"].get<uint64_t>(), last_rays);
+            last_rays = l["rays"];
+        }
+        if (l["event"] == "snapshot") ++snapshots;
+    }
+    EXPECT_EQ(progress, 9);
+    EXPECT_EQ(snapshots, 4) << "passes 1, 2, 4, 8";
+    const auto& done = lines.back();
+    ASSERT_EQ(done["event"], "done");
+    for (const auto& f : done["files"]) EXPECT_TRUE(fs::exists(out / f.get<std::string>())) << f;
+    for (const char* f : {"lightmap.exr", "manifest.json", "lightmap.pass-0001.exr", "lightmap.pass-0008.exr"})
+        EXPECT_TRUE(fs::exists(out / f)) << f;
+    EXPECT_FALSE(fs::exists(out / "scene.lightmapped.glb")) << "the Cornell box has its own TEXCOORD_1";
+    for (const auto& entry : fs::directory_iterator(out))
+        EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << "temp file left behind";
+
+    const FloatImage image = read_exr(out / "lightmap.exr");
+    EXPECT_EQ(image.width, 64);
+    for (const char* c : {"R", "G", "B", "direct.R", "indirect.B", "samples", "error"}) EXPECT_NO_THROW(image.at(c)) << c;
+    EXPECT_EQ(image.number_attributes.at("lightfarm.pass"), 9.0);
+    EXPECT_EQ(image.number_attributes.at("lightfarm.rays"), double(done["rays"].get<uint64_t>()));
+    EXPECT_FALSE(image.string_attributes.at("lightfarm.renderer").empty());
+    // Combined = direct + indirect, texel by texel.
+    const auto &R = image.at("R"), &d = image.at("direct.R"), &i = image.at("indirect.R");
+    for (size_t k = 0; k < R.size(); ++k) ASSERT_NEAR(R[k], d[k] + i[k], 1e-4f * (1.0f + R[k]));
+    fs::remove_all(out);
+}
+
+TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
+    const fs::path out = fresh_dir("monkey");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
+                                " --res 128 --passes 2");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_TRUE(fs::exists(out / "scene.lightmapped.glb"));
+    const CliRun inspect = run_lightfarm("inspect --json " + (out / "scene.lightmapped.glb").string());
+    ASSERT_EQ(inspect.exit_code, 0) << inspect.err;
+    EXPECT_EQ(nlohmann::json::parse(inspect.out)["triangles"], 5950);
+    fs::remove_all(out);
+}
+
+TEST(CliBake, StopsAtTheTargetError) {
+    const fs::path out = fresh_dir("target");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+                                " --res 32 --passes 10000 --target-error 0.05 --json");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto done = json_lines(r.out).back();
+    EXPECT_LE(done["error_estimate"].get<double>(), 0.05);
+    EXPECT_LT(done["pass"].get<int>(), 10000);
+    fs::remove_all(out);
+}
+
+TEST(CliBake, StopsAtTheTimeLimit) {
+    const fs::path out = fresh_dir("time");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+                                " --res 64 --passes 1000000 --time-limit 1 --json");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto done = json_lines(r.out).back();
+    EXPECT_GE(done["seconds"].get<double>(), 1.0);
+    EXPECT_LT(done["seconds"].get<double>(), 3.0);
+    fs::remove_all(out);
+}
+
+// Failures: non-zero exit, one line on stderr that says what and where, and
+// no file under a final name.
+void expect_clean_failure(const std::string& args, const std::string& must_mention, int code = 1) {
+    const fs::path out = fresh_dir("fail");
+    const CliRun r = run_lightfarm(args + " --out " + out.string());
+    EXPECT_EQ(r.exit_code, code) << args;
+    EXPECT_NE(r.err.find(must_mention), std::string::npos) << r.err;
+    // A usage error (exit 2) may add the usage text; anything else is exactly one line.
+    if (code != 2) EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "one line: " << r.err;
+    EXPECT_FALSE(fs::exists(out / "lightmap.exr"));
+    EXPECT_FALSE(fs::exists(out / "manifest.json"));
+    fs::remove_all(out);
+}
+
+TEST(CliBake, FailuresAreOneClearLine) {
+    expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "nothing to bake");
+    expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf");
+    expect_clean_failure("bake /no/such/file.glb", "file.glb");
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", 2);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", 2);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", 2);
+}
+
+}  // namespace
+}  // namespace lf
