@@ -3,6 +3,8 @@
 #include "gpu_fixture.h"
 #include "scene_builders.h"
 
+#include "atlas/atlas.h"
+#include "atlas/seams.h"
 #include "atlas/texel_samples.h"
 #include "bake/radiosity_map_baker.h"
 #include "io/image_files.h"
@@ -221,6 +223,66 @@ TEST(RadiosityMap, ThinWallNeitherLeaksNorBlackensItsFoot) {
     EXPECT_LT(b_max, 0.01 * a_mean) << "light leaked under or through the wall into room B";
     ASSERT_FALSE(foot.empty());
     for (const auto& [x, v] : foot) EXPECT_GT(v, 0.25 * a_mean) << "floor texel at x = " << x << " went dark at the wall's foot";
+}
+
+// Converged texels stop costing rays; the answer stays right.
+TEST(RadiosityMap, ConvergedTexelsStopTracing) {
+    const int res = 48;
+    const Scene s = furnace(0.5f, 1.0f, res);
+    RadiosityMapSettings settings;
+    settings.converged_texel_error = 0.02;
+    gpu();
+    const TexelSamples texels = rasterize_texel_samples(s, res, res, 2);
+    Tracer tracer(s);
+    RadiosityMapBaker baker(s, texels, tracer, settings);
+    std::vector<uint64_t> rays_per_pass;
+    uint64_t last = 0;
+    for (int p = 0; p < 400; ++p) {
+        const PassStats st = baker.step();
+        rays_per_pass.push_back(st.rays - last);
+        last = st.rays;
+    }
+    EXPECT_LT(rays_per_pass.back(), rays_per_pass.front() / 2) << "late passes should trace for fewer texels";
+    const FloatImage image = baker.snapshot();
+    double sum = 0.0;
+    for (uint32_t t : texels.texels) sum += image.at("R")[t];
+    EXPECT_NEAR(sum / double(texels.covered_count()), 2.0, 0.02 * 2.0) << "Le / (1 - rho) with rho = 0.5";
+}
+
+// A curved mesh cut into many charts, lit from above: after stitching, the
+// two sides of every smooth seam agree to the noise floor, and better than
+// without stitching.
+TEST(RadiosityMap, StitchedSeamsAgreeToTheNoiseFloor) {
+    Scene s;
+    const uint32_t grey = test::add_material(s, glm::vec3(0.7f));
+    test::add_icosphere(s, glm::vec3(0.0f, 1.0f, 0.0f), 0.8f, 3, grey);
+    test::add_quad(s, {-3, 0, 3}, {6, 0, 0}, {0, 0, -6}, grey);
+    PunctualLight lamp;
+    lamp.position = glm::vec3(1.0f, 3.0f, 0.5f);
+    lamp.intensity = glm::vec3(20.0f);
+    s.lights.push_back(lamp);
+    for (PrimitiveInstance& i : s.instances) i.has_uv1 = false;
+    AtlasOptions options;
+    options.resolution = 256;
+    generate_lightmap_uvs(s, options);
+    const BakeResult r = bake(s, 256, 64);
+    std::vector<SeamEdge> seams;
+    for (const SeamEdge& e : find_seams(s))
+        if (e.smooth) seams.push_back(e);
+    ASSERT_GT(seams.size(), 20u) << "the sphere should be cut into several charts";
+    std::vector<glm::vec4> image(size_t(256 * 256));
+    double noise = 0.0;
+    for (size_t i = 0; i < image.size(); ++i)
+        image[i] = glm::vec4(r.image.at("R")[i], r.image.at("G")[i], r.image.at("B")[i], 0.0f);
+    for (uint32_t t : r.texels.texels) noise += r.image.at("error")[t];
+    noise /= double(r.texels.covered_count());
+    const double before = seam_metric(seams, image, 256, 256);
+    stitch_seams(seams, image, 256, 256);
+    const double after = seam_metric(seams, image, 256, 256);
+    std::printf("seam metric over %zu smooth seams: %.5f unstitched, %.5f stitched; mean texel standard error %.5f\n",
+                seams.size(), before, after, noise);
+    EXPECT_LT(after, 0.5 * before);
+    EXPECT_LT(after, noise) << "stitched seams should agree to within the bake's own noise";
 }
 
 // The Cornell box at 256² against Blender Cycles (32768 samples per texel,
