@@ -28,7 +28,7 @@ commands:
                                      ray throughput of the tracer (JSON)
   bake SCENE --out DIR [--res N | --texel-density T] [--passes N]
        [--target-error E] [--time-limit S] [--device auto|gpu|cpu]
-       [--seed N] [--scheme epochs|thesis] [--light-samples N]
+       [--seed N] [--scheme epochs|thesis|pathtrace] [--light-samples N]
        [--no-stitch] [--json]
                                      bake a radiosity-map lightmap
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]

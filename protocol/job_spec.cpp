@@ -21,6 +21,16 @@ const std::vector<OutputInfo>& output_catalog() {
              {"time_limit", "--time-limit", T::Number, 0, true, "time_limit", "stop after this many seconds of baking"},
          },
          {{"res", "texel_density"}}},
+        {"sh",
+         {"--sh"},
+         {
+             {"sh_bands", "--sh-bands", T::Integer, 0, false, "", "SH bands 1..4; 0 = auto (fewest within 2% of 4 bands)"},
+             {"sh_bounces", "--sh-bounces", T::Integer, 0, false, "", "interreflection bounces (0 = shadowed transfer, at most 4)"},
+             {"sh_passes", "--sh-passes", T::Integer, 1, false, "passes", "stop after this many passes of 64 rays per vertex"},
+             {"sh_target_error", "--sh-target-error", T::Number, 0, true, "", "stop when the transfer's relative standard error falls below this"},
+             {"sh_time_limit", "--sh-time-limit", T::Number, 0, true, "time_limit", "stop after this many seconds of baking"},
+         },
+         {}},
     };
     return catalog;
 }

@@ -158,6 +158,16 @@ TEST(RadiosityMap, FurnaceConvergesToLeOverOneMinusRho) {
     EXPECT_EQ(r.stats.rays, t.stats.rays) << "same ray count for both schemes";
 }
 
+// The brute-force baseline reads no map: unbiased at any pass count.
+TEST(RadiosityMap, PathTracingBaselineConvergesInTheFurnace) {
+    const int res = 32;
+    const Scene s = furnace(0.8f, 1.0f, res);
+    RadiosityMapSettings settings;
+    settings.scheme = RadiosityScheme::PathTracing;
+    const BakeResult r = bake(s, res, 64, settings);
+    EXPECT_NEAR(mean_covered(r, "R"), 5.0, 0.02 * 5.0);
+}
+
 // A sealed box with the only light outside: nothing inside may be lit.
 TEST(RadiosityMap, SealedBoxWithLightOutsideStaysExactlyBlack) {
     const int res = 48;

@@ -184,13 +184,19 @@ int gather_accessor(tinygltf::Model& model, int source_accessor, const std::vect
     return int(model.accessors.size() - 1);
 }
 
-int add_uv1_accessor(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst) {
-    std::vector<unsigned char> bytes(size_t(inst.vertex_count) * sizeof(glm::vec2));
-    std::memcpy(bytes.data(), &scene.uv1[inst.first_vertex], bytes.size());
+int add_float_accessor(tinygltf::Model& model, const VertexAttribute& attribute, uint32_t vertex_count) {
+    static const int types[] = {0, TINYGLTF_TYPE_SCALAR, TINYGLTF_TYPE_VEC2, TINYGLTF_TYPE_VEC3, TINYGLTF_TYPE_VEC4};
+    if (attribute.components < 1 || attribute.components > 4 ||
+        attribute.values.size() != size_t(vertex_count) * size_t(attribute.components))
+        throw std::runtime_error("attribute " + attribute.name + ": " + std::to_string(attribute.values.size()) +
+                                 " values for " + std::to_string(vertex_count) + " vertices of " +
+                                 std::to_string(attribute.components) + " components");
+    std::vector<unsigned char> bytes(attribute.values.size() * sizeof(float));
+    std::memcpy(bytes.data(), attribute.values.data(), bytes.size());
     tinygltf::Accessor accessor;
     accessor.componentType = TINYGLTF_COMPONENT_TYPE_FLOAT;
-    accessor.type = TINYGLTF_TYPE_VEC2;
-    accessor.count = inst.vertex_count;
+    accessor.type = types[attribute.components];
+    accessor.count = vertex_count;
     accessor.bufferView = append_view(model, bytes, TINYGLTF_TARGET_ARRAY_BUFFER);
     model.accessors.push_back(accessor);
     return int(model.accessors.size() - 1);
@@ -225,14 +231,20 @@ std::vector<uint32_t> instance_sources(const Scene& scene, const PrimitiveInstan
     return sources;
 }
 
-void add_lightmap_uvs(tinygltf::Model& model, tinygltf::Primitive& primitive, const Scene& scene,
-                      const PrimitiveInstance& inst, const std::filesystem::path& source) {
+void add_vertex_attributes(tinygltf::Model& model, tinygltf::Primitive& primitive, const Scene& scene,
+                           const PrimitiveInstance& inst, const std::vector<VertexAttribute>& attributes,
+                           const std::filesystem::path& source) {
     auto position = primitive.attributes.find("POSITION");
     if (position == primitive.attributes.end()) fail(source, "mesh " + std::to_string(inst.mesh) + " has no POSITION");
     const size_t gltf_count = model.accessors[size_t(position->second)].count;
     const std::vector<uint32_t> sources = instance_sources(scene, inst);
     for (uint32_t s : sources)
         if (s >= gltf_count) fail(source, "scene does not match the file (mesh " + std::to_string(inst.mesh) + ")");
+    auto added = [&](const std::string& name) {
+        for (const VertexAttribute& a : attributes)
+            if (a.name == name) return true;
+        return false;
+    };
 
     bool identity = sources.size() == gltf_count;
     for (uint32_t k = 0; identity && k < sources.size(); ++k) identity = sources[k] == k;
@@ -240,13 +252,20 @@ void add_lightmap_uvs(tinygltf::Model& model, tinygltf::Primitive& primitive, co
         // Split vertices: every per-vertex array is gathered anew, and the
         // triangles are written against the new vertices.
         for (auto& [name, accessor] : primitive.attributes)
-            if (name != "TEXCOORD_1") accessor = gather_accessor(model, accessor, sources, name == "POSITION");
+            if (!added(name)) accessor = gather_accessor(model, accessor, sources, name == "POSITION");
         for (auto& target : primitive.targets)
             for (auto& [name, accessor] : target) accessor = gather_accessor(model, accessor, sources, false);
         primitive.indices = add_index_accessor(model, scene, inst);
         primitive.mode = TINYGLTF_MODE_TRIANGLES;
     }
-    primitive.attributes["TEXCOORD_1"] = add_uv1_accessor(model, scene, inst);
+    for (const VertexAttribute& a : attributes) {
+        try {
+            primitive.attributes[a.name] = add_float_accessor(model, a, inst.vertex_count);
+        } catch (const std::runtime_error& e) {
+            fail(source, "mesh " + std::to_string(inst.mesh) + " primitive " + std::to_string(inst.primitive) + ": " +
+                             e.what());
+        }
+    }
 }
 
 void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) {
@@ -276,6 +295,23 @@ void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) 
 
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                            const std::filesystem::path& out_glb) {
+    std::vector<std::vector<VertexAttribute>> uv1(scene.instances.size());
+    for (size_t i = 0; i < scene.instances.size(); ++i) {
+        const PrimitiveInstance& inst = scene.instances[i];
+        VertexAttribute a{"TEXCOORD_1", 2, {}};
+        a.values.resize(size_t(inst.vertex_count) * 2);
+        std::memcpy(a.values.data(), &scene.uv1[inst.first_vertex], a.values.size() * sizeof(float));
+        uv1[i].push_back(std::move(a));
+    }
+    write_glb_with_vertex_attributes(source_gltf, scene, uv1, out_glb);
+}
+
+void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,
+                                      const std::vector<std::vector<VertexAttribute>>& per_instance,
+                                      const std::filesystem::path& out_glb, bool unlit_materials) {
+    if (per_instance.size() != scene.instances.size())
+        fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
+                              std::to_string(scene.instances.size()));
     LoadedModel loaded;
     load_model(source_gltf, loaded);
     tinygltf::Model& model = loaded.model;
@@ -303,11 +339,19 @@ void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene
         mesh_taken[size_t(inst.mesh)] = true;
         mesh_of_node[inst.node] = mesh;
     }
-    for (const PrimitiveInstance& inst : scene.instances) {
+    for (size_t i = 0; i < scene.instances.size(); ++i) {
+        const PrimitiveInstance& inst = scene.instances[i];
         auto& primitives = model.meshes[size_t(mesh_of_node[inst.node])].primitives;
         if (inst.primitive < 0 || size_t(inst.primitive) >= primitives.size())
             fail(source_gltf, "scene does not match the file (mesh " + std::to_string(inst.mesh) + ")");
-        add_lightmap_uvs(model, primitives[size_t(inst.primitive)], scene, inst, source_gltf);
+        add_vertex_attributes(model, primitives[size_t(inst.primitive)], scene, inst, per_instance[i], source_gltf);
+    }
+    if (unlit_materials && !model.materials.empty()) {
+        for (tinygltf::Material& m : model.materials)
+            m.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
+        if (std::find(model.extensionsUsed.begin(), model.extensionsUsed.end(), "KHR_materials_unlit") ==
+            model.extensionsUsed.end())
+            model.extensionsUsed.push_back("KHR_materials_unlit");
     }
     write_atomically(model, out_glb);
 }

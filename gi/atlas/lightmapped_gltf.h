@@ -5,6 +5,8 @@
 #include "scene/scene.h"
 
 #include <filesystem>
+#include <string>
+#include <vector>
 
 namespace lf {
 
@@ -20,5 +22,23 @@ namespace lf {
 // file in the same directory, then rename). Throws std::runtime_error.
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                            const std::filesystem::path& out_glb);
+
+// One float vertex attribute for one primitive instance: `components` (1..4)
+// values per vertex of the instance, Scene vertex first_vertex + k at k.
+struct VertexAttribute {
+    std::string name;  // "TEXCOORD_1", "_SH_TRANSFER_0", "COLOR_0" …
+    int components = 4;
+    std::vector<float> values;
+};
+
+// The general form of write_lightmapped_glb: re-reads `source_gltf` and
+// writes `out_glb` with per_instance[i]'s attributes added to (or replacing
+// those of the same name on) the primitive of scene.instances[i], with the
+// same vertex splitting, mesh copying per node, buffer merging, image
+// embedding and atomic write. unlit_materials adds KHR_materials_unlit to
+// every material (for baked vertex colours). Throws std::runtime_error.
+void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,
+                                      const std::vector<std::vector<VertexAttribute>>& per_instance,
+                                      const std::filesystem::path& out_glb, bool unlit_materials = false);
 
 }  // namespace lf

@@ -24,18 +24,30 @@ float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 }  // namespace
 
 const char* to_string(RadiosityScheme scheme) {
-    return scheme == RadiosityScheme::Thesis ? "thesis" : "epochs";
+    switch (scheme) {
+    case RadiosityScheme::Thesis: return "thesis";
+    case RadiosityScheme::DoublingEpochs: return "epochs";
+    case RadiosityScheme::PathTracing: return "pathtrace";
+    }
+    return "?";
 }
 
 RadiosityScheme parse_radiosity_scheme(const std::string& text) {
     if (text == "thesis") return RadiosityScheme::Thesis;
     if (text == "epochs") return RadiosityScheme::DoublingEpochs;
-    throw std::invalid_argument("scheme must be 'epochs' or 'thesis', not '" + text + "'");
+    if (text == "pathtrace") return RadiosityScheme::PathTracing;
+    throw std::invalid_argument("--scheme must be epochs, thesis or pathtrace, not '" + text + "'");
 }
 
 RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& texels, const Tracer& tracer,
                                      const RadiosityMapSettings& settings)
-    : tracer_(tracer), settings_(settings), width_(texels.width), height_(texels.height) {
+    : tracer_(tracer),
+      settings_(settings),
+      width_(texels.width),
+      height_(texels.height),
+      gather_("radiosity_gather.comp", settings.scheme == RadiosityScheme::PathTracing
+                                           ? std::vector<std::pair<std::string, std::string>>{{"LF_PATH_TRACE", "1"}}
+                                           : std::vector<std::pair<std::string, std::string>>{}) {
     upload_scene(scene);
     upload_texels(texels);
 }
@@ -58,12 +70,14 @@ void RadiosityMapBaker::upload_scene(const Scene& scene) {
         total += p;
     }
 
-    std::vector<glm::vec4> surfaces(3 * std::max<size_t>(scene.triangles.size(), 1), glm::vec4(0.0f));
+    constexpr size_t kSurfaceVec4s = 4;  // see SurfaceTriangles in lightmap_lookup.glsl
+    std::vector<glm::vec4> surfaces(kSurfaceVec4s * std::max<size_t>(scene.triangles.size(), 1), glm::vec4(0.0f));
     for (size_t t = 0; t < scene.triangles.size(); ++t) {
         const glm::uvec3 tri = scene.triangles[t];
         const bool two_sided = scene.materials[scene.triangle_material[t]].double_sided;
-        surfaces[3 * t] = glm::vec4(scene.uv1[tri.x], scene.uv1[tri.y]);
-        surfaces[3 * t + 1] = glm::vec4(scene.uv1[tri.z], uint_bits(two_sided ? 1u : 0u), 0.0f);
+        surfaces[kSurfaceVec4s * t] = glm::vec4(scene.uv1[tri.x], scene.uv1[tri.y]);
+        surfaces[kSurfaceVec4s * t + 1] = glm::vec4(scene.uv1[tri.z], uint_bits(two_sided ? 1u : 0u), 0.0f);
+        surfaces[kSurfaceVec4s * t + 3] = glm::vec4(scene.albedo_at(t, glm::vec2(1.0f / 3.0f)), 0.0f);
     }
 
     std::vector<glm::vec4> emitters;
@@ -80,8 +94,8 @@ void RadiosityMapBaker::upload_scene(const Scene& scene) {
         emitters.push_back(glm::vec4(scene.positions[tri.y], pdf_choose));
         emitters.push_back(glm::vec4(scene.positions[tri.z], area));
         emitters.push_back(glm::vec4(radiance, scene.materials[scene.triangle_material[t]].double_sided ? 1.0f : 0.0f));
-        surfaces[3 * t + 1].w = pdf_choose / area;
-        surfaces[3 * t + 2] = glm::vec4(radiance, 0.0f);
+        surfaces[kSurfaceVec4s * t + 1].w = pdf_choose / area;
+        surfaces[kSurfaceVec4s * t + 2] = glm::vec4(radiance, 0.0f);
     }
     emitter_count_ = uint32_t(emitter_triangles.size());
     emitters_ = GpuBuffer(emitters);
@@ -128,7 +142,7 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     std::vector<glm::uvec2> pairs;
     for (const auto& [to, from] : dilation_) pairs.emplace_back(to, from);
     dilation_pairs_ = GpuBuffer(pairs);
-    error_partials_ = GpuBuffer((covered_count_ / 64 + 1) * sizeof(glm::vec4));
+    error_partials_ = GpuBuffer(2 * (covered_count_ / 64 + 1) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
     rays_per_texel_ = uint64_t(1 + punctual_count_ + (emitter_count_ ? settings_.light_samples : 0));
     relocate_samples_inside_geometry(texels.samples.size());
@@ -217,15 +231,17 @@ PassStats RadiosityMapBaker::step() {
 
     // Totals of the error estimate; reading them back also waits for the pass.
     const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();
-    double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0;
-    for (const glm::vec4& p : partials) {
-        variance += p.x;
-        level += p.y;
-        active_next += p.z;
-        covered += p.w;
+    double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0;
+    for (size_t g = 0; g + 1 < partials.size(); g += 2) {
+        variance += partials[g].x;
+        level += partials[g].y;
+        active_next += partials[g].z;
+        covered += partials[g].w;
+        extra_rays += partials[g + 1].x;
     }
-    // Rays of this pass: every texel that was active when it began.
-    stats_.rays += rays_per_texel_ * uint64_t(active_texels_);
+    // Rays of this pass: every texel that was active when it began, plus
+    // path continuations (path tracing).
+    stats_.rays += rays_per_texel_ * uint64_t(active_texels_) + uint64_t(extra_rays);
     active_texels_ = size_t(active_next);
     if (end_epoch) {
         pass_in_epoch_ = 0;

@@ -29,10 +29,13 @@ enum class RadiosityScheme {
     // epochs' bounces, so old dark samples are dropped and the bias falls
     // geometrically with the epoch count instead of like 1/passes.
     DoublingEpochs,
+    // The baseline: brute-force path tracing per texel (next-event estimation
+    // at every vertex), no radiosity map read. Unbiased, and slow to converge.
+    PathTracing,
 };
 
 const char* to_string(RadiosityScheme scheme);
-RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "thesis" | "epochs"
+RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "epochs" | "thesis" | "pathtrace"
 
 struct RadiosityMapSettings {
     RadiosityScheme scheme = RadiosityScheme::DoublingEpochs;
@@ -74,7 +77,7 @@ private:
     std::vector<uint32_t> covered_atlas_index_;
     std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices
 
-    ComputeProgram gather_{"radiosity_gather.comp"};
+    ComputeProgram gather_;
     ComputeProgram resolve_{"radiosity_resolve.comp"};
     ComputeProgram copy_{"copy_texels.comp"};
     GpuBuffer sample_points_, covered_, accumulators_, reflected_, surface_triangles_;

@@ -47,8 +47,11 @@ float light_pdf_solid_angle(float area_pdf, float dist2, float cos_y) {
     return cos_y > 0.0 ? area_pdf * dist2 / cos_y : 0.0;
 }
 
-// One emitter sample's MIS-weighted contribution to E at x.
-vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, float light_samples) {
+// One emitter sample's MIS-weighted contribution to E at x. Without the
+// cosine strategy (a path vertex whose next ray does not count emission),
+// it is plain area sampling, eq. 3.12.
+vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, float light_samples,
+                     bool cosine_strategy) {
     if (emitter_count == 0u) return vec3(0.0);
     uint e = choose_emitter(u_choose.x);
     vec4 a = emitters[4u * e], b = emitters[4u * e + 1u], c = emitters[4u * e + 2u], le = emitters[4u * e + 3u];
@@ -67,7 +70,7 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
     float pdf_light = light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
     // Stop just short of the light's surface so the light does not occlude itself.
     if (trace_occluded(origin, y - origin, 0.9999)) return vec3(0.0);
-    return le.rgb * cos_x * mis_weight(pdf_light, cos_x / PI, light_samples);
+    return le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);
 }
 
 // glTF's recommended spot falloff (KHR_lights_punctual): smooth between the cones.

@@ -11,8 +11,11 @@ layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]
 // Per scene triangle, what a ray that lands on it needs:
 //   (uv1 of vertex 0, uv1 of vertex 1),
 //   (uv1 of vertex 2, flags bits, area density with which emitter sampling picks its points (0: not an emitter)),
-//   (emitted radiance rgb, 0).
+//   (emitted radiance rgb, 0),
+//   (albedo rgb at the centroid, 0): for the path-tracing baseline, which reads no map.
 layout(std430, binding = 6) readonly buffer SurfaceTriangles { vec4 surface_triangles[]; };
+
+const uint SURFACE_VEC4S = 4u;
 
 // Per atlas texel: where its light was gathered; w = 0 uncovered, 1 covered,
 // 2 next to a wall (texel_anchor.comp, texel_wall_check.comp).
@@ -23,19 +26,21 @@ uniform uvec2 atlas_size;
 const uint TRIANGLE_DOUBLE_SIDED = 1u;
 
 vec2 hit_lightmap_uv(Hit hit) {
-    vec4 a = surface_triangles[3u * hit.triangle];
-    vec4 b = surface_triangles[3u * hit.triangle + 1u];
+    vec4 a = surface_triangles[SURFACE_VEC4S * hit.triangle];
+    vec4 b = surface_triangles[SURFACE_VEC4S * hit.triangle + 1u];
     return (1.0 - hit.bary.x - hit.bary.y) * a.xy + hit.bary.x * a.zw + hit.bary.y * b.xy;
 }
 
 bool hit_is_double_sided(Hit hit) {
-    return (floatBitsToUint(surface_triangles[3u * hit.triangle + 1u].z) & TRIANGLE_DOUBLE_SIDED) != 0u;
+    return (floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].z) & TRIANGLE_DOUBLE_SIDED) != 0u;
 }
 
 // Area density of emitter sampling at the hit's triangle (0 if it emits nothing).
-float hit_emitter_area_pdf(Hit hit) { return surface_triangles[3u * hit.triangle + 1u].w; }
+float hit_emitter_area_pdf(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].w; }
 
-vec3 hit_emission(Hit hit) { return surface_triangles[3u * hit.triangle + 2u].rgb; }
+vec3 hit_emission(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 2u].rgb; }
+
+vec3 hit_albedo(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 3u].rgb; }
 
 uint atlas_index(int x, int y) {
     return uint(clamp(y, 0, int(atlas_size.y) - 1)) * atlas_size.x + uint(clamp(x, 0, int(atlas_size.x) - 1));

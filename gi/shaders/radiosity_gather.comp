@@ -2,6 +2,9 @@
 // One pass of the radiosity map (thesis §3.2-3.5): every covered texel
 // gathers direct light by shadow rays to the emitters and indirect light by
 // one cosine-distributed ray that reads the current radiosity map.
+// With LF_PATH_TRACE defined it is the brute-force baseline instead: the
+// indirect ray continues as a path (next-event estimation at every vertex,
+// Russian roulette) and reads no map.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 #include "random.glsl"
@@ -18,6 +21,36 @@ uniform uint seed;
 uniform uint light_samples;   // emitter samples per texel per pass
 uniform vec3 background;      // radiance of rays that escape (W/(sr·m²))
 uniform float far;            // longer than any ray inside the scene
+
+#ifdef LF_PATH_TRACE
+// Radiance reflected towards the previous vertex by the path continuing from
+// `hit` (emission excluded: the first vertex counts it by MIS), E/pi units.
+vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint rays) {
+    vec3 result = vec3(0.0);
+    vec3 throughput = vec3(1.0);
+    for (int bounce = 0; bounce < 64; ++bounce) {
+        vec3 ny = normalize(hit.front ? hit.normal : -hit.normal);  // the side the path arrived on
+        vec3 y = offset_ray_origin(origin + hit.t * dir, ny);
+        throughput *= hit_albedo(hit);
+        float keep = max(throughput.r, max(throughput.g, throughput.b));
+        if (keep <= 0.0) break;
+        vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
+        rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
+        result += throughput * e * (1.0 / PI);
+        if (bounce >= 3) {
+            if (rng_next(rng) >= keep) break;
+            throughput /= keep;
+        }
+        origin = y;
+        dir = sample_cosine_hemisphere(ny, rng_next2(rng));
+        hit = trace_closest(origin, dir, far);
+        rays += 1u;
+        if (hit.triangle == LF_NO_HIT) { result += throughput * background; break; }
+        if (!(hit.front || hit_is_double_sided(hit))) break;
+    }
+    return result;
+}
+#endif
 
 void main() {
     uint i = covered_index();
@@ -38,7 +71,7 @@ void main() {
     // punctual lights exactly. Stored as E / pi.
     vec3 direct = vec3(0.0);
     for (uint k = 0u; k < light_samples; ++k)
-        direct += sample_emitters(x, n, origin, rng_next2(rng), rng_next2(rng), float(light_samples));
+        direct += sample_emitters(x, n, origin, rng_next2(rng), rng_next2(rng), float(light_samples), true);
     direct += punctual_irradiance(x, n, origin, far);
 
     // Indirect: eq. 3.7, one cosine-distributed ray. The hit point's emission
@@ -49,6 +82,7 @@ void main() {
     vec2 u = fract(rotation + float(pass_in_epoch) * vec2(0.7548776662, 0.5698402910));
     vec3 dir = sample_cosine_hemisphere(n, u);
     vec3 indirect;
+    uint path_rays = 0u;  // rays beyond the pass's fixed ones (path tracing only)
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
@@ -59,7 +93,11 @@ void main() {
             // The hit point, lifted off its surface on the ray's side.
             vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);
             vec3 y = offset_ray_origin(origin + hit.t * dir, n_hit);
+#ifdef LF_PATH_TRACE
+            indirect = path_radiance(hit, origin, dir, rng, path_rays);
+#else
             indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
+#endif
             // Landing on an emitter: its light, MIS-weighted against emitter sampling.
             float area_pdf = hit_emitter_area_pdf(hit);
             if (area_pdf > 0.0) {
@@ -80,4 +118,5 @@ void main() {
     accumulators[5u * i] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
     accumulators[5u * i + 1u] = vec4(flags.x + d * d, flags.y + g * g, flags.zw);
     accumulators[5u * i + 2u] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
+    accumulators[5u * i + 4u].w = float(path_rays);
 }

@@ -8,7 +8,8 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 #include "radiosity_texels.glsl"
 
 
-// Per workgroup: (sum of the variance of the mean, sum of the value, active texels, covered texels).
+// Per workgroup, two vec4: (sum of the variance of the mean, sum of the value,
+// active texels, covered texels), (extra rays traced this pass, 0, 0, 0).
 layout(std430, binding = 9) writeonly buffer ErrorPartials { vec4 error_partials[]; };
 
 uniform uint end_epoch;        // 1 after the last pass of an epoch: the current indirect estimate becomes "previous"
@@ -16,6 +17,7 @@ uniform float converged_error; // > 0: texels whose relative standard error is b
 uniform uint min_samples;      // before which no texel is called converged
 
 shared vec4 partial[64];
+shared float partial_rays[64];
 
 // Variance of the mean of n samples with the given sum and sum of squares.
 float variance_of_mean(float sum, float sum_sq, float n) {
@@ -27,12 +29,16 @@ float variance_of_mean(float sum, float sum_sq, float n) {
 void main() {
     uint i = covered_index();
     vec4 contribution = vec4(0.0);
+    float extra_rays = 0.0;
     if (i < covered_count) {
         vec4 direct = accumulators[5u * i];
         vec4 moments = accumulators[5u * i + 1u];
         vec4 current = accumulators[5u * i + 2u];
         vec4 previous = accumulators[5u * i + 3u];
-        vec3 albedo = accumulators[5u * i + 4u].rgb;
+        vec4 albedo_and_rays = accumulators[5u * i + 4u];
+        vec3 albedo = albedo_and_rays.rgb;
+        extra_rays = albedo_and_rays.w;
+        accumulators[5u * i + 4u].w = 0.0;
 
         float current_var = variance_of_mean(channel_mean(current.rgb), moments.y, current.w);
         if (end_epoch != 0u && current.w > 0.0) {
@@ -61,12 +67,18 @@ void main() {
         contribution = vec4(var, level, converged ? 0.0 : 1.0, 1.0);
     }
     partial[gl_LocalInvocationIndex] = contribution;
+    partial_rays[gl_LocalInvocationIndex] = extra_rays;
     barrier();
     for (uint stride = 32u; stride > 0u; stride >>= 1u) {
-        if (gl_LocalInvocationIndex < stride)
+        if (gl_LocalInvocationIndex < stride) {
             partial[gl_LocalInvocationIndex] += partial[gl_LocalInvocationIndex + stride];
+            partial_rays[gl_LocalInvocationIndex] += partial_rays[gl_LocalInvocationIndex + stride];
+        }
         barrier();
     }
-    if (gl_LocalInvocationIndex == 0u)
-        error_partials[gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x] = partial[0];
+    uint group = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (gl_LocalInvocationIndex == 0u) {
+        error_partials[2u * group] = partial[0];
+        error_partials[2u * group + 1u] = vec4(partial_rays[0], 0.0, 0.0, 0.0);
+    }
 }

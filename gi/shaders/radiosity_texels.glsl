@@ -17,7 +17,7 @@ layout(std430, binding = 3) readonly buffer CoveredTexels { uvec4 covered_texels
 //   [1] second moments (of the channel mean): direct, current indirect; previous epoch's variance of the mean; active flag
 //   [2] indirect, current epoch: sum (rgb), sample count
 //   [3] indirect, previous epoch: mean (rgb), sample count
-//   [4] albedo (rgb), 0
+//   [4] albedo (rgb), rays this pass traced beyond the fixed ones (path tracing)
 layout(std430, binding = 4) buffer TexelAccumulators { vec4 accumulators[]; };
 
 uniform uint covered_count;

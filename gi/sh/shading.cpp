@@ -1,0 +1,74 @@
+#include "sh/shading.h"
+
+#include "gpu/context.h"
+#include "gpu/shader.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace lf {
+
+glm::vec3 sh_irradiance(const ShCoefficients& transfer, const EnvironmentSh& env, int bands) {
+    glm::vec3 e(0.0f);
+    for (int i = 0; i < bands * bands; ++i) e += transfer[i] * env.coefficients[i];
+    return e;
+}
+
+std::vector<glm::vec3> reference_irradiance(const Scene& scene, const Tracer& tracer, const Environment& env,
+                                            int samples, uint32_t seed) {
+    std::vector<glm::vec4> vertices;
+    vertices.reserve(2 * scene.positions.size());
+    for (size_t v = 0; v < scene.positions.size(); ++v) {
+        vertices.push_back(glm::vec4(scene.positions[v], 0.0f));
+        vertices.push_back(glm::vec4(glm::normalize(scene.normals[v]), 0.0f));
+    }
+    std::vector<glm::vec4> texels;
+    for (const glm::vec3& t : env.texels) texels.push_back(glm::vec4(t, 0.0f));
+    GpuBuffer vertex_buffer(vertices), env_buffer(texels), out(scene.positions.size() * sizeof(glm::vec4));
+
+    ComputeProgram program("sh_reference.comp");
+    program.use();
+    tracer.bind();
+    vertex_buffer.bind(2);
+    env_buffer.bind(3);
+    out.bind(4);
+    glUniform1ui(program.uniform("vertex_count"), GLuint(scene.positions.size()));
+    glUniform1ui(program.uniform("seed"), seed);
+    glUniform2ui(program.uniform("env_size"), GLuint(env.width), GLuint(env.height));
+    glUniform3fv(program.uniform("env_constant"), 1, &env.constant.x);
+    out.clear_zero();
+    // Slices of a few rays per dispatch: Mesa's llvmpipe ends any shader
+    // invocation after 65535 loop iterations in all (LP_MAX_TGSI_LOOP_ITERATIONS),
+    // BVH traversal steps included, and would silently drop the rest.
+    const int slice = 16;
+    glUniform1f(program.uniform("weight"), float(M_PI / samples));
+    for (int first = 0, chunk = 0; first < samples; first += slice, ++chunk) {
+        glUniform1ui(program.uniform("samples"), GLuint(std::min(slice, samples - first)));
+        glUniform1ui(program.uniform("chunk"), GLuint(chunk));
+        program.dispatch_1d(scene.positions.size());
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    }
+    glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    std::vector<glm::vec3> result;
+    for (const glm::vec4& e : out.read<glm::vec4>()) result.push_back(glm::vec3(e));
+    return result;
+}
+
+double band_truncation_error(const std::vector<ShCoefficients>& transfer, const EnvironmentSh& env, int bands) {
+    double diff = 0.0, level = 0.0;
+    for (const ShCoefficients& t : transfer) {
+        const glm::vec3 full = sh_irradiance(t, env, kShMaxBands), cut = sh_irradiance(t, env, bands);
+        const double a = (full.r + full.g + full.b) / 3.0, b = (cut.r + cut.g + cut.b) / 3.0;
+        diff += (a - b) * (a - b);
+        level += a * a;
+    }
+    return level > 0.0 ? std::sqrt(diff / level) : 0.0;
+}
+
+int choose_band_count(const std::vector<ShCoefficients>& transfer, const EnvironmentSh& env, double target) {
+    for (int bands = 1; bands < kShMaxBands; ++bands)
+        if (band_truncation_error(transfer, env, bands) <= target) return bands;
+    return kShMaxBands;
+}
+
+}  // namespace lf
