@@ -4,6 +4,8 @@
 #include "remote.h"
 
 #include "bake/bake.h"
+#include "bake/sh_bake.h"
+#include "sh/sh_glb.h"
 #include "gpu/context.h"
 #include "io/reference_error.h"
 #include "scene/gltf_loader.h"
@@ -12,7 +14,9 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 
 namespace {
@@ -26,11 +30,16 @@ commands:
   inspect SCENE [--json]             what was loaded from a .gltf/.glb
   raybench SCENE [--device auto|gpu|cpu] [--seconds S]
                                      ray throughput of the tracer (JSON)
-  bake SCENE --out DIR [--res N | --texel-density T] [--passes N]
-       [--target-error E] [--time-limit S] [--device auto|gpu|cpu]
-       [--seed N] [--scheme epochs|thesis|pathtrace] [--light-samples N]
-       [--no-stitch] [--json]
-                                     bake a radiosity-map lightmap
+  bake SCENE --out DIR [--lightmap] [--sh] [--device auto|gpu|cpu] [--seed N] [--json]
+       lightmap (the default): [--res N | --texel-density T] [--passes N]
+         [--target-error E] [--time-limit S] [--scheme epochs|thesis|pathtrace]
+         [--light-samples N] [--no-stitch]
+       SH transfer (--sh): [--sh-bands 1..4|auto] [--sh-bounces N] [--env FILE|R,G,B]
+         [--sh-window none|hanning|lanczos] [--sh-passes N] [--sh-target-error E]
+         [--sh-time-limit S]
+                                     bake a radiosity-map lightmap and/or SH transfer
+  sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
+                                     vertex colours = SH transfer x environment
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]
                                      error against a reference (JSON)
 )";
@@ -91,58 +100,127 @@ void draw_progress(const nlohmann::json& e, int max_passes) {
                  100.0 * e["error_estimate"].get<double>());
 }
 
-int bake(int argc, char** argv) {
-    Args args(argc, argv, 2,
-              {"--out", "--res", "--texel-density", "--passes", "--target-error", "--time-limit", "--device",
-               "--seed", "--scheme", "--light-samples", "--subsamples"},
-              {"--json", "--no-stitch", "--lightmap"});
-    lf::BakeSettings settings;
-    settings.scene = one_scene(args, "bake");
-    if (!args.has("--out")) throw UsageError("bake needs --out DIR");
-    settings.out = args.get("--out");
-    if (args.has("--res") && args.has("--texel-density"))
-        throw UsageError("give --res or --texel-density, not both");
-    auto positive_int = [&](const char* key, double fallback, double max) {
-        const double v = args.number(key, fallback);
-        if (v < 1 || v > max || v != double(int(v)))
-            throw UsageError(std::string(key) + " must be a whole number from 1 to " + std::to_string(int(max)));
-        return int(v);
-    };
-    if (args.has("--res")) settings.resolution = positive_int("--res", 0, 16384);
-    settings.texel_density = float(args.number("--texel-density", 0.0));
-    if (settings.texel_density < 0.0f) throw UsageError("--texel-density must be positive");
-    settings.stop.max_passes = positive_int("--passes", settings.stop.max_passes, 1 << 20);
-    settings.stop.target_error = args.number("--target-error", 0.0);
-    settings.stop.time_limit = args.number("--time-limit", 0.0);
-    if (settings.stop.target_error < 0.0 || settings.stop.time_limit < 0.0)
-        throw UsageError("--target-error and --time-limit must not be negative");
-    settings.device = lf::parse_device_choice(args.get("--device", "auto"));
-    settings.radiosity.seed = uint32_t(args.number("--seed", 1));
-    settings.radiosity.scheme = lf::parse_radiosity_scheme(args.get("--scheme", "epochs"));
-    settings.radiosity.light_samples = positive_int("--light-samples", 1, 1024);
-    settings.subsamples_per_axis = positive_int("--subsamples", 2, 8);
-    settings.stitch_seams = !args.flag("--no-stitch");
+// Prints bake events: JSON lines (the worker protocol) or a progress bar.
+class BakeReporter {
+public:
+    BakeReporter(bool json, int max_passes) : json_(json), terminal_(!json && isatty(STDERR_FILENO)), max_passes_(max_passes) {}
 
-    const bool json = args.flag("--json");
-    const bool terminal = !json && isatty(STDERR_FILENO);
-    lf::bake_lightmap(settings, [&](const nlohmann::json& e) {
-        if (json) {
-            std::cout << e.dump() << std::endl;  // one object per line, flushed: the worker protocol
+    void operator()(const nlohmann::json& e) {
+        if (json_) {
+            std::cout << e.dump() << std::endl;  // one object per line, flushed
             return;
         }
         const std::string kind = e["event"];
         if (kind == "start") {
-            std::cerr << "baking " << e["texels"] << " texels on " << e["renderer"].get<std::string>() << "\n";
-        } else if (kind == "progress" && terminal) {
-            draw_progress(e, settings.stop.max_passes);
+            std::cerr << "baking " << e.value("texels", e.value("vertices", 0)) << (e.contains("texels") ? " texels" : " vertices")
+                      << " on " << e["renderer"].get<std::string>() << "\n";
+        } else if (kind == "progress" && terminal_) {
+            draw_progress(e, max_passes_);
         } else if (kind == "done") {
-            if (terminal) std::cerr << "\n";
+            if (terminal_) std::cerr << "\n";
             std::cout << "done: " << e["pass"] << " passes, " << e["rays"] << " rays, " << e["seconds"]
-                      << " s, error estimate " << e["error_estimate"] << "\nfiles in " << settings.out.string() << ":";
-            for (const auto& f : e["files"]) std::cout << " " << f.get<std::string>();
-            std::cout << "\n";
+                      << " s, error estimate " << e["error_estimate"] << "\n";
         }
-    });
+    }
+
+private:
+    bool json_, terminal_;
+    int max_passes_;
+};
+
+int bake(int argc, char** argv) {
+    Args args(argc, argv, 2,
+              {"--out", "--res", "--texel-density", "--passes", "--target-error", "--time-limit", "--device",
+               "--seed", "--scheme", "--light-samples", "--subsamples", "--sh-bands", "--sh-bounces", "--env",
+               "--sh-window", "--sh-passes", "--sh-target-error", "--sh-time-limit"},
+              {"--json", "--no-stitch", "--lightmap", "--sh"});
+    const std::string scene = one_scene(args, "bake");
+    if (!args.has("--out")) throw UsageError("bake needs --out DIR");
+    const std::filesystem::path out = args.get("--out");
+    auto whole = [&](const char* key, double fallback, double lo, double hi) {
+        const double v = args.number(key, fallback);
+        if (v < lo || v > hi || v != double(int64_t(v)))
+            throw UsageError(std::string(key) + " must be a whole number from " + std::to_string(int64_t(lo)) +
+                             " to " + std::to_string(int64_t(hi)));
+        return int(v);
+    };
+    auto non_negative = [&](const char* key) {
+        const double v = args.number(key, 0.0);
+        if (v < 0.0) throw UsageError(std::string(key) + " must not be negative");
+        return v;
+    };
+    const bool want_sh = args.flag("--sh");
+    const bool want_lightmap = args.flag("--lightmap") || !want_sh;
+    const lf::DeviceChoice device = lf::parse_device_choice(args.get("--device", "auto"));
+    const uint32_t seed = uint32_t(whole("--seed", 1, 0, 4294967295.0));
+
+    lf::BakeSettings lightmap;
+    lightmap.scene = scene;
+    lightmap.out = out;
+    lightmap.device = device;
+    if (args.has("--res") && args.has("--texel-density"))
+        throw UsageError("give --res or --texel-density, not both");
+    if (args.has("--res")) lightmap.resolution = whole("--res", 0, 1, 16384);
+    lightmap.texel_density = float(non_negative("--texel-density"));
+    lightmap.stop.max_passes = whole("--passes", lightmap.stop.max_passes, 1, 1 << 24);
+    lightmap.stop.target_error = non_negative("--target-error");
+    lightmap.stop.time_limit = non_negative("--time-limit");
+    lightmap.radiosity.seed = seed;
+    lightmap.radiosity.scheme = lf::parse_radiosity_scheme(args.get("--scheme", "epochs"));
+    lightmap.radiosity.light_samples = whole("--light-samples", 1, 1, 1024);
+    lightmap.subsamples_per_axis = whole("--subsamples", 2, 1, 8);
+    lightmap.stitch_seams = !args.flag("--no-stitch");
+
+    lf::ShBakeSettings sh;
+    sh.scene = scene;
+    sh.out = out;
+    sh.device = device;
+    sh.environment = args.get("--env", "");
+    sh.window = lf::parse_sh_window(args.get("--sh-window", "none"));
+    sh.bands = args.get("--sh-bands", "4") == "auto" ? 0 : whole("--sh-bands", 4, 1, 4);
+    sh.transfer.bounces = whole("--sh-bounces", 0, 0, 4);
+    sh.transfer.seed = seed;
+    sh.stop.max_passes = whole("--sh-passes", sh.stop.max_passes, 1, 1 << 24);
+    sh.stop.target_error = non_negative("--sh-target-error");
+    sh.stop.time_limit = non_negative("--sh-time-limit");
+
+    BakeReporter report(args.flag("--json"), want_lightmap ? lightmap.stop.max_passes : sh.stop.max_passes);
+    // Both outputs: one "done" at the very end, listing every file, so a
+    // reader of the event stream sees one bake.
+    std::vector<std::string> files;
+    auto pass_through_all_but_done = [&](const nlohmann::json& e) {
+        if (e["event"] == "done") {
+            for (const auto& f : e["files"]) files.push_back(f);
+            return;
+        }
+        report(e);
+    };
+    nlohmann::json done;
+    if (want_lightmap) done = lf::bake_lightmap(lightmap, want_sh ? lf::BakeEventSink(pass_through_all_but_done) : lf::BakeEventSink(std::ref(report)));
+    if (want_sh) {
+        done = lf::bake_sh(sh, pass_through_all_but_done);
+        std::sort(files.begin(), files.end());
+        files.erase(std::unique(files.begin(), files.end()), files.end());
+        done["files"] = files;
+        report(done);
+    }
+    if (!args.flag("--json")) {
+        std::cout << "files in " << out.string() << ":";
+        for (const auto& f : done["files"]) std::cout << " " << f.get<std::string>();
+        std::cout << "\n";
+    }
+    return 0;
+}
+
+int sh_shade(int argc, char** argv) {
+    Args args(argc, argv, 2, {"--out", "--scene", "--sh-window"}, {});
+    if (args.positional().size() != 2) throw UsageError("sh-shade takes TRANSFER and ENV");
+    if (!args.has("--out")) throw UsageError("sh-shade needs --out shaded.glb");
+    lf::ShShadeOptions options;
+    options.scene = args.get("--scene", "");
+    options.window = lf::parse_sh_window(args.get("--sh-window", "none"));
+    std::cout << lf::shade_sh_glb(args.positional()[0], args.positional()[1], args.get("--out"), options).dump(2)
+              << "\n";
     return 0;
 }
 
@@ -160,6 +238,7 @@ int main(int argc, char** argv) {
         if (command == "raybench") return raybench(argc, argv);
         if (command == "bake") return bake(argc, argv);
         if (command == "compare") return compare(argc, argv);
+        if (command == "sh-shade") return sh_shade(argc, argv);
         throw UsageError("unknown command '" + command + "'");
     } catch (const std::invalid_argument& e) {  // a bad option value
         std::cerr << "lightfarm: " << e.what() << "\n";

@@ -12,7 +12,7 @@ const std::vector<OutputInfo>& output_catalog() {
     using T = SettingInfo::Type;
     static const std::vector<OutputInfo> catalog = {
         {"lightmap",
-         {},
+         {"--lightmap"},
          {
              {"res", "--res", T::Integer, 1, false, "res", "atlas width and height in texels"},
              {"texel_density", "--texel-density", T::Number, 0, true, "", "texels per metre (atlas size follows the scene)"},

@@ -8,9 +8,12 @@
 #include "status_page.h"
 
 #include <httplib.h>
+#include <sys/socket.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <regex>
@@ -121,6 +124,11 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
 
     const int threads = config_.http_threads;
     http_->new_task_queue = [threads] { return new httplib::ThreadPool(size_t(threads)); };
+    // Keep the listening socket, to raise its backlog in bind().
+    http_->set_socket_options([this](socket_t sock) {
+        httplib::default_socket_options(sock);
+        listen_socket_ = int(sock);
+    });
     http_->set_payload_max_length(size_t(config_.limits.upload_bytes));
 
     for (const Route& route : routes()) {
@@ -193,6 +201,13 @@ int Service::bind() {
     const int port = config_.port == 0 ? http_->bind_to_any_port(config_.host)
                                        : (http_->bind_to_port(config_.host, config_.port) ? config_.port : -1);
     if (port < 0) throw std::runtime_error("cannot listen on " + config_.host + ":" + std::to_string(config_.port));
+    // cpp-httplib (Debian's is a shared library, so its macro cannot be
+    // changed) listens with a backlog of 5. Many clients connecting at once
+    // (200 readers in the load test) then overflow it: the kernel drops their
+    // SYNs and they wait for a retransmission (1 s, 3 s ...) or time out.
+    // listen() again on a listening socket only sets the new backlog.
+    if (listen_socket_ >= 0 && ::listen(listen_socket_, kListenBacklog) != 0)
+        log_line(std::string("cannot raise the listen backlog: ") + strerror(errno));
     return port;
 }
 
@@ -376,6 +391,13 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
     res.set_header("Cache-Control", "no-cache");
     res.set_chunked_content_provider("text/event-stream", [this, id, last](size_t, httplib::DataSink& sink) {
         const uint64_t seen = changes_.generation();
+        // The state first, then the events: finish() stores a final state and
+        // the final event in one transaction, so when the state read here is
+        // final, the events read next hold the final event. (Read the other
+        // way round, a job finishing between the two reads ended the stream
+        // without its final event.)
+        const std::optional<JobRecord> now = store_->job(id);
+        const bool ended = !now || protocol::is_final(now->status.state);
         const std::vector<protocol::JobEvent> events = store_->events_after(id, *last);
         for (const protocol::JobEvent& e : events) {
             const std::string text = protocol::format_sse(e);
@@ -390,8 +412,7 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
         // Nothing new. A finished job's stream ends here (the client had
         // everything); otherwise wait for a change, with a comment now and
         // then so that proxies and clients see the connection is alive.
-        const std::optional<JobRecord> now = store_->job(id);
-        if (!now || protocol::is_final(now->status.state) || changes_.stopping()) {
+        if (ended || changes_.stopping()) {
             sink.done();
             return true;
         }

@@ -87,6 +87,8 @@ private:
     std::unique_ptr<SceneStore> scenes_;
     std::unique_ptr<Supervisor> supervisor_;
     std::unique_ptr<httplib::Server> http_;
+    int listen_socket_ = -1;
+    static constexpr int kListenBacklog = 1024;
 
     struct CachedPreview {
         std::string source;  // path + size + mtime of the EXR it came from

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -66,7 +67,8 @@ inline std::string base64_decode(const std::string& text) {
     std::string out;
     for (size_t i = 0; i + 3 < text.size(); i += 4) {
         const uint32_t v = value(text[i]) << 18 | value(text[i + 1]) << 12 |
-                           (text[i + 2] == '=' ? 0 : value(text[i + 2]) << 6) | (text[i + 3] == '=' ? 0 : value(text[i + 3]));
+                           (text[i + 2] == '=' ? 0 : value(text[i + 2]) << 6) |
+                           (text[i + 3] == '=' ? 0 : value(text[i + 3]));
         out += char(v >> 16);
         if (text[i + 2] != '=') out += char((v >> 8) & 255);
         if (text[i + 3] != '=') out += char(v & 255);
@@ -152,7 +154,8 @@ public:
         nlohmann::json d = doc;
         if (!bin_.empty()) {
             nlohmann::json buffer = {{"byteLength", bin_.size()}};
-            if (!glb) buffer["uri"] = bin_uri.empty() ? "data:application/octet-stream;base64," + base64(bin_) : bin_uri;
+            if (!glb)
+                buffer["uri"] = bin_uri.empty() ? "data:application/octet-stream;base64," + base64(bin_) : bin_uri;
             d["buffers"] = {buffer};
             d["bufferViews"] = views_;
             d["accessors"] = accessors_;
@@ -199,5 +202,82 @@ private:
     nlohmann::json views_ = nlohmann::json::array();
     nlohmann::json accessors_ = nlohmann::json::array();
 };
+
+// --- sample files ---------------------------------------------------------------
+
+// A unit quad in the XY plane facing +Z: counter-clockwise seen from +Z.
+inline const std::vector<glm::vec3> kQuad = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+inline const std::vector<uint16_t> kQuadIndices = {0, 1, 2, 0, 2, 3};
+
+inline nlohmann::json primitive(int position, int indices = -1, nlohmann::json extra = nlohmann::json::object()) {
+    nlohmann::json p = {{"attributes", {{"POSITION", position}}}};
+    if (indices >= 0) p["indices"] = indices;
+    for (auto& [k, v] : extra.items()) p[k] = v;
+    return p;
+}
+
+// A file with one quad, for variations.
+inline GltfWriter quad_file() {
+    GltfWriter w;
+    const int positions = w.vec3(kQuad);
+    const int indices = w.scalars(kQuadIndices, kUnsignedShort);
+    w.scene({w.add("nodes", {{"mesh", w.mesh(primitive(positions, indices))}})});
+    return w;
+}
+
+// 1x1 RGBA PNG, every channel 128; and 2x1 RGBA: red, blue.
+inline const char* kGreyPng =
+    "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAAC0lEQVR4nGNoAAIABQUCAaxTIjoAAAAASUVORK5CYII=";
+inline const char* kRedBluePng =
+    "iVBORw0KGgoAAAANSUhEUgAAAAIAAAABCAYAAAD0In+KAAAADklEQVR4nGP4z8AAQv8BD/kD/YURmXYAAAAASUVORK5CYII=";
+
+// A quad whose material has base colour and emissive textures from images.
+inline GltfWriter textured_quad(const nlohmann::json& image, GltfWriter w = GltfWriter()) {
+    w.add("images", image);
+    w.add("textures", {{"source", 0}});
+    w.add("materials", {{"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}}},
+                        {"emissiveFactor", {1.0, 1.0, 1.0}},
+                        {"emissiveTexture", {{"index", 0}}}});
+    const std::vector<glm::vec2> uv = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    w.scene({w.add("nodes", {{"mesh", w.mesh({{"attributes", {{"POSITION", w.vec3(kQuad)}, {"TEXCOORD_0", w.vec2(uv)}}},
+                                              {"indices", w.scalars(kQuadIndices, kUnsignedShort)},
+                                              {"material", 0}})}})});
+    return w;
+}
+
+// A small file that uses most of what the loader reads: indexed and strip
+// primitives, normals, normalized UVs, a sparse accessor, an embedded PNG
+// texture, a node hierarchy with TRS and matrix, a spot light.
+inline GltfWriter feature_file() {
+    const std::string png = base64_decode(kRedBluePng);
+    GltfWriter w;
+    const int image_view = w.view(png.data(), png.size());
+    w = textured_quad({{"bufferView", image_view}, {"mimeType", "image/png"}}, std::move(w));
+    const int positions = w.doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"];
+    const std::vector<uint8_t> sparse_index = {1};
+    const std::vector<glm::vec3> sparse_value = {{2, 0, 0}};
+    const int iv = w.view(sparse_index.data(), 1);
+    const int vv = w.view(sparse_value.data(), 12);
+    w.accessor_json(positions)["sparse"] = {{"count", 1},
+                                            {"indices", {{"bufferView", iv}, {"componentType", kUnsignedByte}}},
+                                            {"values", {{"bufferView", vv}}}};
+    const std::vector<uint16_t> uv = {0, 0, 65535, 0, 65535, 65535, 0, 65535};
+    const std::vector<uint8_t> strip = {1, 0, 2, 3};
+    w.doc["meshes"][0]["primitives"].push_back({{"attributes",
+                                                 {{"POSITION", positions},
+                                                  {"NORMAL", w.vec3(std::vector<glm::vec3>(4, glm::vec3(0, 0, 1)))},
+                                                  {"TEXCOORD_1", w.scalars(uv, kUnsignedShort, true, "VEC2")}}},
+                                                {"indices", w.scalars(strip, kUnsignedByte)},
+                                                {"mode", 5}});
+    w.doc["extensionsUsed"] = {"KHR_lights_punctual"};
+    w.doc["extensions"]["KHR_lights_punctual"]["lights"] = {
+        {{"type", "spot"}, {"intensity", 3.0}, {"spot", nlohmann::json::object()}}};
+    const int light =
+        w.add("nodes", {{"extensions", {{"KHR_lights_punctual", {{"light", 0}}}}}, {"rotation", {0, 0, 0, 1}}});
+    const int child = w.add("nodes", {{"mesh", 0}, {"matrix", {-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 1, 2, 3, 1}}});
+    const int root = w.add("nodes", {{"children", {child, light}}, {"scale", {2, 2, 2}}});
+    w.doc["scenes"][0]["nodes"].push_back(root);
+    return w;
+}
 
 }  // namespace lf::test

@@ -23,8 +23,26 @@ target_link_libraries(test_remote PRIVATE lightfarm_protocol PkgConfig::CPP_HTTP
 target_compile_definitions(test_remote PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
 add_dependencies(test_remote lightfarmd)
 
-# The same service with the real engine: hostile scenes at upload, and a
-# Cornell box bake through the service against `lightfarm bake`.
+# The service under load (50 jobs from 10 clients, 200 readers) with the fake
+# engine; LIGHTFARM_LOAD_ENGINE=real runs it with this build's lightfarm (the
+# figures in docs/service-benchmarks.md). Not lightfarm_test(): it loads both
+# cores for ~10 s, so ctest runs it alone (RUN_SERIAL), with a time limit.
+add_executable(test_server_load test_server_load.cpp server_harness.cpp)
+target_include_directories(test_server_load PRIVATE ${CMAKE_CURRENT_SOURCE_DIR})
+target_link_libraries(test_server_load PRIVATE GTest::gtest_main lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+target_compile_definitions(test_server_load PRIVATE
+  LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
+  LIGHTFARM_SHARED_SCENES="${LIGHTFARM_SHARED_SCENES}")
+if(TARGET lightfarm)
+  target_compile_definitions(test_server_load PRIVATE LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>")
+endif()
+add_dependencies(test_server_load lightfarmd)
+gtest_discover_tests(test_server_load DISCOVERY_TIMEOUT 60
+  PROPERTIES LABELS test_server_load RUN_SERIAL TRUE TIMEOUT 120)
+
+# The same service with the real engine: hostile scenes at upload; a Cornell
+# box bake through the service against `lightfarm bake` (bit for bit); SIGKILL
+# of a worker, and of lightfarmd, mid-bake (about 15 s in all on llvmpipe).
 if(TARGET lightfarm)
   lightfarm_test(test_server_e2e server_harness.cpp)
   target_link_libraries(test_server_e2e PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)

@@ -126,7 +126,8 @@ TEST(JobSpec, BakeArgumentsAreTheCliOptions) {
     json j = valid_spec();
     j["outputs"]["lightmap"] = {{"texel_density", 12.5}, {"target_error", 0.01}, {"time_limit", 30}};
     const std::vector<std::string> args = bake_arguments(parse_job_spec(j));
-    const std::vector<std::string> expected = {"--texel-density", "12.5", "--target-error", "0.01",
+    // Each output names itself (--lightmap, --sh), so a job asking for both bakes both.
+    const std::vector<std::string> expected = {"--lightmap", "--texel-density", "12.5", "--target-error", "0.01",
                                                "--time-limit", "30", "--seed", "7"};
     EXPECT_EQ(args, expected);
 }

@@ -7,6 +7,7 @@
 #include "scene/scene_summary.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <glm/gtc/matrix_transform.hpp>
 #include <glm/gtc/quaternion.hpp>
 #include <glm/gtc/type_ptr.hpp>
@@ -15,14 +16,25 @@
 #include <chrono>
 #include <cstdio>
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <map>
+#include <random>
 
 namespace lf {
 namespace {
 
 using nlohmann::json;
+using test::feature_file;
 using test::GltfWriter;
+using test::kGreyPng;
+using test::kQuad;
+using test::kQuadIndices;
+using test::kRedBluePng;
+using test::primitive;
+using test::quad_file;
 using test::TempDir;
+using test::textured_quad;
 namespace fs = std::filesystem;
 
 const fs::path kScenes = LIGHTFARM_SHARED_SCENES;
@@ -144,7 +156,6 @@ TEST(BadScenes, ImageBombIsRefusedFromItsHeader) {
     EXPECT_TRUE(contains(message, "8192")) << message;
 }
 
-
 // ============================================================================
 // The shared scenes
 // ============================================================================
@@ -185,8 +196,8 @@ struct SharedScene {
     size_t triangles;
     bool all_uv1;
     size_t point_lights, directional_lights;
-    bool emissive;            // some triangle emits
-    const char* warning;      // a warning it must give, or nullptr
+    bool emissive;        // some triangle emits
+    const char* warning;  // a warning it must give, or nullptr
 };
 
 class SharedScenes : public testing::TestWithParam<SharedScene> {};
@@ -251,6 +262,19 @@ TEST(SharedScenes, CornellBoxLightIsTheDocumentedRadiance) {
     }
     EXPECT_TRUE(found);
     EXPECT_EQ(scene.emissive_triangle_count(), 2u);
+
+    const json summary = summarize(scene);
+    EXPECT_EQ(summary["triangles"], 32);
+    EXPECT_EQ(summary["emissive_triangles"], 2);
+    EXPECT_EQ(summary["primitive_instances"], scene.instances.size());
+    EXPECT_EQ(summary["meshes"], 4);
+    EXPECT_EQ(summary["lightmap_uvs"]["all_primitives"], true);
+    EXPECT_EQ(summary["lightmap_uvs"]["primitives_with_texcoord_1"], scene.instances.size());
+    EXPECT_EQ(summary["textures"], 0);
+    EXPECT_NEAR(summary["bounds"]["hi"][0].get<double>(), 0.556, 1e-3);  // Cornell's 556 mm floor
+    EXPECT_GT(summary["surface_area"].get<double>(), 1.0);
+    EXPECT_TRUE(summary["warnings"].empty());
+    EXPECT_NE(format_summary(scene).find("32 triangles"), std::string::npos);
     // 16 quads, each its own primitive; every one with TEXCOORD_1 in [0, 1].
     for (const glm::vec2& uv : scene.uv1) {
         EXPECT_GE(uv.x, 0.0f);
@@ -268,8 +292,8 @@ TEST(SharedScenes, TexturedInteriorHasLinearTextures) {
     }
     const json summary = summarize(scene);
     EXPECT_EQ(summary["triangles"], 262663);
-    EXPECT_EQ(summary["textures"]["count"], scene.textures.size());
-    EXPECT_GT(summary["textures"]["largest_dimension"].get<int>(), 0);
+    EXPECT_EQ(summary["textures"], scene.textures.size());
+    EXPECT_EQ(summary["max_texture_size"], 512);
     EXPECT_GT(summary["surface_area"].get<double>(), 1.0);
     EXPECT_FALSE(format_summary(scene).empty());
 }
@@ -277,17 +301,6 @@ TEST(SharedScenes, TexturedInteriorHasLinearTextures) {
 // ============================================================================
 // Generated files
 // ============================================================================
-
-// A unit quad in the XY plane facing +Z: counter-clockwise seen from +Z.
-const std::vector<glm::vec3> kQuad = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
-const std::vector<uint16_t> kQuadIndices = {0, 1, 2, 0, 2, 3};
-
-json primitive(int position, int indices = -1, json extra = json::object()) {
-    json p = {{"attributes", {{"POSITION", position}}}};
-    if (indices >= 0) p["indices"] = indices;
-    for (auto& [k, v] : extra.items()) p[k] = v;
-    return p;
-}
 
 Scene load_written(const GltfWriter& w, const TempDir& dir, const std::string& name = "scene.gltf") {
     return load_scene(w.write(dir.path(), name));
@@ -469,8 +482,9 @@ TEST(GeneratedScenes, NormalizedIntegerTexcoords) {
 TEST(GeneratedScenes, UnnormalizedIntegerTexcoordsAreRefused) {
     GltfWriter w;
     const std::vector<uint16_t> uv0 = {0, 0, 1, 0, 1, 1, 0, 1};
-    const int mesh = w.mesh({{"attributes",
-                              {{"POSITION", w.vec3(kQuad)}, {"TEXCOORD_0", w.scalars(uv0, test::kUnsignedShort, false, "VEC2")}}}});
+    const int mesh =
+        w.mesh({{"attributes",
+                 {{"POSITION", w.vec3(kQuad)}, {"TEXCOORD_0", w.scalars(uv0, test::kUnsignedShort, false, "VEC2")}}}});
     w.scene({w.add("nodes", {{"mesh", mesh}})});
     TempDir dir;
     const std::string message = load_error(w.write(dir.path(), "uv.gltf"));
@@ -501,7 +515,7 @@ TEST(GeneratedScenes, EmissiveStrengthMultipliesTheFactor) {
     w.doc["extensionsUsed"] = {"KHR_materials_emissive_strength"};
     w.doc["extensionsRequired"] = {"KHR_materials_emissive_strength"};
     w.scene({w.add("nodes", {{"mesh", w.mesh(primitive(w.vec3(kQuad), w.scalars(kQuadIndices, test::kUnsignedShort),
-                                                     {{"material", 0}}))}})});
+                                                       {{"material", 0}}))}})});
     TempDir dir;
     const Scene s = load_written(w, dir);
     ASSERT_EQ(s.materials.size(), 1u);  // no default material: every primitive has one
@@ -533,7 +547,10 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     GltfWriter w;
     w.doc["extensionsUsed"] = {"KHR_lights_punctual"};
     w.doc["extensions"]["KHR_lights_punctual"]["lights"] = {
-        {{"type", "spot"}, {"color", {1.0, 0.5, 0.25}}, {"intensity", 8.0}, {"spot", {{"innerConeAngle", 0.2}, {"outerConeAngle", 0.6}}}},
+        {{"type", "spot"},
+         {"color", {1.0, 0.5, 0.25}},
+         {"intensity", 8.0},
+         {"spot", {{"innerConeAngle", 0.2}, {"outerConeAngle", 0.6}}}},
         {{"type", "point"}, {"intensity", 2.0}, {"range", 10.0}},
     };
     // -90 degrees about X turns the light's -Z towards -Y.
@@ -541,7 +558,8 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     const int spot = w.add("nodes", {{"translation", {1, 3, 2}},
                                      {"rotation", {-h, 0, 0, h}},
                                      {"extensions", {{"KHR_lights_punctual", {{"light", 0}}}}}});
-    const int point = w.add("nodes", {{"translation", {0, 1, 0}}, {"extensions", {{"KHR_lights_punctual", {{"light", 1}}}}}});
+    const int point =
+        w.add("nodes", {{"translation", {0, 1, 0}}, {"extensions", {{"KHR_lights_punctual", {{"light", 1}}}}}});
     const int parent = w.add("nodes", {{"children", {point}}, {"translation", {5, 0, 0}}});
     w.scene({w.add("nodes", {{"mesh", w.mesh(primitive(w.vec3(kQuad)))}}), spot, parent});
     TempDir dir;
@@ -564,31 +582,13 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     EXPECT_EQ(summary["punctual_lights"]["point"], 1);
 }
 
-// 1x1 RGBA PNG, every channel 128; and 2x1 RGBA: red, blue.
-const char* kGreyPng = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAAC0lEQVR4nGNoAAIABQUCAaxTIjoAAAAASUVORK5CYII=";
-const char* kRedBluePng = "iVBORw0KGgoAAAANSUhEUgAAAAIAAAABCAYAAAD0In+KAAAADklEQVR4nGP4z8AAQv8BD/kD/YURmXYAAAAASUVORK5CYII=";
-
-// A quad whose material has base colour and emissive textures from images.
-GltfWriter textured_quad(const json& image, GltfWriter w = GltfWriter()) {
-    w.add("images", image);
-    w.add("textures", {{"source", 0}});
-    w.add("materials", {{"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}}},
-                        {"emissiveFactor", {1.0, 1.0, 1.0}},
-                        {"emissiveTexture", {{"index", 0}}}});
-    const std::vector<glm::vec2> uv = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
-    w.scene({w.add("nodes", {{"mesh", w.mesh({{"attributes", {{"POSITION", w.vec3(kQuad)}, {"TEXCOORD_0", w.vec2(uv)}}},
-                                              {"indices", w.scalars(kQuadIndices, test::kUnsignedShort)},
-                                              {"material", 0}})}})});
-    return w;
-}
-
 TEST(GeneratedScenes, TexturesAreDecodedFromSrgb) {
     TempDir dir;
     const Scene s = load_written(textured_quad({{"uri", std::string("data:image/png;base64,") + kGreyPng}}), dir);
     ASSERT_EQ(s.textures.size(), 1u);  // one image behind both slots: decoded once
     ASSERT_EQ(s.textures[0].width, 1);
     const glm::vec4 texel = s.textures[0].fetch(0, 0);
-    EXPECT_NEAR(texel.r, 0.2158605f, 1e-5f);  // sRGB 128/255 -> linear
+    EXPECT_NEAR(texel.r, 0.2158605f, 1e-5f);       // sRGB 128/255 -> linear
     EXPECT_NEAR(texel.a, 128.0f / 255.0f, 1e-6f);  // alpha is linear
     EXPECT_EQ(s.materials[0].base_color_texture, 0);
     EXPECT_EQ(s.materials[0].emissive_texture, 0);
@@ -625,18 +625,9 @@ TEST(GeneratedScenes, GlbWithEmbeddedImage) {
 // Generated files the loader must refuse, or accept with a warning
 // ============================================================================
 
-// A file with one quad, for variations.
-GltfWriter quad_file() {
-    GltfWriter w;
-    const int positions = w.vec3(kQuad);
-    const int indices = w.scalars(kQuadIndices, test::kUnsignedShort);
-    w.scene({w.add("nodes", {{"mesh", w.mesh(primitive(positions, indices))}})});
-    return w;
-}
-
 TEST(GeneratedScenes, PointsAndLinesAreSkippedWithAWarning) {
     GltfWriter w = quad_file();
-    w.doc["meshes"][0]["primitives"].push_back(primitive(0, 1, {{"mode", 1}}));  // LINES
+    w.doc["meshes"][0]["primitives"].push_back(primitive(0, 1, {{"mode", 1}}));   // LINES
     w.doc["meshes"][0]["primitives"].push_back(primitive(0, -1, {{"mode", 0}}));  // POINTS
     TempDir dir;
     const Scene s = load_written(w, dir);
@@ -716,10 +707,25 @@ TEST(GeneratedScenes, UrisThatLeaveTheSceneAreRefused) {
     }
 }
 
+TEST(GeneratedScenes, SpecialFilesAreRefusedWithoutWaiting) {
+    // A FIFO would block a plain open() until someone writes to it.
+    TempDir dir;
+    ASSERT_EQ(::mkfifo((dir / "fifo.gltf").c_str(), 0600), 0);
+    ASSERT_EQ(::mkfifo((dir / "fifo.bin").c_str(), 0600), 0);
+    std::string message = load_error(dir / "fifo.gltf");
+    EXPECT_TRUE(contains(message, "fifo.gltf: is not a regular file")) << message;
+    json doc = quad_file().full();
+    doc["buffers"][0]["uri"] = "fifo.bin";
+    test::write_text(dir / "uses_fifo.gltf", doc.dump());
+    message = load_error(dir / "uses_fifo.gltf");
+    EXPECT_TRUE(contains(message, "not a regular file")) << message;
+}
+
 TEST(GeneratedScenes, ImagesMissingUnusedOrUndecodable) {
     TempDir dir;
     // Used and missing: an error naming the image.
-    std::string message = load_error(textured_quad({{"uri", "nope.png"}, {"name", "wall"}}).write(dir.path(), "a.gltf"));
+    std::string message =
+        load_error(textured_quad({{"uri", "nope.png"}, {"name", "wall"}}).write(dir.path(), "a.gltf"));
     EXPECT_TRUE(contains(message, "a.gltf: image 0 \"wall\": uri \"nope.png\"")) << message;
     EXPECT_TRUE(contains(message, "not found")) << message;
     // Used and not an image.
@@ -743,6 +749,19 @@ TEST(GeneratedScenes, LimitsAreEnforced) {
     EXPECT_TRUE(contains(load_error(quad, limits), "6 triangles after node instancing, over the limit of 5"));
     limits.max_triangles = 6;
     EXPECT_NO_THROW(load_scene(quad, limits));
+
+    // A strip makes a triangle per index byte: refused before it is assembled.
+    GltfWriter strip;
+    std::vector<uint8_t> cycle(1000);
+    for (size_t i = 0; i < cycle.size(); ++i) cycle[i] = uint8_t(i % 3);
+    const int positions = strip.vec3({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}});
+    const int indices = strip.scalars(cycle, test::kUnsignedByte);
+    strip.scene({strip.add("nodes", {{"mesh", strip.mesh(primitive(positions, indices, {{"mode", 5}}))}})});
+    limits.max_triangles = 500;
+    const std::string message = load_error(strip.write(dir.path(), "strip.gltf"), limits);
+    EXPECT_TRUE(contains(message, "strip.gltf: mesh 0 primitive 0: brings the scene to 998 triangles")) << message;
+    limits.max_triangles = 998;
+    EXPECT_EQ(load_scene(dir / "strip.gltf", limits).triangle_count(), 998u);
     limits = {};
     limits.max_file_bytes = 100;
     EXPECT_TRUE(contains(load_error(quad, limits), "over the limit of 100 bytes"));
@@ -765,6 +784,108 @@ TEST(GeneratedScenes, GlbBinChunkShorterThanItsBuffer) {
     doc["buffers"][0]["byteLength"] = 4096;
     const std::string message = load_error(w.write_glb(dir.path(), "short.glb", doc));
     EXPECT_TRUE(contains(message, "short.glb: buffer 0: byteLength 4096 exceeds the GLB BIN chunk")) << message;
+}
+
+// ============================================================================
+// Robustness: mutated files are loaded or refused, nothing else
+// ============================================================================
+
+// Loads `file`: a Scene or a SceneError are both fine; anything else is a bug.
+void load_or_refuse(const fs::path& file, const std::string& what) {
+    try {
+        const Scene s = load_scene(file);
+        expect_consistent(s);
+    } catch (const SceneError& e) {
+        const std::string message = e.what();
+        EXPECT_EQ(message.find('\n'), std::string::npos) << what << ": " << message;
+    } catch (const std::exception& e) {
+        ADD_FAILURE() << what << ": " << typeid(e).name() << ": " << e.what();
+    }
+}
+
+TEST(Robustness, FeatureFileLoads) {
+    TempDir dir;
+    const Scene s = load_scene(feature_file().write_glb(dir.path(), "features.glb"));
+    EXPECT_EQ(s.instances.size(), 4u);
+    EXPECT_EQ(s.lights.size(), 1u);
+    EXPECT_EQ(s.textures.size(), 1u);
+    expect_consistent(s);
+}
+
+TEST(Robustness, MutatedJsonValues) {
+    const GltfWriter w = feature_file();
+    const json base = w.full({}, true);
+    // Every number in the document is a place to put a hostile value.
+    std::vector<json::json_pointer> numbers;
+    const json flat = base.flatten();
+    for (const auto& [path, value] : flat.items()) {
+        if (value.is_number()) numbers.emplace_back(path);
+    }
+    const std::vector<json> hostile = {-1,
+                                       0,
+                                       1,
+                                       2,
+                                       3,
+                                       5,
+                                       6,
+                                       7,
+                                       13,
+                                       255,
+                                       65535,
+                                       2147483647,
+                                       4294967295ull,
+                                       4294967296ull,
+                                       18446744073709551615ull,
+                                       -2147483648ll,
+                                       0.5,
+                                       1.5,
+                                       -0.0,
+                                       1e300,
+                                       -1e300,
+                                       9007199254740993ull,
+                                       json("x"),
+                                       json::array(),
+                                       nullptr};
+    std::mt19937 rng(20261122);
+    TempDir dir;
+    for (int iteration = 0; iteration < 1500; ++iteration) {
+        json doc = base;
+        const int changes = 1 + int(rng() % 3);
+        std::string what;
+        for (int c = 0; c < changes; ++c) {
+            const json::json_pointer& at = numbers[rng() % numbers.size()];
+            const json& value = hostile[rng() % hostile.size()];
+            doc[at] = value;
+            what += at.to_string() + "=" + value.dump() + " ";
+        }
+        // A new name each time: rewriting one file in place makes ext4 flush it on every close.
+        const fs::path file = w.write_glb(dir.path(), "mutated" + std::to_string(iteration) + ".glb", doc);
+        load_or_refuse(file, what);
+        fs::remove(file);
+    }
+}
+
+TEST(Robustness, MutatedAndTruncatedBytes) {
+    TempDir dir;
+    const fs::path original = feature_file().write_glb(dir.path(), "features.glb");
+    std::ifstream in(original, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::mt19937 rng(7);
+    for (int iteration = 0; iteration < 1500; ++iteration) {
+        std::string mutated = bytes;
+        const int flips = 1 + int(rng() % 4);
+        for (int f = 0; f < flips; ++f) mutated[rng() % mutated.size()] = char(rng() % 256);
+        const fs::path file = dir / ("mutated" + std::to_string(iteration) + ".glb");
+        test::write_text(file, mutated);
+        load_or_refuse(file, "byte mutation " + std::to_string(iteration));
+        fs::remove(file);
+    }
+    for (size_t length = 0; length < bytes.size(); length += 1 + length / 64) {
+        const fs::path file = dir / ("truncated" + std::to_string(length) + ".glb");
+        test::write_text(file, bytes.substr(0, length));
+        load_or_refuse(file, "truncated to " + std::to_string(length));
+        fs::remove(file);
+    }
 }
 
 }  // namespace

@@ -257,7 +257,7 @@ TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
     EXPECT_EQ(all[2].data["file"], "lightmap.pass-0001.exr");
     EXPECT_EQ(all.back().data["files"], json({"lightmap.exr", "manifest.json"}));
     const std::string args = read_text(engine.dir / "last_args");
-    EXPECT_NE(args.find("--json --res 64 --passes 4 --seed 42\n"), std::string::npos) << args;
+    EXPECT_NE(args.find("--json --lightmap --res 64 --passes 4 --seed 42\n"), std::string::npos) << args;
 
     const json status = wait_finished(id);
     EXPECT_EQ(status["state"], "succeeded");
@@ -420,6 +420,53 @@ TEST_F(ServerTest, JobsSurviveAKilledServer) {
     const auto types = types_of(all);
     EXPECT_NE(std::find(types.begin(), types.end(), "retrying"), types.end());
     EXPECT_EQ(types.back(), "done");
+}
+
+// A normal stop (SIGTERM, as systemd or `docker stop` send) ends the running
+// worker and puts its job back in the queue without counting the attempt: the
+// interruption is not the job's fault. A queued job stays queued. Both finish
+// after the restart, and the server logs a clean exit.
+TEST_F(ServerTest, AStoppedServerRequeuesItsJobsWithoutCostingAnAttempt) {
+    engine.set("delay", "0.2");
+    start();
+    const std::string scene = upload();
+    const std::string running = submit(scene, {{"passes", 10}}, 1);
+    const std::string queued = submit(scene, {{"passes", 2}}, 2);
+    auto c = client();
+    const json mid = wait_for_job(c, running, [](const json& s) { return s["progress"]["pass"].get<int>() >= 2; });
+    ASSERT_EQ(mid["state"], "running") << mid.dump();
+
+    const auto t0 = std::chrono::steady_clock::now();
+    server->stop();
+    EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(4)) << "SIGTERM did not stop lightfarmd";
+    const std::string log = server->log();
+    EXPECT_NE(log.find("lightfarmd: stopping (Terminated)"), std::string::npos) << log;
+    EXPECT_NE(log.find("lightfarmd: stopped\n"), std::string::npos) << log;
+    EXPECT_EQ(engine.runs(), 1);
+
+    engine.set("delay", "0");
+    server->start();
+    auto c2 = client();
+    const json r = wait_finished(running);
+    EXPECT_EQ(r["state"], "succeeded") << r.dump();
+    EXPECT_EQ(r["attempts"], 1) << "a normal stop costs the job no attempt";
+    const json q = wait_finished(queued);
+    EXPECT_EQ(q["state"], "succeeded") << q.dump();
+    EXPECT_EQ(q["attempts"], 1);
+    EXPECT_EQ(engine.runs(), 3);
+    const auto all = events(running);
+    bool retried = false;
+    for (const auto& e : all) {
+        if (e.type != "retrying") continue;
+        retried = true;
+        EXPECT_EQ(e.data["cause"], "lightfarmd stopped");
+    }
+    EXPECT_TRUE(retried);
+    ASSERT_FALSE(all.empty());
+    EXPECT_EQ(all.back().type, "done");
+    auto exr = c2.Get("/v1/jobs/" + running + "/artifacts/lightmap.exr");
+    ASSERT_EQ(exr->status, 200);
+    EXPECT_EQ(exr->body, read_text(engine.dir / "snapshot.exr"));
 }
 
 TEST_F(ServerTest, TheSameBakeTwiceIsServedFromTheCache) {

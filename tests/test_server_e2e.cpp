@@ -1,29 +1,111 @@
 // lightfarmd with the real engine (the lightfarm binary of this build) on
 // loopback: hostile scenes are refused at upload by the engine's own loader
-// in a separate process, and a bake of the Cornell box through the service
-// equals the same bake run by `lightfarm bake` with the same seed.
+// in a separate process; a bake of the Cornell box through the service equals,
+// bit for bit, the same bake run by `lightfarm bake` with the same seed; and
+// a job whose worker, or whose server, is killed with SIGKILL mid-bake still
+// completes with whole artifacts that again equal the CLI's bake.
 #include "server_harness.h"
 
 #include "subprocess.h"
 
-#include <OpenEXR/ImfArray.h>
-#include <OpenEXR/ImfRgbaFile.h>
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
 #include <gtest/gtest.h>
+#include <signal.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <set>
+#include <thread>
 
 namespace lf::test {
 namespace {
 
 using nlohmann::json;
+using Clock = std::chrono::steady_clock;
 
 const std::string kToken = "e2e-token";
-const fs::path kScenes = LIGHTFARM_SHARED_SCENES;
 
-// True when this build's lightfarm knows `bake` (it is written in parallel
-// with the service; until then the bake test skips).
-bool engine_can_bake() {
-    const server::RunResult r = server::run_command({LIGHTFARM_ENGINE, "bake", "--help"}, std::chrono::seconds(30));
-    return r.out.find("unknown command") == std::string::npos && r.err_last_line.find("unknown command") == std::string::npos &&
-           !(r.status.exited && r.status.code == 2 && r.out.empty());
+fs::path scenes_dir() {
+    const char* env = std::getenv("LIGHTFARM_SCENES");
+    return env && *env ? fs::path(env) : fs::path(LIGHTFARM_SHARED_SCENES);
+}
+
+// Every channel of an EXR (RGB, and the direct/indirect layers, sample counts
+// and error estimates the engine writes), as floats: half -> float is exact,
+// so equal floats are equal files' pixels.
+struct ExrImage {
+    int width = 0, height = 0;
+    std::map<std::string, std::vector<float>> channels;
+};
+ExrImage read_exr(const fs::path& path) {
+    Imf::InputFile file(path.c_str());
+    const Imath::Box2i dw = file.header().dataWindow();
+    ExrImage img;
+    img.width = dw.max.x - dw.min.x + 1;
+    img.height = dw.max.y - dw.min.y + 1;
+    Imf::FrameBuffer fb;
+    for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
+        std::vector<float>& v = img.channels[it.name()];
+        v.resize(size_t(img.width) * size_t(img.height));
+        char* base = reinterpret_cast<char*>(v.data()) -
+                     (ptrdiff_t(dw.min.x) + ptrdiff_t(dw.min.y) * img.width) * ptrdiff_t(sizeof(float));
+        fb.insert(it.name(), Imf::Slice(Imf::FLOAT, base, sizeof(float), sizeof(float) * size_t(img.width)));
+    }
+    file.setFrameBuffer(fb);
+    file.readPixels(dw.min.y, dw.max.y);
+    return img;
+}
+
+// Bit-for-bit equality of every channel; describes the first difference.
+::testing::AssertionResult same_pixels(const fs::path& a_path, const fs::path& b_path) {
+    const ExrImage a = read_exr(a_path), b = read_exr(b_path);
+    if (a.width != b.width || a.height != b.height)
+        return ::testing::AssertionFailure() << "sizes differ: " << a.width << "x" << a.height << " vs " << b.width
+                                             << "x" << b.height;
+    std::string names_a, names_b;
+    for (const auto& [name, _] : a.channels) names_a += name + " ";
+    for (const auto& [name, _] : b.channels) names_b += name + " ";
+    if (names_a != names_b) return ::testing::AssertionFailure() << "channels differ: " << names_a << "vs " << names_b;
+    for (const auto& [name, pa] : a.channels) {
+        const std::vector<float>& pb = b.channels.at(name);
+        size_t differing = 0, first = 0;
+        for (size_t i = 0; i < pa.size(); ++i) {
+            if (std::memcmp(&pa[i], &pb[i], sizeof(float)) != 0 && differing++ == 0) first = i;
+        }
+        if (differing)
+            return ::testing::AssertionFailure()
+                   << differing << " texels of channel " << name << " differ; first at (" << first % size_t(a.width)
+                   << ", " << first / size_t(a.width) << "): " << pa[first] << " vs " << pb[first];
+    }
+    return ::testing::AssertionSuccess() << a.channels.size() << " channels equal";
+}
+
+// The lightmap settings of a job, and the same as `lightfarm bake` options.
+struct Bake {
+    int res = 64;
+    int passes = 16;
+    int seed = 3;
+    json spec(const std::string& scene) const {
+        return {{"scene", scene}, {"outputs", {{"lightmap", {{"res", res}, {"passes", passes}}}}}, {"seed", seed}};
+    }
+};
+
+// `lightfarm bake` of the Cornell box into `out`; returns its wall time.
+double local_bake(const Bake& b, const fs::path& out) {
+    fs::create_directories(out);
+    const auto t0 = Clock::now();
+    const server::RunResult cli = server::run_command(
+        {LIGHTFARM_ENGINE, "bake", (scenes_dir() / "cornell_box.gltf").string(), "--out", out.string(), "--json",
+         "--res", std::to_string(b.res), "--passes", std::to_string(b.passes), "--seed", std::to_string(b.seed)},
+        std::chrono::seconds(300));
+    EXPECT_TRUE(cli.status.success()) << cli.status.describe() << ": " << cli.err_last_line;
+    return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
 class EndToEnd : public ::testing::Test {
@@ -38,31 +120,114 @@ protected:
     void TearDown() override {
         if (HasFailure() && server) std::cerr << "---- lightfarmd log ----\n" << server->log();
     }
+
+    httplib::Client client() {
+        auto c = server->client(kToken);
+        c.set_read_timeout(120);
+        return c;
+    }
+    std::string upload_cornell_box() {
+        auto r = client().Post("/v1/scenes", read_text(scenes_dir() / "cornell_box.gltf"), "model/gltf+json");
+        EXPECT_TRUE(r && (r->status == 201 || r->status == 200)) << (r ? r->body : "no answer");
+        return r ? json::parse(r->body).value("id", "") : "";
+    }
+    std::string submit(const json& spec) {
+        auto r = client().Post("/v1/jobs", spec.dump(), "application/json");
+        EXPECT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+        return r ? json::parse(r->body).value("id", "") : "";
+    }
+    fs::path job_dir(const std::string& id) const { return tmp.path / "data" / "jobs" / id; }
+    // Downloads an artifact into tmp/NAME-PREFIX; returns the path.
+    fs::path download(const std::string& id, const std::string& name, const std::string& prefix) {
+        auto r = client().Get("/v1/jobs/" + id + "/artifacts/" + name);
+        EXPECT_TRUE(r && r->status == 200) << name << ": " << (r ? r->body : "no answer");
+        if (r) {
+            EXPECT_EQ(r->get_header_value("Content-Length"), std::to_string(r->body.size()));
+        }
+        const fs::path path = tmp.path / (prefix + "-" + name);
+        write_text(path, r ? r->body : "");
+        return path;
+    }
+    // A bake long enough to be interrupted mid-way on this device: the CLI bake
+    // (which the test needs anyway, as the reference) is run with more passes
+    // until it takes a couple of seconds. Returns the settings; the reference
+    // lightmap is in tmp/local.
+    Bake long_bake() {
+        Bake b;
+        b.passes = 256;
+        b.seed = 11;
+        for (;;) {
+            fs::remove_all(tmp.path / "local");
+            const double seconds = local_bake(b, tmp.path / "local");
+            if (seconds > 1.5 || b.passes >= 16384) return b;
+            b.passes *= 4;
+        }
+    }
+    // Waits until the job is running past pass `pass` (its worker busy baking).
+    json wait_running_past(const std::string& id, int pass) {
+        auto c = client();
+        return wait_for_job(
+            c, id,
+            [&](const json& s) { return s["state"] == "running" && s["progress"].value("pass", 0) >= pass; },
+            std::chrono::seconds(60));
+    }
+    json wait_finished(const std::string& id) {
+        auto c = client();
+        return wait_for_job(c, id, is_finished, std::chrono::seconds(120));
+    }
+    // Every artifact listed is downloadable and whole: EXRs decode, JSON parses.
+    void expect_whole_artifacts(const std::string& id) {
+        auto r = client().Get("/v1/jobs/" + id + "/artifacts");
+        ASSERT_TRUE(r && r->status == 200);
+        const json listing = json::parse(r->body);
+        std::set<std::string> names;
+        for (const json& a : listing["artifacts"]) {
+            const std::string name = a["name"];
+            names.insert(name);
+            EXPECT_EQ(name.find(".tmp"), std::string::npos) << name;
+            const fs::path path = download(id, name, "whole");
+            EXPECT_EQ(fs::file_size(path), a["size"].get<uintmax_t>()) << name;
+            if (fs::path(name).extension() == ".exr") {
+                EXPECT_NO_THROW(read_exr(path)) << name << " does not decode";
+            } else if (fs::path(name).extension() == ".json") {
+                EXPECT_FALSE(json::parse(read_text(path), nullptr, false).is_discarded()) << name;
+            }
+        }
+        EXPECT_TRUE(names.count("lightmap.exr"));
+        EXPECT_TRUE(names.count("manifest.json"));
+    }
+
     TempDir tmp;
     std::unique_ptr<Lightfarmd> server;
 };
 
-struct Image {
-    int width = 0, height = 0;
-    std::vector<Imf::Rgba> pixels;
-};
-Image read_exr(const fs::path& path) {
-    Imf::RgbaInputFile file(path.c_str());
-    const Imath::Box2i dw = file.dataWindow();
-    Image img;
-    img.width = dw.max.x - dw.min.x + 1;
-    img.height = dw.max.y - dw.min.y + 1;
-    img.pixels.resize(size_t(img.width) * size_t(img.height));
-    file.setFrameBuffer(img.pixels.data() - dw.min.x - dw.min.y * img.width, 1, size_t(img.width));
-    file.readPixels(dw.min.y, dw.max.y);
-    return img;
+std::vector<std::string> types_of(const std::vector<protocol::JobEvent>& events) {
+    std::vector<std::string> types;
+    for (const auto& e : events) types.push_back(e.type);
+    return types;
+}
+
+bool contains(const std::vector<std::string>& v, const std::string& s) {
+    return std::find(v.begin(), v.end(), s) != v.end();
+}
+
+// True while `pid` runs a bake into `dir` (a zombie or a reused pid does not).
+bool bakes_into(pid_t pid, const fs::path& dir) {
+    const std::string args = read_text("/proc/" + std::to_string(pid) + "/cmdline");
+    return args.find(dir.string()) != std::string::npos;
+}
+
+pid_t worker_pid(const fs::path& dir) {
+    std::ifstream in(dir / ".worker.pid");
+    pid_t pid = 0;
+    in >> pid;
+    return pid;
 }
 
 TEST_F(EndToEnd, EveryBadSceneIsAClear4xxAndTheServerStaysHealthy) {
-    auto c = server->client(kToken);
-    c.set_read_timeout(120);
+    auto c = client();
     int tried = 0;
-    for (const fs::directory_entry& e : fs::directory_iterator(kScenes / "bad")) {
+    for (const fs::directory_entry& e : fs::directory_iterator(scenes_dir() / "bad")) {
         const std::string name = e.path().filename().string();
         const std::string bytes = read_text(e.path());
         httplib::Result r = e.path().extension() == ".glb"
@@ -77,57 +242,102 @@ TEST_F(EndToEnd, EveryBadSceneIsAClear4xxAndTheServerStaysHealthy) {
     EXPECT_GT(tried, 10);
     EXPECT_EQ(c.Get("/healthz")->status, 200);
     // And a good scene still goes through the same path.
-    auto r = c.Post("/v1/scenes", read_text(kScenes / "cornell_box.gltf"), "model/gltf+json");
+    auto r = c.Post("/v1/scenes", read_text(scenes_dir() / "cornell_box.gltf"), "model/gltf+json");
     ASSERT_TRUE(r);
     EXPECT_EQ(r->status, 201) << r->body;
     EXPECT_GT(json::parse(r->body).value("triangles", 0), 0) << r->body;
 }
 
 TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
-    if (!engine_can_bake()) GTEST_SKIP() << LIGHTFARM_ENGINE << " has no bake command yet";
-    auto c = server->client(kToken);
-    c.set_read_timeout(120);
-    auto up = c.Post("/v1/scenes", read_text(kScenes / "cornell_box.gltf"), "model/gltf+json");
-    ASSERT_EQ(up->status, 201) << up->body;
-    const std::string scene = json::parse(up->body)["id"];
-    const json spec = {{"scene", scene}, {"outputs", {{"lightmap", {{"res", 64}, {"passes", 8}}}}}, {"seed", 3}};
-    auto created = c.Post("/v1/jobs", spec.dump(), "application/json");
-    ASSERT_EQ(created->status, 201) << created->body;
-    const std::string id = json::parse(created->body)["id"];
+    const Bake bake;  // res 64, 16 passes, seed 3: snapshots at passes 1, 2, 4, 8, 16
+    const std::string id = submit(bake.spec(upload_cornell_box()));
+    ASSERT_FALSE(id.empty());
 
-    const auto events = read_events(server->host, server->port, kToken, id, -1, 0, std::chrono::seconds(300));
+    const auto events = read_events(server->host, server->port, kToken, id, -1, 0, std::chrono::seconds(120));
     ASSERT_FALSE(events.empty());
     ASSERT_EQ(events.back().type, "done") << events.back().data.dump();
-    int snapshots = 0;
-    for (const auto& e : events) snapshots += e.type == "snapshot";
-    EXPECT_GE(snapshots, 2);
-
-    auto exr = c.Get("/v1/jobs/" + id + "/artifacts/lightmap.exr");
-    ASSERT_EQ(exr->status, 200);
-    write_text(tmp.path / "served.exr", exr->body);
-
-    const fs::path local = tmp.path / "local";
-    fs::create_directories(local);
-    const server::RunResult cli = server::run_command(
-        {LIGHTFARM_ENGINE, "bake", (kScenes / "cornell_box.gltf").string(), "--out", local.string(), "--json", "--res",
-         "64", "--passes", "8", "--seed", "3"},
-        std::chrono::seconds(300));
-    ASSERT_TRUE(cli.status.success()) << cli.status.describe() << ": " << cli.err_last_line;
-
-    const Image a = read_exr(tmp.path / "served.exr");
-    const Image b = read_exr(local / "lightmap.exr");
-    ASSERT_EQ(a.width, b.width);
-    ASSERT_EQ(a.height, b.height);
-    size_t differing = 0;
-    for (size_t i = 0; i < a.pixels.size(); ++i) {
-        const Imf::Rgba& p = a.pixels[i];
-        const Imf::Rgba& q = b.pixels[i];
-        differing += p.r.bits() != q.r.bits() || p.g.bits() != q.g.bits() || p.b.bits() != q.b.bits();
+    std::vector<std::string> snapshots;
+    for (size_t i = 0; i < events.size(); ++i) {
+        EXPECT_EQ(events[i].id, int64_t(i + 1));
+        if (events[i].type == "snapshot") snapshots.push_back(events[i].data["file"]);
     }
-    EXPECT_EQ(differing, 0u) << "texels that differ between the served and the CLI bake";
+    EXPECT_GE(snapshots.size(), 2u) << "snapshot events before done";
+    EXPECT_EQ(events.back().data["pass"], bake.passes);
+    EXPECT_EQ(events.back().data["cached"], false);
+    const json status = wait_finished(id);
+    EXPECT_EQ(status["state"], "succeeded") << status.dump();
+    EXPECT_EQ(status["attempts"], 1);
 
-    auto png = c.Get("/v1/jobs/" + id + "/preview.png");
+    // Each snapshot an event named is an artifact that decodes.
+    for (const std::string& name : snapshots) EXPECT_NO_THROW(read_exr(download(id, name, "snapshot"))) << name;
+
+    const fs::path served = download(id, "lightmap.exr", "served");
+    local_bake(bake, tmp.path / "local");
+    EXPECT_TRUE(same_pixels(served, tmp.path / "local" / "lightmap.exr"))
+        << "the served bake and `lightfarm bake` with the same seed";
+
+    auto png = client().Get("/v1/jobs/" + id + "/preview.png");
+    ASSERT_TRUE(png);
     EXPECT_EQ(png->status, 200);
+    EXPECT_EQ(png->body.substr(1, 3), "PNG");
+}
+
+TEST_F(EndToEnd, AWorkerKilledMidBakeIsRetriedAndTheResultStillEqualsTheCli) {
+    const Bake bake = long_bake();
+    const std::string id = submit(bake.spec(upload_cornell_box()));
+    ASSERT_FALSE(id.empty());
+    const json mid = wait_running_past(id, 8);
+    ASSERT_EQ(mid["state"], "running") << "the bake ended before it could be interrupted: " << mid.dump();
+    const pid_t pid = worker_pid(job_dir(id));
+    ASSERT_GT(pid, 1);
+    ASSERT_TRUE(bakes_into(pid, job_dir(id)));
+    ASSERT_EQ(::kill(pid, SIGKILL), 0);
+
+    const json status = wait_finished(id);
+    EXPECT_EQ(status["state"], "succeeded") << status.dump();
+    EXPECT_EQ(status["attempts"], 2);
+    EXPECT_EQ(status["progress"]["pass"], bake.passes);
+    const auto events = read_events(server->host, server->port, kToken, id);
+    const auto types = types_of(events);
+    ASSERT_TRUE(contains(types, "retrying"));
+    for (const auto& e : events) {
+        if (e.type == "retrying") {
+            EXPECT_NE(e.data.value("cause", "").find("signal 9"), std::string::npos) << e.data.dump();
+        }
+    }
+    EXPECT_EQ(types.back(), "done");
+
+    expect_whole_artifacts(id);
+    EXPECT_TRUE(same_pixels(download(id, "lightmap.exr", "served"), tmp.path / "local" / "lightmap.exr"))
+        << "the retried bake and `lightfarm bake` with the same seed";
+}
+
+TEST_F(EndToEnd, AServerKilledMidBakeFinishesTheJobAfterARestartWithWholeArtifacts) {
+    const Bake bake = long_bake();
+    const std::string id = submit(bake.spec(upload_cornell_box()));
+    ASSERT_FALSE(id.empty());
+    const json mid = wait_running_past(id, 8);
+    ASSERT_EQ(mid["state"], "running") << "the bake ended before it could be interrupted: " << mid.dump();
+    const pid_t orphan = worker_pid(job_dir(id));
+    ASSERT_GT(orphan, 1);
+
+    server->kill9();
+    server->start();  // same data dir, same tokens
+
+    const json status = wait_finished(id);
+    EXPECT_EQ(status["state"], "succeeded") << status.dump();
+    EXPECT_EQ(status["attempts"], 2);
+    EXPECT_EQ(status["progress"]["pass"], bake.passes);
+    // The worker the killed server left behind is not baking any more (it
+    // died writing to the dead server's pipe, or the new server ended it).
+    EXPECT_FALSE(bakes_into(orphan, job_dir(id)));
+    const auto types = types_of(read_events(server->host, server->port, kToken, id));
+    EXPECT_TRUE(contains(types, "retrying"));
+    EXPECT_EQ(types.back(), "done");
+
+    expect_whole_artifacts(id);
+    EXPECT_TRUE(same_pixels(download(id, "lightmap.exr", "served"), tmp.path / "local" / "lightmap.exr"))
+        << "the re-run bake and `lightfarm bake` with the same seed";
 }
 
 }  // namespace

@@ -85,8 +85,9 @@ void AccessorReader::check_buffer_views() const {
         uint64_t end = 0;
         if (!add(view.byteOffset, view.byteLength, &end) || end > buffer_size) {
             errors_.fail("bufferView", int64_t(i),
-                         "byteOffset " + std::to_string(view.byteOffset) + " + byteLength " + std::to_string(view.byteLength) +
-                             " exceeds buffer " + std::to_string(view.buffer) + " length " + std::to_string(buffer_size));
+                         "byteOffset " + std::to_string(view.byteOffset) + " + byteLength " +
+                             std::to_string(view.byteLength) + " exceeds buffer " + std::to_string(view.buffer) +
+                             " length " + std::to_string(buffer_size));
         }
     }
 }
@@ -107,8 +108,8 @@ const tinygltf::Accessor& AccessorReader::accessor(int index) const {
 
 size_t AccessorReader::count(int index) const { return accessor(index).count; }
 
-void AccessorReader::copy_from_view(int view, uint64_t offset, uint64_t count, uint64_t stride, uint64_t element_size,
-                                    unsigned char* out, const std::string& where) const {
+void AccessorReader::check_view_range(int view, uint64_t offset, uint64_t count, uint64_t stride, uint64_t element_size,
+                                      const std::string& where) const {
     if (view < 0 || size_t(view) >= model_.bufferViews.size())
         errors_.fail(where + ": bufferView " + std::to_string(view) + " does not exist");
     const tinygltf::BufferView& v = model_.bufferViews[size_t(view)];
@@ -118,23 +119,24 @@ void AccessorReader::copy_from_view(int view, uint64_t offset, uint64_t count, u
         count > 0 && mul(count - 1, stride, &span) && add(span, element_size, &end) && add(end, offset, &end);
     if (!fits_64_bits || end > v.byteLength) {
         const std::string need = fits_64_bits ? std::to_string(end) : "over 2^64";
-        errors_.fail(where + ": byteOffset+length " + need + " exceeds bufferView " + std::to_string(view) + " length " +
-                     std::to_string(v.byteLength));
+        errors_.fail(where + ": byteOffset+length " + need + " exceeds bufferView " + std::to_string(view) +
+                     " length " + std::to_string(v.byteLength) + " (count " + std::to_string(count) + ", stride " +
+                     std::to_string(stride) + ")");
     }
-    if (out == nullptr) return;  // range check only
-    const unsigned char* base = model_.buffers[size_t(v.buffer)].data.data() + v.byteOffset + offset;
-    if (stride == element_size) {
-        std::memcpy(out, base, size_t(count * element_size));
-        return;
-    }
-    for (uint64_t i = 0; i < count; ++i) std::memcpy(out + i * element_size, base + i * stride, size_t(element_size));
 }
 
-std::vector<unsigned char> AccessorReader::packed(int index) const {
+const unsigned char* AccessorReader::view_base(int view) const {
+    const tinygltf::BufferView& v = model_.bufferViews[size_t(view)];
+    return model_.buffers[size_t(v.buffer)].data.data() + v.byteOffset;
+}
+
+AccessorReader::Elements AccessorReader::elements(int index) const {
     const tinygltf::Accessor& a = accessor(index);
     const std::string where = "accessor " + std::to_string(index);
     const uint64_t element_size = uint64_t(component_size(a.componentType)) * uint64_t(component_count(a.type));
-    if (element_size == 0) errors_.fail(where + ": " + component_type_name(a.componentType) + " " + accessor_type_name(a.type) + " is not readable");
+    if (element_size == 0)
+        errors_.fail(where + ": " + component_type_name(a.componentType) + " " + accessor_type_name(a.type) +
+                     " is not readable");
     const uint64_t count = a.count;
     if (count == 0) errors_.fail(where + ": count is 0");
 
@@ -145,10 +147,10 @@ std::vector<unsigned char> AccessorReader::packed(int index) const {
         const tinygltf::BufferView& view = model_.bufferViews[size_t(a.bufferView)];
         if (view.byteStride != 0) stride = view.byteStride;
         if (stride < element_size) {
-            errors_.fail(where + ": bufferView " + std::to_string(a.bufferView) + " byteStride " + std::to_string(stride) +
-                         " is smaller than the element size " + std::to_string(element_size));
+            errors_.fail(where + ": bufferView " + std::to_string(a.bufferView) + " byteStride " +
+                         std::to_string(stride) + " is smaller than the element size " + std::to_string(element_size));
         }
-        copy_from_view(a.bufferView, a.byteOffset, count, stride, element_size, nullptr, where);  // before allocating
+        check_view_range(a.bufferView, a.byteOffset, count, stride, element_size, where);
     }
     // An accessor without a bufferView is zeros plus sparse values: legitimate,
     // but never large in practice, and a cheap way to ask for a huge allocation.
@@ -158,59 +160,82 @@ std::vector<unsigned char> AccessorReader::packed(int index) const {
                      " elements" + (a.bufferView >= 0 ? "" : " for an accessor without a bufferView"));
     }
 
-    std::vector<unsigned char> data(size_t(count * element_size), 0);  // no bufferView: zeros (glTF 2.0 §3.6.2.3)
-    if (a.bufferView >= 0) copy_from_view(a.bufferView, a.byteOffset, count, stride, element_size, data.data(), where);
-    if (a.sparse.isSparse) apply_sparse(index, data.data(), element_size);
-    return data;
+    Elements e;
+    e.count = count;
+    if (a.bufferView >= 0 && !a.sparse.isSparse) {
+        // The common case: read in place from the checked view.
+        e.base = view_base(a.bufferView) + a.byteOffset;
+        e.stride = stride;
+        return e;
+    }
+    // Zeros where there is no bufferView (glTF 2.0 §3.6.2.3), then the sparse values on top.
+    e.storage.assign(size_t(count * element_size), 0);
+    if (a.bufferView >= 0) {
+        const unsigned char* base = view_base(a.bufferView) + a.byteOffset;
+        for (uint64_t i = 0; i < count; ++i)
+            std::memcpy(e.storage.data() + i * element_size, base + i * stride, size_t(element_size));
+    }
+    if (a.sparse.isSparse) apply_sparse(index, e.storage.data(), element_size);
+    e.stride = element_size;
+    return e;
 }
 
 void AccessorReader::apply_sparse(int index, unsigned char* data, uint64_t element_size) const {
     const tinygltf::Accessor& a = model_.accessors[size_t(index)];
     const std::string where = "accessor " + std::to_string(index) + " sparse";
     if (a.sparse.count <= 0 || uint64_t(a.sparse.count) > a.count) {
-        errors_.fail(where + ": count " + std::to_string(a.sparse.count) + " is not in [1, " + std::to_string(a.count) + "]");
+        errors_.fail(where + ": count " + std::to_string(a.sparse.count) + " is not in [1, " + std::to_string(a.count) +
+                     "]");
     }
-    if (a.sparse.indices.byteOffset < 0 || a.sparse.values.byteOffset < 0) errors_.fail(where + ": negative byteOffset");
+    if (a.sparse.indices.byteOffset < 0 || a.sparse.values.byteOffset < 0)
+        errors_.fail(where + ": negative byteOffset");
     const uint64_t n = uint64_t(a.sparse.count);
     const int index_type = a.sparse.indices.componentType;
     const uint64_t index_size = uint64_t(component_size(index_type));
     if (index_type != TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE && index_type != TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT &&
         index_type != TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT) {
-        errors_.fail(where + ": indices componentType " + component_type_name(index_type) + " is not an unsigned integer type");
+        errors_.fail(where + ": indices componentType " + component_type_name(index_type) +
+                     " is not an unsigned integer type");
     }
 
-    std::vector<unsigned char> indices(size_t(n * index_size));
-    copy_from_view(a.sparse.indices.bufferView, uint64_t(a.sparse.indices.byteOffset), n, index_size, index_size,
-                   indices.data(), where + " indices");
-    std::vector<unsigned char> values(size_t(n * element_size));
-    copy_from_view(a.sparse.values.bufferView, uint64_t(a.sparse.values.byteOffset), n, element_size, element_size,
-                   values.data(), where + " values");
+    // Both arrays are tightly packed.
+    check_view_range(a.sparse.indices.bufferView, uint64_t(a.sparse.indices.byteOffset), n, index_size, index_size,
+                     where + " indices");
+    check_view_range(a.sparse.values.bufferView, uint64_t(a.sparse.values.byteOffset), n, element_size, element_size,
+                     where + " values");
+    const unsigned char* indices = view_base(a.sparse.indices.bufferView) + a.sparse.indices.byteOffset;
+    const unsigned char* values = view_base(a.sparse.values.bufferView) + a.sparse.values.byteOffset;
 
     uint64_t previous = 0;
     for (uint64_t k = 0; k < n; ++k) {
-        const unsigned char* p = indices.data() + k * index_size;
-        const uint64_t target = index_size == 1 ? load<uint8_t>(p) : index_size == 2 ? load<uint16_t>(p) : load<uint32_t>(p);
+        const unsigned char* p = indices + k * index_size;
+        const uint64_t target = index_size == 1   ? load<uint8_t>(p)
+                                : index_size == 2 ? load<uint16_t>(p)
+                                                  : load<uint32_t>(p);
         if (target >= a.count) {
             errors_.fail(where + ": index " + std::to_string(target) + " (entry " + std::to_string(k) +
                          ") is out of range for count " + std::to_string(a.count));
         }
-        if (k > 0 && target <= previous) errors_.fail(where + ": indices are not strictly increasing at entry " + std::to_string(k));
+        if (k > 0 && target <= previous)
+            errors_.fail(where + ": indices are not strictly increasing at entry " + std::to_string(k));
         previous = target;
-        std::memcpy(data + target * element_size, values.data() + k * element_size, size_t(element_size));
+        std::memcpy(data + target * element_size, values + k * element_size, size_t(element_size));
     }
 }
 
 std::vector<glm::vec3> AccessorReader::read_vec3(int index, std::string_view semantic) const {
     const tinygltf::Accessor& a = accessor(index);
     if (a.type != TINYGLTF_TYPE_VEC3 || a.componentType != TINYGLTF_COMPONENT_TYPE_FLOAT) {
-        errors_.fail("accessor", index, std::string(semantic) + " must be VEC3 FLOAT, not " + accessor_type_name(a.type) +
-                                            " " + component_type_name(a.componentType));
+        errors_.fail("accessor", index,
+                     std::string(semantic) + " must be VEC3 FLOAT, not " + accessor_type_name(a.type) + " " +
+                         component_type_name(a.componentType));
     }
-    const std::vector<unsigned char> bytes = packed(index);
-    std::vector<glm::vec3> out(a.count);
-    for (size_t i = 0; i < out.size(); ++i) {
-        const unsigned char* p = bytes.data() + 12 * i;
-        out[i] = glm::vec3(load<float>(p), load<float>(p + 4), load<float>(p + 8));
+    const Elements e = elements(index);
+    std::vector<glm::vec3> out;
+    out.reserve(size_t(e.count));
+    for (uint64_t i = 0; i < e.count; ++i) {
+        const unsigned char* p = e.at(i);
+        out.emplace_back(load<float>(p), load<float>(p + 4), load<float>(p + 8));
     }
     return out;
 }
@@ -223,19 +248,21 @@ std::vector<glm::vec2> AccessorReader::read_vec2(int index, std::string_view sem
     if (a.type != TINYGLTF_TYPE_VEC2 || !(ct == TINYGLTF_COMPONENT_TYPE_FLOAT || normalized_int)) {
         errors_.fail("accessor", index,
                      std::string(semantic) + " must be VEC2 FLOAT or normalized UNSIGNED_BYTE/UNSIGNED_SHORT, not " +
-                         accessor_type_name(a.type) + " " + component_type_name(ct) + (a.normalized ? " normalized" : ""));
+                         accessor_type_name(a.type) + " " + component_type_name(ct) +
+                         (a.normalized ? " normalized" : ""));
     }
-    const std::vector<unsigned char> bytes = packed(index);
-    std::vector<glm::vec2> out(a.count);
+    const Elements e = elements(index);
+    std::vector<glm::vec2> out;
+    out.reserve(size_t(e.count));
     // Normalized unsigned integers map [0, max] to [0, 1] (glTF 2.0 §3.11).
-    for (size_t i = 0; i < out.size(); ++i) {
-        if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT) {
-            out[i] = glm::vec2(load<float>(bytes.data() + 8 * i), load<float>(bytes.data() + 8 * i + 4));
-        } else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE) {
-            out[i] = glm::vec2(bytes[2 * i], bytes[2 * i + 1]) / 255.0f;
-        } else {
-            out[i] = glm::vec2(load<uint16_t>(bytes.data() + 4 * i), load<uint16_t>(bytes.data() + 4 * i + 2)) / 65535.0f;
-        }
+    for (uint64_t i = 0; i < e.count; ++i) {
+        const unsigned char* p = e.at(i);
+        if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT)
+            out.emplace_back(load<float>(p), load<float>(p + 4));
+        else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE)
+            out.push_back(glm::vec2(p[0], p[1]) / 255.0f);
+        else
+            out.push_back(glm::vec2(load<uint16_t>(p), load<uint16_t>(p + 2)) / 65535.0f);
     }
     return out;
 }
@@ -250,12 +277,17 @@ std::vector<uint32_t> AccessorReader::read_indices(int index) const {
                      "indices must be SCALAR UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT, not " +
                          accessor_type_name(a.type) + " " + component_type_name(ct));
     }
-    const std::vector<unsigned char> bytes = packed(index);
-    std::vector<uint32_t> out(a.count);
-    const size_t size = size_t(component_size(ct));
-    for (size_t i = 0; i < out.size(); ++i) {
-        const unsigned char* p = bytes.data() + i * size;
-        out[i] = size == 1 ? load<uint8_t>(p) : size == 2 ? load<uint16_t>(p) : load<uint32_t>(p);
+    const Elements e = elements(index);
+    std::vector<uint32_t> out;
+    out.reserve(size_t(e.count));
+    for (uint64_t i = 0; i < e.count; ++i) {
+        const unsigned char* p = e.at(i);
+        if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE)
+            out.push_back(*p);
+        else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT)
+            out.push_back(load<uint16_t>(p));
+        else
+            out.push_back(load<uint32_t>(p));
     }
     return out;
 }

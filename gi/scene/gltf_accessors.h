@@ -49,13 +49,24 @@ public:
     std::vector<uint32_t> read_indices(int index) const;
 
 private:
+    // An accessor's checked elements: in place in its bufferView, or (sparse,
+    // or no bufferView) in a packed copy with the sparse values applied.
+    struct Elements {
+        const unsigned char* base = nullptr;
+        uint64_t stride = 0;
+        uint64_t count = 0;
+        std::vector<unsigned char> storage;
+        const unsigned char* at(uint64_t i) const { return (storage.empty() ? base : storage.data()) + i * stride; }
+    };
+
     const tinygltf::Accessor& accessor(int index) const;
-    // The accessor's elements tightly packed (count x element size), sparse applied.
-    std::vector<unsigned char> packed(int index) const;
-    // Copies `count` elements of `element_size` bytes, `stride` apart, from
-    // bufferView `view` at `offset`, after checking they lie inside it.
-    void copy_from_view(int view, uint64_t offset, uint64_t count, uint64_t stride, uint64_t element_size,
-                        unsigned char* out, const std::string& where) const;
+    Elements elements(int index) const;
+    // Checks that `count` elements of `element_size` bytes, `stride` apart,
+    // from `offset` lie inside bufferView `view`.
+    void check_view_range(int view, uint64_t offset, uint64_t count, uint64_t stride, uint64_t element_size,
+                          const std::string& where) const;
+    // First byte of a bufferView (views were checked against their buffers).
+    const unsigned char* view_base(int view) const;
     void apply_sparse(int index, unsigned char* data, uint64_t element_size) const;
 
     const tinygltf::Model& model_;

@@ -14,9 +14,9 @@ namespace lf::gltf {
 
 namespace {
 
-constexpr uint32_t kGlbMagic = 0x46546C67;      // "glTF"
-constexpr uint32_t kChunkJson = 0x4E4F534A;     // "JSON"
-constexpr uint32_t kChunkBin = 0x004E4942;      // "BIN\0"
+constexpr uint32_t kGlbMagic = 0x46546C67;   // "glTF"
+constexpr uint32_t kChunkJson = 0x4E4F534A;  // "JSON"
+constexpr uint32_t kChunkBin = 0x004E4942;   // "BIN\0"
 // Deeper JSON than any glTF needs; tinygltf converts "extras" recursively.
 constexpr int kMaxJsonDepth = 64;
 
@@ -46,10 +46,12 @@ BinChunk split_glb(Document& doc, const Errors& errors) {
     if (size < 12) errors.fail("GLB header", "file is only " + std::to_string(size) + " bytes");
     if (read_u32(b, 0) != kGlbMagic) errors.fail("GLB header", "magic is not \"glTF\"");
     const uint32_t version = read_u32(b, 4);
-    if (version != 2) errors.fail("GLB header", "version " + std::to_string(version) + " is not supported (2 required)");
+    if (version != 2)
+        errors.fail("GLB header", "version " + std::to_string(version) + " is not supported (2 required)");
     const uint32_t length = read_u32(b, 8);
     if (length != size) {
-        errors.fail("GLB header", "length says " + std::to_string(length) + " bytes, the file has " + std::to_string(size));
+        errors.fail("GLB header", "length says " + std::to_string(length) + " bytes, the file has " +
+                                      std::to_string(size) + (length > size ? " (truncated)" : ""));
     }
     if (size > std::numeric_limits<uint32_t>::max()) errors.fail("GLB header", "file is 4 GiB or larger");
 
@@ -87,9 +89,12 @@ int json_depth(std::string_view text) {
     bool in_string = false, escaped = false;
     for (char c : text) {
         if (in_string) {
-            if (escaped) escaped = false;
-            else if (c == '\\') escaped = true;
-            else if (c == '"') in_string = false;
+            if (escaped)
+                escaped = false;
+            else if (c == '\\')
+                escaped = true;
+            else if (c == '"')
+                in_string = false;
         } else if (c == '"') {
             in_string = true;
         } else if (c == '[' || c == '{') {

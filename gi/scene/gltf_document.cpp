@@ -29,20 +29,23 @@ void check_integer_ranges(const json& value, const std::string& path, const Erro
             check_integer_ranges(child, path + "/" + key, errors);
         }
     } else if (value.is_array()) {
-        for (size_t i = 0; i < value.size(); ++i) check_integer_ranges(value[i], path + "/" + std::to_string(i), errors);
+        for (size_t i = 0; i < value.size(); ++i)
+            check_integer_ranges(value[i], path + "/" + std::to_string(i), errors);
     } else if (value.is_number_unsigned()) {
         if (value.get<uint64_t>() > uint64_t(INT_MAX))
             errors.fail(printable(path, 60), "integer " + value.dump() + " is out of range");
     } else if (value.is_number_integer()) {
         const int64_t v = value.get<int64_t>();
-        if (v < INT_MIN || v > INT_MAX) errors.fail(printable(path, 60), "integer " + value.dump() + " is out of range");
+        if (v < INT_MIN || v > INT_MAX)
+            errors.fail(printable(path, 60), "integer " + value.dump() + " is out of range");
     }
 }
 
 }  // namespace
 
 bool is_implemented_extension(std::string_view name) {
-    return std::find(kImplementedExtensions.begin(), kImplementedExtensions.end(), name) != kImplementedExtensions.end();
+    return std::find(kImplementedExtensions.begin(), kImplementedExtensions.end(), name) !=
+           kImplementedExtensions.end();
 }
 
 // --- field helpers ----------------------------------------------------------------
@@ -73,7 +76,8 @@ uint64_t DocumentChecker::unsigned_field(const json& object, const char* key, co
         if (required) errors_.fail(where + ": " + key + " is missing");
         return fallback;
     }
-    if (!v->is_number_unsigned()) errors_.fail(where + ": " + key + " " + printable(v->dump(), 30) + " is not a non-negative integer");
+    if (!v->is_number_unsigned())
+        errors_.fail(where + ": " + key + " " + printable(v->dump(), 30) + " is not a non-negative integer");
     return v->get<uint64_t>();
 }
 
@@ -84,7 +88,8 @@ int64_t DocumentChecker::index_field(const json& object, const char* key, const 
         if (required) errors_.fail(where + ": " + key + " is missing");
         return -1;
     }
-    if (!v->is_number_unsigned()) errors_.fail(where + ": " + key + " " + printable(v->dump(), 30) + " is not a valid index");
+    if (!v->is_number_unsigned())
+        errors_.fail(where + ": " + key + " " + printable(v->dump(), 30) + " is not a valid index");
     const uint64_t index = v->get<uint64_t>();
     const size_t count = array(target).size();
     if (index >= count) {
@@ -122,7 +127,8 @@ void DocumentChecker::check_extensions(std::vector<std::string>* warnings) const
     for (const json& name : array("extensionsUsed")) {
         if (!name.is_string()) errors_.fail("extensionsUsed", "holds a value that is not a string");
         const std::string n = name.get<std::string>();
-        if (!is_implemented_extension(n)) warnings->push_back("extension " + printable(n, 60) + " is not supported and was ignored");
+        if (!is_implemented_extension(n))
+            warnings->push_back("extension " + printable(n, 60) + " is not supported and was ignored");
     }
 }
 
@@ -154,7 +160,8 @@ void DocumentChecker::check_buffers(uint64_t bin_chunk_size, bool has_bin_chunk,
         if (is_data_uri(text)) {
             DataUri data;
             std::string why = parse_data_uri(text, &data);
-            if (why.empty() && data.media_type != "application/octet-stream" && data.media_type != "application/gltf-buffer")
+            if (why.empty() && data.media_type != "application/octet-stream" &&
+                data.media_type != "application/gltf-buffer")
                 why = "data: URI has media type " + in_quotes(data.media_type, 40) + ", not application/octet-stream";
             uint64_t size = 0;
             if (why.empty()) base64_decoded_size(data.payload, &size, &why);
@@ -174,8 +181,8 @@ void DocumentChecker::check_buffers(uint64_t bin_chunk_size, bool has_bin_chunk,
         if (ec) errors_.fail(where + ": file " + in_quotes(text) + " cannot be examined");
         // tinygltf insists on the exact size; saying so here is clearer than its message.
         if (size != length) {
-            errors_.fail(where + ": file " + in_quotes(text) + " has " + std::to_string(size) + " bytes, byteLength says " +
-                         std::to_string(length));
+            errors_.fail(where + ": file " + in_quotes(text) + " has " + std::to_string(size) +
+                         " bytes, byteLength says " + std::to_string(length));
         }
         plan_external_read(where, text, size, files);
         files.approve(text, path);
@@ -209,7 +216,8 @@ void DocumentChecker::check_buffer_views() const {
 
 void DocumentChecker::check_accessors() const {
     static constexpr std::array<int, 6> kComponentTypes = {5120, 5121, 5122, 5123, 5125, 5126};
-    static constexpr std::array<std::string_view, 7> kTypes = {"SCALAR", "VEC2", "VEC3", "VEC4", "MAT2", "MAT3", "MAT4"};
+    static constexpr std::array<std::string_view, 7> kTypes = {"SCALAR", "VEC2", "VEC3", "VEC4",
+                                                               "MAT2",   "MAT3", "MAT4"};
     const json& accessors = array("accessors");
     for (size_t i = 0; i < accessors.size(); ++i) {
         const json& accessor = object_at(accessors, i, "accessor");
@@ -235,7 +243,8 @@ void DocumentChecker::check_sparse(const json& sparse, const std::string& access
     if (!sparse.is_object()) errors_.fail(where + ": must be a JSON object");
     // tinygltf keeps these as int.
     const uint64_t count = unsigned_field(sparse, "count", where, true, 0);
-    if (count == 0 || count > uint64_t(INT_MAX)) errors_.fail(where + ": count " + std::to_string(count) + " is out of range");
+    if (count == 0 || count > uint64_t(INT_MAX))
+        errors_.fail(where + ": count " + std::to_string(count) + " is out of range");
     for (const char* part : {"indices", "values"}) {
         const json* p = member(sparse, part);
         if (p == nullptr || !p->is_object()) errors_.fail(where + ": " + part + " is missing");
@@ -246,7 +255,8 @@ void DocumentChecker::check_sparse(const json& sparse, const std::string& access
     }
     const uint64_t component = unsigned_field(sparse["indices"], "componentType", where + " indices", true, 0);
     if (component != 5121 && component != 5123 && component != 5125)
-        errors_.fail(where + " indices: componentType " + std::to_string(component) + " is not an unsigned integer type");
+        errors_.fail(where + " indices: componentType " + std::to_string(component) +
+                     " is not an unsigned integer type");
 }
 
 void DocumentChecker::check_images(SceneFiles& files, std::vector<std::string>* warnings) {
@@ -306,7 +316,8 @@ void DocumentChecker::find_used_images() {
         const json& texture = textures[index->get<size_t>()];
         if (!texture.is_object()) return;
         const json* source = member(texture, "source");
-        if (source == nullptr || !source->is_number_unsigned() || source->get<uint64_t>() >= used_images_.size()) return;
+        if (source == nullptr || !source->is_number_unsigned() || source->get<uint64_t>() >= used_images_.size())
+            return;
         used_images_[source->get<size_t>()] = true;
     };
     for (const json& material : array("materials")) {

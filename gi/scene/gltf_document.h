@@ -30,7 +30,7 @@ struct Document {
     bool binary = false;               // GLB container
     size_t json_offset = 0;            // the JSON text within bytes
     size_t json_size = 0;
-    std::vector<bool> used_images;     // images behind a base colour or emissive texture
+    std::vector<bool> used_images;  // images behind a base colour or emissive texture
     std::vector<std::string> warnings;
 };
 

@@ -17,9 +17,7 @@ std::string printable(std::string_view text, size_t max_chars) {
     return out;
 }
 
-std::string in_quotes(std::string_view text, size_t max_chars) {
-    return "\"" + printable(text, max_chars) + "\"";
-}
+std::string in_quotes(std::string_view text, size_t max_chars) { return "\"" + printable(text, max_chars) + "\""; }
 
 void Errors::fail(const std::string& what) const {
     throw SceneError(printable(file_, 200) + ": " + printable(what, 400));
@@ -29,9 +27,7 @@ void Errors::fail(std::string_view object, int64_t index, const std::string& wha
     fail(std::string(object) + " " + std::to_string(index) + ": " + what);
 }
 
-void Errors::fail(std::string_view object, const std::string& what) const {
-    fail(std::string(object) + ": " + what);
-}
+void Errors::fail(std::string_view object, const std::string& what) const { fail(std::string(object) + ": " + what); }
 
 std::string Errors::label(std::string_view object, int64_t index, std::string_view name) {
     std::string out = std::string(object) + " " + std::to_string(index);

@@ -17,7 +17,8 @@ namespace {
 // in *why otherwise. The size comes from fstat on the open descriptor, so the
 // check and the read see the same file.
 bool read_regular_file(const fs::path& path, uint64_t max_bytes, std::vector<unsigned char>* out, std::string* why) {
-    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    // O_NONBLOCK: opening a FIFO must not wait for a writer; fstat below refuses it anyway.
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
     if (fd < 0) {
         *why = std::string("cannot be opened (") + std::strerror(errno) + ")";
         return false;

@@ -38,7 +38,7 @@ std::vector<unsigned char> read_file_limited(const fs::path& path, uint64_t max_
 bool is_data_uri(std::string_view uri);
 
 struct DataUri {
-    std::string media_type;   // e.g. "application/octet-stream", lower case
+    std::string media_type;    // e.g. "application/octet-stream", lower case
     std::string_view payload;  // the base64 text
 };
 

@@ -21,10 +21,10 @@ namespace {
 struct LocalPrimitive {
     bool skipped = true;
     std::vector<glm::vec3> positions;
-    std::vector<glm::vec3> normals;  // empty when the file has none
-    std::vector<glm::vec2> uv0, uv1;  // empty when absent
+    std::vector<glm::vec3> normals;     // empty when the file has none
+    std::vector<glm::vec2> uv0, uv1;    // empty when absent
     std::vector<glm::uvec3> triangles;  // counter-clockwise in the primitive's own space
-    uint32_t material = 0;  // into Scene::materials
+    uint32_t material = 0;              // into Scene::materials
 };
 
 const char* mode_name(int mode) {
@@ -60,8 +60,10 @@ std::vector<glm::uvec3> assemble(int mode, const std::vector<uint32_t>& idx, siz
     } else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
         // Every other triangle is flipped so that all keep the first one's winding.
         for (size_t i = 0; i + 2 < n; ++i) {
-            if (i % 2 == 0) emit(idx[i], idx[i + 1], idx[i + 2]);
-            else emit(idx[i], idx[i + 2], idx[i + 1]);
+            if (i % 2 == 0)
+                emit(idx[i], idx[i + 1], idx[i + 2]);
+            else
+                emit(idx[i], idx[i + 2], idx[i + 1]);
         }
     } else {  // TRIANGLE_FAN
         for (size_t i = 0; i + 2 < n; ++i) emit(idx[i + 1], idx[i + 2], idx[0]);
@@ -72,8 +74,8 @@ std::vector<glm::uvec3> assemble(int mode, const std::vector<uint32_t>& idx, siz
 void check_finite(const std::vector<glm::vec3>& v, int accessor, const char* semantic, const Errors& errors) {
     for (size_t i = 0; i < v.size(); ++i) {
         if (!std::isfinite(v[i].x) || !std::isfinite(v[i].y) || !std::isfinite(v[i].z)) {
-            errors.fail("accessor", accessor, std::string(semantic) + " element " + std::to_string(i) +
-                                                  " is not finite (NaN or infinity)");
+            errors.fail("accessor", accessor,
+                        std::string(semantic) + " element " + std::to_string(i) + " is not finite (NaN or infinity)");
         }
     }
 }
@@ -81,8 +83,8 @@ void check_finite(const std::vector<glm::vec3>& v, int accessor, const char* sem
 void check_finite(const std::vector<glm::vec2>& v, int accessor, const char* semantic, const Errors& errors) {
     for (size_t i = 0; i < v.size(); ++i) {
         if (!std::isfinite(v[i].x) || !std::isfinite(v[i].y)) {
-            errors.fail("accessor", accessor, std::string(semantic) + " element " + std::to_string(i) +
-                                                  " is not finite (NaN or infinity)");
+            errors.fail("accessor", accessor,
+                        std::string(semantic) + " element " + std::to_string(i) + " is not finite (NaN or infinity)");
         }
     }
 }
@@ -111,6 +113,7 @@ private:
     Scene& scene_;
     std::vector<std::string>* warnings_;
     int default_material_ = -1;
+    uint64_t triangle_bound_ = 0;  // triangles the primitives read so far can make at most
 };
 
 int GeometryBuilder::attribute(const tinygltf::Primitive& p, const char* name, const std::string& where) const {
@@ -128,8 +131,10 @@ template <typename T>
 std::vector<T> GeometryBuilder::read_attribute(int accessor, const char* name, size_t vertices,
                                                const std::string& where) const {
     std::vector<T> values;
-    if constexpr (std::is_same_v<T, glm::vec3>) values = reader_.read_vec3(accessor, name);
-    else values = reader_.read_vec2(accessor, name);
+    if constexpr (std::is_same_v<T, glm::vec3>)
+        values = reader_.read_vec3(accessor, name);
+    else
+        values = reader_.read_vec2(accessor, name);
     if (values.size() != vertices) {
         errors_.fail(where + ": attribute " + name + " has " + std::to_string(values.size()) +
                      " elements, POSITION has " + std::to_string(vertices));
@@ -155,10 +160,24 @@ LocalPrimitive GeometryBuilder::read_primitive(int mesh, int index) {
     }
     if (!p.targets.empty()) warnings_->push_back(where + ": morph targets ignored (baked with the base shape)");
 
+    // Every primitive read here is placed at least once, so the triangles its
+    // indices could make count against the limit before anything is read.
+    if (p.indices >= 0 && size_t(p.indices) >= model_.accessors.size())
+        errors_.fail(where + ": indices accessor " + std::to_string(p.indices) + " does not exist");
+    const uint64_t index_count = reader_.count(p.indices >= 0 ? p.indices : position);
+    const uint64_t at_most =
+        p.mode == TINYGLTF_MODE_TRIANGLES ? index_count / 3 : std::max<uint64_t>(index_count, 2) - 2;
+    triangle_bound_ += at_most;
+    if (triangle_bound_ > limits_.max_triangles) {
+        errors_.fail(where + ": brings the scene to " + std::to_string(triangle_bound_) +
+                     " triangles or more, over the limit of " + std::to_string(limits_.max_triangles));
+    }
+
     prim.positions = reader_.read_vec3(position, "POSITION");
     check_finite(prim.positions, position, "POSITION", errors_);
     const size_t n = prim.positions.size();
-    if (const int a = attribute(p, "NORMAL", where); a >= 0) prim.normals = read_attribute<glm::vec3>(a, "NORMAL", n, where);
+    if (const int a = attribute(p, "NORMAL", where); a >= 0)
+        prim.normals = read_attribute<glm::vec3>(a, "NORMAL", n, where);
     if (const int a = attribute(p, "TEXCOORD_0", where); a >= 0) {
         prim.uv0 = read_attribute<glm::vec2>(a, "TEXCOORD_0", n, where);
         check_finite(prim.uv0, a, "TEXCOORD_0", errors_);
@@ -170,14 +189,12 @@ LocalPrimitive GeometryBuilder::read_primitive(int mesh, int index) {
 
     std::vector<uint32_t> indices;
     if (p.indices >= 0) {
-        if (size_t(p.indices) >= model_.accessors.size())
-            errors_.fail(where + ": indices accessor " + std::to_string(p.indices) + " does not exist");
         indices = reader_.read_indices(p.indices);
         for (size_t k = 0; k < indices.size(); ++k) {
             if (indices[k] >= n) {
                 errors_.fail(where + ": index " + std::to_string(indices[k]) + " (element " + std::to_string(k) +
-                             " of accessor " + std::to_string(p.indices) + ") is out of range for " + std::to_string(n) +
-                             " vertices");
+                             " of accessor " + std::to_string(p.indices) + ") is out of range for " +
+                             std::to_string(n) + " vertices");
             }
         }
     } else {
@@ -187,7 +204,8 @@ LocalPrimitive GeometryBuilder::read_primitive(int mesh, int index) {
     size_t leftover = 0;
     prim.triangles = assemble(p.mode, indices, &leftover);
     if (leftover != 0)
-        warnings_->push_back(where + ": " + std::to_string(leftover) + " trailing indices do not make a triangle; ignored");
+        warnings_->push_back(where + ": " + std::to_string(leftover) +
+                             " trailing indices do not make a triangle; ignored");
     if (prim.triangles.empty()) {
         warnings_->push_back(where + ": no triangles; skipped");
         return prim;
@@ -235,14 +253,14 @@ void GeometryBuilder::build(const std::vector<PlacedNode>& meshes) {
         }
     }
     if (triangles > limits_.max_triangles) {
-        errors_.fail("the scene has " + std::to_string(triangles) + " triangles after node instancing, over the limit of " +
-                     std::to_string(limits_.max_triangles));
+        errors_.fail("the scene has " + std::to_string(triangles) +
+                     " triangles after node instancing, over the limit of " + std::to_string(limits_.max_triangles));
     }
     // Vertex indices are 32-bit; and vertices no triangle uses cost memory too.
     const uint64_t max_vertices = std::min<uint64_t>(3 * limits_.max_triangles, std::numeric_limits<uint32_t>::max());
     if (vertices > max_vertices) {
-        errors_.fail("the scene has " + std::to_string(vertices) + " vertices after node instancing, over the limit of " +
-                     std::to_string(max_vertices));
+        errors_.fail("the scene has " + std::to_string(vertices) +
+                     " vertices after node instancing, over the limit of " + std::to_string(max_vertices));
     }
 
     // 3. Emit every placement.
@@ -271,8 +289,8 @@ void GeometryBuilder::emit(const LocalPrimitive& prim, const PlacedNode& placed,
     // cofactor matrix); using the cofactors times the determinant's sign keeps
     // the direction without dividing, so a singular transform is no error.
     const glm::dvec3 c0 = linear[0], c1 = linear[1], c2 = linear[2];
-    const glm::dmat3 normal_matrix = glm::dmat3(glm::cross(c1, c2), glm::cross(c2, c0), glm::cross(c0, c1)) *
-                                     (mirrored ? -1.0 : 1.0);
+    const glm::dmat3 normal_matrix =
+        glm::dmat3(glm::cross(c1, c2), glm::cross(c2, c0), glm::cross(c0, c1)) * (mirrored ? -1.0 : 1.0);
 
     PrimitiveInstance inst;
     inst.node = placed.node;
@@ -289,8 +307,8 @@ void GeometryBuilder::emit(const LocalPrimitive& prim, const PlacedNode& placed,
     for (size_t k = 0; k < prim.positions.size(); ++k) {
         const glm::vec3 p(world * glm::dvec4(glm::dvec3(prim.positions[k]), 1.0));
         if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
-            errors_.fail("node", placed.node, "its transform takes mesh " + std::to_string(placed.item) +
-                                                  " to non-finite positions");
+            errors_.fail("node", placed.node,
+                         "its transform takes mesh " + std::to_string(placed.item) + " to non-finite positions");
         }
         scene_.positions.push_back(p);
         scene_.bounds.extend(p);
@@ -305,26 +323,34 @@ void GeometryBuilder::emit(const LocalPrimitive& prim, const PlacedNode& placed,
         scene_.triangle_material.push_back(prim.material);
     }
 
-    // Area-weighted normals from the world-space triangles: for a file
-    // without normals, and for any file normal that is zero or not finite.
-    std::vector<glm::vec3> computed(prim.positions.size(), glm::vec3(0.0f));
-    for (uint32_t t = inst.first_triangle; t < inst.first_triangle + inst.triangle_count; ++t) {
-        const glm::uvec3& tri = scene_.triangles[t];
-        const glm::vec3 n = glm::cross(scene_.positions[tri.y] - scene_.positions[tri.x],
-                                       scene_.positions[tri.z] - scene_.positions[tri.x]);  // length = 2 x area
-        for (int c = 0; c < 3; ++c) computed[tri[c] - base] += n;
-    }
-    auto unit = [](glm::vec3 v, bool* ok) {
+    // File normals go through the normal matrix. Where the file has none, or
+    // one is zero or not finite, the area-weighted normal of the world-space
+    // triangles around the vertex takes its place.
+    auto unit = [](glm::vec3 v) {
         const float length = glm::length(v);
-        *ok = std::isfinite(length) && length > 0.0f;
-        return *ok ? v / length : glm::vec3(0.0f, 0.0f, 1.0f);
+        return std::isfinite(length) && length > 0.0f ? v / length : glm::vec3(0.0f);  // zero: none yet
     };
+    bool incomplete = prim.normals.empty();
     for (size_t k = 0; k < prim.positions.size(); ++k) {
-        bool ok = false;
-        glm::vec3 n(0.0f);
-        if (!prim.normals.empty()) n = unit(glm::vec3(normal_matrix * glm::dvec3(prim.normals[k])), &ok);
-        if (!ok) n = unit(computed[k], &ok);
+        const glm::vec3 n =
+            prim.normals.empty() ? glm::vec3(0.0f) : unit(glm::vec3(normal_matrix * glm::dvec3(prim.normals[k])));
+        incomplete = incomplete || n == glm::vec3(0.0f);
         scene_.normals.push_back(n);
+    }
+    if (incomplete) {
+        std::vector<glm::vec3> computed(prim.positions.size(), glm::vec3(0.0f));
+        for (uint32_t t = inst.first_triangle; t < inst.first_triangle + inst.triangle_count; ++t) {
+            const glm::uvec3& tri = scene_.triangles[t];
+            const glm::vec3 n = glm::cross(scene_.positions[tri.y] - scene_.positions[tri.x],
+                                           scene_.positions[tri.z] - scene_.positions[tri.x]);  // length = 2 x area
+            for (int c = 0; c < 3; ++c) computed[tri[c] - base] += n;
+        }
+        for (size_t k = 0; k < prim.positions.size(); ++k) {
+            glm::vec3& n = scene_.normals[base + k];
+            if (n == glm::vec3(0.0f)) n = unit(computed[k]);
+            // A vertex no triangle with area uses still needs a unit normal.
+            if (n == glm::vec3(0.0f)) n = glm::vec3(0.0f, 0.0f, 1.0f);
+        }
     }
     scene_.instances.push_back(inst);
 }

@@ -81,7 +81,8 @@ void ImageDecoder::decode(tinygltf::Image* image, int index, const unsigned char
     // stb refuses a PNG over 1 GiB decoded without saying how large it
     // claims to be; the IHDR chunk says it, so a refusal can name the size.
     uint32_t claimed_width = 0, claimed_height = 0;
-    if (png_header_size(bytes, size, &claimed_width, &claimed_height)) check_dimensions(label, claimed_width, claimed_height);
+    if (png_header_size(bytes, size, &claimed_width, &claimed_height))
+        check_dimensions(label, claimed_width, claimed_height);
 
     int width = 0, height = 0, channels = 0;
     if (!stbi_info_from_memory(bytes, int(size), &width, &height, &channels))

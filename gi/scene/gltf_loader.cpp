@@ -27,7 +27,8 @@ std::string first_line(const std::string& text) {
     return line.empty() ? "unknown error" : line;
 }
 
-tinygltf::Model parse_with_tinygltf(const Document& doc, SceneFiles& files, ImageDecoder& images, const Errors& errors) {
+tinygltf::Model parse_with_tinygltf(const Document& doc, SceneFiles& files, ImageDecoder& images,
+                                    const Errors& errors) {
     tinygltf::TinyGLTF parser;
     parser.SetFsCallbacks(files.callbacks());
     parser.SetImageLoader(&ImageDecoder::callback, &images);

@@ -1,5 +1,6 @@
 // Materials (base colour, emission, their textures) and KHR_lights_punctual.
 #include "scene/gltf_build.h"
+#include "scene/gltf_files.h"
 
 #include <glm/gtc/constants.hpp>
 
@@ -40,7 +41,8 @@ private:
 glm::vec3 MaterialBuilder::factor(const std::vector<double>& values, size_t size, const std::string& where,
                                   const char* what, bool clamp_to_one) const {
     if (values.size() != size)
-        errors_.fail(where + ": " + what + " has " + std::to_string(values.size()) + " values, not " + std::to_string(size));
+        errors_.fail(where + ": " + what + " has " + std::to_string(values.size()) + " values, not " +
+                     std::to_string(size));
     glm::vec3 out(1.0f);
     for (size_t i = 0; i < size; ++i) {
         const double v = values[i];
@@ -68,8 +70,9 @@ int MaterialBuilder::texture(const tinygltf::TextureInfo& info, const std::strin
         return -1;
     }
     if (size_t(image) >= model_.images.size()) {
-        errors_.fail("texture", info.index, "source image " + std::to_string(image) + " does not exist (the file has " +
-                                                std::to_string(model_.images.size()) + " images)");
+        errors_.fail("texture", info.index,
+                     "source image " + std::to_string(image) + " does not exist (the file has " +
+                         std::to_string(model_.images.size()) + " images)");
     }
     if (const auto it = texture_of_image_.find(image); it != texture_of_image_.end()) return it->second;
 
@@ -81,9 +84,12 @@ int MaterialBuilder::texture(const tinygltf::TextureInfo& info, const std::strin
         images_.decode(&img, image, bytes, size);
     }
     if (img.image.empty())
-        errors_.fail(Errors::label("image", image, img.name), "could not be loaded" + (img.uri.empty() ? std::string() : " from " + in_quotes(img.uri)));
+        errors_.fail(Errors::label("image", image, img.name),
+                     "could not be loaded" + (img.uri.empty() ? std::string() : " from " + in_quotes(img.uri)));
 
-    scene_.textures.push_back(srgb_texture(img, img.name.empty() ? img.uri : img.name));
+    std::string name = img.name;
+    if (name.empty()) name = img.uri.empty() || is_data_uri(img.uri) ? "image " + std::to_string(image) : img.uri;
+    scene_.textures.push_back(srgb_texture(img, std::move(name)));
     // The float texture is what the Scene keeps; the RGBA8 copy is no longer needed.
     std::vector<unsigned char>().swap(img.image);
     const int slot_index = int(scene_.textures.size() - 1);
@@ -128,7 +134,8 @@ void add_materials(tinygltf::Model& model, const Errors& errors, ImageDecoder& i
                    Scene& scene, std::vector<std::string>* warnings) {
     MaterialBuilder builder(model, errors, images, reader, scene, warnings);
     scene.materials.reserve(model.materials.size() + 1);
-    for (size_t i = 0; i < model.materials.size(); ++i) scene.materials.push_back(builder.convert(model.materials[i], int(i)));
+    for (size_t i = 0; i < model.materials.size(); ++i)
+        scene.materials.push_back(builder.convert(model.materials[i], int(i)));
 }
 
 void add_lights(const tinygltf::Model& model, const std::vector<PlacedNode>& lights, const Errors& errors, Scene& scene,
@@ -138,20 +145,27 @@ void add_lights(const tinygltf::Model& model, const std::vector<PlacedNode>& lig
         const std::string where = "light " + std::to_string(placed.item);
         PunctualLight out;
         out.name = l.name;
-        if (l.type == kLightTypes[0]) out.type = PunctualLight::Type::Point;
-        else if (l.type == kLightTypes[1]) out.type = PunctualLight::Type::Spot;
-        else if (l.type == kLightTypes[2]) out.type = PunctualLight::Type::Directional;
-        else errors.fail(where + ": type " + in_quotes(l.type, 20) + " is not point, spot or directional");
+        if (l.type == kLightTypes[0])
+            out.type = PunctualLight::Type::Point;
+        else if (l.type == kLightTypes[1])
+            out.type = PunctualLight::Type::Spot;
+        else if (l.type == kLightTypes[2])
+            out.type = PunctualLight::Type::Directional;
+        else
+            errors.fail(where + ": type " + in_quotes(l.type, 20) + " is not point, spot or directional");
 
         glm::dvec3 color(1.0);
         if (!l.color.empty()) {
-            if (l.color.size() != 3) errors.fail(where + ": color has " + std::to_string(l.color.size()) + " values, not 3");
+            if (l.color.size() != 3)
+                errors.fail(where + ": color has " + std::to_string(l.color.size()) + " values, not 3");
             color = glm::dvec3(l.color[0], l.color[1], l.color[2]);
         }
         for (int c = 0; c < 3; ++c) {
-            if (!std::isfinite(color[c]) || color[c] < 0.0) errors.fail(where + ": color is not finite and non-negative");
+            if (!std::isfinite(color[c]) || color[c] < 0.0)
+                errors.fail(where + ": color is not finite and non-negative");
         }
-        if (!std::isfinite(l.intensity) || l.intensity < 0.0) errors.fail(where + ": intensity is not finite and non-negative");
+        if (!std::isfinite(l.intensity) || l.intensity < 0.0)
+            errors.fail(where + ": intensity is not finite and non-negative");
         if (!std::isfinite(l.range) || l.range < 0.0) errors.fail(where + ": range is not finite and positive");
         // Radiometric reading of glTF's photometric units (DESIGN.md "Conventions"): no 683 lm/W.
         out.intensity = glm::vec3(color * l.intensity);
@@ -160,8 +174,8 @@ void add_lights(const tinygltf::Model& model, const std::vector<PlacedNode>& lig
         if (out.type == PunctualLight::Type::Spot) {
             const double inner = l.spot.innerConeAngle, outer = l.spot.outerConeAngle;
             if (!(inner >= 0.0 && inner < outer && outer <= glm::half_pi<double>() + 1e-6)) {
-                errors.fail(where + ": spot cone angles inner " + std::to_string(inner) + ", outer " + std::to_string(outer) +
-                            " are not 0 <= inner < outer <= pi/2");
+                errors.fail(where + ": spot cone angles inner " + std::to_string(inner) + ", outer " +
+                            std::to_string(outer) + " are not 0 <= inner < outer <= pi/2");
             }
             out.inner_cone = float(inner);
             out.outer_cone = float(outer);
@@ -173,7 +187,8 @@ void add_lights(const tinygltf::Model& model, const std::vector<PlacedNode>& lig
         const double length = glm::length(direction);
         if (!std::isfinite(out.position.x) || !std::isfinite(out.position.y) || !std::isfinite(out.position.z) ||
             !std::isfinite(length)) {
-            errors.fail("node", placed.node, "its transform takes light " + std::to_string(placed.item) + " to non-finite values");
+            errors.fail("node", placed.node,
+                        "its transform takes light " + std::to_string(placed.item) + " to non-finite values");
         }
         if (length <= 0.0 && out.type != PunctualLight::Type::Point) {
             warnings->push_back("node " + std::to_string(placed.node) + ": transform collapses light " +

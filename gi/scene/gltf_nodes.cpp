@@ -26,7 +26,8 @@ glm::dmat4 local_transform(const tinygltf::Node& node, int index, const Errors& 
     const bool has_trs = !node.translation.empty() || !node.rotation.empty() || !node.scale.empty();
     auto check_size = [&](const std::vector<double>& v, size_t n, const char* what) {
         if (!v.empty() && v.size() != n)
-            errors.fail("node", index, std::string(what) + " has " + std::to_string(v.size()) + " values, not " + std::to_string(n));
+            errors.fail("node", index,
+                        std::string(what) + " has " + std::to_string(v.size()) + " values, not " + std::to_string(n));
         if (!all_finite(v)) errors.fail("node", index, std::string(what) + " is not finite");
     };
     check_size(node.matrix, 16, "matrix");
@@ -39,7 +40,8 @@ glm::dmat4 local_transform(const tinygltf::Node& node, int index, const Errors& 
         return glm::make_mat4(node.matrix.data());  // column-major, as glTF stores it
     }
     glm::dmat4 m(1.0);
-    if (!node.translation.empty()) m[3] = glm::dvec4(node.translation[0], node.translation[1], node.translation[2], 1.0);
+    if (!node.translation.empty())
+        m[3] = glm::dvec4(node.translation[0], node.translation[1], node.translation[2], 1.0);
     if (!node.rotation.empty()) {
         // glTF stores x, y, z, w; glm's constructor takes w first.
         glm::dquat q(node.rotation[3], node.rotation[0], node.rotation[1], node.rotation[2]);
@@ -47,7 +49,8 @@ glm::dmat4 local_transform(const tinygltf::Node& node, int index, const Errors& 
         if (!(length > 1e-12)) errors.fail("node", index, "rotation is not a unit quaternion (length 0)");
         m = m * glm::mat4_cast(q / length);
     }
-    if (!node.scale.empty()) m = m * glm::scale(glm::dmat4(1.0), glm::dvec3(node.scale[0], node.scale[1], node.scale[2]));
+    if (!node.scale.empty())
+        m = m * glm::scale(glm::dmat4(1.0), glm::dvec3(node.scale[0], node.scale[1], node.scale[2]));
     return m;
 }
 
@@ -60,8 +63,9 @@ int node_light(const tinygltf::Node& node, int index, size_t light_count, const 
         errors.fail("node", index, "KHR_lights_punctual has no integer light index");
     const int light = ext.Get("light").GetNumberAsInt();
     if (light < 0 || size_t(light) >= light_count) {
-        errors.fail("node", index, "light " + std::to_string(light) + " does not exist (the file has " +
-                                       std::to_string(light_count) + " lights)");
+        errors.fail("node", index,
+                    "light " + std::to_string(light) + " does not exist (the file has " + std::to_string(light_count) +
+                        " lights)");
     }
     return light;
 }
@@ -75,13 +79,15 @@ std::vector<int> check_hierarchy(const tinygltf::Model& model, const Errors& err
     for (size_t i = 0; i < n; ++i) {
         for (int child : model.nodes[i].children) {
             if (child < 0 || size_t(child) >= n) {
-                errors.fail("node", int64_t(i), "child " + std::to_string(child) + " does not exist (the file has " +
-                                                     std::to_string(n) + " nodes)");
+                errors.fail("node", int64_t(i),
+                            "child " + std::to_string(child) + " does not exist (the file has " + std::to_string(n) +
+                                " nodes)");
             }
             if (size_t(child) == i) errors.fail("node", int64_t(i), "is its own child (a cycle in the node hierarchy)");
             if (parent[size_t(child)] != -1) {
-                errors.fail("node", child, "has two parents, node " + std::to_string(parent[size_t(child)]) + " and node " +
-                                               std::to_string(i) + " (glTF nodes form a tree)");
+                errors.fail("node", child,
+                            "has two parents, node " + std::to_string(parent[size_t(child)]) + " and node " +
+                                std::to_string(i) + " (glTF nodes form a tree)");
             }
             parent[size_t(child)] = int(i);
         }
@@ -128,8 +134,9 @@ std::vector<int> scene_roots(const tinygltf::Model& model, const std::vector<int
         if (root < 0 || size_t(root) >= model.nodes.size())
             errors.fail("scene", scene, "node " + std::to_string(root) + " does not exist");
         if (parent[size_t(root)] != -1) {
-            errors.fail("scene", scene, "node " + std::to_string(root) + " is listed as a root but is a child of node " +
-                                            std::to_string(parent[size_t(root)]));
+            errors.fail("scene", scene,
+                        "node " + std::to_string(root) + " is listed as a root but is a child of node " +
+                            std::to_string(parent[size_t(root)]));
         }
         if (listed[size_t(root)]) errors.fail("scene", scene, "lists node " + std::to_string(root) + " twice");
         listed[size_t(root)] = true;
@@ -150,8 +157,9 @@ Placement place_nodes(const tinygltf::Model& model, const Errors& errors, std::v
         const tinygltf::Node& node = model.nodes[i];
         local[i] = local_transform(node, int(i), errors);
         if (node.mesh < -1 || (node.mesh >= 0 && size_t(node.mesh) >= model.meshes.size())) {
-            errors.fail("node", int64_t(i), "mesh " + std::to_string(node.mesh) + " does not exist (the file has " +
-                                                std::to_string(model.meshes.size()) + " meshes)");
+            errors.fail("node", int64_t(i),
+                        "mesh " + std::to_string(node.mesh) + " does not exist (the file has " +
+                            std::to_string(model.meshes.size()) + " meshes)");
         }
         lights[i] = node_light(node, int(i), model.lights.size(), errors);
         skinned = skinned || (node.skin >= 0 && node.mesh >= 0);
@@ -171,7 +179,8 @@ Placement place_nodes(const tinygltf::Model& model, const Errors& errors, std::v
         const glm::dmat4 world = parent_world * local[size_t(index)];
         if (node.mesh >= 0) placement.meshes.push_back({index, node.mesh, world});
         if (lights[size_t(index)] >= 0) placement.lights.push_back({index, lights[size_t(index)], world});
-        for (auto child = node.children.rbegin(); child != node.children.rend(); ++child) stack.emplace_back(*child, world);
+        for (auto child = node.children.rbegin(); child != node.children.rend(); ++child)
+            stack.emplace_back(*child, world);
     }
     return placement;
 }

@@ -41,7 +41,8 @@ nlohmann::json summarize(const Scene& scene) {
         {"materials", scene.materials.size()},
         {"emissive_triangles", scene.emissive_triangle_count()},
         {"punctual_lights", {{"point", point}, {"spot", spot}, {"directional", directional}}},
-        {"textures", {{"count", scene.textures.size()}, {"largest_dimension", largest}}},
+        {"textures", scene.textures.size()},
+        {"max_texture_size", largest},
         {"lightmap_uvs", {{"all_primitives", scene.all_have_lightmap_uvs()}, {"primitives_with_texcoord_1", with_uv1}}},
         {"bounds", bounds},
         {"surface_area", area},
@@ -60,8 +61,8 @@ std::string format_summary(const Scene& scene) {
     const nlohmann::json& lights = s["punctual_lights"];
     out << "lights:       " << lights["point"] << " point, " << lights["spot"] << " spot, " << lights["directional"]
         << " directional\n";
-    out << "textures:     " << s["textures"]["count"];
-    if (s["textures"]["count"].get<size_t>() > 0) out << ", largest " << s["textures"]["largest_dimension"] << " px";
+    out << "textures:     " << s["textures"];
+    if (s["textures"].get<size_t>() > 0) out << ", largest " << s["max_texture_size"] << " px";
     out << "\n";
     const nlohmann::json& uvs = s["lightmap_uvs"];
     out << "lightmap UVs: TEXCOORD_1 on " << uvs["primitives_with_texcoord_1"] << " of " << s["primitive_instances"]
@@ -70,8 +71,9 @@ std::string format_summary(const Scene& scene) {
     if (!scene.bounds.empty()) {
         const Bounds& b = scene.bounds;
         const glm::vec3 e = b.extent();
-        std::snprintf(line, sizeof line, "bounds:       (%.3g, %.3g, %.3g) .. (%.3g, %.3g, %.3g) m, size %.3g x %.3g x %.3g m\n",
-                      b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z, e.x, e.y, e.z);
+        std::snprintf(line, sizeof line,
+                      "bounds:       (%.3g, %.3g, %.3g) .. (%.3g, %.3g, %.3g) m, size %.3g x %.3g x %.3g m\n", b.lo.x,
+                      b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z, e.x, e.y, e.z);
         out << line;
     }
     std::snprintf(line, sizeof line, "surface area: %.4g m²\n", s["surface_area"].get<double>());

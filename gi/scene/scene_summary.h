@@ -18,7 +18,9 @@ namespace lf {
 //   "materials": 5,
 //   "emissive_triangles": 2,
 //   "punctual_lights": {"point": 0, "spot": 0, "directional": 0},
-//   "textures": {"count": 0, "largest_dimension": 0},   pixels, the longer side
+//   "textures": 0,
+//   "max_texture_size": 0,            pixels, the longest side of any texture
+//                                     (the server checks it against its limit)
 //   "lightmap_uvs": {"all_primitives": true, "primitives_with_texcoord_1": 16},
 //   "bounds": {"lo": [x, y, z], "hi": [x, y, z]},        null for an empty scene
 //   "surface_area": 5.57,             m², sum of triangle areas
