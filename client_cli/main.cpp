@@ -170,6 +170,15 @@ int bake(int argc, char** argv) {
     lightmap.radiosity.light_samples = whole("--light-samples", 1, 1, 1024);
     lightmap.subsamples_per_axis = whole("--subsamples", 2, 1, 8);
     lightmap.stitch_seams = !args.flag("--no-stitch");
+    if (want_lightmap && args.has("--env")) {
+        // A lightmap's environment is a uniform sky for now: rays that escape see this radiance.
+        const std::string env = args.get("--env");
+        float r, g, b;
+        char tail;
+        if (std::sscanf(env.c_str(), "%f,%f,%f%c", &r, &g, &b, &tail) != 3 || r < 0 || g < 0 || b < 0)
+            throw UsageError("--env for a lightmap must be a uniform sky radiance R,G,B (an environment map works with --sh only), not '" + env + "'");
+        lightmap.radiosity.background = glm::vec3(r, g, b);
+    }
 
     lf::ShBakeSettings sh;
     sh.scene = scene;

@@ -147,6 +147,25 @@ void expect_clean_failure(const std::string& args, const std::string& must_menti
     fs::remove_all(out);
 }
 
+// A room lit only by the sky through its windows (it has no light source,
+// so without --env there is nothing to bake): with a uniform sky it is lit,
+// and no texel can see more than the whole sky (E/pi <= 1 for radiance 1).
+TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
+    const fs::path out = fresh_dir("sky");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") +
+                                   " --out " + out.string() + " --res 512 --passes 4 --env 1,1,1 --no-stitch --json");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const FloatImage image = read_exr(out / "lightmap.exr");
+    float brightest = 0.0f;
+    for (float v : image.at("G")) brightest = std::max(brightest, v);
+    EXPECT_GT(brightest, 0.05f);
+    // Every sample is the sky (1) or albedo (<= 1) times values that are
+    // themselves <= 1, so no texel can exceed 1, noise or not. (Without seam
+    // stitching: its least-squares fit may overshoot by a hair.)
+    for (float v : image.at("G")) ASSERT_LE(v, 1.0f + 1e-5f);
+    fs::remove_all(out);
+}
+
 TEST(CliBake, FailuresAreOneClearLine) {
     expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "nothing to bake");
     expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf");
@@ -154,6 +173,7 @@ TEST(CliBake, FailuresAreOneClearLine) {
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", 2);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", 2);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", 2);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "R,G,B", 2);
 }
 
 }  // namespace
