@@ -45,7 +45,8 @@ gtest_discover_tests(test_server_load DISCOVERY_TIMEOUT 60
 # of a worker, and of lightfarmd, mid-bake (about 15 s in all on llvmpipe).
 if(TARGET lightfarm)
   lightfarm_test(test_server_e2e server_harness.cpp)
-  target_link_libraries(test_server_e2e PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+  # lightfarm_gi for its EXR reader only: the test compares pixels, the server stays GL-free.
+  target_link_libraries(test_server_e2e PRIVATE lightfarm_server lightfarm_gi PkgConfig::CPP_HTTPLIB)
   target_compile_definitions(test_server_e2e PRIVATE
     LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
     LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>")

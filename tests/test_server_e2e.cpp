@@ -6,12 +6,10 @@
 // completes with whole artifacts that again equal the CLI's bake.
 #include "server_harness.h"
 
+#include "io/image_files.h"
+
 #include "subprocess.h"
 
-#include <OpenEXR/ImfChannelList.h>
-#include <OpenEXR/ImfFrameBuffer.h>
-#include <OpenEXR/ImfHeader.h>
-#include <OpenEXR/ImfInputFile.h>
 #include <gtest/gtest.h>
 #include <signal.h>
 
@@ -39,28 +37,8 @@ fs::path scenes_dir() {
 // Every channel of an EXR (RGB, and the direct/indirect layers, sample counts
 // and error estimates the engine writes), as floats: half -> float is exact,
 // so equal floats are equal files' pixels.
-struct ExrImage {
-    int width = 0, height = 0;
-    std::map<std::string, std::vector<float>> channels;
-};
-ExrImage read_exr(const fs::path& path) {
-    Imf::InputFile file(path.c_str());
-    const Imath::Box2i dw = file.header().dataWindow();
-    ExrImage img;
-    img.width = dw.max.x - dw.min.x + 1;
-    img.height = dw.max.y - dw.min.y + 1;
-    Imf::FrameBuffer fb;
-    for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
-        std::vector<float>& v = img.channels[it.name()];
-        v.resize(size_t(img.width) * size_t(img.height));
-        char* base = reinterpret_cast<char*>(v.data()) -
-                     (ptrdiff_t(dw.min.x) + ptrdiff_t(dw.min.y) * img.width) * ptrdiff_t(sizeof(float));
-        fb.insert(it.name(), Imf::Slice(Imf::FLOAT, base, sizeof(float), sizeof(float) * size_t(img.width)));
-    }
-    file.setFrameBuffer(fb);
-    file.readPixels(dw.min.y, dw.max.y);
-    return img;
-}
+using ExrImage = lf::FloatImage;
+using lf::read_exr;
 
 // Bit-for-bit equality of every channel; describes the first difference.
 ::testing::AssertionResult same_pixels(const fs::path& a_path, const fs::path& b_path) {

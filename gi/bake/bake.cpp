@@ -17,12 +17,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string pass_file_name(int pass) {
-    char name[64];
-    std::snprintf(name, sizeof name, "lightmap.pass-%04d.exr", pass);
-    return name;
-}
-
 // The R, G, B channels of a layer ("" = combined, "direct.", "indirect.") as vec4 texels.
 std::vector<glm::vec4> image_layer(const FloatImage& image, const std::string& layer) {
     const auto &r = image.at(layer + "R"), &g = image.at(layer + "G"), &b = image.at(layer + "B");
@@ -38,10 +32,6 @@ void set_image_layer(FloatImage& image, const std::string& layer, const std::vec
         g[i] = rgb[i].g;
         b[i] = rgb[i].b;
     }
-}
-
-nlohmann::json stats_json(const PassStats& s) {
-    return {{"pass", s.pass}, {"rays", s.rays}, {"seconds", s.seconds}, {"error_estimate", s.error_estimate}};
 }
 
 }  // namespace
@@ -111,11 +101,11 @@ nlohmann::json bake_lightmap(const BakeSettings& settings, const BakeEventSink& 
 
     std::vector<std::string> files;
     const PassStats final_stats = run_progressive(baker, settings.stop, [&](const PassStats& s, bool snapshot_due) {
-        nlohmann::json progress = stats_json(s);
+        nlohmann::json progress = to_json(s);
         progress["event"] = "progress";
         emit(progress);
         if (snapshot_due) {
-            const std::string name = pass_file_name(s.pass);
+            const std::string name = snapshot_file_name("lightmap", s.pass, "exr");
             write_exr(settings.out / name, finished_image(s));
             files.push_back(name);
             emit({{"event", "snapshot"}, {"file", name}, {"pass", s.pass}});
@@ -134,7 +124,7 @@ nlohmann::json bake_lightmap(const BakeSettings& settings, const BakeEventSink& 
         {"scene", settings.scene.filename().string()},
         {"device", {{"vendor", gpu.info().vendor}, {"renderer", gpu.info().renderer}}},
         {"settings", settings_json},
-        {"result", stats_json(final_stats)},
+        {"result", to_json(final_stats)},
         {"seams", {{"edges", seams.size()},
                    {"metric", seam_metric(seams, image_layer(final_image, ""), final_image.width, final_image.height)}}},
         {"files", nlohmann::json::object()},
@@ -148,7 +138,7 @@ nlohmann::json bake_lightmap(const BakeSettings& settings, const BakeEventSink& 
     manifest["files"]["manifest.json"] = "this file";
     write_file_atomic(settings.out / "manifest.json", manifest.dump(2) + "\n");
 
-    nlohmann::json done = stats_json(final_stats);
+    nlohmann::json done = to_json(final_stats);
     done["event"] = "done";
     done["files"] = files;
     emit(done);

@@ -1,6 +1,18 @@
 #include "bake/progressive.h"
 
+#include <cstdio>
+
 namespace lf {
+
+nlohmann::json to_json(const PassStats& s) {
+    return {{"pass", s.pass}, {"rays", s.rays}, {"seconds", s.seconds}, {"error_estimate", s.error_estimate}};
+}
+
+std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension) {
+    char number[16];
+    std::snprintf(number, sizeof number, "%04d", pass);
+    return stem + ".pass-" + number + "." + extension;
+}
 
 PassStats run_progressive(ProgressiveMethod& method, const StopRule& stop,
                           const std::function<void(const PassStats&, bool)>& on_pass) {

@@ -4,8 +4,11 @@
 // schedule (passes 1, 2, 4, 8 …).
 #pragma once
 
+#include <nlohmann/json.hpp>
+
 #include <cstdint>
 #include <functional>
+#include <string>
 
 namespace lf {
 
@@ -29,6 +32,12 @@ struct StopRule {
     double time_limit = 0.0;    // seconds (0 = none)
     int min_passes = 4;         // an error estimate from fewer passes is not trusted
 };
+
+// {"pass", "rays", "seconds", "error_estimate"}: the fields of the bake events.
+nlohmann::json to_json(const PassStats& stats);
+
+// "<stem>.pass-NNNN.<extension>": the name of an intermediate snapshot.
+std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension);
 
 // Runs passes until `stop` says so. on_pass(stats, snapshot_due) is called
 // after every pass; snapshot_due is true on passes 1, 2, 4, 8 …

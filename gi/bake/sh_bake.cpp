@@ -20,16 +20,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string pass_file_name(int pass) {
-    char name[64];
-    std::snprintf(name, sizeof name, "sh_transfer.pass-%04d.bin", pass);
-    return name;
-}
-
-nlohmann::json stats_json(const PassStats& s) {
-    return {{"pass", s.pass}, {"rays", s.rays}, {"seconds", s.seconds}, {"error_estimate", s.error_estimate}};
-}
-
 // What half floats cost: the largest and the RMS coefficient error, relative
 // to the RMS coefficient (over the bands written).
 nlohmann::json compact_error(const ShTransferFile& exact, const ShTransferFile& compact) {
@@ -89,11 +79,11 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
     std::vector<std::string> files;
     const int snapshot_bands = settings.bands == 0 ? kShMaxBands : settings.bands;
     const PassStats final_stats = run_progressive(baker, settings.stop, [&](const PassStats& s, bool snapshot_due) {
-        nlohmann::json progress = stats_json(s);
+        nlohmann::json progress = to_json(s);
         progress["event"] = "progress";
         emit(progress);
         if (snapshot_due) {
-            const std::string name = pass_file_name(s.pass);
+            const std::string name = snapshot_file_name("sh_transfer", s.pass, "bin");
             write_sh_transfer(settings.out / name,
                               transfer_by_primitive(scene, baker.snapshot().coefficients, snapshot_bands,
                                                     settings.transfer.bounces),
@@ -144,7 +134,7 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     manifest["sh"] = {
         {"settings", settings_json},
-        {"result", stats_json(final_stats)},
+        {"result", to_json(final_stats)},
         {"bands", bands},
         {"band_errors", {{"light", band_light.source}, {"relative_rms_vs_4_bands", band_errors}}},
         {"samples_per_vertex", baker.samples_per_vertex()},
@@ -169,7 +159,7 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
     files.push_back("manifest.json");
     write_file_atomic(settings.out / "manifest.json", manifest.dump(2) + "\n");
 
-    nlohmann::json done = stats_json(final_stats);
+    nlohmann::json done = to_json(final_stats);
     done["event"] = "done";
     done["files"] = files;
     done["bands"] = bands;
