@@ -41,6 +41,11 @@ def bake_and_measure(scheme, res, passes, out, device):
     return rows
 
 
+# Blender Cycles on the same kind of machine (2 cores, no GPU), Cornell box
+# 256², relative RMSE against its own 32768-sample bake: shared/scenes/SOURCES.md.
+CYCLES_256 = [(0.83, 0.201), (2.88, 0.0948), (9.14, 0.0453), (38.8, 0.0226), (155, 0.0118)]
+
+
 def plot(csv_path, png_path, series):
     script = [
         "set terminal pngcairo size 1000,700",
@@ -56,7 +61,9 @@ def plot(csv_path, png_path, series):
     for scheme, res in series:
         plots.append(f"'{csv_path}' using (strcol(1) eq '{scheme}' && $2 == {res} ? $5 : 1/0):6 "
                      f"with linespoints title '{scheme} {res}²'")
+    plots.append("'-' using 1:2 with linespoints lw 2 dt 2 title 'Cycles 256² (SOURCES.md)'")
     script.append("plot " + ", ".join(plots))
+    script += [f"{t},{e}" for t, e in CYCLES_256] + ["e"]
     subprocess.run(["gnuplot"], input="\n".join(script), text=True, check=True)
 
 
@@ -67,14 +74,18 @@ def main():
     p.add_argument("--passes", type=int, default=1024)
     p.add_argument("--device", default="auto")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "out"))
+    p.add_argument("--plot-only", action="store_true", help="redraw the chart from the CSV in --out")
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
+    csv_path = os.path.join(a.out, "cornell_error_vs_time.csv")
+    if a.plot_only:
+        plot(csv_path, os.path.join(a.out, "cornell_error_vs_time.png"), [(s, r) for r in a.res for s in a.schemes])
+        return
     rows = []
     for res in a.res:
         for scheme in a.schemes:
             rows += bake_and_measure(scheme, res, a.passes, a.out, a.device)
             print(f"{scheme} {res}²: {rows[-1]}", file=sys.stderr)
-    csv_path = os.path.join(a.out, "cornell_error_vs_time.csv")
     with open(csv_path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
         w.writeheader()

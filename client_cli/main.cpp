@@ -40,6 +40,7 @@ commands:
                                      bake a radiosity-map lightmap and/or SH transfer
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
+  devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]
                                      error against a reference (JSON)
 )";
@@ -65,6 +66,28 @@ int raybench(int argc, char** argv) {
     lf::RaybenchOptions options;
     options.min_seconds = args.number("--seconds", options.min_seconds);
     std::cout << lf::run_raybench(gpu, scene, options).dump(2) << "\n";
+    return 0;
+}
+
+// What the service asks to size its worker pool: one worker per GPU.
+int devices(int argc, char** argv) {
+    Args args(argc, argv, 2, {}, {"--json"});
+    const std::vector<lf::EglDeviceInfo> list = lf::list_egl_devices();
+    int gpus = 0;
+    nlohmann::json out = {{"devices", nlohmann::json::array()}};
+    for (const lf::EglDeviceInfo& d : list) {
+        out["devices"].push_back({{"software", d.software}, {"gpu_index", d.gpu_index}});
+        gpus += d.software ? 0 : 1;
+    }
+    out["gpus"] = gpus;
+    if (args.flag("--json")) {
+        std::cout << out.dump() << "\n";
+    } else {
+        std::cout << gpus << " GPU(s)";
+        for (const lf::EglDeviceInfo& d : list)
+            std::cout << (d.software ? ", software (llvmpipe)" : ", gpu:" + std::to_string(d.gpu_index));
+        std::cout << "\n";
+    }
     return 0;
 }
 
@@ -247,6 +270,7 @@ int main(int argc, char** argv) {
         if (command == "raybench") return raybench(argc, argv);
         if (command == "bake") return bake(argc, argv);
         if (command == "compare") return compare(argc, argv);
+        if (command == "devices") return devices(argc, argv);
         if (command == "sh-shade") return sh_shade(argc, argv);
         throw UsageError("unknown command '" + command + "'");
     } catch (const std::invalid_argument& e) {  // a bad option value

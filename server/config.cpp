@@ -1,5 +1,6 @@
 #include "config.h"
 
+#include <algorithm>
 #include <unistd.h>
 
 #include <filesystem>
@@ -17,7 +18,7 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
   --tokens FILE          bearer tokens, one per line (default DATA/tokens, created
                          with a new random token when missing)
   --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)
-  --workers N            concurrent bakes (default 1)
+  --workers N            concurrent bakes (default: one per GPU, one without a GPU)
   --attempts N           worker runs per job before it fails (default 3)
   --stall-timeout S      kill a worker silent for S seconds (default 300)
   --job-timeout S        kill an attempt running longer than S seconds (default 14400)
@@ -80,7 +81,8 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
         else if (a == "--limit") set_limit(c.limits, v);
         else throw std::invalid_argument("unknown option " + a);
     }
-    if (c.workers < 1) throw std::invalid_argument("--workers must be at least 1");
+    if (c.workers < 0 || (c.workers == 0 && std::find(args.begin(), args.end(), "--workers") != args.end()))
+        throw std::invalid_argument("--workers must be at least 1");
     if (c.default_attempts < 1) throw std::invalid_argument("--attempts must be at least 1");
     if (c.http_threads < 4) throw std::invalid_argument("--http-threads must be at least 4");
     return c;

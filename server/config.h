@@ -24,7 +24,7 @@ struct ServerConfig {
     std::string data_dir = "lightfarm-data";
     std::string tokens_file;          // empty: DATA/tokens, created with a random token if missing
     std::string engine;               // empty: found beside lightfarmd, else in PATH
-    int workers = 1;
+    int workers = 0;  // 0: one per GPU (the engine's `devices`), one without a GPU
     int http_threads = 64;            // SSE readers hold a thread each
     int default_attempts = 3;
     double default_max_seconds = 4 * 3600;  // one attempt's wall-clock deadline

@@ -70,8 +70,31 @@ void Supervisor::start() {
         log_line("job " + id + ": " + cause + ", " +
                  (job.status.attempts >= job.status.max_attempts ? "no attempt left" : "queued again"));
     }
-    log_line("engine: " + engine_ + ", " + std::to_string(config_.workers) + " worker(s)");
-    for (int i = 0; i < config_.workers; ++i) threads_.emplace_back([this] { worker_loop(); });
+    // One worker per GPU, each pinned to its own (--device gpu:N); one on a
+    // machine without a GPU. --workers N overrides the count.
+    const int gpus = count_gpus();
+    const int workers = config_.workers > 0 ? config_.workers : std::max(1, gpus);
+    log_line("engine: " + engine_ + ", " + std::to_string(gpus) + " GPU(s), " + std::to_string(workers) + " worker(s)");
+    for (int i = 0; i < workers; ++i) {
+        const std::string device = gpus > 0 ? "gpu:" + std::to_string(i % gpus) : "";
+        threads_.emplace_back([this, device] { worker_loop(device); });
+    }
+}
+
+int Supervisor::count_gpus() const {
+    // The server knows nothing of GL: the engine says what devices there are.
+    const RunResult r = run_command({engine_, "devices", "--json"}, std::chrono::seconds(30));
+    if (!r.status.success()) {
+        log_line("engine devices: " + (r.timed_out ? std::string("timed out") : r.status.describe()) +
+                 "; assuming no GPU");
+        return 0;
+    }
+    try {
+        return json::parse(r.out).value("gpus", 0);
+    } catch (const std::exception&) {
+        log_line("engine devices: unreadable answer; assuming no GPU");
+        return 0;
+    }
 }
 
 void Supervisor::stop() {
@@ -86,7 +109,7 @@ void Supervisor::cancel(const std::string& job_id) {
     cancelled_.insert(job_id);
 }
 
-void Supervisor::worker_loop() {
+void Supervisor::worker_loop(const std::string& device) {
     while (!stopping_) {
         const uint64_t seen = changes_.generation();
         std::optional<JobRecord> job;
@@ -101,7 +124,7 @@ void Supervisor::worker_loop() {
         }
         changes_.notify();
         try {
-            run_attempt(*job);
+            run_attempt(*job, device);
         } catch (const std::exception& e) {
             // The server's own trouble (disk full, store error) still ends the
             // attempt cleanly rather than leaving the job running forever.
@@ -132,7 +155,7 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
     }
 }
 
-void Supervisor::run_attempt(const JobRecord& job) {
+void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     const std::string& id = job.status.id;
     const protocol::JobSpec spec = protocol::parse_job_spec(job.status.spec, config_.limits.spec);
     const std::optional<SceneRecord> scene = store_.scene(spec.scene);
@@ -146,6 +169,10 @@ void Supervisor::run_attempt(const JobRecord& job) {
 
     std::vector<std::string> argv = {engine_, "bake", scene_path(*scene).string(), "--out", dir.string(), "--json"};
     for (std::string& a : protocol::bake_arguments(spec)) argv.push_back(std::move(a));
+    if (!device.empty()) {
+        argv.push_back("--device");
+        argv.push_back(device);
+    }
     // ETA follows the stopping rules of the first output asked for.
     const json settings = spec.outputs.begin()->second;
 

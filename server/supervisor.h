@@ -48,8 +48,10 @@ public:
     std::filesystem::path scene_path(const SceneRecord& scene) const;
 
 private:
-    void worker_loop();
-    void run_attempt(const JobRecord& job);
+    // `device`: the engine's --device for this worker ("" = its default).
+    void worker_loop(const std::string& device);
+    int count_gpus() const;
+    void run_attempt(const JobRecord& job, const std::string& device);
     void attempt_failed(const JobRecord& job, const std::string& cause);
 
     JobStore& store_;

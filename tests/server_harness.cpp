@@ -61,8 +61,13 @@ if [ "$cmd" = inspect ]; then
   echo "{\"triangles\": $(cat "$state/triangles" 2>/dev/null || echo 12), \"textures\": []}"
   exit 0
 fi
+if [ "$cmd" = devices ]; then
+  echo "{\"gpus\": $(cat "$state/gpus" 2>/dev/null || echo 0)}"
+  exit 0
+fi
 [ "$cmd" = bake ] || { echo "fake lightfarm: unknown command $cmd" >&2; exit 2; }
 echo "$@" > "$state/last_args"
+echo "$@" >> "$state/all_args"
 out=""; passes=4
 while [ $# -gt 0 ]; do
   case "$1" in

@@ -21,9 +21,12 @@ namespace {
 
 using test::gpu;
 
-// Established from the measured convergence curve (docs/BENCHMARKS.md):
-// relative RMSE against Cycles after 256 passes at 256².
-constexpr double kCornellRelativeRmseBound256 = 0.05;
+// From the measured convergence curve (docs/BENCHMARKS.md): the default
+// scheme reaches 2.7% relative RMSE against Cycles after 256 passes at 256²
+// (seed 1; the error falls as 1/sqrt(passes) from there, bias -0.1%). The
+// bound leaves 30% for another seed or device, and would catch a bias or a
+// lost factor (a 2% bias alone already adds 2% here).
+constexpr double kCornellRelativeRmseBound256 = 0.035;
 
 // Lays out n quads' lightmap rectangles in a grid with a padding of 3 texels at `res`.
 glm::vec4 grid_cell(int index, int per_row, int res) {

@@ -245,6 +245,23 @@ TEST_F(ServerTest, QueuedJobsPerTokenAreLimited) {
     EXPECT_EQ(post_job({{"scene", upload(kBob)}, {"outputs", {{"lightmap", json::object()}}}}, kBob)->status, 201);
 }
 
+// With no --workers, lightfarmd asks the engine how many GPUs there are and
+// runs one worker on each: two jobs at once land on gpu:0 and gpu:1.
+TEST_F(ServerTest, OneWorkerPerGpuEachOnItsOwnDevice) {
+    engine.set("gpus", "2");
+    engine.set("delay", "0.3");
+    start();
+    const std::string scene = upload();
+    const std::string a = submit(scene, {{"passes", 3}, {"res", 64}}, 1);
+    const std::string b = submit(scene, {{"passes", 3}, {"res", 64}}, 2);
+    EXPECT_EQ(wait_finished(a)["state"], "succeeded");
+    EXPECT_EQ(wait_finished(b)["state"], "succeeded");
+    const std::string args = read_text(engine.dir / "all_args");
+    EXPECT_NE(args.find("--device gpu:0"), std::string::npos) << args;
+    EXPECT_NE(args.find("--device gpu:1"), std::string::npos) << args;
+    EXPECT_NE(server->log().find("2 GPU(s), 2 worker(s)"), std::string::npos) << server->log();
+}
+
 TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
     start();
     const std::string scene = upload();

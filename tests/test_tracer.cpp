@@ -202,6 +202,13 @@ TEST(GpuContext, ReportsDeviceAndRefusesAMissingGpu) {
     EXPECT_FALSE(info.renderer.empty());
     EXPECT_NE(info.version.find("4.5"), std::string::npos) << info.version;
     EXPECT_THROW(parse_device_choice("tpu"), std::invalid_argument);
+    EXPECT_THROW(parse_device_choice("gpu:x"), std::invalid_argument);
+    EXPECT_EQ(parse_device_choice("gpu:2").kind, DeviceChoice::Gpu);
+    EXPECT_EQ(parse_device_choice("gpu:2").gpu_index, 2);
+    // The devices listed match what the context found: software iff no GPU was usable here.
+    size_t gpus = 0;
+    for (const EglDeviceInfo& d : list_egl_devices()) gpus += d.software ? 0 : 1;
+    if (gpus == 0) EXPECT_TRUE(info.is_software);
     if (info.is_software) {
         // Auto fell back to software: there is no GPU, so asking for one must fail clearly.
         try {

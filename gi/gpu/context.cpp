@@ -12,7 +12,10 @@ DeviceChoice parse_device_choice(const std::string& text) {
     if (text == "auto") return DeviceChoice::Auto;
     if (text == "gpu") return DeviceChoice::Gpu;
     if (text == "cpu") return DeviceChoice::Cpu;
-    throw std::invalid_argument("--device must be auto, gpu or cpu, not '" + text + "'");
+    if (text.rfind("gpu:", 0) == 0 && text.size() > 4 && text.size() < 8 &&
+        text.find_first_not_of("0123456789", 4) == std::string::npos)
+        return DeviceChoice(DeviceChoice::Gpu, std::stoi(text.substr(4)));
+    throw std::invalid_argument("--device must be auto, gpu, gpu:N or cpu, not '" + text + "'");
 }
 
 namespace {
@@ -57,17 +60,33 @@ std::string gl_string(GLenum name) {
 
 }  // namespace
 
+std::vector<EglDeviceInfo> list_egl_devices() {
+    std::vector<EglDeviceInfo> out;
+    int gpus = 0;
+    for (const Candidate& c : enumerate_devices()) out.push_back({c.software, c.software ? -1 : gpus++});
+    return out;
+}
+
 GpuContext::GpuContext(DeviceChoice choice) {
     std::vector<Candidate> candidates = enumerate_devices();
-    // Order: hardware first unless the CPU was asked for.
+    // Order: hardware first unless the CPU was asked for; one named GPU alone.
     std::vector<Candidate> ordered;
+    int gpu = 0;
+    for (const Candidate& c : candidates) {
+        if (c.software) continue;
+        const bool wanted = choice.kind != DeviceChoice::Cpu && (choice.gpu_index < 0 || choice.gpu_index == gpu);
+        if (wanted) ordered.push_back(c);
+        ++gpu;
+    }
     for (const Candidate& c : candidates)
-        if (!c.software && choice != DeviceChoice::Cpu) ordered.push_back(c);
-    for (const Candidate& c : candidates)
-        if (c.software && choice != DeviceChoice::Gpu) ordered.push_back(c);
-    if (ordered.empty())
-        throw GpuError(choice == DeviceChoice::Gpu ? "--device gpu: no GPU EGL device found on this machine"
-                                                   : "--device cpu: no software (llvmpipe) EGL device found");
+        if (c.software && choice.kind != DeviceChoice::Gpu) ordered.push_back(c);
+    if (ordered.empty()) {
+        if (choice.kind == DeviceChoice::Cpu) throw GpuError("--device cpu: no software (llvmpipe) EGL device found");
+        if (choice.gpu_index >= 0 && gpu > 0)
+            throw GpuError("--device gpu:" + std::to_string(choice.gpu_index) + ": this machine has " +
+                           std::to_string(gpu) + " GPU(s), numbered from 0");
+        throw GpuError("--device gpu: no GPU EGL device found on this machine");
+    }
 
     std::string failures;
     for (const Candidate& c : ordered) {
@@ -95,7 +114,7 @@ GpuContext::GpuContext(DeviceChoice choice) {
         info_.renderer = gl_string(GL_RENDERER);
         info_.version = gl_string(GL_VERSION);
         info_.is_software = c.software;
-        if (choice == DeviceChoice::Auto && c.software && !failures.empty()) {
+        if (choice.kind == DeviceChoice::Auto && c.software && !failures.empty()) {
             // A GPU was there but unusable: say so rather than silently running 100x slower.
             info_.renderer += " (GPU unusable:" + failures + ")";
         }

@@ -4,12 +4,21 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace lf {
 
-enum class DeviceChoice { Auto, Gpu, Cpu };
+// Which EGL device to run on: Auto prefers a GPU and falls back to the CPU;
+// Gpu may name one GPU by its index among the machine's GPUs (a service
+// runs one worker per GPU, each on its own).
+struct DeviceChoice {
+    enum Kind { Auto, Gpu, Cpu };
+    Kind kind = Auto;
+    int gpu_index = -1;  // with Gpu: which one; -1 = the first that works
+    DeviceChoice(Kind k = Auto, int index = -1) : kind(k), gpu_index(index) {}
+};
 
-// "auto" | "gpu" | "cpu"; throws std::invalid_argument otherwise.
+// "auto" | "gpu" | "gpu:N" | "cpu"; throws std::invalid_argument otherwise.
 DeviceChoice parse_device_choice(const std::string& text);
 
 class GpuError : public std::runtime_error {
@@ -23,6 +32,13 @@ struct DeviceInfo {
     std::string version;   // GL_VERSION
     bool is_software = false;  // Mesa llvmpipe/softpipe
 };
+
+// The EGL devices of this machine, without creating contexts.
+struct EglDeviceInfo {
+    bool software = false;  // Mesa's llvmpipe/softpipe
+    int gpu_index = -1;     // index among the hardware devices, -1 for software
+};
+std::vector<EglDeviceInfo> list_egl_devices();
 
 class GpuContext {
 public:
