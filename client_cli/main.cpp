@@ -33,7 +33,7 @@ commands:
   bake SCENE --out DIR [--lightmap] [--sh] [--device auto|gpu|cpu] [--seed N] [--json]
        lightmap (the default): [--res N | --texel-density T] [--passes N]
          [--target-error E] [--time-limit S] [--scheme epochs|thesis|pathtrace]
-         [--light-samples N] [--no-stitch]
+         [--light-samples N] [--light-sampling mis|area|solid-angle] [--no-stitch]
        SH transfer (--sh): [--sh-bands 1..4|auto] [--sh-bounces N] [--env FILE|R,G,B]
          [--sh-window none|hanning|lanczos] [--sh-passes N] [--sh-target-error E]
          [--sh-time-limit S]
@@ -154,7 +154,7 @@ private:
 int bake(int argc, char** argv) {
     Args args(argc, argv, 2,
               {"--out", "--res", "--texel-density", "--passes", "--target-error", "--time-limit", "--device",
-               "--seed", "--scheme", "--light-samples", "--subsamples", "--sh-bands", "--sh-bounces", "--env",
+               "--seed", "--scheme", "--light-samples", "--light-sampling", "--subsamples", "--sh-bands", "--sh-bounces", "--env",
                "--sh-window", "--sh-passes", "--sh-target-error", "--sh-time-limit"},
               {"--json", "--no-stitch", "--lightmap", "--sh"});
     const std::string scene = one_scene(args, "bake");
@@ -191,6 +191,7 @@ int bake(int argc, char** argv) {
     lightmap.radiosity.seed = seed;
     lightmap.radiosity.scheme = lf::parse_radiosity_scheme(args.get("--scheme", "epochs"));
     lightmap.radiosity.light_samples = whole("--light-samples", 1, 1, 1024);
+    lightmap.radiosity.light_sampling = lf::parse_light_sampling(args.get("--light-sampling", "mis"));
     lightmap.subsamples_per_axis = whole("--subsamples", 2, 1, 8);
     lightmap.stitch_seams = !args.flag("--no-stitch");
     if (want_lightmap && args.has("--env")) {

@@ -69,6 +69,7 @@ nlohmann::json bake_lightmap(const BakeSettings& settings, const BakeEventSink& 
         {"atlas", {{"width", atlas.width}, {"height", atlas.height}, {"texel_density", atlas.texel_density},
                    {"generated", generated}, {"charts", atlas.charts}, {"utilisation", atlas.utilisation}}},
         {"light_samples", radiosity.light_samples},
+        {"light_sampling", to_string(radiosity.light_sampling)},
         {"subsamples_per_texel", settings.subsamples_per_axis * settings.subsamples_per_axis},
         {"seed", radiosity.seed},
         {"max_passes", settings.stop.max_passes},

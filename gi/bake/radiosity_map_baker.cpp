@@ -23,6 +23,34 @@ float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
 }  // namespace
 
+const char* to_string(LightSampling sampling) {
+    switch (sampling) {
+    case LightSampling::Mis: return "mis";
+    case LightSampling::Area: return "area";
+    case LightSampling::SolidAngle: return "solid-angle";
+    }
+    return "?";
+}
+
+LightSampling parse_light_sampling(const std::string& text) {
+    if (text == "mis") return LightSampling::Mis;
+    if (text == "area") return LightSampling::Area;
+    if (text == "solid-angle") return LightSampling::SolidAngle;
+    throw std::invalid_argument("--light-sampling must be mis, area or solid-angle, not '" + text + "'");
+}
+
+namespace {
+
+// The gather shader's compile-time choices.
+std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityMapSettings& s) {
+    std::vector<std::pair<std::string, std::string>> defines = {
+        {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
+    if (s.scheme == RadiosityScheme::PathTracing) defines.emplace_back("LF_PATH_TRACE", "1");
+    return defines;
+}
+
+}  // namespace
+
 const char* to_string(RadiosityScheme scheme) {
     switch (scheme) {
     case RadiosityScheme::Thesis: return "thesis";
@@ -45,9 +73,7 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
       settings_(settings),
       width_(texels.width),
       height_(texels.height),
-      gather_("radiosity_gather.comp", settings.scheme == RadiosityScheme::PathTracing
-                                           ? std::vector<std::pair<std::string, std::string>>{{"LF_PATH_TRACE", "1"}}
-                                           : std::vector<std::pair<std::string, std::string>>{}) {
+      gather_("radiosity_gather.comp", gather_defines(settings)) {
     upload_scene(scene);
     upload_texels(texels);
 }
@@ -95,7 +121,7 @@ void RadiosityMapBaker::upload_scene(const Scene& scene) {
         emitters.push_back(glm::vec4(scene.positions[tri.z], area));
         emitters.push_back(glm::vec4(radiance, scene.materials[scene.triangle_material[t]].double_sided ? 1.0f : 0.0f));
         surfaces[kSurfaceVec4s * t + 1].w = pdf_choose / area;
-        surfaces[kSurfaceVec4s * t + 2] = glm::vec4(radiance, 0.0f);
+        surfaces[kSurfaceVec4s * t + 2] = glm::vec4(radiance, uint_bits(uint32_t(e)));
     }
     emitter_count_ = uint32_t(emitter_triangles.size());
     emitters_ = GpuBuffer(emitters);

@@ -34,12 +34,26 @@ enum class RadiosityScheme {
     PathTracing,
 };
 
+// How the emitters' direct light is sampled.
+enum class LightSampling {
+    // Multiple importance sampling of solid-angle sampling and the indirect cosine ray (the default).
+    Mis,
+    // Points uniform in area on a power-chosen triangle alone (thesis eq. 3.12).
+    Area,
+    // Directions uniform in the triangle's solid angle alone (Arvo 1995; thesis §6.3).
+    SolidAngle,
+};
+
+const char* to_string(LightSampling sampling);
+LightSampling parse_light_sampling(const std::string& text);  // "mis" | "area" | "solid-angle"
+
 const char* to_string(RadiosityScheme scheme);
 RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "epochs" | "thesis" | "pathtrace"
 
 struct RadiosityMapSettings {
     RadiosityScheme scheme = RadiosityScheme::DoublingEpochs;
     int light_samples = 1;          // emitter samples per texel per pass
+    LightSampling light_sampling = LightSampling::Mis;
     uint32_t seed = 1;
     glm::vec3 background{0.0f};     // radiance of escaping rays (W/(sr·m²))
     // > 0: a texel whose own relative standard error falls below this stops

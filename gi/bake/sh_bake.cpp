@@ -1,5 +1,7 @@
 #include "bake/sh_bake.h"
 
+#include "atlas/atlas.h"
+#include "atlas/lightmapped_gltf.h"
 #include "io/image_files.h"
 #include "scene/gltf_loader.h"
 #include "sh/environment.h"
@@ -8,6 +10,7 @@
 #include "sh/transfer_file.h"
 #include "trace/tracer.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -39,6 +42,68 @@ nlohmann::json compact_error(const ShTransferFile& exact, const ShTransferFile& 
 
 }  // namespace
 
+ShTexelReceivers sh_texel_receivers(const Scene& atlas_scene, const TexelSamples& texels,
+                                    const std::vector<int>& receiver_meshes) {
+    std::vector<bool> receives(atlas_scene.triangles.size(), receiver_meshes.empty());
+    if (!receiver_meshes.empty())
+        for (const PrimitiveInstance& inst : atlas_scene.instances)
+            if (std::find(receiver_meshes.begin(), receiver_meshes.end(), inst.mesh) != receiver_meshes.end())
+                for (uint32_t t = 0; t < inst.triangle_count; ++t) receives[inst.first_triangle + t] = true;
+    ShTexelReceivers out;
+    out.point_of_sample.assign(texels.samples.size(), -1);
+    for (size_t k = 0; k < texels.samples.size(); ++k) {
+        const TexelSample& sample = texels.samples[k];
+        if (sample.triangle >= receives.size() || !receives[sample.triangle]) continue;
+        glm::vec3 n = sample.normal;
+        if (!(glm::dot(n, n) > 0.0f)) n = sample.geometric_normal;
+        if (!(glm::dot(n, n) > 0.0f)) continue;  // a degenerate triangle with no normal: left untraced
+        out.point_of_sample[k] = int64_t(out.points.size());
+        out.points.push_back({sample.position, glm::normalize(n)});
+    }
+    return out;
+}
+
+FloatImage sh_texel_image(const TexelSamples& texels, const ShTexelReceivers& receivers,
+                          const std::vector<ShCoefficients>& point_transfer, int bands) {
+    if (bands < 1 || bands > kShMaxBands) throw std::invalid_argument("sh_texel_image: bands must be 1..4");
+    if (point_transfer.size() != receivers.points.size())
+        throw std::invalid_argument("sh_texel_image: one transfer vector per receiver point");
+    const size_t pixels = size_t(texels.width) * size_t(texels.height);
+    // Four coefficients per vec4 image (dilate() works on vec4), coverage in a fifth.
+    std::vector<std::vector<glm::vec4>> groups(4, std::vector<glm::vec4>(pixels, glm::vec4(0.0f)));
+    std::vector<glm::vec4> coverage(pixels, glm::vec4(0.0f));
+    for (size_t i = 0; i < texels.covered_count(); ++i) {
+        ShCoefficients mean{};
+        const uint32_t first = texels.first_sample[i], count = texels.sample_count(i);
+        for (uint32_t k = first; k < first + count; ++k) {
+            const int64_t p = receivers.point_of_sample[k];
+            const ShCoefficients t = p >= 0 ? point_transfer[size_t(p)]
+                                   : glm::dot(texels.samples[k].normal, texels.samples[k].normal) > 0.0f
+                                       ? unoccluded_transfer(glm::normalize(texels.samples[k].normal))
+                                       : ShCoefficients{};
+            for (int c = 0; c < kShMaxCoefficients; ++c) mean[c] += t[c] / float(count);
+        }
+        const uint32_t pixel = texels.texels[i];
+        for (int g = 0; g < 4; ++g) groups[size_t(g)][pixel] = glm::vec4(mean[4 * g], mean[4 * g + 1], mean[4 * g + 2], mean[4 * g + 3]);
+        coverage[pixel] = glm::vec4(1.0f);
+    }
+    for (auto& g : groups) dilate(texels, g);
+
+    FloatImage image;
+    image.width = texels.width;
+    image.height = texels.height;
+    for (int c = 0; c < bands * bands; ++c) {
+        std::vector<float>& channel = image.channel("sh." + std::to_string(c));
+        for (size_t p = 0; p < pixels; ++p) channel[p] = groups[size_t(c / 4)][p][c % 4];
+    }
+    std::vector<float>& covered = image.channel("coverage");
+    for (size_t p = 0; p < pixels; ++p) covered[p] = coverage[p].x;
+    image.number_attributes["lightfarm.bands"] = bands;
+    image.string_attributes["lightfarm.sh_ordering"] =
+        "sh.i = coefficient i = l(l+1)+m of the real orthonormal SH basis (gi/sh/sh_basis.h), y-up";
+    return image;
+}
+
 nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit) {
     const auto start = std::chrono::steady_clock::now();
     if (settings.bands < 0 || settings.bands > kShMaxBands)
@@ -49,9 +114,29 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
     if (!settings.environment.empty()) environment = load_environment(settings.environment);
     fs::create_directories(settings.out);
 
+    // --sh-per-texel: the lightmap's atlas on a copy of the scene (a generated
+    // atlas splits vertices; the per-vertex outputs keep the input's), and its
+    // texel sample points as extra receivers of the same baker.
+    std::optional<Scene> atlas_scene;
+    AtlasReport atlas;
+    TexelSamples texels;
+    ShTexelReceivers texel_receivers;
+    if (settings.per_texel) {
+        if (settings.per_texel_subsamples < 1 || settings.per_texel_subsamples > 8)
+            throw std::invalid_argument("SH per texel: subsamples per axis must be 1..8");
+        atlas_scene = scene;
+        AtlasOptions atlas_options;
+        atlas_options.resolution = settings.per_texel_resolution;
+        atlas_options.texel_density = settings.per_texel_density;
+        if (atlas_options.resolution == 0 && atlas_options.texel_density == 0.0f) atlas_options.resolution = 256;
+        atlas = prepare_lightmap_atlas(*atlas_scene, atlas_options);
+        texels = rasterize_texel_samples(*atlas_scene, atlas.width, atlas.height, settings.per_texel_subsamples);
+        texel_receivers = sh_texel_receivers(*atlas_scene, texels, settings.transfer.receiver_meshes);
+    }
+
     GpuContext gpu(settings.device);
     const Tracer tracer(scene);
-    ShTransferBaker baker(scene, tracer, settings.transfer);
+    ShTransferBaker baker(scene, tracer, settings.transfer, texel_receivers.points);
     const double prepare_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
     nlohmann::json settings_json = {
@@ -70,11 +155,41 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
         {"max_passes", settings.stop.max_passes},
         {"target_error", settings.stop.target_error},
         {"time_limit", settings.stop.time_limit},
+        {"per_texel", settings.per_texel},
     };
-    emit({{"event", "start"}, {"vendor", gpu.info().vendor}, {"renderer", gpu.info().renderer},
+    nlohmann::json per_texel_json;
+    if (settings.per_texel) {
+        per_texel_json = {
+            {"file", "sh_transfer.exr"},
+            {"atlas", {{"width", atlas.width}, {"height", atlas.height}, {"texel_density", atlas.texel_density},
+                       {"generated", atlas.generated}, {"charts", atlas.charts}, {"utilisation", atlas.utilisation}}},
+            {"subsamples_per_texel", settings.per_texel_subsamples * settings.per_texel_subsamples},
+            {"covered_texels", texels.covered_count()},
+            {"sample_points", texels.samples.size()},
+            {"traced_points", texel_receivers.points.size()},
+        };
+        settings_json["per_texel_atlas"] = per_texel_json["atlas"];
+        settings_json["per_texel_subsamples"] = settings.per_texel_subsamples;
+    }
+    nlohmann::json start_event = {{"event", "start"}, {"vendor", gpu.info().vendor}, {"renderer", gpu.info().renderer},
           {"vertices", scene.positions.size()}, {"unique_vertices", baker.unique_vertices()},
           {"receiver_vertices", baker.receiver_vertices()}, {"triangles", scene.triangle_count()},
-          {"prepare_seconds", prepare_seconds}, {"settings", settings_json}});
+          {"prepare_seconds", prepare_seconds}, {"settings", settings_json}};
+    if (settings.per_texel) {
+        start_event["texels"] = texels.covered_count();
+        start_event["texel_points"] = texel_receivers.points.size();
+    }
+    emit(start_event);
+
+    auto texel_image = [&](const ShVertexTransfer& t, int image_bands, const PassStats& s) {
+        FloatImage image = sh_texel_image(texels, texel_receivers, t.point_coefficients, image_bands);
+        image.string_attributes["lightfarm.renderer"] = gpu.info().renderer;
+        image.string_attributes["lightfarm.settings"] = settings_json.dump();
+        image.number_attributes["lightfarm.pass"] = s.pass;
+        image.number_attributes["lightfarm.bounces"] = settings.transfer.bounces;
+        image.number_attributes["lightfarm.samples_per_point"] = double(baker.samples_per_vertex());
+        return image;
+    };
 
     std::vector<std::string> files;
     const int snapshot_bands = settings.bands == 0 ? kShMaxBands : settings.bands;
@@ -83,13 +198,19 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
         progress["event"] = "progress";
         emit(progress);
         if (snapshot_due) {
+            const ShVertexTransfer t = baker.snapshot();
             const std::string name = snapshot_file_name("sh_transfer", s.pass, "bin");
             write_sh_transfer(settings.out / name,
-                              transfer_by_primitive(scene, baker.snapshot().coefficients, snapshot_bands,
-                                                    settings.transfer.bounces),
+                              transfer_by_primitive(scene, t.coefficients, snapshot_bands, settings.transfer.bounces),
                               ShEncoding::Float32);
             files.push_back(name);
             emit({{"event", "snapshot"}, {"file", name}, {"pass", s.pass}});
+            if (settings.per_texel) {
+                const std::string exr = snapshot_file_name("sh_transfer", s.pass, "exr");
+                write_exr(settings.out / exr, texel_image(t, snapshot_bands, s));
+                files.push_back(exr);
+                emit({{"event", "snapshot"}, {"file", exr}, {"pass", s.pass}});
+            }
         }
     });
 
@@ -112,6 +233,18 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
     files.push_back("sh_transfer.half.bin");
     write_sh_glb(settings.scene, scene, transfer.coefficients, bands, settings.out / "scene.sh.glb");
     files.push_back("scene.sh.glb");
+    if (settings.per_texel) {
+        write_exr(settings.out / "sh_transfer.exr", texel_image(transfer, bands, final_stats));
+        files.push_back("sh_transfer.exr");
+        if (atlas.generated) {
+            write_lightmapped_glb(settings.scene, *atlas_scene, settings.out / "scene.lightmapped.glb");
+            files.push_back("scene.lightmapped.glb");
+        }
+        nlohmann::json channels = nlohmann::json::array();
+        for (int c = 0; c < bands * bands; ++c) channels.push_back("sh." + std::to_string(c));
+        channels.push_back("coverage");
+        per_texel_json["channels"] = channels;
+    }
     nlohmann::json env_json;
     if (environment) {
         EnvironmentSh sh = project_environment(*environment, settings.window, bands);
@@ -142,6 +275,7 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
         {"unique_vertices", baker.unique_vertices()},
         {"receiver_vertices", baker.receiver_vertices()},
         {"total_seconds", seconds},
+        {"per_texel", settings.per_texel ? per_texel_json : nlohmann::json(false)},
         {"compact", {{"file", "sh_transfer.half.bin"}, {"encoding", "float16"}, {"bytes", half_bytes.size()},
                      {"float32_bytes", exact_bytes.size()},
                      {"error", compact_error(file, decode_sh_transfer(half_bytes, "sh_transfer.half.bin"))}}},
@@ -153,6 +287,10 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
             : f == "sh_transfer.half.bin" ? "per-vertex SH transfer, float16"
             : f == "scene.sh.glb"         ? "the input scene with _SH_TRANSFER_k VEC4 vertex attributes"
             : f == "env_sh.json"          ? "the environment's SH coefficients (16 RGB), with its window"
+            : f == "sh_transfer.exr"      ? "per-texel SH transfer in the lightmap atlas: channels sh.0 … sh.{bands²-1} "
+                                            "(coefficient l(l+1)+m), coverage; dilated past chart borders"
+            : f == "scene.lightmapped.glb" ? "the input scene with TEXCOORD_1 = the generated atlas (of sh_transfer.exr)"
+            : f.ends_with(".exr")         ? "intermediate per-texel SH transfer snapshot"
                                           : "intermediate SH transfer snapshot (float32)";
     }
     manifest["files"]["manifest.json"] = "this file";

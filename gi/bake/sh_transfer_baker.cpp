@@ -47,7 +47,8 @@ VertexKey key_of(glm::vec3 p, glm::vec3 n) {
 
 }  // namespace
 
-ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const ShTransferSettings& settings)
+ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const ShTransferSettings& settings,
+                                 const std::vector<ShReceiverPoint>& points)
     : scene_(scene),
       settings_(settings),
       tracer_(&tracer),
@@ -59,7 +60,7 @@ ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const
                                     ", not " + std::to_string(settings_.bounces));
     if (settings_.near < 0.0f || settings_.far < 0.0f || (settings_.far > 0.0f && settings_.far <= settings_.near))
         throw std::invalid_argument("SH transfer: need 0 <= near < far (far 0 = unlimited)");
-    build_vertices(scene);
+    build_receivers(scene, points);
     build_occluders(scene);
     const char* renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
     software_renderer_ = renderer && (std::strstr(renderer, "llvmpipe") || std::strstr(renderer, "softpipe"));
@@ -67,8 +68,9 @@ ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const
 
 ShTransferBaker::~ShTransferBaker() = default;
 
-void ShTransferBaker::build_vertices(const Scene& scene) {
-    // Receivers first, so a pass dispatches over 0 .. receiver_count_-1.
+void ShTransferBaker::build_receivers(const Scene& scene, const std::vector<ShReceiverPoint>& points) {
+    // Receivers first (vertices, then the extra points), so a pass dispatches
+    // over 0 .. receiver_count_-1.
     std::vector<bool> receives(scene.positions.size(), false);
     for (const PrimitiveInstance& inst : scene.instances)
         if (contains(settings_.receiver_meshes, inst.mesh))
@@ -89,7 +91,17 @@ void ShTransferBaker::build_vertices(const Scene& scene) {
             data.push_back(glm::vec4(scene.positions[v], 0.0f));
             data.push_back(glm::vec4(n, 0.0f));
         }
-        if (pass == 0) receiver_count_ = unique_normal_.size();
+        if (pass == 0) {
+            receiver_vertex_count_ = unique_normal_.size();
+            for (const ShReceiverPoint& r : points) {
+                const glm::vec3 n = glm::normalize(r.normal);
+                unique_normal_.push_back(n);
+                data.push_back(glm::vec4(r.position, 0.0f));
+                data.push_back(glm::vec4(n, 0.0f));
+            }
+            point_count_ = points.size();
+            receiver_count_ = unique_normal_.size();
+        }
     }
     unique_count_ = unique_normal_.size();
     vertices_ = GpuBuffer(data);
@@ -226,6 +238,10 @@ ShVertexTransfer ShTransferBaker::snapshot() const {
         error[u] = e;
     }
     ShVertexTransfer out;
+    out.point_coefficients.assign(total.begin() + std::ptrdiff_t(receiver_vertex_count_),
+                                  total.begin() + std::ptrdiff_t(receiver_count_));
+    out.point_standard_error.assign(error.begin() + std::ptrdiff_t(receiver_vertex_count_),
+                                    error.begin() + std::ptrdiff_t(receiver_count_));
     out.coefficients.resize(unique_of_vertex_.size());
     out.standard_error.resize(unique_of_vertex_.size());
     out.traced.resize(unique_of_vertex_.size());

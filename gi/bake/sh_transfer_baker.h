@@ -35,22 +35,38 @@ struct ShTransferSettings {
     static constexpr int kMaxBounces = 4;
 };
 
+// A receiver that is not a Scene vertex: a lightmap texel's sample point
+// (--sh-per-texel). It is traced exactly as a receiver vertex is: same
+// directions, same occluders, same bounces (which read the vertices' transfer
+// where a ray lands).
+struct ShReceiverPoint {
+    glm::vec3 position;
+    glm::vec3 normal;  // unit
+};
+
 // Transfer per Scene vertex (16 coefficients each, index l(l+1)+m), with the
-// standard error of each coefficient's estimate.
+// standard error of each coefficient's estimate, and the same for every extra
+// receiver point given to the baker, in its order.
 struct ShVertexTransfer {
     std::vector<ShCoefficients> coefficients;
     std::vector<ShCoefficients> standard_error;
     std::vector<bool> traced;  // false: not a receiver (unoccluded transfer)
+    std::vector<ShCoefficients> point_coefficients;
+    std::vector<ShCoefficients> point_standard_error;
 };
 
 class ShTransferBaker : public ProgressiveMethod {
 public:
     // `tracer` is the whole scene's BVH (shared by a bake's methods). With
     // occluder_meshes set, the baker builds its own BVH of those meshes instead.
-    ShTransferBaker(const Scene& scene, const Tracer& tracer, const ShTransferSettings& settings);
+    // `points`: extra receivers beyond the scene's vertices (texel samples);
+    // every one is traced (the caller applies receiver_meshes to them).
+    ShTransferBaker(const Scene& scene, const Tracer& tracer, const ShTransferSettings& settings,
+                    const std::vector<ShReceiverPoint>& points = {});
     ~ShTransferBaker() override;
 
-    // One pass: samples_per_pass rays per unique receiver vertex. The error
+    // One pass: samples_per_pass rays per unique receiver vertex and per
+    // extra receiver point. The error
     // estimate is the relative standard error of the transfer vectors:
     // sqrt(Σ_v Σ_i Var(T_vi) / Σ_v Σ_i T_vi²) (iid variance: an upper bound
     // for the stratified directions used).
@@ -58,12 +74,13 @@ public:
 
     ShVertexTransfer snapshot() const;
 
-    size_t unique_vertices() const { return unique_count_; }
-    size_t receiver_vertices() const { return receiver_count_; }
+    size_t unique_vertices() const { return unique_count_ - point_count_; }
+    size_t receiver_vertices() const { return receiver_vertex_count_; }
+    size_t receiver_points() const { return point_count_; }
     uint64_t samples_per_vertex() const { return uint64_t(stats_.pass) * uint64_t(settings_.samples_per_pass); }
 
 private:
-    void build_vertices(const Scene& scene);
+    void build_receivers(const Scene& scene, const std::vector<ShReceiverPoint>& points);
     void build_occluders(const Scene& scene);
 
     const Scene& scene_;
@@ -71,10 +88,14 @@ private:
     std::unique_ptr<Tracer> own_tracer_;  // occluder subset only
     const Tracer* tracer_ = nullptr;
 
-    // Scene vertex -> unique vertex. Receivers come first: 0 .. receiver_count_-1.
+    // Every receiver, one list, one path through the shaders: unique receiver
+    // vertices [0, receiver_vertex_count_), then the extra points
+    // [receiver_vertex_count_, receiver_count_), which together are the traced
+    // range, then the unique vertices that do not receive [receiver_count_, unique_count_).
+    // Scene vertex -> its unique entry.
     std::vector<uint32_t> unique_of_vertex_;
     std::vector<glm::vec3> unique_normal_;
-    size_t unique_count_ = 0, receiver_count_ = 0;
+    size_t unique_count_ = 0, receiver_count_ = 0, receiver_vertex_count_ = 0, point_count_ = 0;
 
     ComputeProgram transfer_;
     ComputeProgram resolve_;

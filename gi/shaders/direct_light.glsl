@@ -16,6 +16,16 @@ layout(std430, binding = 8) readonly buffer PunctualLights { vec4 punctual_light
 uniform uint emitter_count;
 uniform uint punctual_count;
 
+// How emitters are sampled (compile-time, LF_LIGHT_SAMPLING):
+//   0 (default): MIS of solid-angle sampling and the indirect pass's cosine ray
+//   1: area sampling alone (thesis eq. 3.12)
+//   2: solid-angle sampling alone (Arvo 1995; the thesis's future work, §6.3)
+// Solid-angle sampling falls back to area sampling for triangles too small
+// (or too far) to subtend a stable solid angle.
+#ifndef LF_LIGHT_SAMPLING
+#define LF_LIGHT_SAMPLING 0
+#endif
+
 const uint LIGHT_POINT = 0u;
 const uint LIGHT_SPOT = 1u;
 const uint LIGHT_DIRECTIONAL = 2u;
@@ -47,6 +57,55 @@ float light_pdf_solid_angle(float area_pdf, float dist2, float cos_y) {
     return cos_y > 0.0 ? area_pdf * dist2 / cos_y : 0.0;
 }
 
+// The solid angle triangle (A, B, C) subtends from x: its spherical excess.
+// 0 when too small or too degenerate to sample stably (callers then sample by
+// area; sampler and density use this one test, so they always agree).
+float spherical_triangle_solid_angle(vec3 x, vec3 A, vec3 B, vec3 C) {
+    vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
+    vec3 n_ab = cross(a, b), n_bc = cross(b, c), n_ca = cross(c, a);
+    if (dot(n_ab, n_ab) < 1e-12 || dot(n_bc, n_bc) < 1e-12 || dot(n_ca, n_ca) < 1e-12) return 0.0;
+    n_ab = normalize(n_ab); n_bc = normalize(n_bc); n_ca = normalize(n_ca);
+    float alpha = acos(clamp(-dot(n_ab, n_ca), -1.0, 1.0));
+    float beta = acos(clamp(-dot(n_bc, n_ab), -1.0, 1.0));
+    float gamma = acos(clamp(-dot(n_ca, n_bc), -1.0, 1.0));
+    float area = alpha + beta + gamma - PI;
+    return area > 1e-5 ? area : 0.0;
+}
+
+// A direction uniform in solid angle within the spherical triangle that
+// (A, B, C) subtends from x, whose solid angle `area` is > 0 (Arvo 1995,
+// "Stratified Sampling of Spherical Triangles").
+vec3 sample_spherical_triangle(vec3 x, vec3 A, vec3 B, vec3 C, float area, vec2 u) {
+    vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
+    vec3 n_ab = normalize(cross(a, b)), n_ca = normalize(cross(c, a));
+    float alpha = acos(clamp(-dot(n_ab, n_ca), -1.0, 1.0));
+    // The sub-triangle of solid angle u.x * area: its third vertex c_hat on the arc a..c.
+    float area_hat = u.x * area;
+    float s = sin(area_hat - alpha), t = cos(area_hat - alpha);
+    float cos_c = dot(a, b);
+    float uu = t - cos(alpha), vv = s + sin(alpha) * cos_c;
+    float q = clamp(((vv * t - uu * s) * cos(alpha) - vv) / ((vv * s + uu * t) * sin(alpha)), -1.0, 1.0);
+    vec3 c_hat = q * a + sqrt(max(0.0, 1.0 - q * q)) * normalize(c - dot(c, a) * a);
+    // Then uniformly in z = cos along the arc from b to c_hat.
+    float z = 1.0 - u.y * (1.0 - dot(c_hat, b));
+    vec3 perp = c_hat - dot(c_hat, b) * b;
+    if (dot(perp, perp) < 1e-14) return b;
+    return normalize(z * b + sqrt(max(0.0, 1.0 - z * z)) * normalize(perp));
+}
+
+// Density over solid angle with which emitter sampling reaches emitter e
+// (chosen with probability pdf_choose) from x, at distance² dist2 and
+// cosine cos_y on the emitter: by solid angle where the triangle's solid
+// angle is usable, by area (eq. 3.12) elsewhere and in LF_LIGHT_SAMPLING 1.
+float emitter_pdf(uint e, vec3 x, float dist2, float cos_y) {
+    vec4 a = emitters[4u * e], b = emitters[4u * e + 1u], c = emitters[4u * e + 2u];
+#if LF_LIGHT_SAMPLING != 1
+    float omega = spherical_triangle_solid_angle(x, a.xyz, b.xyz, c.xyz);
+    if (omega > 0.0) return b.w / omega;
+#endif
+    return light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
+}
+
 // One emitter sample's MIS-weighted contribution to E at x. Without the
 // cosine strategy (a path vertex whose next ray does not count emission),
 // it is plain area sampling, eq. 3.12.
@@ -55,9 +114,21 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
     if (emitter_count == 0u) return vec3(0.0);
     uint e = choose_emitter(u_choose.x);
     vec4 a = emitters[4u * e], b = emitters[4u * e + 1u], c = emitters[4u * e + 2u], le = emitters[4u * e + 3u];
-    vec2 bary = sample_triangle(u_point);
-    vec3 y = (1.0 - bary.x - bary.y) * a.xyz + bary.x * b.xyz + bary.y * c.xyz;
     vec3 ny = normalize(cross(b.xyz - a.xyz, c.xyz - a.xyz));
+    vec3 y;
+    float omega = 0.0;
+#if LF_LIGHT_SAMPLING != 1
+    omega = spherical_triangle_solid_angle(x, a.xyz, b.xyz, c.xyz);
+#endif
+    if (omega > 0.0) {
+        vec3 dir = sample_spherical_triangle(x, a.xyz, b.xyz, c.xyz, omega, u_point);
+        float along = dot(dir, ny);
+        if (abs(along) < 1e-12) return vec3(0.0);  // grazing: no light, and a measure-zero event
+        y = x + dir * (dot(a.xyz - x, ny) / along);  // where the direction meets the emitter's plane
+    } else {
+        vec2 bary = sample_triangle(u_point);
+        y = (1.0 - bary.x - bary.y) * a.xyz + bary.x * b.xyz + bary.y * c.xyz;
+    }
     vec3 d = y - x;
     float dist2 = dot(d, d);
     if (dist2 <= 0.0) return vec3(0.0);
@@ -67,7 +138,10 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
     if (le.w == 0.0 && cos_y <= 0.0) return vec3(0.0);  // one-sided emitters light their front only
     cos_y = abs(cos_y);
     if (cos_x <= 0.0 || cos_y <= 0.0) return vec3(0.0);
-    float pdf_light = light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
+    float pdf_light = omega > 0.0 ? b.w / omega : light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
+#if LF_LIGHT_SAMPLING != 0
+    cosine_strategy = false;  // light sampling alone
+#endif
     // Stop just short of the light's surface so the light does not occlude itself.
     if (trace_occluded(origin, y - origin, 0.9999)) return vec3(0.0);
     return le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);

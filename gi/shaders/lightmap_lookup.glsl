@@ -11,7 +11,7 @@ layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]
 // Per scene triangle, what a ray that lands on it needs:
 //   (uv1 of vertex 0, uv1 of vertex 1),
 //   (uv1 of vertex 2, flags bits, area density with which emitter sampling picks its points (0: not an emitter)),
-//   (emitted radiance rgb, 0),
+//   (emitted radiance rgb, emitter index bits (if it emits)),
 //   (albedo rgb at the centroid, 0): for the path-tracing baseline, which reads no map.
 layout(std430, binding = 6) readonly buffer SurfaceTriangles { vec4 surface_triangles[]; };
 
@@ -39,6 +39,8 @@ bool hit_is_double_sided(Hit hit) {
 float hit_emitter_area_pdf(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].w; }
 
 vec3 hit_emission(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 2u].rgb; }
+
+uint hit_emitter_index(Hit hit) { return floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 2u].w); }
 
 vec3 hit_albedo(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 3u].rgb; }
 

@@ -98,12 +98,13 @@ void main() {
 #else
             indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
 #endif
-            // Landing on an emitter: its light, MIS-weighted against emitter sampling.
-            float area_pdf = hit_emitter_area_pdf(hit);
+            // Landing on an emitter: its light, MIS-weighted against emitter
+            // sampling (which alone counts emitters when LF_LIGHT_SAMPLING != 0).
+            float area_pdf = LF_LIGHT_SAMPLING == 0 ? hit_emitter_area_pdf(hit) : 0.0;
             if (area_pdf > 0.0) {
                 float cos_x = dot(n, dir);
                 float cos_y = abs(dot(normalize(hit.normal), dir));
-                float pdf_light = light_pdf_solid_angle(area_pdf, hit.t * hit.t, cos_y);
+                float pdf_light = emitter_pdf(hit_emitter_index(hit), x, hit.t * hit.t, cos_y);
                 direct += hit_emission(hit) * cos_x * mis_weight(pdf_light, cos_x / PI, float(light_samples));
             }
         } else {

@@ -21,7 +21,8 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 #endif
 #define LF_SH_BLOCKS (LF_SH_BOUNCES + 1)
 
-// Per unique vertex: (position, 0), (unit normal, 0).
+// Per receiver (unique vertex or extra point, e.g. a texel sample; see
+// ShTransferBaker): (position, 0), (unit normal, 0).
 layout(std430, binding = 2) readonly buffer ShVertices { vec4 sh_vertices[]; };
 // Per unique vertex: LF_SH_BLOCKS x 4 vec4 sums (T^0, T^1 …), then 4 vec4
 // sums of squares of the per-ray estimate (all blocks together).
