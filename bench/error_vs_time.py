@@ -1,10 +1,17 @@
 #!/usr/bin/env python3
-"""Speed against accuracy: bakes the Cornell box with each progressive scheme
-at several resolutions, measures every snapshot (passes 1, 2, 4, …) against
-the Blender Cycles reference, writes a CSV and draws error-versus-time with
-gnuplot (one curve per scheme and resolution).
+"""Speed against accuracy: bakes a scene with each progressive scheme at
+several resolutions, measures every snapshot (passes 1, 2, 4, …) against a
+reference, writes a CSV and draws error-versus-time with gnuplot (one curve
+per scheme and resolution).
 
     bench/error_vs_time.py [--res 64 128 256 512] [--passes 1024] [--out bench/out]
+    bench/error_vs_time.py --scene monkey.glb --reference-passes 4096 --res 64
+
+The Cornell box is measured against the Blender Cycles reference of
+shared/scenes; any other scene against the project's own brute-force path
+tracer (--scheme pathtrace) at --reference-passes, baked first at each
+resolution (DESIGN.md: a reference is analytic, an independent renderer, or
+our path tracer at high sample count).
 
 The bake time is lightfarm's own per-pass time (`seconds` in each snapshot's
 header), without process start-up or file writing.
@@ -26,16 +33,33 @@ def run(cmd):
     return subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
 
 
-def bake_and_measure(scheme, res, passes, out, device):
-    d = os.path.join(out, f"cornell-{scheme}-{res}")
-    lines = run([LIGHTFARM, "bake", os.path.join(SCENES, "cornell_box.gltf"), "--out", d, "--res", str(res),
+def stem(scene):
+    return os.path.splitext(os.path.basename(scene))[0]
+
+
+def bake(scene, scheme, res, passes, out_dir, device):
+    lines = run([LIGHTFARM, "bake", os.path.join(SCENES, scene), "--out", out_dir, "--res", str(res),
                  "--passes", str(passes), "--scheme", scheme, "--device", device, "--json"]).splitlines()
-    start = json.loads(lines[0])
+    return json.loads(lines[0])
+
+
+def reference_for(scene, res, reference_passes, out, device):
+    """(reference EXR, mask or None) to measure a bake of `scene` at `res` against."""
+    if scene == "cornell_box.gltf":
+        return os.path.join(SCENES, "cornell_box.ref256.exr"), os.path.join(SCENES, "cornell_box.mask256.pfm")
+    d = os.path.join(out, f"{stem(scene)}-reference-{res}")
+    bake(scene, "pathtrace", res, reference_passes, d, device)
+    return os.path.join(d, "lightmap.exr"), None
+
+
+def bake_and_measure(scene, scheme, res, passes, out, device, reference):
+    d = os.path.join(out, f"{stem(scene)}-{scheme}-{res}")
+    start = bake(scene, scheme, res, passes, d, device)
+    ref_exr, mask = reference
     rows = []
     for f in sorted(glob.glob(os.path.join(d, "lightmap.pass-*.exr"))):
-        e = json.loads(run([LIGHTFARM, "compare", f, os.path.join(SCENES, "cornell_box.ref256.exr"),
-                            "--mask", os.path.join(SCENES, "cornell_box.mask256.pfm")]))
-        rows.append({"scheme": scheme, "res": res, "pass": int(e["pass"]), "rays": int(e["rays"]),
+        e = json.loads(run([LIGHTFARM, "compare", f, ref_exr] + (["--mask", mask] if mask else [])))
+        rows.append({"scene": stem(scene), "scheme": scheme, "res": res, "pass": int(e["pass"]), "rays": int(e["rays"]),
                      "seconds": e["seconds"], "relative_rmse": e["relative_rmse"], "bias": e["bias"],
                      "error_estimate": e["errorEstimate"], "renderer": start["renderer"]})
     return rows
@@ -46,29 +70,35 @@ def bake_and_measure(scheme, res, passes, out, device):
 CYCLES_256 = [(0.83, 0.201), (2.88, 0.0948), (9.14, 0.0453), (38.8, 0.0226), (155, 0.0118)]
 
 
-def plot(csv_path, png_path, series):
+def plot(csv_path, png_path, series, scene):
     script = [
         "set terminal pngcairo size 1000,700",
         f"set output '{png_path}'",
         "set datafile separator ','",
         "set logscale xy",
         "set xlabel 'bake seconds'",
-        "set ylabel 'relative RMSE vs Cycles (32768 spp)'",
+        "set ylabel '%s'" % ("relative RMSE vs Cycles (32768 spp)" if scene == "cornell_box.gltf"
+                             else "relative RMSE vs lightfarm path tracing"),
+        f"set title '{stem(scene)}'",
         "set key outside right",
         "set grid",
     ]
     plots = []
     for scheme, res in series:
-        plots.append(f"'{csv_path}' using (strcol(1) eq '{scheme}' && $2 == {res} ? $5 : 1/0):6 "
+        plots.append(f"'{csv_path}' using (strcol(2) eq '{scheme}' && $3 == {res} ? $6 : 1/0):7 "
                      f"with linespoints title '{scheme} {res}²'")
-    plots.append("'-' using 1:2 with linespoints lw 2 dt 2 title 'Cycles 256² (SOURCES.md)'")
+    if scene == "cornell_box.gltf":
+        plots.append("'-' using 1:2 with linespoints lw 2 dt 2 title 'Cycles 256² (SOURCES.md)'")
     script.append("plot " + ", ".join(plots))
-    script += [f"{t},{e}" for t, e in CYCLES_256] + ["e"]
+    if scene == "cornell_box.gltf":
+        script += [f"{t},{e}" for t, e in CYCLES_256] + ["e"]
     subprocess.run(["gnuplot"], input="\n".join(script), text=True, check=True)
 
 
 def main():
     p = argparse.ArgumentParser()
+    p.add_argument("--scene", default="cornell_box.gltf", help="a file in shared/scenes")
+    p.add_argument("--reference-passes", type=int, default=4096, help="path-tracing passes of a reference")
     p.add_argument("--res", type=int, nargs="+", default=[64, 128, 256, 512])
     p.add_argument("--schemes", nargs="+", default=["epochs", "thesis"])
     p.add_argument("--passes", type=int, default=1024)
@@ -77,20 +107,24 @@ def main():
     p.add_argument("--plot-only", action="store_true", help="redraw the chart from the CSV in --out")
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
-    csv_path = os.path.join(a.out, "cornell_error_vs_time.csv")
+    name = stem(a.scene)
+    csv_path = os.path.join(a.out, f"{name}_error_vs_time.csv")
+    png_path = os.path.join(a.out, f"{name}_error_vs_time.png")
+    series = [(s, r) for r in a.res for s in a.schemes]
     if a.plot_only:
-        plot(csv_path, os.path.join(a.out, "cornell_error_vs_time.png"), [(s, r) for r in a.res for s in a.schemes])
+        plot(csv_path, png_path, series, a.scene)
         return
     rows = []
     for res in a.res:
+        reference = reference_for(a.scene, res, a.reference_passes, a.out, a.device)
         for scheme in a.schemes:
-            rows += bake_and_measure(scheme, res, a.passes, a.out, a.device)
+            rows += bake_and_measure(a.scene, scheme, res, a.passes, a.out, a.device, reference)
             print(f"{scheme} {res}²: {rows[-1]}", file=sys.stderr)
     with open(csv_path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
         w.writeheader()
         w.writerows(rows)
-    plot(csv_path, os.path.join(a.out, "cornell_error_vs_time.png"), [(s, r) for r in a.res for s in a.schemes])
+    plot(csv_path, png_path, series, a.scene)
     print(csv_path)
 
 
