@@ -27,11 +27,15 @@ ensure_packages() {
   fi
 }
 
-# build_tree DIR [cmake options...]: configure once, then build incrementally.
+# build_tree DIR [cmake options...]: configure once, then build incrementally
+# (only $LIGHTFARM_TARGETS when set, e.g. "lightfarmd lightfarm").
 build_tree() {
   local dir="$1"; shift
   if [ ! -f "$dir/CMakeCache.txt" ]; then
     cmake -S "$LIGHTFARM_ROOT" -B "$dir" -DCMAKE_BUILD_TYPE=RelWithDebInfo "$@" >&2
   fi
-  cmake --build "$dir" -j "$(nproc)" >&2
+  local targets=()
+  local t
+  for t in ${LIGHTFARM_TARGETS:-}; do targets+=(--target "$t"); done
+  cmake --build "$dir" -j "$(nproc)" "${targets[@]}" >&2
 }
