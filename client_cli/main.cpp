@@ -36,7 +36,7 @@ commands:
          [--light-samples N] [--light-sampling mis|area|solid-angle] [--no-stitch]
        SH transfer (--sh): [--sh-bands 1..4|auto] [--sh-bounces N] [--env FILE|R,G,B]
          [--sh-window none|hanning|lanczos] [--sh-passes N] [--sh-target-error E]
-         [--sh-time-limit S]
+         [--sh-time-limit S] [--sh-per-texel: transfer per lightmap texel (--res) -> sh_transfer.exr]
                                      bake a radiosity-map lightmap and/or SH transfer
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
@@ -156,7 +156,7 @@ int bake(int argc, char** argv) {
               {"--out", "--res", "--texel-density", "--passes", "--target-error", "--time-limit", "--device",
                "--seed", "--scheme", "--light-samples", "--light-sampling", "--subsamples", "--sh-bands", "--sh-bounces", "--env",
                "--sh-window", "--sh-passes", "--sh-target-error", "--sh-time-limit"},
-              {"--json", "--no-stitch", "--lightmap", "--sh"});
+              {"--json", "--no-stitch", "--lightmap", "--sh", "--sh-per-texel"});
     const std::string scene = one_scene(args, "bake");
     if (!args.has("--out")) throw UsageError("bake needs --out DIR");
     const std::filesystem::path out = args.get("--out");
@@ -216,6 +216,11 @@ int bake(int argc, char** argv) {
     sh.stop.max_passes = whole("--sh-passes", sh.stop.max_passes, 1, 1 << 24);
     sh.stop.target_error = non_negative("--sh-target-error");
     sh.stop.time_limit = non_negative("--sh-time-limit");
+    sh.per_texel = args.flag("--sh-per-texel");
+    if (sh.per_texel && !want_sh) throw UsageError("--sh-per-texel needs --sh");
+    sh.per_texel_resolution = lightmap.resolution;  // --res (0: from --texel-density, or 256)
+    sh.per_texel_density = lightmap.texel_density;  // --texel-density
+    if (args.has("--subsamples")) sh.per_texel_subsamples = lightmap.subsamples_per_axis;
 
     BakeReporter report(args.flag("--json"), want_lightmap ? lightmap.stop.max_passes : sh.stop.max_passes);
     // Both outputs: one "done" at the very end, listing every file, so a

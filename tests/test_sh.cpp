@@ -3,7 +3,9 @@
 #include "gpu_fixture.h"
 #include "scene_builders.h"
 
+#include "atlas/texel_samples.h"
 #include "bake/sh_bake.h"
+#include "io/image_files.h"
 #include "bake/sh_transfer_baker.h"
 #include "scene/gltf_loader.h"
 #include "sh/sh_glb.h"
@@ -280,6 +282,144 @@ TEST(ShTransfer, BouncesAddLightFromSurfacesTheRaysHit) {
                 bounced.coefficients[centre][0]);
 }
 
+// Interreflection against a closed form: a tiny upward patch under a
+// downward-facing rectangle of albedo rho, nothing else. The rectangle's
+// underside sees an open sky below (the patch is negligible), so its shadowed
+// transfer is exactly unoccluded, T_0 = sqrt(pi)/2; a ray from the patch that
+// hits it brings back rho·sqrt(pi)/2 instead of sqrt(pi)/2, and the second
+// bounce brings back (nearly) nothing: the rectangle sees only the patch.
+//   T_0 = sqrt(pi)/2 · (1 − F) + rho · sqrt(pi)/2 · F = sqrt(pi)/2 · (1 − (1 − rho) F)
+// with F the point-to-rectangle form factor.
+TEST(ShTransfer, BounceOffAnOpenRectangleMatchesClosedForm) {
+    Scene s;
+    const float rho = 0.6f;
+    const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
+    const uint32_t wall = test::add_material(s, glm::vec3(rho));
+    test::add_quad(s, {-0.005f, 0, 0.005f}, {0.01f, 0, 0}, {0, 0, -0.01f}, grey);  // patch, facing up
+    const double x0 = -0.5, x1 = 0.5, z0 = -0.25, z1 = 1.25, h = 1.0;
+    test::add_quad(s, {float(x0), float(h), float(z0)}, {float(x1 - x0), 0, 0}, {0, 0, float(z1 - z0)}, wall);  // facing down
+    ASSERT_LT(s.normals[4].y, -0.99f);
+    const int passes = 32, per_pass = 64;
+    const ShVertexTransfer shadowed = bake_transfer(s, passes, settings(per_pass));
+    const ShVertexTransfer bounced = bake_transfer(s, passes, settings(per_pass, 2));
+    for (size_t v = 0; v < 4; ++v) {
+        const glm::vec3 p = s.positions[v];
+        const double f = rectangle_form_factor(p.x, p.z, x0, x1, z0, z1, h);
+        ASSERT_GT(f, 0.1);
+        // Bounce 1 starts a pass late: (passes − 1) · per_pass of its rays.
+        const double n = double(passes - 1) * per_pass;
+        const double sigma = kSqrtPiOver2 * std::sqrt(f * (1.0 - f) / n);
+        EXPECT_NEAR(shadowed.coefficients[v][0], kSqrtPiOver2 * (1.0 - f), 4.0 * sigma + 2e-3) << "vertex " << v;
+        EXPECT_NEAR(bounced.coefficients[v][0], kSqrtPiOver2 * (1.0 - (1.0 - rho) * f), 4.0 * (1.0 + rho) * sigma + 2e-3)
+            << "vertex " << v << " (F = " << f << ")";
+        if (v == 0)
+            std::printf("  open rectangle: F = %.4f, T_0 %.4f shadowed (exact %.4f), %.4f with 2 bounces (exact %.4f)\n", f,
+                        shadowed.coefficients[v][0], kSqrtPiOver2 * (1.0 - f), bounced.coefficients[v][0],
+                        kSqrtPiOver2 * (1.0 - (1.0 - rho) * f));
+    }
+    // The rectangle's own vertices: an open sky below, so unoccluded (exact for T_0).
+    for (size_t v = 4; v < 8; ++v) EXPECT_NEAR(bounced.coefficients[v][0], kSqrtPiOver2, 1e-3);
+}
+
+// ------------------------------------------------------------ per texel ----
+
+struct TexelBake {
+    TexelSamples texels;
+    ShTexelReceivers receivers;
+    ShVertexTransfer transfer;
+    FloatImage image;
+};
+
+TexelBake bake_texels(const Scene& s, int width, int height, int passes, const ShTransferSettings& st) {
+    TexelBake b;
+    b.texels = rasterize_texel_samples(s, width, height, 1);
+    b.receivers = sh_texel_receivers(s, b.texels, st.receiver_meshes);
+    gpu();
+    const Tracer tracer(s);
+    ShTransferBaker baker(s, tracer, st, b.receivers.points);
+    for (int p = 0; p < passes; ++p) baker.step();
+    b.transfer = baker.snapshot();
+    b.image = sh_texel_image(b.texels, b.receivers, b.transfer.point_coefficients, kShMaxBands);
+    return b;
+}
+
+// An unoccluded plane's texels (open sky: with bounces too, since no ray
+// hits anything) have the unoccluded transfer; the chart is dilated by its
+// border ring and nothing beyond.
+TEST(ShPerTexel, UnoccludedPlaneTexelsAreUnoccluded) {
+    Scene s;
+    // 2 x 2 m, facing up, in the middle half of a 16 x 16 atlas: texels 4 .. 11.
+    // (Away from the cube [-1, 1]³: with two triangles the BVH root is one leaf
+    // and its "empty" second child, lo = (1,1,1) > hi = (-1,-1,-1), is entered
+    // by rays that cross that cube, since the slab test swaps lo and hi; it
+    // points back at the root and traversal loops (gi/trace/bvh.cpp, reported).)
+    test::add_quad(s, {2, 3.7f, 1}, {2, 0, 0}, {0, 0, -2}, test::add_material(s, glm::vec3(0.5f)),
+                   glm::vec4(0.25f, 0.25f, 0.75f, 0.75f));
+    ASSERT_GT(s.normals[0].y, 0.99f);
+    for (int bounces : {0, 2}) {
+        const TexelBake b = bake_texels(s, 16, 16, 4, settings(64, bounces));
+        ASSERT_EQ(b.texels.covered_count(), 64u);
+        ASSERT_EQ(b.transfer.point_coefficients.size(), b.texels.samples.size());
+        EXPECT_EQ(b.transfer.coefficients.size(), s.positions.size());
+        const ShCoefficients expected = unoccluded_transfer({0, 1, 0});
+        for (size_t k = 0; k < b.transfer.point_coefficients.size(); ++k)
+            for (int i = 0; i < kShMaxCoefficients; ++i)
+                EXPECT_NEAR(b.transfer.point_coefficients[k][i], expected[i], 5.0 * b.transfer.point_standard_error[k][i] + 1e-4)
+                    << "point " << k << " coefficient " << i << " bounces " << bounces;
+        const std::vector<float>& t0 = b.image.at("sh.0");
+        const std::vector<float>& coverage = b.image.at("coverage");
+        for (uint32_t pixel : b.texels.texels) {
+            EXPECT_NEAR(t0[pixel], kSqrtPiOver2, 1e-5) << "texel " << pixel << " bounces " << bounces;
+            EXPECT_EQ(coverage[pixel], 1.0f);
+        }
+        // Dilated: the ring just outside the chart copies it; far corners stay empty.
+        EXPECT_NEAR(t0[8 * 16 + 3], kSqrtPiOver2, 1e-5);
+        EXPECT_EQ(coverage[8 * 16 + 3], 0.0f);
+        EXPECT_EQ(t0[0], 0.0f);
+    }
+}
+
+// The vertex test's floor under a parallel rectangle, per texel: each texel
+// is the mean of its sample points' sqrt(pi)/2 · (1 − F).
+TEST(ShPerTexel, FloorUnderParallelRectangleMatchesFormFactor) {
+    Scene s;
+    const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
+    // 4 x 4 m floor in the left half of a 32 x 16 atlas (0.25 m texels), the
+    // 1 x 1.5 m rectangle 1 m above it in the right half.
+    test::add_quad(s, {-2, 0, 2}, {4, 0, 0}, {0, 0, -4}, grey, glm::vec4(0.0f, 0.0f, 0.5f, 1.0f));
+    const double x0 = -0.5, x1 = 0.5, z0 = -0.25, z1 = 1.25, h = 1.0;
+    test::add_quad(s, {float(x0), float(h), float(z0)}, {0, 0, float(z1 - z0)}, {float(x1 - x0), 0, 0}, grey,
+                   glm::vec4(0.5f, 0.0f, 1.0f, 1.0f));
+    const int passes = 16, per_pass = 64, n = passes * per_pass;
+    const TexelBake b = bake_texels(s, 32, 16, passes, settings(per_pass));
+    const std::vector<float>& t0 = b.image.at("sh.0");
+    int checked = 0, shadowed = 0;
+    double worst_sigmas = 0.0;
+    for (size_t i = 0; i < b.texels.covered_count(); ++i) {
+        double expected = 0.0, f_mean = 0.0;
+        bool floor = true;
+        const uint32_t first = b.texels.first_sample[i], count = b.texels.sample_count(i);
+        for (uint32_t k = first; k < first + count; ++k) {
+            const TexelSample& sample = b.texels.samples[k];
+            floor = floor && sample.triangle < 2;
+            const double f = rectangle_form_factor(sample.position.x, sample.position.z, x0, x1, z0, z1, h);
+            expected += kSqrtPiOver2 * (1.0 - f) / count;
+            f_mean += f / count;
+        }
+        if (!floor) continue;
+        const double sigma = kSqrtPiOver2 * std::sqrt(f_mean * (1.0 - f_mean) / n);
+        EXPECT_NEAR(t0[b.texels.texels[i]], expected, 4.0 * sigma + 2e-3)
+            << "floor texel " << b.texels.texels[i] << " (F = " << f_mean << ")";
+        ++checked;
+        shadowed += f_mean > 0.1;
+        if (sigma > 0.0) worst_sigmas = std::max(worst_sigmas, std::abs(t0[b.texels.texels[i]] - expected) / sigma);
+    }
+    std::printf("  per texel: %d floor texels (%d with F > 0.1), %zu sample points, worst error %.2f sigma\n", checked,
+                shadowed, b.texels.samples.size(), worst_sigmas);
+    EXPECT_EQ(checked, 256);
+    EXPECT_GT(shadowed, 20);
+}
+
 // -------------------------------------------------------------- shading ----
 
 double relative_rms(const std::vector<glm::vec3>& a, const std::vector<glm::vec3>& reference) {
@@ -474,6 +614,55 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
     const nlohmann::json shaded_bin = shade_sh_glb(out / "sh_transfer.bin", "1,1,1", out / "shaded_bin.glb", from_bin_options);
     // Under a white sky E/pi is the unoccluded fraction: at most 1.
     EXPECT_LE(shaded_bin["max_e_over_pi"].get<double>(), 1.0 + 1e-3);
+    std::filesystem::remove_all(out);
+}
+
+// The whole bake with --sh-per-texel: sh_transfer.exr with the documented
+// channels and the atlas's size, its snapshots, the manifest and done event.
+// (In the ShBake suite, after every test that uses the shared GL context:
+// bake_sh makes its own context, and the shared one is not current after it.)
+TEST(ShBake, PerTexelWritesTheTransferExr) {
+    const std::filesystem::path out =
+        std::filesystem::temp_directory_path() / ("lightfarm_sh_texel_" + std::to_string(::getpid()));
+    std::filesystem::remove_all(out);
+    gpu();
+    ShBakeSettings settings;
+    settings.scene = test::shared_scene("monkey.glb");
+    settings.out = out;
+    settings.bands = 2;
+    settings.per_texel = true;
+    settings.per_texel_resolution = 128;
+    settings.transfer.samples_per_pass = 16;
+    settings.stop.max_passes = 2;
+    const nlohmann::json done = bake_sh(settings, [](const nlohmann::json&) {});
+    const std::vector<std::string> files = done["files"];
+    for (const char* f : {"sh_transfer.exr", "sh_transfer.pass-0001.exr", "sh_transfer.pass-0002.exr", "sh_transfer.bin"})
+        EXPECT_NE(std::find(files.begin(), files.end(), f), files.end()) << f;
+    const FloatImage image = read_exr(out / "sh_transfer.exr");
+    EXPECT_EQ(image.width, 128);
+    EXPECT_EQ(image.height, 128);
+    std::vector<std::string> channels;
+    for (const auto& [name, values] : image.channels) channels.push_back(name);
+    EXPECT_EQ(channels, (std::vector<std::string>{"coverage", "sh.0", "sh.1", "sh.2", "sh.3"}));
+    const std::vector<float>& coverage = image.at("coverage");
+    const std::vector<float>& t0 = image.at("sh.0");
+    size_t covered = 0;
+    for (size_t p = 0; p < coverage.size(); ++p)
+        if (coverage[p] == 1.0f) {
+            ++covered;
+            EXPECT_GE(t0[p], 0.0f);
+            EXPECT_LE(t0[p], kSqrtPiOver2 + 1e-3);
+        }
+    EXPECT_GT(covered, 50u);
+    std::ifstream in(out / "manifest.json");
+    const nlohmann::json manifest = nlohmann::json::parse(in);
+    EXPECT_EQ(manifest["sh"]["per_texel"]["file"], "sh_transfer.exr");
+    EXPECT_EQ(manifest["sh"]["per_texel"]["covered_texels"], covered);
+    EXPECT_EQ(manifest["sh"]["per_texel"]["channels"].size(), 5u);
+    EXPECT_TRUE(manifest["files"].contains("sh_transfer.exr"));
+    if (manifest["sh"]["per_texel"]["atlas"]["generated"].get<bool>()) {
+        EXPECT_TRUE(std::filesystem::exists(out / "scene.lightmapped.glb"));
+    }
     std::filesystem::remove_all(out);
 }
 

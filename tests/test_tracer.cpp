@@ -167,6 +167,39 @@ TEST(Tracer, OcclusionAgreesWithClosestHit) {
     }
 }
 
+// The slab test of trace.glsl, on the CPU.
+bool ray_enters_box(glm::vec3 org, glm::vec3 dir, glm::vec3 lo, glm::vec3 hi) {
+    const glm::vec3 inv = 1.0f / dir;
+    const glm::vec3 t0 = lo * inv - org * inv, t1 = hi * inv - org * inv;
+    const glm::vec3 tn = glm::min(t0, t1), tf = glm::max(t0, t1);
+    return std::max({tn.x, tn.y, tn.z, 0.0f}) <= std::min({tf.x, tf.y, tf.z, 1e30f}) * 1.0000004f;
+}
+
+// A scene of one quad has a single-leaf root whose other child slot is
+// unused: no ray may enter it (its index leads back to the root, and an
+// inverted box is not empty under a min/max slab test: it would loop).
+TEST(Bvh, UnusedChildSlotsAreUnreachable) {
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+    test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);
+    const Bvh bvh = build_bvh(s);
+    ASSERT_EQ(bvh.nodes.size(), 1u);
+    ASSERT_EQ(bvh.nodes[0].right_count, 0u);
+    std::mt19937 rng(3);
+    for (int i = 0; i < 1000; ++i) {
+        const glm::vec3 org = glm::vec3(std::uniform_real_distribution<float>(-2, 2)(rng),
+                                        std::uniform_real_distribution<float>(-2, 2)(rng), 0.3f);
+        EXPECT_FALSE(ray_enters_box(org, random_direction(rng), bvh.nodes[0].right_lo, bvh.nodes[0].right_hi));
+    }
+    gpu();
+    Tracer tracer(s);
+    const auto hits = tracer.trace({Ray{glm::vec3(0.2f, 0.5f, 0.1f), 10.0f, glm::vec3(0, -1, 0), 0},
+                                    Ray{glm::vec3(0.2f, 0.5f, 0.1f), 10.0f, glm::vec3(0, 1, 0), 0}});
+    EXPECT_EQ(hits[0].triangle != kNoHit, true);
+    EXPECT_NEAR(hits[0].t, 0.5f, 1e-6f);
+    EXPECT_EQ(hits[1].triangle, kNoHit);
+}
+
 TEST(Tracer, EmptySceneMissesEverything) {
     gpu();
     Scene s;

@@ -66,10 +66,10 @@ public:
     ~ShTransferBaker() override;
 
     // One pass: samples_per_pass rays per unique receiver vertex and per
-    // extra receiver point. The error
-    // estimate is the relative standard error of the transfer vectors:
-    // sqrt(Σ_v Σ_i Var(T_vi) / Σ_v Σ_i T_vi²) (iid variance: an upper bound
-    // for the stratified directions used).
+    // extra receiver point. The error estimate is the relative standard
+    // error of the transfer vectors, v over every traced receiver (vertices
+    // and points): sqrt(Σ_v Σ_i Var(T_vi) / Σ_v Σ_i T_vi²) (iid variance: an
+    // upper bound for the stratified directions used).
     PassStats step() override;
 
     ShVertexTransfer snapshot() const;

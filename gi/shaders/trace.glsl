@@ -72,7 +72,8 @@ bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float 
     return true;
 }
 
-// Entry and exit distances of the ray with a box; empty boxes (lo > hi) miss.
+// Entry and exit distances of the ray with a box. An unused child slot holds
+// a box at +infinity, which no ray enters (see build_bvh).
 // The exit distance is pushed out by a few ulps (Ize 2013, "Robust BVH Ray
 // Traversal") so rounding never drops a box whose face a ray grazes: a ray
 // through a vertex on the box's surface must still reach the triangles.

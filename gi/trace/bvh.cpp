@@ -1,6 +1,7 @@
 #include "trace/bvh.h"
 
 #include <algorithm>
+#include <limits>
 #include <array>
 #include <chrono>
 #include <numeric>
@@ -182,9 +183,11 @@ Bvh build_bvh(const Scene& scene) {
     Bvh bvh;
     bvh.nodes.emplace_back();  // the root
     BvhNode& root = bvh.nodes[0];
-    // An empty right child box (lo > hi) that no ray can enter.
-    root.right_lo = glm::vec3(1.0f);
-    root.right_hi = glm::vec3(-1.0f);
+    // An unused child slot: a box at +infinity, which the slab test (it
+    // takes min/max of the slabs, so an inverted box would NOT be empty)
+    // never enters from any ray. Its index 0 would lead back to the root.
+    const glm::vec3 nowhere(std::numeric_limits<float>::infinity());
+    root.right_lo = root.right_hi = nowhere;
     Bounds root_box;
     if (!refs.empty()) {
         Builder builder(refs, bvh);
@@ -203,8 +206,7 @@ Bvh build_bvh(const Scene& scene) {
             bvh.stats.leaves = 1;
         }
     } else {
-        root.left_lo = glm::vec3(1.0f);
-        root.left_hi = glm::vec3(-1.0f);
+        root.left_lo = root.left_hi = nowhere;
     }
 
     bvh.triangles.resize(refs.size());

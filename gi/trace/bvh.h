@@ -14,7 +14,8 @@ namespace lf {
 // One interior node, 64 bytes: the boxes of BOTH children, so one fetch
 // decides which children a ray enters and in which order (Aila & Laine 2009).
 // A child is either another node (count 0, index = node) or a leaf
-// (count > 0, index = first triangle in Bvh::triangles).
+// (count > 0, index = first triangle in Bvh::triangles). An unused slot (the
+// root of a tiny or empty scene) has a box at +infinity: no ray enters it.
 struct BvhNode {
     glm::vec3 left_lo;  uint32_t left_index;
     glm::vec3 left_hi;  uint32_t right_index;
