@@ -76,70 +76,65 @@ double rectangle_form_factor(double px, double pz, double x0, double x1, double 
     return f;
 }
 
-TEST(RadiosityMap, FloorUnderParallelSquareEmitterMatchesFormFactor) {
+// A 2x2 m black floor at y = 0 facing up under a 1x1 m black emitter of
+// radiance 1 at y = 1 facing down: direct light only, known in closed form.
+struct ParallelPlates {
+    BakeResult result;
+    // Per floor texel: (baked, expected) where expected is the form factor
+    // averaged over the texel's sample points, as the bake averages them.
+    std::vector<std::pair<double, double>> floor_texels;
+};
+
+ParallelPlates bake_parallel_plates(RadiosityMapSettings settings, int passes) {
     Scene s;
     const uint32_t black = test::add_material(s, glm::vec3(0.0f));
     const uint32_t light = test::add_material(s, glm::vec3(0.0f), glm::vec3(1.0f));
     const int res = 64;
-    // A 2x2 m floor at y = 0 facing up; a 1x1 m emitter at y = 1 facing down, centred.
     test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, black, grid_cell(0, 2, res));
     test::add_quad(s, {-0.5f, 1, -0.5f}, {1, 0, 0}, {0, 0, 1}, light, grid_cell(1, 2, res));
-    RadiosityMapSettings settings;
-    settings.light_samples = 8;
-    const BakeResult r = bake(s, res, 256, settings);
-    const auto& R = r.image.at("R");
-    double max_rel = 0.0, sum_rel = 0.0;
-    int n = 0;
+    ParallelPlates p{bake(s, res, passes, settings), {}};
+    const BakeResult& r = p.result;
     for (size_t i = 0; i < r.texels.covered_count(); ++i) {
-        const TexelSample& first = r.texels.samples[r.texels.first_sample[i]];
-        if (first.position.y > 0.5f) continue;  // the emitter's own texels
-        // The texel's value is the mean over its sample points.
+        if (r.texels.samples[r.texels.first_sample[i]].position.y > 0.5f) continue;  // the emitter's own texels
         double expected = 0.0;
         for (uint32_t k = r.texels.first_sample[i]; k < r.texels.first_sample[i + 1]; ++k) {
-            const glm::vec3 p = r.texels.samples[k].position;
-            expected += rectangle_form_factor(p.x, p.z, -0.5, 0.5, -0.5, 0.5, 1.0);
+            const glm::vec3 q = r.texels.samples[k].position;
+            expected += rectangle_form_factor(q.x, q.z, -0.5, 0.5, -0.5, 0.5, 1.0);
         }
-        expected /= r.texels.sample_count(i);
-        const double rel = std::abs(R[r.texels.texels[i]] - expected) / expected;
+        p.floor_texels.emplace_back(r.image.at("R")[r.texels.texels[i]], expected / r.texels.sample_count(i));
+    }
+    return p;
+}
+
+TEST(RadiosityMap, FloorUnderParallelSquareEmitterMatchesFormFactor) {
+    RadiosityMapSettings settings;
+    settings.light_samples = 8;
+    const ParallelPlates p = bake_parallel_plates(settings, 256);
+    double max_rel = 0.0, sum_rel = 0.0;
+    for (const auto& [baked, expected] : p.floor_texels) {
+        const double rel = std::abs(baked - expected) / expected;
         max_rel = std::max(max_rel, rel);
         sum_rel += rel;
-        ++n;
     }
-    ASSERT_GT(n, 500);
-    EXPECT_LT(sum_rel / n, 0.02) << "mean relative error";
+    ASSERT_GT(p.floor_texels.size(), 500u);
+    EXPECT_LT(sum_rel / double(p.floor_texels.size()), 0.02) << "mean relative error";
     EXPECT_LT(max_rel, 0.08) << "worst texel";
     // Directly under the centre: F = 4 x corner factor (0.5, 0.5, 1).
     EXPECT_NEAR(rectangle_form_factor(0, 0, -0.5, 0.5, -0.5, 0.5, 1.0), 4 * corner_form_factor(0.5, 0.5, 1.0), 1e-12);
 }
 
-// Relative RMS error of a direct-only bake (black floor, black emitter)
-// against the closed-form form factor, for one way of sampling the light.
+// Relative RMS error of the parallel plates' direct light for one way of sampling the light.
 double parallel_plate_error(LightSampling sampling, int passes, double* seconds) {
-    Scene s;
-    const uint32_t black = test::add_material(s, glm::vec3(0.0f));
-    const uint32_t light = test::add_material(s, glm::vec3(0.0f), glm::vec3(1.0f));
-    const int res = 64;
-    test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, black, grid_cell(0, 2, res));
-    test::add_quad(s, {-0.5f, 1, -0.5f}, {1, 0, 0}, {0, 0, 1}, light, grid_cell(1, 2, res));
     RadiosityMapSettings settings;
     settings.light_sampling = sampling;
-    const BakeResult r = bake(s, res, passes, settings);
-    *seconds = r.stats.seconds;
+    const ParallelPlates p = bake_parallel_plates(settings, passes);
+    *seconds = p.result.stats.seconds;
     double sum_sq = 0.0, sum_ref = 0.0;
-    int n = 0;
-    for (size_t i = 0; i < r.texels.covered_count(); ++i) {
-        if (r.texels.samples[r.texels.first_sample[i]].position.y > 0.5f) continue;
-        double expected = 0.0;
-        for (uint32_t k = r.texels.first_sample[i]; k < r.texels.first_sample[i + 1]; ++k) {
-            const glm::vec3 p = r.texels.samples[k].position;
-            expected += rectangle_form_factor(p.x, p.z, -0.5, 0.5, -0.5, 0.5, 1.0);
-        }
-        expected /= r.texels.sample_count(i);
-        const double d = r.image.at("R")[r.texels.texels[i]] - expected;
-        sum_sq += d * d;
+    for (const auto& [baked, expected] : p.floor_texels) {
+        sum_sq += (baked - expected) * (baked - expected);
         sum_ref += expected;
-        ++n;
     }
+    const double n = double(p.floor_texels.size());
     return std::sqrt(sum_sq / n) / (sum_ref / n);
 }
 
