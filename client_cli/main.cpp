@@ -36,7 +36,8 @@ commands:
          [--light-samples N] [--light-sampling mis|area|solid-angle] [--no-stitch]
        SH transfer (--sh): [--sh-bands 1..4|auto] [--sh-bounces N] [--env FILE|R,G,B]
          [--sh-window none|hanning|lanczos] [--sh-passes N] [--sh-target-error E]
-         [--sh-time-limit S] [--sh-per-texel: transfer per lightmap texel (--res) -> sh_transfer.exr]
+         [--sh-time-limit S] [--sh-occluders MESHES] [--sh-receivers MESHES]
+         [--sh-per-texel: transfer per lightmap texel (--res) -> sh_transfer.exr]
                                      bake a radiosity-map lightmap and/or SH transfer
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
@@ -155,7 +156,7 @@ int bake(int argc, char** argv) {
     Args args(argc, argv, 2,
               {"--out", "--res", "--texel-density", "--passes", "--target-error", "--time-limit", "--device",
                "--seed", "--scheme", "--light-samples", "--light-sampling", "--subsamples", "--sh-bands", "--sh-bounces", "--env",
-               "--sh-window", "--sh-passes", "--sh-target-error", "--sh-time-limit"},
+               "--sh-window", "--sh-passes", "--sh-target-error", "--sh-time-limit", "--sh-occluders", "--sh-receivers"},
               {"--json", "--no-stitch", "--lightmap", "--sh", "--sh-per-texel"});
     const std::string scene = one_scene(args, "bake");
     if (!args.has("--out")) throw UsageError("bake needs --out DIR");
@@ -216,6 +217,23 @@ int bake(int argc, char** argv) {
     sh.stop.max_passes = whole("--sh-passes", sh.stop.max_passes, 1, 1 << 24);
     sh.stop.target_error = non_negative("--sh-target-error");
     sh.stop.time_limit = non_negative("--sh-time-limit");
+    // The seed's occluder and receiver sets (§3.1): glTF mesh indices, "0,3,4".
+    auto mesh_list = [&](const char* key) {
+        std::vector<int> meshes;
+        const std::string text = args.get(key);
+        size_t at = 0;
+        while (at < text.size()) {
+            const size_t comma = std::min(text.find(',', at), text.size());
+            const std::string item = text.substr(at, comma - at);
+            if (item.empty() || item.find_first_not_of("0123456789") != std::string::npos || item.size() > 9)
+                throw UsageError(std::string(key) + " takes glTF mesh indices like 0,3,4, not '" + text + "'");
+            meshes.push_back(std::stoi(item));
+            at = comma + 1;
+        }
+        return meshes;
+    };
+    if (args.has("--sh-occluders")) sh.transfer.occluder_meshes = mesh_list("--sh-occluders");
+    if (args.has("--sh-receivers")) sh.transfer.receiver_meshes = mesh_list("--sh-receivers");
     sh.per_texel = args.flag("--sh-per-texel");
     if (sh.per_texel && !want_sh) throw UsageError("--sh-per-texel needs --sh");
     sh.per_texel_resolution = lightmap.resolution;  // --res (0: from --texel-density, or 256)

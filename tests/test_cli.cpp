@@ -174,6 +174,8 @@ TEST(CliBake, FailuresAreOneClearLine) {
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", 2);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", 2);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "R,G,B", 2);
+    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-occluders 99", "mesh 99", 2);
+    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices", 2);
 }
 
 }  // namespace

@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <fstream>
 #include <optional>
+#include <set>
 
 namespace lf {
 
@@ -110,6 +111,16 @@ nlohmann::json bake_sh(const ShBakeSettings& settings, const BakeEventSink& emit
         throw std::invalid_argument("--sh-bands must be 1..4 or auto, not " + std::to_string(settings.bands));
     // Transfer does not depend on the lights: a scene without any is fine.
     const Scene scene = load_scene(settings.scene);
+    // Occluder and receiver sets name glTF meshes: every one must be there.
+    std::set<int> meshes;
+    for (const PrimitiveInstance& i : scene.instances) meshes.insert(i.mesh);
+    for (const auto& [option, list] : {std::pair{"--sh-occluders", &settings.transfer.occluder_meshes},
+                                       std::pair{"--sh-receivers", &settings.transfer.receiver_meshes}})
+        for (int m : *list)
+            if (!meshes.count(m))
+                throw std::invalid_argument(std::string(option) + ": mesh " + std::to_string(m) + " is not drawn by " +
+                                            settings.scene.filename().string() + " (it has " +
+                                            std::to_string(meshes.size()) + " meshes)");
     std::optional<Environment> environment;
     if (!settings.environment.empty()) environment = load_environment(settings.environment);
     fs::create_directories(settings.out);
