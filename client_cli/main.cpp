@@ -6,6 +6,7 @@
 #include "bake/bake.h"
 #include "bake/sh_bake.h"
 #include "sh/sh_glb.h"
+#include "sh/transfer_file.h"
 #include "gpu/context.h"
 #include "io/reference_error.h"
 #include "scene/gltf_loader.h"
@@ -43,7 +44,7 @@ commands:
                                      vertex colours = SH transfer x environment
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]
-                                     error against a reference (JSON)
+  compare TRANSFER.bin REFERENCE.bin error against a reference (JSON)
 )";
 
 std::string one_scene(const Args& args, const char* command) {
@@ -92,9 +93,38 @@ int devices(int argc, char** argv) {
     return 0;
 }
 
+// Two SH transfer files of the same scene: relative RMSE of the coefficients
+// (over the bands both hold) against the reference's RMS coefficient.
+int compare_sh_transfer(const std::string& bake_path, const std::string& reference_path) {
+    const lf::ShTransferFile bake = lf::read_sh_transfer(bake_path);
+    const lf::ShTransferFile reference = lf::read_sh_transfer(reference_path);
+    if (bake.primitives.size() != reference.primitives.size())
+        throw std::runtime_error(bake_path + " and " + reference_path + " hold different primitives");
+    const int coefficients = std::min(bake.bands, reference.bands) * std::min(bake.bands, reference.bands);
+    double sum_sq = 0.0, sum_ref_sq = 0.0;
+    size_t vertices = 0;
+    for (size_t p = 0; p < bake.primitives.size(); ++p) {
+        const auto &a = bake.primitives[p].vertices, &b = reference.primitives[p].vertices;
+        if (a.size() != b.size()) throw std::runtime_error("primitive " + std::to_string(p) + ": vertex counts differ");
+        for (size_t v = 0; v < a.size(); ++v)
+            for (int i = 0; i < coefficients; ++i) {
+                sum_sq += double(a[v][i] - b[v][i]) * double(a[v][i] - b[v][i]);
+                sum_ref_sq += double(b[v][i]) * double(b[v][i]);
+            }
+        vertices += a.size();
+    }
+    std::cout << nlohmann::json{{"relative_rmse", sum_ref_sq > 0.0 ? std::sqrt(sum_sq / sum_ref_sq) : 0.0},
+                                {"vertices", vertices}, {"coefficients", coefficients}}
+                     .dump()
+              << "\n";
+    return 0;
+}
+
 int compare(int argc, char** argv) {
     Args args(argc, argv, 2, {"--mask"}, {});
-    if (args.positional().size() != 2) throw UsageError("compare takes BAKE.exr and REFERENCE.exr");
+    if (args.positional().size() != 2) throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
+    const auto is_bin = [](const std::string& f) { return f.size() > 4 && f.substr(f.size() - 4) == ".bin"; };
+    if (is_bin(args.positional()[0])) return compare_sh_transfer(args.positional()[0], args.positional()[1]);
     const lf::FloatImage bake = lf::read_exr(args.positional()[0]);
     const lf::FloatImage reference = lf::read_exr(args.positional()[1]);
     lf::FloatImage mask;
