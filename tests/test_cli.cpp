@@ -141,7 +141,9 @@ void expect_clean_failure(const std::string& args, const std::string& must_menti
     EXPECT_EQ(r.exit_code, code) << args;
     EXPECT_NE(r.err.find(must_mention), std::string::npos) << r.err;
     // A usage error (exit 2) may add the usage text; anything else is exactly one line.
-    if (code != 2) EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "one line: " << r.err;
+    if (code != 2) {
+        EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "one line: " << r.err;
+    }
     EXPECT_FALSE(fs::exists(out / "lightmap.exr"));
     EXPECT_FALSE(fs::exists(out / "manifest.json"));
     fs::remove_all(out);

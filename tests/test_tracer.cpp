@@ -241,7 +241,9 @@ TEST(GpuContext, ReportsDeviceAndRefusesAMissingGpu) {
     // The devices listed match what the context found: software iff no GPU was usable here.
     size_t gpus = 0;
     for (const EglDeviceInfo& d : list_egl_devices()) gpus += d.software ? 0 : 1;
-    if (gpus == 0) EXPECT_TRUE(info.is_software);
+    if (gpus == 0) {
+        EXPECT_TRUE(info.is_software);
+    }
     if (info.is_software) {
         // Auto fell back to software: there is no GPU, so asking for one must fail clearly.
         try {
