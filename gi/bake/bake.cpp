@@ -85,7 +85,8 @@ nlohmann::json bake_lightmap(const BakeSettings& settings, const BakeEventSink& 
     std::vector<SeamEdge> seams;
     for (const SeamEdge& e : find_seams(scene))
         if (e.smooth) seams.push_back(e);
-    auto finished_image = [&](const PassStats& stats) {
+    // The current lightmap, stitched; snapshot() already carries pass, rays, seconds.
+    auto finished_image = [&]() {
         FloatImage image = baker.snapshot();
         image.string_attributes["lightfarm.renderer"] = gpu.info().renderer;
         image.string_attributes["lightfarm.settings"] = settings_json.dump();
@@ -96,24 +97,27 @@ nlohmann::json bake_lightmap(const BakeSettings& settings, const BakeEventSink& 
                 set_image_layer(image, layer, rgb);
             }
         }
-        image.number_attributes["lightfarm.pass"] = stats.pass;
         return image;
     };
 
     std::vector<std::string> files;
+    FloatImage last_snapshot;  // reused as the final image when the bake stops on a snapshot pass
+    int last_snapshot_pass = 0;
     const PassStats final_stats = run_progressive(baker, settings.stop, [&](const PassStats& s, bool snapshot_due) {
         nlohmann::json progress = to_json(s);
         progress["event"] = "progress";
         emit(progress);
         if (snapshot_due) {
             const std::string name = snapshot_file_name("lightmap", s.pass, "exr");
-            write_exr(settings.out / name, finished_image(s));
+            last_snapshot = finished_image();
+            last_snapshot_pass = s.pass;
+            write_exr(settings.out / name, last_snapshot);
             files.push_back(name);
             emit({{"event", "snapshot"}, {"file", name}, {"pass", s.pass}});
         }
     });
 
-    const FloatImage final_image = finished_image(final_stats);
+    const FloatImage final_image = last_snapshot_pass == final_stats.pass ? std::move(last_snapshot) : finished_image();
     write_exr(settings.out / "lightmap.exr", final_image);
     files.push_back("lightmap.exr");
     if (generated) {
