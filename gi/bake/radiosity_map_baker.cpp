@@ -188,9 +188,7 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     texel_anchors_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
     texel_anchors_.clear_zero();
     ComputeProgram anchor("texel_anchor.comp");
-    anchor.use();
-    tracer_.bind();
-    sample_points_.bind(2);
+    anchor.use();  // the tracer and the sample points are still bound
     covered_.bind(3);
     texel_anchors_.bind(11);
     glUniform1ui(anchor.uniform("covered_count"), GLuint(covered_count_));
