@@ -3,8 +3,9 @@
 #include "args.h"
 #include "remote.h"
 
-#include "bake/bake.h"
-#include "bake/sh_bake.h"
+#include "atlas/atlas.h"
+#include "bake/bake_job.h"
+#include "job_spec.h"
 #include "sh/sh_glb.h"
 #include "sh/transfer_file.h"
 #include "gpu/context.h"
@@ -18,7 +19,10 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <map>
+#include <set>
 
 namespace {
 
@@ -31,14 +35,8 @@ commands:
   inspect SCENE [--json]             what was loaded from a .gltf/.glb
   raybench SCENE [--device auto|gpu|cpu] [--seconds S]
                                      ray throughput of the tracer (JSON)
-  bake SCENE --out DIR [--lightmap] [--sh] [--device auto|gpu|cpu] [--seed N] [--json]
-       lightmap (the default): [--res N | --texel-density T] [--passes N]
-         [--target-error E] [--time-limit S] [--scheme epochs|thesis|pathtrace]
-         [--light-samples N] [--light-sampling mis|area|solid-angle] [--no-stitch]
-       SH transfer (--sh): [--sh-bands 1..4|auto] [--sh-bounces N] [--env FILE|R,G,B]
-         [--sh-window none|hanning|lanczos] [--sh-passes N] [--sh-target-error E]
-         [--sh-time-limit S] [--sh-occluders MESHES] [--sh-receivers MESHES]
-         [--sh-per-texel: transfer per lightmap texel (--res) -> sh_transfer.exr]
+  bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh] [--device auto|gpu|gpu:N|cpu] [--json]
+       [bake settings: `lightfarm bake --help`, or the README's table]
                                      bake a radiosity-map lightmap and/or SH transfer
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
@@ -56,7 +54,13 @@ std::string one_scene(const Args& args, const char* command) {
 int inspect(int argc, char** argv) {
     Args args(argc, argv, 2, {}, {"--json"});
     const lf::Scene scene = lf::load_scene(one_scene(args, "inspect"));
-    if (args.flag("--json")) std::cout << lf::summarize(scene).dump(2) << "\n";
+    if (args.flag("--json")) {
+        lf::protocol::SceneSummary summary = lf::summarize(scene);
+        // What the service checks a job against before it runs: the smallest
+        // atlas a generated one fits in.
+        if (!summary.has_lightmap_uvs) summary.min_atlas_res = lf::smallest_atlas_resolution(scene);
+        std::cout << lf::protocol::to_json(summary).dump(2) << "\n";
+    }
     else std::cout << lf::format_summary(scene);
     return 0;
 }
@@ -144,155 +148,119 @@ int compare(int argc, char** argv) {
 }
 
 // One progress line, redrawn in place on a terminal.
-void draw_progress(const nlohmann::json& e, int max_passes) {
-    const int pass = e["pass"];
+void draw_progress(const std::string& output, const lf::protocol::Progress& p, int max_passes) {
     const int width = 30;
-    const int filled = std::min(width, pass * width / std::max(1, max_passes));
-    std::fprintf(stderr, "\r[%s%s] pass %d/%d  %.3g rays  %.1f s  error %.2f%%  ",
-                 std::string(size_t(filled), '#').c_str(), std::string(size_t(width - filled), '.').c_str(), pass,
-                 max_passes, double(e["rays"].get<uint64_t>()), e["seconds"].get<double>(),
-                 100.0 * e["error_estimate"].get<double>());
+    const int filled = std::min(width, p.pass * width / std::max(1, max_passes));
+    std::fprintf(stderr, "\r%s [%s%s] pass %d/%d  %.3g rays  %.1f s  error %s  ", output.c_str(),
+                 std::string(size_t(filled), '#').c_str(), std::string(size_t(width - filled), '.').c_str(), p.pass,
+                 max_passes, double(p.rays), p.seconds,
+                 p.error_estimate ? (std::to_string(100.0 * *p.error_estimate).substr(0, 5) + "%").c_str() : "-");
 }
 
 // Prints bake events: JSON lines (the worker protocol) or a progress bar.
 class BakeReporter {
 public:
-    BakeReporter(bool json, int max_passes) : json_(json), terminal_(!json && isatty(STDERR_FILENO)), max_passes_(max_passes) {}
+    BakeReporter(bool json, const lf::protocol::BakeSettings& settings)
+        : json_(json), terminal_(!json && isatty(STDERR_FILENO)) {
+        if (settings.lightmap) max_passes_["lightmap"] = settings.lightmap->stop.passes;
+        if (settings.sh) max_passes_["sh"] = settings.sh->stop.passes;
+    }
 
-    void operator()(const nlohmann::json& e) {
+    void operator()(const lf::protocol::WorkerEvent& e) {
+        namespace p = lf::protocol;
         if (json_) {
-            std::cout << e.dump() << std::endl;  // one object per line, flushed
+            std::cout << p::to_json(e).dump() << std::endl;  // one object per line, flushed
             return;
         }
-        const std::string kind = e["event"];
-        if (kind == "start") {
-            std::cerr << "baking " << e.value("texels", e.value("vertices", 0)) << (e.contains("texels") ? " texels" : " vertices")
-                      << " on " << e["renderer"].get<std::string>() << "\n";
-        } else if (kind == "progress" && terminal_) {
-            draw_progress(e, max_passes_);
-        } else if (kind == "done") {
+        if (const auto* start = std::get_if<p::StartEvent>(&e)) {
+            std::cerr << "baking";
+            for (auto it = start->outputs.begin(); it != start->outputs.end(); ++it)
+                std::cerr << " " << it.key() << " (" << it.value().value("texels", it.value().value("vertices", 0))
+                          << (it.value().contains("texels") ? " texels)" : " vertices)");
+            std::cerr << " on " << start->renderer << ", prepared in " << start->prepare_seconds << " s\n";
+        } else if (const auto* progress = std::get_if<p::ProgressEvent>(&e); progress && terminal_) {
+            if (progress->output != drawing_ && !drawing_.empty()) std::cerr << "\n";
+            drawing_ = progress->output;
+            draw_progress(progress->output, progress->progress, max_passes_[progress->output]);
+        } else if (const auto* done = std::get_if<p::DoneEvent>(&e)) {
             if (terminal_) std::cerr << "\n";
-            std::cout << "done: " << e["pass"] << " passes, " << e["rays"] << " rays, " << e["seconds"]
-                      << " s, error estimate " << e["error_estimate"] << "\n";
+            std::cout << "done: " << done->progress.pass << " passes, " << done->progress.rays << " rays, "
+                      << done->progress.seconds << " s, error estimate " << done->progress.error_estimate.value_or(0.0)
+                      << "\n";
         }
     }
 
 private:
     bool json_, terminal_;
-    int max_passes_;
+    std::map<std::string, int> max_passes_;
+    std::string drawing_;
 };
 
+// `--spec FILE`: a job spec (as the service stores it, or a manifest's "settings").
+nlohmann::json read_spec_file(const std::string& path) {
+    std::ifstream in(path);
+    if (!in) throw UsageError("--spec: cannot read " + path);
+    nlohmann::json spec = nlohmann::json::parse(in, nullptr, false);
+    if (spec.is_discarded() || !spec.is_object()) throw UsageError("--spec: " + path + " is not a JSON object");
+    return spec;
+}
+
+// The job's settings: the spec file's, overridden by the flags, through the
+// one catalog and the one validity rule (lf::protocol::parse_job_spec).
+lf::protocol::BakeSettings bake_settings(const Args& args, const std::string& scene) {
+    std::map<std::string, std::string> given;
+    for (const auto& [flag, takes_value] : lf::protocol::bake_flags()) {
+        if (takes_value && args.has(flag)) given[flag] = args.get(flag);
+        if (!takes_value && args.flag(flag)) given[flag] = "";
+    }
+    try {
+        nlohmann::json spec = lf::protocol::bake_json_from_flags(
+            given, args.has("--spec") ? read_spec_file(args.get("--spec")) : nlohmann::json::object());
+        spec["scene"] = scene;  // the file given here, whatever the spec names
+        lf::protocol::SpecLimits no_caps;
+        no_caps.caps.clear();
+        return lf::protocol::parse_job_spec(spec, no_caps).bake;
+    } catch (const lf::protocol::SpecError& e) {
+        throw UsageError(std::string(args.has("--spec") ? "--spec " + args.get("--spec") + ": " : "") + e.what());
+    }
+}
+
+// `lightfarm bake --help`: the catalog's settings, as the README's table has them.
+std::string bake_help() {
+    std::string text = "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh]\n"
+                       "                      [--device auto|gpu|gpu:N|cpu] [--json] [settings]\n\nsettings:\n";
+    for (const lf::protocol::Setting& s : lf::protocol::setting_catalog()) {
+        std::string flag = s.flag() + (s.value_syntax().empty() ? "" : " " + s.value_syntax());
+        flag.resize(std::max<size_t>(flag.size(), 34), ' ');
+        text += "  " + flag + " " + s.help;
+        if (!s.default_value.is_null() && s.type != lf::protocol::SettingType::Flag)
+            text += " [" + (s.default_value.is_string() ? s.default_value.get<std::string>() : s.default_value.dump()) + "]";
+        text += "\n";
+    }
+    return text;
+}
+
 int bake(int argc, char** argv) {
-    Args args(argc, argv, 2,
-              {"--out", "--res", "--texel-density", "--passes", "--target-error", "--time-limit", "--device",
-               "--seed", "--scheme", "--light-samples", "--light-sampling", "--subsamples", "--sh-bands", "--sh-bounces", "--env",
-               "--sh-window", "--sh-passes", "--sh-target-error", "--sh-time-limit", "--sh-occluders", "--sh-receivers"},
-              {"--json", "--no-stitch", "--lightmap", "--sh", "--sh-per-texel"});
-    const std::string scene = one_scene(args, "bake");
+    for (int i = 2; i < argc; ++i)
+        if (std::string(argv[i]) == "--help") {
+            std::cout << bake_help();
+            return 0;
+        }
+    std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json"};
+    for (const auto& [flag, takes_value] : lf::protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
+    Args args(argc, argv, 2, valued, flags);
+    lf::BakeJob job;
+    job.scene = one_scene(args, "bake");
     if (!args.has("--out")) throw UsageError("bake needs --out DIR");
-    const std::filesystem::path out = args.get("--out");
-    auto whole = [&](const char* key, double fallback, double lo, double hi) {
-        const double v = args.number(key, fallback);
-        if (v < lo || v > hi || v != double(int64_t(v)))
-            throw UsageError(std::string(key) + " must be a whole number from " + std::to_string(int64_t(lo)) +
-                             " to " + std::to_string(int64_t(hi)));
-        return int(v);
-    };
-    auto non_negative = [&](const char* key) {
-        const double v = args.number(key, 0.0);
-        if (v < 0.0) throw UsageError(std::string(key) + " must not be negative");
-        return v;
-    };
-    const bool want_sh = args.flag("--sh");
-    const bool want_lightmap = args.flag("--lightmap") || !want_sh;
-    const lf::DeviceChoice device = lf::parse_device_choice(args.get("--device", "auto"));
-    const uint32_t seed = uint32_t(whole("--seed", 1, 0, 4294967295.0));
+    job.out = args.get("--out");
+    job.device = lf::parse_device_choice(args.get("--device", "auto"));
+    job.settings = bake_settings(args, job.scene.string());
 
-    lf::BakeSettings lightmap;
-    lightmap.scene = scene;
-    lightmap.out = out;
-    lightmap.device = device;
-    if (args.has("--res") && args.has("--texel-density"))
-        throw UsageError("give --res or --texel-density, not both");
-    if (args.has("--res")) lightmap.resolution = whole("--res", 0, 1, 16384);
-    lightmap.texel_density = float(non_negative("--texel-density"));
-    lightmap.stop.max_passes = whole("--passes", lightmap.stop.max_passes, 1, 1 << 24);
-    lightmap.stop.target_error = non_negative("--target-error");
-    lightmap.stop.time_limit = non_negative("--time-limit");
-    lightmap.radiosity.seed = seed;
-    lightmap.radiosity.scheme = lf::parse_radiosity_scheme(args.get("--scheme", "epochs"));
-    lightmap.radiosity.light_samples = whole("--light-samples", 1, 1, 1024);
-    lightmap.radiosity.light_sampling = lf::parse_light_sampling(args.get("--light-sampling", "mis"));
-    lightmap.subsamples_per_axis = whole("--subsamples", 2, 1, 8);
-    lightmap.stitch_seams = !args.flag("--no-stitch");
-    if (want_lightmap && args.has("--env")) {
-        // A lightmap's environment is a uniform sky for now: rays that escape see this radiance.
-        const std::string env = args.get("--env");
-        float r, g, b;
-        char tail;
-        if (std::sscanf(env.c_str(), "%f,%f,%f%c", &r, &g, &b, &tail) != 3 || r < 0 || g < 0 || b < 0)
-            throw UsageError("--env for a lightmap must be a uniform sky radiance R,G,B (an environment map works with --sh only), not '" + env + "'");
-        lightmap.radiosity.background = glm::vec3(r, g, b);
-    }
-
-    lf::ShBakeSettings sh;
-    sh.scene = scene;
-    sh.out = out;
-    sh.device = device;
-    sh.environment = args.get("--env", "");
-    sh.window = lf::parse_sh_window(args.get("--sh-window", "none"));
-    sh.bands = args.get("--sh-bands", "4") == "auto" ? 0 : whole("--sh-bands", 4, 1, 4);
-    sh.transfer.bounces = whole("--sh-bounces", 0, 0, 4);
-    sh.transfer.seed = seed;
-    sh.stop.max_passes = whole("--sh-passes", sh.stop.max_passes, 1, 1 << 24);
-    sh.stop.target_error = non_negative("--sh-target-error");
-    sh.stop.time_limit = non_negative("--sh-time-limit");
-    // The seed's occluder and receiver sets (§3.1): glTF mesh indices, "0,3,4".
-    auto mesh_list = [&](const char* key) {
-        std::vector<int> meshes;
-        const std::string text = args.get(key);
-        size_t at = 0;
-        while (at < text.size()) {
-            const size_t comma = std::min(text.find(',', at), text.size());
-            const std::string item = text.substr(at, comma - at);
-            if (item.empty() || item.find_first_not_of("0123456789") != std::string::npos || item.size() > 9)
-                throw UsageError(std::string(key) + " takes glTF mesh indices like 0,3,4, not '" + text + "'");
-            meshes.push_back(std::stoi(item));
-            at = comma + 1;
-        }
-        return meshes;
-    };
-    if (args.has("--sh-occluders")) sh.transfer.occluder_meshes = mesh_list("--sh-occluders");
-    if (args.has("--sh-receivers")) sh.transfer.receiver_meshes = mesh_list("--sh-receivers");
-    sh.per_texel = args.flag("--sh-per-texel");
-    if (sh.per_texel && !want_sh) throw UsageError("--sh-per-texel needs --sh");
-    sh.per_texel_resolution = lightmap.resolution;  // --res (0: from --texel-density, or 256)
-    sh.per_texel_density = lightmap.texel_density;  // --texel-density
-    if (args.has("--subsamples")) sh.per_texel_subsamples = lightmap.subsamples_per_axis;
-
-    BakeReporter report(args.flag("--json"), want_lightmap ? lightmap.stop.max_passes : sh.stop.max_passes);
-    // Both outputs: one "done" at the very end, listing every file, so a
-    // reader of the event stream sees one bake.
-    std::vector<std::string> files;
-    auto pass_through_all_but_done = [&](const nlohmann::json& e) {
-        if (e["event"] == "done") {
-            for (const auto& f : e["files"]) files.push_back(f);
-            return;
-        }
-        report(e);
-    };
-    nlohmann::json done;
-    if (want_lightmap) done = lf::bake_lightmap(lightmap, want_sh ? lf::BakeEventSink(pass_through_all_but_done) : lf::BakeEventSink(std::ref(report)));
-    if (want_sh) {
-        done = lf::bake_sh(sh, pass_through_all_but_done);
-        std::sort(files.begin(), files.end());
-        files.erase(std::unique(files.begin(), files.end()), files.end());
-        done["files"] = files;
-        report(done);
-    }
+    BakeReporter report(args.flag("--json"), job.settings);
+    const lf::protocol::DoneEvent done = lf::run_bake_job(job, std::ref(report));
     if (!args.flag("--json")) {
-        std::cout << "files in " << out.string() << ":";
-        for (const auto& f : done["files"]) std::cout << " " << f.get<std::string>();
+        std::cout << "files in " << job.out.string() << ":";
+        for (const std::string& f : done.files) std::cout << " " << f;
         std::cout << "\n";
     }
     return 0;
@@ -329,10 +297,16 @@ int main(int argc, char** argv) {
         throw UsageError("unknown command '" + command + "'");
     } catch (const std::invalid_argument& e) {  // a bad option value
         std::cerr << "lightfarm: " << e.what() << "\n";
-        return 2;
+        return lf::protocol::kExitUsage;
     } catch (const UsageError& e) {
-        std::cerr << "lightfarm: " << e.what() << "\n" << kUsage << lf::cli::kRemoteUsage;
-        return 2;
+        std::cerr << "lightfarm: " << e.what() << "\n(lightfarm --help lists the commands and options)\n";
+        return lf::protocol::kExitUsage;
+    } catch (const lf::SceneError& e) {  // the file cannot be loaded: an input error, not a crash
+        std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
+        return lf::protocol::kExitInputError;
+    } catch (const lf::BakeInputError& e) {
+        std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
+        return lf::protocol::kExitInputError;
     } catch (const std::exception& e) {
         // One line, with the context the thrower put in (file, object, shader).
         std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";

@@ -9,7 +9,9 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <algorithm>
 #include <fstream>
+#include <iterator>
 #include <unistd.h>
 #include <sys/wait.h>
 #include <sstream>
@@ -168,16 +170,103 @@ TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
     fs::remove_all(out);
 }
 
+// Exit statuses are the worker protocol's (protocol/worker_protocol.h): 2 for
+// a bad command line or setting, 3 for an input that cannot be baked as asked
+// (the service fails such a job at once instead of retrying it).
 TEST(CliBake, FailuresAreOneClearLine) {
-    expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "nothing to bake");
-    expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf");
-    expect_clean_failure("bake /no/such/file.glb", "file.glb");
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", 2);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", 2);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", 2);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "R,G,B", 2);
-    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-occluders 99", "mesh 99", 2);
-    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices", 2);
+    constexpr int kUsage = 2, kInput = 3;
+    expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "--env R,G,B", kInput);
+    expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf", kInput);
+    expect_clean_failure("bake /no/such/file.glb", "file.glb", kInput);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "R,G,B", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --sh-bands 0", "--sh-bands", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --seed 4294967296", "--seed", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 64 --texel-density 10", "res", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-occluders 99", "mesh 99", kInput);
+    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --spec /no/such/spec.json", "spec.json", kUsage);
+}
+
+// 9,121 charts cannot fit 64² even at one texel each: the message says which
+// resolution would, and that answer holds (the same number the service's
+// upload summary reports as min_atlas_res).
+TEST(CliBake, AnAtlasThatCannotFitNamesTheSmallestThatDoes) {
+    const std::string staircase = test::shared_scene("real/wooden_staircase/wooden_staircase.gltf");
+    const fs::path out = fresh_dir("atlas");
+    const CliRun r = run_lightfarm("bake " + staircase + " --res 64 --passes 1 --out " + out.string());
+    EXPECT_EQ(r.exit_code, 3) << r.err;
+    const size_t at = r.err.find("smallest resolution that fits is ");
+    ASSERT_NE(at, std::string::npos) << r.err;
+    const int smallest = std::stoi(r.err.substr(at + 33));
+    EXPECT_GT(smallest, 64);
+    const CliRun inspect = run_lightfarm("inspect --json " + staircase);
+    ASSERT_EQ(inspect.exit_code, 0) << inspect.err;
+    EXPECT_EQ(nlohmann::json::parse(inspect.out)["min_atlas_res"], smallest);
+    EXPECT_EQ(nlohmann::json::parse(inspect.out)["source"], "wooden_staircase.gltf") << "a file name, never a path";
+    fs::remove_all(out);
+}
+
+std::vector<float> pixels(const fs::path& exr, const char* channel) { return read_exr(exr).at(channel); }
+
+std::string read_file(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The worker gets the job's spec, not a translation: --spec bakes the same
+// pixels as the same settings given as flags, flags beside it win, and a
+// manifest's "settings" is itself a spec that reproduces the bake.
+TEST(CliBake, SpecFileBakesExactlyWhatFlagsBake) {
+    const std::string scene = test::shared_scene("cornell_box.gltf");
+    const fs::path by_flags = fresh_dir("flags"), by_spec = fresh_dir("spec"), by_manifest = fresh_dir("manifest");
+    const CliRun a = run_lightfarm("bake " + scene + " --out " + by_flags.string() +
+                                   " --res 32 --passes 5 --seed 7 --scheme thesis --light-samples 2");
+    ASSERT_EQ(a.exit_code, 0) << a.err;
+    const fs::path spec = by_spec.string() + ".json";
+    std::ofstream(spec) << R"({"scene": "ignored", "outputs": {"lightmap": {"passes": 99, "scheme": "thesis",
+                              "light_samples": 2}}, "atlas": {"res": 32}, "seed": 7, "limits": {"max_attempts": 1}})";
+    const CliRun b = run_lightfarm("bake " + scene + " --out " + by_spec.string() + " --spec " + spec.string() + " --passes 5");
+    ASSERT_EQ(b.exit_code, 0) << b.err;
+    EXPECT_EQ(pixels(by_flags / "lightmap.exr", "R"), pixels(by_spec / "lightmap.exr", "R"));
+    EXPECT_EQ(read_exr(by_spec / "lightmap.exr").number_attributes.at("lightfarm.pass"), 5.0) << "--passes overrides the spec";
+
+    std::ifstream manifest_in(by_flags / "manifest.json");
+    const nlohmann::json manifest = nlohmann::json::parse(manifest_in);
+    std::ofstream(spec) << manifest["settings"].dump();
+    const CliRun c = run_lightfarm("bake " + scene + " --out " + by_manifest.string() + " --spec " + spec.string());
+    ASSERT_EQ(c.exit_code, 0) << c.err;
+    EXPECT_EQ(pixels(by_flags / "lightmap.exr", "R"), pixels(by_manifest / "lightmap.exr", "R"));
+    for (const fs::path& d : {by_flags, by_spec, by_manifest}) fs::remove_all(d);
+    fs::remove(spec);
+}
+
+// --lightmap --sh prepares the scene once (one start event, one preparation in
+// the manifest) and bakes each output exactly as it alone would: the shared
+// tracer, built from the atlas's copy of the scene, changes no bit of the SH.
+TEST(CliBake, LightmapAndShShareOnePreparation) {
+    const std::string scene = test::shared_scene("monkey.glb");
+    const fs::path both = fresh_dir("both"), lightmap = fresh_dir("lightmap"), sh = fresh_dir("sh");
+    const std::string common = " --res 64 --passes 2 --sh-passes 2 --seed 5 --json";
+    const CliRun r = run_lightfarm("bake " + scene + " --lightmap --sh --out " + both.string() + common);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto lines = json_lines(r.out);
+    EXPECT_EQ(std::count_if(lines.begin(), lines.end(), [](const auto& l) { return l["event"] == "start"; }), 1);
+    EXPECT_EQ(lines.front()["outputs"].size(), 2u);
+    EXPECT_EQ(lines.back()["final"]["lightmap"], "lightmap.exr");
+    EXPECT_EQ(lines.back()["final"]["sh"], "sh_transfer.bin");
+    std::ifstream manifest_in(both / "manifest.json");
+    const nlohmann::json manifest = nlohmann::json::parse(manifest_in);
+    EXPECT_EQ(manifest["prepared"]["outputs"], nlohmann::json({"lightmap", "sh"}));
+    EXPECT_TRUE(manifest.contains("lightmap") && manifest.contains("sh"));
+
+    ASSERT_EQ(run_lightfarm("bake " + scene + " --lightmap --out " + lightmap.string() + common).exit_code, 0);
+    ASSERT_EQ(run_lightfarm("bake " + scene + " --sh --out " + sh.string() + common).exit_code, 0);
+    EXPECT_EQ(pixels(both / "lightmap.exr", "R"), pixels(lightmap / "lightmap.exr", "R"));
+    EXPECT_EQ(read_file(both / "sh_transfer.bin"), read_file(sh / "sh_transfer.bin"));
+    for (const fs::path& d : {both, lightmap, sh}) fs::remove_all(d);
 }
 
 }  // namespace

@@ -221,7 +221,7 @@ TEST_P(SharedScenes, LoadWithTheDocumentedCounts) {
     EXPECT_EQ(directional, expected.directional_lights);
     EXPECT_EQ(scene.emissive_triangle_count() > 0, expected.emissive);
     if (expected.warning != nullptr) {
-        EXPECT_TRUE(has_warning(scene, expected.warning)) << summarize(scene).dump();
+        EXPECT_TRUE(has_warning(scene, expected.warning)) << protocol::to_json(summarize(scene)).dump();
     }
     const bool lit = expected.emissive || expected.point_lights + expected.directional_lights > 0;
     EXPECT_EQ(has_warning(scene, "no light"), !lit);
@@ -263,7 +263,7 @@ TEST(SharedScenes, CornellBoxLightIsTheDocumentedRadiance) {
     EXPECT_TRUE(found);
     EXPECT_EQ(scene.emissive_triangle_count(), 2u);
 
-    const json summary = summarize(scene);
+    const json summary = protocol::to_json(summarize(scene));
     EXPECT_EQ(summary["triangles"], 32);
     EXPECT_EQ(summary["emissive_triangles"], 2);
     EXPECT_EQ(summary["primitive_instances"], scene.instances.size());
@@ -290,7 +290,7 @@ TEST(SharedScenes, TexturedInteriorHasLinearTextures) {
         EXPECT_LE(t.width, 8192);
         EXPECT_EQ(t.texels.size(), size_t(t.width) * size_t(t.height));
     }
-    const json summary = summarize(scene);
+    const json summary = protocol::to_json(summarize(scene));
     EXPECT_EQ(summary["triangles"], 262663);
     EXPECT_EQ(summary["textures"], scene.textures.size());
     EXPECT_EQ(summary["max_texture_size"], 512);
@@ -577,7 +577,7 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     expect_near(s.lights[1].intensity, glm::vec3(2, 2, 2));
     EXPECT_FLOAT_EQ(s.lights[1].range, 10.0f);
     EXPECT_FALSE(has_warning(s, "no light"));
-    const json summary = summarize(s);
+    const json summary = protocol::to_json(summarize(s));
     EXPECT_EQ(summary["punctual_lights"]["spot"], 1);
     EXPECT_EQ(summary["punctual_lights"]["point"], 1);
 }

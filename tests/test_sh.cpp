@@ -4,7 +4,8 @@
 #include "scene_builders.h"
 
 #include "atlas/texel_samples.h"
-#include "bake/sh_bake.h"
+#include "bake/bake_job.h"
+#include "bake/sh_transfer_method.h"
 #include "io/image_files.h"
 #include "bake/sh_transfer_baker.h"
 #include "scene/gltf_loader.h"
@@ -145,7 +146,7 @@ TEST(ShTransfer, UnoccludedVertexIsRotatedClampedCosine) {
         EXPECT_NEAR(t.coefficients[v][0], kSqrtPiOver2, 1e-5);
     }
     std::printf("  unoccluded: %d samples/vertex, worst coefficient error %.2e, error estimate %.2e\n",
-                passes * per_pass, worst, stats.error_estimate);
+                passes * per_pass, worst, stats.error_estimate.value_or(0.0));
     EXPECT_EQ(stats.rays, uint64_t(passes) * per_pass * s.positions.size());
 }
 
@@ -570,27 +571,28 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
     const std::filesystem::path out = std::filesystem::temp_directory_path() / ("lightfarm_sh_" + std::to_string(::getpid()));
     std::filesystem::remove_all(out);
     gpu();
-    ShBakeSettings settings;
-    settings.scene = test::shared_scene("monkey.glb");
-    settings.out = out;
-    settings.environment = "0.2,0.4,1";
-    settings.bands = 0;  // auto
-    settings.transfer.samples_per_pass = 16;
-    settings.stop.max_passes = 3;
+    BakeJob job;
+    job.scene = test::shared_scene("monkey.glb");
+    job.out = out;
+    job.settings = protocol::parse_bake_settings(
+        {{"outputs", {{"sh", {{"sh_bands", "auto"}, {"sh_passes", 3}}}}}, {"env", {0.2, 0.4, 1.0}}});
     std::vector<std::string> events;
-    const nlohmann::json done = bake_sh(settings, [&](const nlohmann::json& e) { events.push_back(e["event"]); });
+    const protocol::DoneEvent done =
+        run_bake_job(job, [&](const protocol::WorkerEvent& e) { events.push_back(protocol::to_json(e)["event"]); });
     EXPECT_EQ(events.front(), "start");
     EXPECT_EQ(events.back(), "done");
     EXPECT_EQ(std::count(events.begin(), events.end(), "progress"), 3);
     EXPECT_EQ(std::count(events.begin(), events.end(), "snapshot"), 2);  // passes 1 and 2
+    EXPECT_EQ(done.final_files.at("sh"), "sh_transfer.bin");
     for (const char* f : {"scene.sh.glb", "sh_transfer.bin", "sh_transfer.half.bin", "env_sh.json", "manifest.json",
                           "sh_transfer.pass-0001.bin"})
         EXPECT_TRUE(std::filesystem::exists(out / f)) << f;
-    const int bands = done["bands"];
+    std::ifstream manifest_in(out / "manifest.json");
+    const int bands = nlohmann::json::parse(manifest_in)["sh"]["bands"];
     EXPECT_GE(bands, 1);
     EXPECT_LE(bands, 4);
 
-    const Scene original = load_scene(settings.scene);
+    const Scene original = load_scene(job.scene);
     const Scene reloaded = load_scene(out / "scene.sh.glb");
     ASSERT_EQ(reloaded.positions.size(), original.positions.size());
     for (size_t v = 0; v < original.positions.size(); ++v) ASSERT_EQ(reloaded.positions[v], original.positions[v]);
@@ -610,7 +612,7 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
     const Scene shaded_scene = load_scene(out / "shaded.glb");
     EXPECT_EQ(shaded_scene.positions, original.positions);
     ShShadeOptions from_bin_options;
-    from_bin_options.scene = settings.scene;
+    from_bin_options.scene = job.scene;
     const nlohmann::json shaded_bin = shade_sh_glb(out / "sh_transfer.bin", "1,1,1", out / "shaded_bin.glb", from_bin_options);
     // Under a white sky E/pi is the unoccluded fraction: at most 1.
     EXPECT_LE(shaded_bin["max_e_over_pi"].get<double>(), 1.0 + 1e-3);
@@ -626,16 +628,13 @@ TEST(ShBake, PerTexelWritesTheTransferExr) {
         std::filesystem::temp_directory_path() / ("lightfarm_sh_texel_" + std::to_string(::getpid()));
     std::filesystem::remove_all(out);
     gpu();
-    ShBakeSettings settings;
-    settings.scene = test::shared_scene("monkey.glb");
-    settings.out = out;
-    settings.bands = 2;
-    settings.per_texel = true;
-    settings.per_texel_resolution = 128;
-    settings.transfer.samples_per_pass = 16;
-    settings.stop.max_passes = 2;
-    const nlohmann::json done = bake_sh(settings, [](const nlohmann::json&) {});
-    const std::vector<std::string> files = done["files"];
+    BakeJob job;
+    job.scene = test::shared_scene("monkey.glb");
+    job.out = out;
+    job.settings = protocol::parse_bake_settings({{"outputs", {{"sh", {{"sh_bands", 2}, {"sh_per_texel", true}, {"sh_passes", 2}}}}},
+                                                  {"atlas", {{"res", 128}, {"subsamples", 1}}}});
+    const protocol::DoneEvent done = run_bake_job(job, [](const protocol::WorkerEvent&) {});
+    const std::vector<std::string>& files = done.files;
     for (const char* f : {"sh_transfer.exr", "sh_transfer.pass-0001.exr", "sh_transfer.pass-0002.exr", "sh_transfer.bin"})
         EXPECT_NE(std::find(files.begin(), files.end(), f), files.end()) << f;
     const FloatImage image = read_exr(out / "sh_transfer.exr");
@@ -700,7 +699,7 @@ TEST(ShBench, DISABLED_VerticesAndRaysPerSecond) {
                     "error estimate %.3g; snapshot %.2f s\n",
                     name.c_str(), scene.triangle_count(), scene.positions.size(), baker.unique_vertices(), sec(t0, t1),
                     sec(t1, t2), passes, per_pass, stats.seconds, double(baker.unique_vertices()) / stats.seconds, passes * per_pass, double(stats.rays) / stats.seconds,
-                    stats.error_estimate, sec(t2, t3) - stats.seconds);
+                    stats.error_estimate.value_or(0.0), sec(t2, t3) - stats.seconds);
         EXPECT_EQ(t.coefficients.size(), scene.positions.size());
     }
 }

@@ -21,7 +21,7 @@ using atlas_detail::SharedEdges;
 using Tri2 = std::array<glm::dvec2, 3>;
 using CornerUVs = std::vector<std::array<glm::vec2, 3>>;  // per triangle, per corner
 
-constexpr int kDefaultResolution = 1024;
+constexpr int kDefaultResolution = kDefaultAtlasResolution;
 constexpr uint32_t kNone = UINT32_MAX;
 
 // ---------------------------------------------------------------------------
@@ -641,6 +641,27 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     report.charts = charts.size();
     report.utilisation = utilisation(scene, report.width, report.height);
     return report;
+}
+
+int smallest_atlas_resolution(const Scene& scene, const AtlasOptions& options) {
+    const TriangleAdjacency adjacency = scene_adjacency(scene);
+    std::vector<uint32_t> triangle_chart;
+    const std::vector<Chart> charts = segment_charts(scene, adjacency, options.max_chart_angle_degrees, triangle_chart);
+    std::vector<Tri2> corners(scene.triangles.size());
+    std::vector<ChartShape> shapes(charts.size());
+    for (size_t c = 0; c < charts.size(); ++c) shapes[c] = lay_out_chart(scene, charts[c], corners);
+    // One texel per chart: a density so small that every chart rounds up to one.
+    constexpr double kOneTexel = 1e-12;
+    const int padding = std::max(0, options.padding);
+    auto fits = [&](int size) { return pack_charts(shapes, kOneTexel, size, size, padding).has_value(); };
+    if (!fits(options.max_resolution)) return 0;
+    int lo = 1, hi = options.max_resolution;  // fits(hi); find the smallest that fits
+    while (lo < hi) {
+        const int mid = lo + (hi - lo) / 2;
+        if (fits(mid)) hi = mid;
+        else lo = mid + 1;
+    }
+    return hi;
 }
 
 AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& options) {

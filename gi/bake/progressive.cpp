@@ -4,8 +4,12 @@
 
 namespace lf {
 
-nlohmann::json to_json(const PassStats& s) {
-    return {{"pass", s.pass}, {"rays", s.rays}, {"seconds", s.seconds}, {"error_estimate", s.error_estimate}};
+StopRule stop_rule_from(const protocol::StopSettings& stop) {
+    StopRule rule;
+    rule.max_passes = stop.passes;
+    rule.target_error = stop.target_error;
+    rule.time_limit = stop.time_limit;
+    return rule;
 }
 
 std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension) {
@@ -14,16 +18,16 @@ std::string snapshot_file_name(const std::string& stem, int pass, const std::str
     return stem + ".pass-" + number + "." + extension;
 }
 
-PassStats run_progressive(ProgressiveMethod& method, const StopRule& stop,
+PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
                           const std::function<void(const PassStats&, bool)>& on_pass) {
     PassStats stats;
     int next_snapshot = 1;
     while (stats.pass < stop.max_passes) {
-        stats = method.step();
+        stats = step();
         const bool snapshot_due = stats.pass == next_snapshot;
         if (snapshot_due) next_snapshot *= 2;
         const bool converged = stop.target_error > 0.0 && stats.pass >= stop.min_passes &&
-                               stats.error_estimate <= stop.target_error;
+                               stats.error_estimate.value_or(1e30) <= stop.target_error;
         const bool out_of_time = stop.time_limit > 0.0 && stats.seconds >= stop.time_limit;
         if (on_pass) on_pass(stats, snapshot_due);
         if (converged || out_of_time) break;

@@ -168,7 +168,8 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     std::vector<glm::uvec2> pairs;
     for (const auto& [to, from] : dilation_) pairs.emplace_back(to, from);
     dilation_pairs_ = GpuBuffer(pairs);
-    error_partials_ = GpuBuffer(2 * (covered_count_ / 64 + 1) * sizeof(glm::vec4));
+    // Two vec4 per work group of the resolve pass, however it is dispatched.
+    error_partials_ = GpuBuffer(2 * std::max<size_t>(1, resolve_.groups_1d(covered_count_)) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
     rays_per_texel_ = uint64_t(1 + punctual_count_ + (emitter_count_ ? settings_.light_samples : 0));
     relocate_samples_inside_geometry(texels.samples.size());
@@ -318,7 +319,7 @@ FloatImage RadiosityMapBaker::snapshot() const {
     image.number_attributes["lightfarm.pass"] = stats_.pass;
     image.number_attributes["lightfarm.rays"] = double(stats_.rays);
     image.number_attributes["lightfarm.seconds"] = stats_.seconds;
-    image.number_attributes["lightfarm.errorEstimate"] = stats_.error_estimate;
+    image.number_attributes["lightfarm.errorEstimate"] = stats_.error_estimate.value_or(0.0);
     image.string_attributes["lightfarm.scheme"] = to_string(settings_.scheme);
     return image;
 }

@@ -61,14 +61,14 @@ struct RadiosityMapSettings {
     double converged_texel_error = 0.0;
 };
 
-class RadiosityMapBaker : public ProgressiveMethod {
+class RadiosityMapBaker {
 public:
     // The scene must carry lightmap UVs (uv1) matching `texels`. The tracer
     // is shared: one BVH for every method of a bake.
     RadiosityMapBaker(const Scene& scene, const TexelSamples& texels, const Tracer& tracer,
                       const RadiosityMapSettings& settings);
 
-    PassStats step() override;
+    PassStats step();
 
     // The current lightmap: RGB = combined, direct.* and indirect.* layers,
     // "samples" (indirect samples behind the value), "error" (standard error

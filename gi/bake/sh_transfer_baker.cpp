@@ -117,7 +117,8 @@ void ShTransferBaker::build_receivers(const Scene& scene, const std::vector<ShRe
         for (int c = 0; c < 4; ++c) resolved[u * 4 * blocks + size_t(c)] = glm::make_vec4(&t[4 * c]);
     }
     resolved_ = GpuBuffer(resolved);
-    error_partials_ = GpuBuffer((receiver_count_ / 64 + 1) * sizeof(glm::vec4));
+    // One vec4 per work group of the resolve pass, however it is dispatched.
+    error_partials_ = GpuBuffer(std::max<size_t>(1, resolve_.groups_1d(receiver_count_)) * sizeof(glm::vec4));
 }
 
 void ShTransferBaker::build_occluders(const Scene& scene) {

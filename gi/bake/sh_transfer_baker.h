@@ -3,7 +3,7 @@
 // basis functions, so a renderer shades it under any environment with a dot
 // product E = Σ T_i L_i. The seed rasterizes a stereographic view from each
 // vertex (§2.2.2); this traces cosine-distributed rays with the project's one
-// tracer, pass by pass (ProgressiveMethod), and adds interreflection bounces
+// tracer, pass by pass (one ProgressiveMethod step each), and adds interreflection bounces
 // (Sloan, Kautz & Snyder 2002) on request.
 #pragma once
 
@@ -55,7 +55,7 @@ struct ShVertexTransfer {
     std::vector<ShCoefficients> point_standard_error;
 };
 
-class ShTransferBaker : public ProgressiveMethod {
+class ShTransferBaker {
 public:
     // `tracer` is the whole scene's BVH (shared by a bake's methods). With
     // occluder_meshes set, the baker builds its own BVH of those meshes instead.
@@ -63,14 +63,14 @@ public:
     // every one is traced (the caller applies receiver_meshes to them).
     ShTransferBaker(const Scene& scene, const Tracer& tracer, const ShTransferSettings& settings,
                     const std::vector<ShReceiverPoint>& points = {});
-    ~ShTransferBaker() override;
+    ~ShTransferBaker();
 
     // One pass: samples_per_pass rays per unique receiver vertex and per
     // extra receiver point. The error estimate is the relative standard
     // error of the transfer vectors, v over every traced receiver (vertices
     // and points): sqrt(Σ_v Σ_i Var(T_vi) / Σ_v Σ_i T_vi²) (iid variance: an
     // upper bound for the stratified directions used).
-    PassStats step() override;
+    PassStats step();
 
     ShVertexTransfer snapshot() const;
 

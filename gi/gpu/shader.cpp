@@ -120,13 +120,22 @@ ComputeProgram::~ComputeProgram() {
     if (id_) glDeleteProgram(id_);
 }
 
+namespace {
+// GL guarantees at least 65535 work groups per dimension.
+constexpr size_t kMaxGroupsX = 65535;
+}  // namespace
+
+size_t ComputeProgram::groups_1d(size_t n) const {
+    const size_t groups = (n + size_t(local_size_x_) - 1) / size_t(local_size_x_);
+    const size_t gy = (groups + kMaxGroupsX - 1) / kMaxGroupsX;
+    return std::min(groups, kMaxGroupsX) * gy;
+}
+
 void ComputeProgram::dispatch_1d(size_t n) const {
     if (n == 0) return;
     const size_t groups = (n + size_t(local_size_x_) - 1) / size_t(local_size_x_);
-    // GL guarantees at least 65535 groups per dimension; spill into y beyond that.
-    const size_t max_x = 65535;
-    const GLuint gx = GLuint(std::min(groups, max_x));
-    const GLuint gy = GLuint((groups + max_x - 1) / max_x);
+    const GLuint gx = GLuint(std::min(groups, kMaxGroupsX));
+    const GLuint gy = GLuint((groups + kMaxGroupsX - 1) / kMaxGroupsX);
     glDispatchCompute(gx, gy, 1);
     check_gl(name_.c_str());
 }

@@ -25,14 +25,20 @@ public:
     explicit ComputeProgram(const std::string& name,
                             const std::vector<std::pair<std::string, std::string>>& defines = {});
     ~ComputeProgram();
-    ComputeProgram(ComputeProgram&& other) noexcept : id_(std::exchange(other.id_, 0)), name_(std::move(other.name_)) {}
+    ComputeProgram(ComputeProgram&& other) noexcept
+        : id_(std::exchange(other.id_, 0)), name_(std::move(other.name_)), local_size_x_(other.local_size_x_) {}
     ComputeProgram(const ComputeProgram&) = delete;
     ComputeProgram& operator=(const ComputeProgram&) = delete;
 
     void use() const { glUseProgram(id_); }
     GLint uniform(const char* name) const { return glGetUniformLocation(id_, name); }
-    // Dispatches ceil(n / local_size_x) groups in x, for 1D work of n items.
+    // Dispatches groups_1d(n) groups for 1D work of n items: ceil(n /
+    // local_size_x) in x up to GL's guaranteed 65535, spilling into y beyond.
+    // Shaders index items as x + y * gl_NumWorkGroups.x * local_size_x and
+    // skip those >= n; a per-group buffer must hold groups_1d(n) entries (the
+    // spill rounds the group count up to a whole row of 65535).
     void dispatch_1d(size_t n) const;
+    size_t groups_1d(size_t n) const;
     GLuint id() const { return id_; }
     const std::string& name() const { return name_; }
 

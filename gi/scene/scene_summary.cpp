@@ -1,13 +1,14 @@
 #include "scene/scene_summary.h"
 
 #include <algorithm>
+#include <filesystem>
 #include <cstdio>
 #include <set>
 #include <sstream>
 
 namespace lf {
 
-nlohmann::json summarize(const Scene& scene) {
+protocol::SceneSummary summarize(const Scene& scene) {
     std::set<int> meshes;
     size_t with_uv1 = 0;
     for (const PrimitiveInstance& inst : scene.instances) {
@@ -32,26 +33,31 @@ nlohmann::json summarize(const Scene& scene) {
         const Bounds& b = scene.bounds;
         bounds = {{"lo", {b.lo.x, b.lo.y, b.lo.z}}, {"hi", {b.hi.x, b.hi.y, b.hi.z}}};
     }
-    return {
-        {"source", scene.source},
-        {"triangles", scene.triangles.size()},
+    protocol::SceneSummary summary;
+    // The file's name only: where it lies (a server's data directory) is nobody's business.
+    summary.source = std::filesystem::path(scene.source).filename().string();
+    summary.triangles = scene.triangles.size();
+    summary.emissive_triangles = scene.emissive_triangle_count();
+    summary.punctual_lights = scene.lights.size();
+    summary.max_texture_size = largest;
+    summary.has_lightmap_uvs = scene.all_have_lightmap_uvs();
+    summary.details = {
         {"vertices", scene.positions.size()},
         {"meshes", meshes.size()},
         {"primitive_instances", scene.instances.size()},
         {"materials", scene.materials.size()},
-        {"emissive_triangles", scene.emissive_triangle_count()},
         {"punctual_lights", {{"point", point}, {"spot", spot}, {"directional", directional}}},
         {"textures", scene.textures.size()},
-        {"max_texture_size", largest},
         {"lightmap_uvs", {{"all_primitives", scene.all_have_lightmap_uvs()}, {"primitives_with_texcoord_1", with_uv1}}},
         {"bounds", bounds},
         {"surface_area", area},
         {"warnings", scene.warnings},
     };
+    return summary;
 }
 
 std::string format_summary(const Scene& scene) {
-    const nlohmann::json s = summarize(scene);
+    const nlohmann::json s = to_json(summarize(scene));
     std::ostringstream out;
     char line[256];
     out << "scene:        " << scene.source << "\n";

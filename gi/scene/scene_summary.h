@@ -3,6 +3,7 @@
 #pragma once
 
 #include "scene/scene.h"
+#include "worker_protocol.h"
 
 #include <nlohmann/json.hpp>
 
@@ -26,7 +27,7 @@ namespace lf {
 //   "surface_area": 5.57,             m², sum of triangle areas
 //   "warnings": ["..."]
 // }
-nlohmann::json summarize(const Scene& scene);
+protocol::SceneSummary summarize(const Scene& scene);
 
 // The same as a few lines of text, ending in a newline.
 std::string format_summary(const Scene& scene);

@@ -1,0 +1,147 @@
+#include "bake/bake_job.h"
+
+#include "atlas/atlas.h"
+#include "atlas/lightmapped_gltf.h"
+#include "bake/prepared_scene.h"
+#include "bake/radiosity_map_method.h"
+#include "bake/sh_transfer_method.h"
+#include "io/image_files.h"
+#include "scene/gltf_loader.h"
+
+#include <chrono>
+#include <memory>
+#include <regex>
+
+namespace lf {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
+
+bool needs_atlas(const protocol::BakeSettings& s) { return s.lightmap || (s.sh && s.sh->per_texel); }
+
+// The lightmap atlas on a copy of the scene (a generated atlas splits
+// vertices; per-vertex outputs keep the input's), and its texel samples.
+void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
+    const std::string name = p.file.filename().string();
+    AtlasOptions options;
+    options.resolution = settings.res.value_or(0);
+    options.texel_density = float(settings.texel_density.value_or(0.0));
+    p.atlas_scene = p.scene;
+    try {
+        p.atlas = prepare_lightmap_atlas(*p.atlas_scene, options);
+    } catch (const std::runtime_error& e) {  // the charts do not fit: say what would
+        const int smallest = smallest_atlas_resolution(p.scene, options);
+        throw BakeInputError(name + ": " + e.what() +
+                             (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")"
+                                           : ""));
+    }
+    p.texels = rasterize_texel_samples(*p.atlas_scene, p.atlas.width, p.atlas.height, settings.subsamples);
+}
+
+// Everything the outputs share, made once: scene, atlas, GL context, tracer.
+std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
+    auto p = std::make_unique<PreparedScene>();
+    p->file = job.scene;
+    p->scene = load_scene(job.scene);
+    const protocol::BakeSettings& s = job.settings;
+    if (s.lightmap && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
+        throw BakeInputError(job.scene.filename().string() +
+                             ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
+                             "environment was given (give a uniform sky with --env R,G,B)");
+    if (needs_atlas(s)) prepare_atlas(*p, s.atlas);
+    p->gpu = std::make_unique<GpuContext>(job.device);
+    p->tracer = std::make_unique<Tracer>(p->atlas_scene ? *p->atlas_scene : p->scene);
+    return p;
+}
+
+// Every requested output's method, in the catalog's output order.
+std::vector<std::unique_ptr<ProgressiveMethod>> make_methods(const PreparedScene& p, const protocol::BakeSettings& s) {
+    std::vector<std::unique_ptr<ProgressiveMethod>> methods;
+    if (s.lightmap) methods.push_back(std::make_unique<RadiosityMapMethod>(p, s));
+    if (s.sh) methods.push_back(std::make_unique<ShTransferMethod>(p, s));
+    return methods;
+}
+
+// "lightmap.pass-0004.exr" -> "lightmap.pass-NNNN.exr": how methods describe their snapshots.
+std::string file_pattern(const std::string& name) {
+    static const std::regex pass(R"(\.pass-\d+\.)");
+    return std::regex_replace(name, pass, ".pass-NNNN.");
+}
+
+nlohmann::json describe_files(const std::vector<std::string>& files, const nlohmann::json& manifest) {
+    nlohmann::json out = nlohmann::json::object();
+    for (const std::string& f : files) {
+        out[f] = "";
+        for (const std::string& output : protocol::output_names()) {
+            if (!manifest.contains(output)) continue;
+            const nlohmann::json& known = manifest[output]["files"];
+            if (known.contains(f)) out[f] = known[f];
+            else if (known.contains(file_pattern(f))) out[f] = known[file_pattern(f)];
+        }
+    }
+    return out;
+}
+
+}  // namespace
+
+protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
+    const auto start = Clock::now();
+    fs::create_directories(job.out);
+    const std::unique_ptr<PreparedScene> prepared = prepare(job);
+    std::vector<std::unique_ptr<ProgressiveMethod>> methods = make_methods(*prepared, job.settings);
+    prepared->prepare_seconds = seconds_since(start);
+
+    protocol::StartEvent started;
+    started.vendor = prepared->gpu->info().vendor;
+    started.renderer = prepared->gpu->info().renderer;
+    started.triangles = prepared->scene.triangle_count();
+    started.prepare_seconds = prepared->prepare_seconds;
+    for (const auto& m : methods) started.outputs[m->output()] = m->description();
+    emit(started);
+
+    protocol::DoneEvent done;
+    nlohmann::json manifest = {
+        {"scene", job.scene.filename().string()},
+        {"device", {{"vendor", started.vendor}, {"renderer", started.renderer}}},
+        {"settings", protocol::to_json(job.settings)},
+        // One load, one atlas, one context, one BVH for every output.
+        {"prepared", {{"seconds", prepared->prepare_seconds}, {"outputs", nlohmann::json::array()},
+                      {"triangles", started.triangles}, {"atlas_generated", prepared->atlas.generated}}},
+    };
+    for (const auto& m : methods) {
+        const std::string output = m->output();
+        manifest["prepared"]["outputs"].push_back(output);
+        const PassStats last = run_progressive([&] { return m->step(); }, m->stop_rule(),
+                                               [&](const PassStats& stats, bool snapshot_due) {
+            emit(protocol::ProgressEvent{output, stats});
+            if (!snapshot_due) return;
+            for (const std::string& file : m->snapshot(job.out, stats)) {
+                done.files.push_back(file);
+                emit(protocol::SnapshotEvent{output, file, stats.pass});
+            }
+        });
+        MethodResult result = m->finish(job.out, last);
+        done.final_files[output] = result.files.front();
+        done.files.insert(done.files.end(), result.files.begin(), result.files.end());
+        done.progress = last;
+        manifest[output] = std::move(result.manifest);
+    }
+    if (prepared->atlas.generated) {
+        write_lightmapped_glb(job.scene, *prepared->atlas_scene, job.out / "scene.lightmapped.glb");
+        done.files.push_back("scene.lightmapped.glb");
+    }
+    done.files.push_back("manifest.json");
+    manifest["files"] = describe_files(done.files, manifest);
+    manifest["files"]["manifest.json"] = "this file; its \"settings\" are a spec for `lightfarm bake --spec`";
+    if (prepared->atlas.generated)
+        manifest["files"]["scene.lightmapped.glb"] = "the input scene with TEXCOORD_1 = the generated atlas";
+    write_file_atomic(job.out / "manifest.json", manifest.dump(2) + "\n");
+    emit(done);
+    return done;
+}
+
+}  // namespace lf

@@ -1,0 +1,41 @@
+// The one job driver, as `lightfarm bake` and the service's worker run it:
+// load the scene once, prepare what the requested outputs need once (atlas,
+// texel samples, one GL context, one tracer), run every output's method
+// through the one progressive loop, and own the worker events, the snapshot
+// names and manifest.json. A new method plugs in here (make_methods) with no
+// change to the events, the CLI or the server.
+#pragma once
+
+#include "bake_settings.h"
+#include "gpu/context.h"
+#include "worker_protocol.h"
+
+#include <filesystem>
+#include <functional>
+#include <stdexcept>
+
+namespace lf {
+
+struct BakeJob {
+    std::filesystem::path scene;  // the .gltf / .glb
+    std::filesystem::path out;    // the output directory (created)
+    protocol::BakeSettings settings;
+    DeviceChoice device = DeviceChoice::Auto;
+};
+
+// The job's input cannot be baked as asked (no light, an atlas that cannot
+// fit, a mesh that is not there): running it again cannot help. The CLI
+// exits with protocol::kExitInputError for it (and for a SceneError).
+class BakeInputError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
+// Worker events as they happen: start, progress and snapshot per pass, done.
+using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;
+
+// Runs the job and returns its "done" event (also emitted). Throws on any
+// failure; no file is ever left half-written under its final name.
+protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit);
+
+}  // namespace lf

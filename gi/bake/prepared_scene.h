@@ -1,0 +1,33 @@
+// What the job driver prepares once per job and every method reads: the
+// scene, the lightmap atlas and its texel samples (when a per-texel output is
+// asked for), one GL context and one tracer.
+#pragma once
+
+#include "atlas/atlas.h"
+#include "atlas/texel_samples.h"
+#include "gpu/context.h"
+#include "scene/scene.h"
+#include "trace/tracer.h"
+
+#include <filesystem>
+#include <memory>
+#include <optional>
+
+namespace lf {
+
+struct PreparedScene {
+    std::filesystem::path file;  // the glTF as given (writers copy it)
+    Scene scene;                 // as loaded: per-vertex methods (SH) read its vertices
+    // With the lightmap atlas as uv1 (vertices split on chart borders; the
+    // triangles, their order and positions are the scene's): per-texel methods.
+    std::optional<Scene> atlas_scene;
+    AtlasReport atlas;
+    TexelSamples texels;
+    std::unique_ptr<GpuContext> gpu;
+    // One BVH for every method. Built from atlas_scene when there is one:
+    // triangle t is the same triangle at the same position in both scenes.
+    std::unique_ptr<Tracer> tracer;
+    double prepare_seconds = 0.0;
+};
+
+}  // namespace lf

@@ -1,0 +1,115 @@
+#include "bake/radiosity_map_method.h"
+
+#include "io/image_files.h"
+
+namespace lf {
+
+namespace {
+
+// The R, G, B channels of a layer ("" = combined, "direct.", "indirect.") as vec4 texels.
+std::vector<glm::vec4> image_layer(const FloatImage& image, const std::string& layer) {
+    const auto &r = image.at(layer + "R"), &g = image.at(layer + "G"), &b = image.at(layer + "B");
+    std::vector<glm::vec4> out(r.size());
+    for (size_t i = 0; i < r.size(); ++i) out[i] = glm::vec4(r[i], g[i], b[i], 0.0f);
+    return out;
+}
+
+void set_image_layer(FloatImage& image, const std::string& layer, const std::vector<glm::vec4>& rgb) {
+    auto &r = image.channel(layer + "R"), &g = image.channel(layer + "G"), &b = image.channel(layer + "B");
+    for (size_t i = 0; i < rgb.size(); ++i) {
+        r[i] = rgb[i].r;
+        g[i] = rgb[i].g;
+        b[i] = rgb[i].b;
+    }
+}
+
+// Across a crease (a cube's edge) the two sides face different ways and
+// rightly differ: only smooth seams are stitched.
+std::vector<SeamEdge> smooth_seams(const Scene& scene) {
+    std::vector<SeamEdge> seams;
+    for (const SeamEdge& e : find_seams(scene))
+        if (e.smooth) seams.push_back(e);
+    return seams;
+}
+
+}  // namespace
+
+RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) {
+    const protocol::LightmapSettings& l = *settings.lightmap;
+    RadiosityMapSettings r;
+    r.scheme = parse_radiosity_scheme(l.scheme);
+    r.light_samples = l.light_samples;
+    r.light_sampling = parse_light_sampling(l.light_sampling);
+    r.seed = settings.seed;
+    if (settings.env.sky) r.background = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
+    // Adaptive sampling: a texel well below the target stops tracing.
+    if (l.stop.target_error > 0.0) r.converged_texel_error = 0.5 * l.stop.target_error;
+    return r;
+}
+
+RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
+    : prepared_(prepared),
+      stop_(stop_rule_from(settings.lightmap->stop)),
+      baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer, radiosity_settings(settings)),
+      seams_(smooth_seams(*prepared.atlas_scene)),
+      stitch_(settings.lightmap->stitch) {
+    const RadiosityMapSettings r = radiosity_settings(settings);
+    const AtlasReport& atlas = prepared.atlas;
+    settings_json_ = {
+        {"method", "radiosity_map"},
+        {"scheme", to_string(r.scheme)},
+        {"atlas", {{"width", atlas.width}, {"height", atlas.height}, {"texel_density", atlas.texel_density},
+                   {"generated", atlas.generated}, {"charts", atlas.charts}, {"utilisation", atlas.utilisation}}},
+        {"light_samples", r.light_samples},
+        {"light_sampling", to_string(r.light_sampling)},
+        {"subsamples_per_texel", settings.atlas.subsamples * settings.atlas.subsamples},
+        {"stitch", settings.lightmap->stitch},
+        {"seed", r.seed},
+        {"max_passes", stop_.max_passes},
+        {"target_error", stop_.target_error},
+        {"time_limit", stop_.time_limit},
+    };
+}
+
+nlohmann::json RadiosityMapMethod::description() const {
+    return {{"texels", baker_.covered_texels()}, {"settings", settings_json_}};
+}
+
+FloatImage RadiosityMapMethod::stitched_image() const {
+    FloatImage image = baker_.snapshot();
+    image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;
+    image.string_attributes["lightfarm.settings"] = settings_json_.dump();
+    if (stitch_ && !seams_.empty()) {
+        for (const char* layer : {"", "direct.", "indirect."}) {
+            std::vector<glm::vec4> rgb = image_layer(image, layer);
+            stitch_seams(seams_, rgb, image.width, image.height);
+            set_image_layer(image, layer, rgb);
+        }
+    }
+    return image;
+}
+
+std::vector<std::string> RadiosityMapMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
+    const std::string name = snapshot_file_name("lightmap", stats.pass, "exr");
+    last_snapshot_ = stitched_image();
+    last_snapshot_pass_ = stats.pass;
+    write_exr(dir / name, last_snapshot_);
+    return {name};
+}
+
+MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
+    const FloatImage image = last_snapshot_pass_ == stats.pass ? std::move(last_snapshot_) : stitched_image();
+    write_exr(dir / "lightmap.exr", image);
+    MethodResult result;
+    result.files = {"lightmap.exr"};
+    result.manifest = {
+        {"settings", settings_json_},
+        {"result", protocol::to_json(stats)},
+        {"seams", {{"edges", seams_.size()}, {"metric", seam_metric(seams_, image_layer(image, ""), image.width, image.height)}}},
+        {"files", {{"lightmap.exr", "final lightmap: RGB = irradiance/pi, layers direct, indirect, samples, error"},
+                   {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
+    };
+    return result;
+}
+
+}  // namespace lf

@@ -1,0 +1,44 @@
+// The lightmap output of a bake job: RadiosityMapBaker's passes plus seam
+// stitching and the EXR writer (DESIGN.md "Outputs": lightmap.exr and its
+// snapshots lightmap.pass-NNNN.exr).
+#pragma once
+
+#include "atlas/seams.h"
+#include "bake/prepared_scene.h"
+#include "bake/progressive.h"
+#include "bake/radiosity_map_baker.h"
+#include "bake_settings.h"
+
+#include <vector>
+
+namespace lf {
+
+class RadiosityMapMethod : public ProgressiveMethod {
+public:
+    // `prepared` must have an atlas; it outlives the method.
+    RadiosityMapMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings);
+
+    std::string output() const override { return "lightmap"; }
+    StopRule stop_rule() const override { return stop_; }
+    nlohmann::json description() const override;
+    PassStats step() override { return baker_.step(); }
+    std::vector<std::string> snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
+    MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
+
+private:
+    FloatImage stitched_image() const;
+
+    const PreparedScene& prepared_;
+    StopRule stop_;
+    nlohmann::json settings_json_;
+    RadiosityMapBaker baker_;
+    std::vector<SeamEdge> seams_;   // smooth seams only (measured even when not stitched)
+    bool stitch_ = true;
+    FloatImage last_snapshot_;      // the final image when the bake stops on a snapshot pass
+    int last_snapshot_pass_ = 0;
+};
+
+// The baker's settings for a job's lightmap settings (public for tests).
+RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings);
+
+}  // namespace lf

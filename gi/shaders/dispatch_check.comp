@@ -1,0 +1,17 @@
+#version 450 core
+// Checks ComputeProgram::dispatch_1d (tests only): every item below
+// item_count is visited exactly once, and every dispatched group writes its
+// own slot of a per-group buffer sized by groups_1d.
+layout(local_size_x = 64) in;
+
+layout(std430, binding = 0) buffer ItemVisits { uint item_visits[]; };
+layout(std430, binding = 1) buffer GroupSlots { uint group_slots[]; };
+
+uniform uint item_count;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    if (i < item_count) atomicAdd(item_visits[i], 1u);
+    uint group = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (gl_LocalInvocationIndex == 0u) group_slots[group] = group + 1u;
+}

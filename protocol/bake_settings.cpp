@@ -1,0 +1,473 @@
+#include "bake_settings.h"
+
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace lf::protocol {
+
+using nlohmann::json;
+
+namespace {
+
+constexpr double kMaxPasses = 1 << 24;
+
+Setting integer(std::string group, std::string name, json def, double min, double max, std::string limit, std::string help) {
+    Setting s;
+    s.group = std::move(group);
+    s.name = std::move(name);
+    s.type = SettingType::Integer;
+    s.default_value = std::move(def);
+    s.min = min;
+    s.max = max;
+    s.limit = std::move(limit);
+    s.help = std::move(help);
+    return s;
+}
+
+Setting number(std::string group, std::string name, json def, double min, bool min_exclusive, double max,
+               std::string limit, std::string help) {
+    Setting s = integer(std::move(group), std::move(name), std::move(def), min, max, std::move(limit), std::move(help));
+    s.type = SettingType::Number;
+    s.min_exclusive = min_exclusive;
+    return s;
+}
+
+Setting choice(std::string group, std::string name, std::vector<std::string> choices, std::string help) {
+    Setting s;
+    s.group = std::move(group);
+    s.name = std::move(name);
+    s.type = SettingType::Choice;
+    s.default_value = choices.front();
+    s.choices = std::move(choices);
+    s.help = std::move(help);
+    return s;
+}
+
+Setting typed(std::string group, std::string name, SettingType type, json def, std::string help) {
+    Setting s;
+    s.group = std::move(group);
+    s.name = std::move(name);
+    s.type = type;
+    s.default_value = std::move(def);
+    s.help = std::move(help);
+    return s;
+}
+
+Setting with_auto(Setting s) {
+    s.accepts_auto = true;
+    s.default_value = "auto";
+    return s;
+}
+
+std::vector<Setting> build_catalog() {
+    using T = SettingType;
+    return {
+        integer("lightmap", "passes", 256, 1, kMaxPasses, "passes", "stop after this many passes"),
+        number("lightmap", "target_error", 0, 0, false, 1e3, "",
+               "stop when the relative standard error falls below this (0: no target)"),
+        number("lightmap", "time_limit", 0, 0, false, 1e7, "time_limit", "stop after this many seconds of passes (0: none)"),
+        choice("lightmap", "scheme", {"epochs", "thesis", "pathtrace"},
+               "indirect light: doubling epochs, the thesis's running average, or brute-force path tracing"),
+        integer("lightmap", "light_samples", 1, 1, 1024, "", "emitter samples per texel per pass"),
+        choice("lightmap", "light_sampling", {"mis", "area", "solid-angle"},
+               "emitter sampling: MIS of solid angle and cosine rays, area alone, solid angle alone"),
+        typed("lightmap", "stitch", T::Flag, true, "least-squares stitch of UV seams"),
+
+        with_auto(integer("sh", "sh_bands", 4, 1, 4, "", "SH bands (auto: fewest within 2% of 4 bands)")),
+        integer("sh", "sh_bounces", 0, 0, 4, "", "interreflection bounces (0: shadowed transfer)"),
+        choice("sh", "sh_window", {"none", "hanning", "lanczos"}, "windowing of env_sh.json against ringing"),
+        integer("sh", "sh_passes", 256, 1, kMaxPasses, "passes", "stop after this many passes of 64 rays per vertex"),
+        number("sh", "sh_target_error", 0, 0, false, 1e3, "",
+               "stop when the transfer's relative standard error falls below this (0: no target)"),
+        number("sh", "sh_time_limit", 0, 0, false, 1e7, "time_limit", "stop after this many seconds of passes (0: none)"),
+        typed("sh", "sh_occluders", T::MeshList, json::array(), "glTF meshes that cast shadows (empty: all)"),
+        typed("sh", "sh_receivers", T::MeshList, json::array(), "glTF meshes that get transfer (empty: all)"),
+        typed("sh", "sh_per_texel", T::Flag, false, "transfer per lightmap texel too (sh_transfer.exr, the atlas below)"),
+
+        with_auto(integer("atlas", "res", 0, 1, 16384, "res",
+                          "atlas width and height in texels (auto: the file's TEXCOORD_1 at 256, or from texel_density)")),
+        with_auto(number("atlas", "texel_density", 0, 0, true, 1e4, "",
+                         "texels per metre of surface (auto: from res)")),
+        integer("atlas", "subsamples", 2, 1, 8, "", "sample points per texel along each axis"),
+
+        integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
+        typed("", "env", T::Environment, nullptr,
+              "environment: a uniform sky R,G,B (W/(sr m^2)); an .exr/.hdr map for sh (CLI only)"),
+    };
+}
+
+// Shortest text for a number: 8192, not 8192.000000.
+std::string number_text(double v) {
+    std::ostringstream s;
+    s.precision(15);
+    s << v;
+    return s.str();
+}
+
+std::string type_name(const json& j) {
+    if (j.is_number_integer() || j.is_number_unsigned()) return "an integer";
+    if (j.is_number()) return "a number";
+    const std::string name = j.type_name();
+    return (name == "array" || name == "object" ? "an " : "a ") + name;
+}
+
+std::string joined(const std::vector<std::string>& items, const std::string& sep) {
+    std::string out;
+    for (const std::string& s : items) out += (out.empty() ? "" : sep) + s;
+    return out;
+}
+
+json check_range(const Setting& s, const json& v, const SpecLimits& limits, const std::string& field) {
+    if (!v.is_number()) throw SpecError(field, "must be a number, not " + type_name(v));
+    const double x = v.get<double>();
+    if (!std::isfinite(x)) throw SpecError(field, "must be finite");
+    const bool is_int = v.is_number_integer() || v.is_number_unsigned();
+    if (s.type == SettingType::Integer && !is_int) throw SpecError(field, "must be an integer, not " + number_text(x));
+    if (s.min_exclusive ? !(x > s.min) : !(x >= s.min))
+        throw SpecError(field, number_text(x) + " is below the minimum " + (s.min_exclusive ? "(exclusive) " : "") +
+                                   number_text(s.min));
+    if (x > s.max) throw SpecError(field, number_text(x) + " exceeds the maximum " + number_text(s.max));
+    if (!s.limit.empty() && x > limits.cap(s.limit))
+        throw SpecError(field, number_text(x) + " exceeds this server's limit " + number_text(limits.cap(s.limit)));
+    if (s.type == SettingType::Integer) return v.is_number_unsigned() ? json(v.get<uint64_t>()) : json(v.get<int64_t>());
+    return json(x);
+}
+
+json check_environment(const json& v, const SpecLimits& limits, const std::string& field) {
+    if (v.is_array()) {
+        if (v.size() != 3) throw SpecError(field, "a uniform sky is [R, G, B], not " + std::to_string(v.size()) + " values");
+        json out = json::array();
+        for (const json& c : v) {
+            if (!c.is_number() || !std::isfinite(c.get<double>()) || c.get<double>() < 0.0)
+                throw SpecError(field, "sky radiance components must be finite numbers >= 0");
+            out.push_back(c.get<double>());
+        }
+        return out;
+    }
+    if (v.is_string()) {
+        const std::string file = v.get<std::string>();
+        if (file.empty()) throw SpecError(field, "must not be empty");
+        if (!limits.allow_local_files)
+            throw SpecError(field, "an environment map file cannot be given to the service; give a uniform sky [R, G, B]");
+        return file;
+    }
+    throw SpecError(field, "must be [R, G, B] or an environment map file, not " + type_name(v));
+}
+
+// One value against its setting: returns it in canonical form.
+json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
+    const std::string field = s.field();
+    if (s.accepts_auto && v.is_string() && v.get<std::string>() == "auto") return "auto";
+    switch (s.type) {
+    case SettingType::Integer:
+    case SettingType::Number:
+        if (v.is_string() && !s.accepts_auto) throw SpecError(field, "must be a number, not a string");
+        if (v.is_string()) throw SpecError(field, "must be a number or \"auto\", not \"" + v.get<std::string>() + "\"");
+        return check_range(s, v, limits, field);
+    case SettingType::Choice:
+        if (v.is_string())
+            for (const std::string& c : s.choices)
+                if (v.get<std::string>() == c) return v;
+        throw SpecError(field, "must be one of " + joined(s.choices, ", ") + ", not " + v.dump());
+    case SettingType::Flag:
+        if (!v.is_boolean()) throw SpecError(field, "must be true or false, not " + type_name(v));
+        return v;
+    case SettingType::MeshList: {
+        if (!v.is_array()) throw SpecError(field, "must be an array of glTF mesh indices, not " + type_name(v));
+        json out = json::array();
+        for (const json& m : v) {
+            if (!(m.is_number_integer() || m.is_number_unsigned()) || m.get<int64_t>() < 0 || m.get<int64_t>() > 1 << 30)
+                throw SpecError(field, "mesh indices are integers >= 0, not " + m.dump());
+            out.push_back(m.get<int64_t>());
+        }
+        return out;
+    }
+    case SettingType::Environment:
+        return check_environment(v, limits, field);
+    }
+    return v;
+}
+
+void require_object(const json& j, const std::string& field) {
+    if (!j.is_object()) throw SpecError(field, "must be an object, not " + type_name(j));
+}
+
+// Every key of group `group` in `j` must be a setting of that group.
+void reject_unknown(const json& j, const std::string& group, const std::string& prefix) {
+    std::vector<std::string> known;
+    for (const Setting& s : setting_catalog())
+        if (s.group == group) known.push_back(s.name);
+    for (auto it = j.begin(); it != j.end(); ++it)
+        if (!find_setting(group, it.key()))
+            throw SpecError(prefix + it.key(), "unknown setting (known: " + joined(known, ", ") + ")");
+}
+
+// The group's settings, each validated or defaulted, as canonical JSON.
+json settings_of_group(const std::string& group, const json& given, const SpecLimits& limits) {
+    json out = json::object();
+    for (const Setting& s : setting_catalog()) {
+        if (s.group != group) continue;
+        if (given.contains(s.name)) out[s.name] = check_setting(s, given[s.name], limits);
+        else if (!s.default_value.is_null()) out[s.name] = s.default_value;
+    }
+    return out;
+}
+
+std::optional<int> int_or_auto(const json& v) {
+    if (v.is_string()) return std::nullopt;
+    return v.get<int>();
+}
+
+StopSettings stop_from(const json& j, const std::string& prefix) {
+    return {j.at(prefix + "passes").get<int>(), j.at(prefix + "target_error").get<double>(),
+            j.at(prefix + "time_limit").get<double>()};
+}
+
+// Rules between settings; each names the field to change.
+void check_combination(const BakeSettings& b) {
+    if (b.atlas.res && b.atlas.texel_density)
+        throw SpecError("atlas.texel_density", "cannot be given together with atlas.res (give one; the other follows)");
+    if (b.lightmap && !b.env.map_file.empty())
+        throw SpecError("env", "a lightmap's environment is a uniform sky R,G,B; environment maps work with the sh output only");
+}
+
+}  // namespace
+
+double SpecLimits::cap(const std::string& key) const {
+    auto it = caps.find(key);
+    return it == caps.end() ? std::numeric_limits<double>::infinity() : it->second;
+}
+
+std::string Setting::flag() const {
+    std::string f = name;
+    for (char& c : f)
+        if (c == '_') c = '-';
+    if (type == SettingType::Flag && default_value == true) return "--no-" + f;
+    return "--" + f;
+}
+
+std::string Setting::field() const { return group.empty() ? name : group + "." + name; }
+
+std::string Setting::value_syntax() const {
+    switch (type) {
+    case SettingType::Integer:
+        return (min == 0 && max <= 8 ? number_text(min) + ".." + number_text(max) : std::string("N")) +
+               (accepts_auto ? "|auto" : "");
+    case SettingType::Number: return std::string("X") + (accepts_auto ? "|auto" : "");
+    case SettingType::Choice: return joined(choices, "|");
+    case SettingType::Flag: return "";
+    case SettingType::MeshList: return "MESHES";
+    case SettingType::Environment: return "R,G,B|FILE";
+    }
+    return "";
+}
+
+const std::vector<Setting>& setting_catalog() {
+    static const std::vector<Setting> catalog = build_catalog();
+    return catalog;
+}
+
+const std::vector<std::string>& output_names() {
+    static const std::vector<std::string> names = {"lightmap", "sh"};
+    return names;
+}
+
+const Setting* find_setting(const std::string& group, const std::string& name) {
+    for (const Setting& s : setting_catalog())
+        if (s.group == group && s.name == name) return &s;
+    return nullptr;
+}
+
+const Setting* find_setting_by_flag(const std::string& flag) {
+    for (const Setting& s : setting_catalog())
+        if (s.flag() == flag) return &s;
+    return nullptr;
+}
+
+BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
+    require_object(j, "");
+    if (!j.contains("outputs")) throw SpecError("outputs", "is required");
+    const json& outputs = j["outputs"];
+    require_object(outputs, "outputs");
+    if (outputs.empty()) throw SpecError("outputs", "must ask for at least one output (" + joined(output_names(), ", ") + ")");
+    for (auto it = outputs.begin(); it != outputs.end(); ++it) {
+        bool known = false;
+        for (const std::string& o : output_names()) known = known || o == it.key();
+        if (!known) throw SpecError("outputs." + it.key(), "unknown output (known: " + joined(output_names(), ", ") + ")");
+        require_object(it.value(), "outputs." + it.key());
+        reject_unknown(it.value(), it.key(), it.key() + ".");
+    }
+    const json atlas_given = j.value("atlas", json::object());
+    require_object(atlas_given, "atlas");
+    reject_unknown(atlas_given, "atlas", "atlas.");
+
+    BakeSettings b;
+    const json job = settings_of_group("", j, limits);
+    b.seed = job.at("seed").get<uint32_t>();
+    if (job.contains("env")) {
+        const json& e = job["env"];
+        if (e.is_array()) b.env.sky = std::array<float, 3>{e[0].get<float>(), e[1].get<float>(), e[2].get<float>()};
+        else b.env.map_file = e.get<std::string>();
+    }
+    const json atlas = settings_of_group("atlas", atlas_given, limits);
+    b.atlas.res = int_or_auto(atlas["res"]);
+    if (!atlas["texel_density"].is_string()) b.atlas.texel_density = atlas["texel_density"].get<double>();
+    b.atlas.subsamples = atlas["subsamples"].get<int>();
+    if (outputs.contains("lightmap")) {
+        const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
+        b.lightmap = LightmapSettings{stop_from(l, ""), l["scheme"], l["light_samples"], l["light_sampling"], l["stitch"]};
+    }
+    if (outputs.contains("sh")) {
+        const json s = settings_of_group("sh", outputs["sh"], limits);
+        ShSettings sh;
+        sh.bands = int_or_auto(s["sh_bands"]);
+        sh.bounces = s["sh_bounces"];
+        sh.window = s["sh_window"];
+        sh.stop = stop_from(s, "sh_");
+        sh.occluders = s["sh_occluders"].get<std::vector<int>>();
+        sh.receivers = s["sh_receivers"].get<std::vector<int>>();
+        sh.per_texel = s["sh_per_texel"];
+        b.sh = sh;
+    }
+    check_combination(b);
+    return b;
+}
+
+json to_json(const BakeSettings& b) {
+    auto or_auto = [](const auto& v) { return v ? json(*v) : json("auto"); };
+    json j = {{"outputs", json::object()}, {"seed", b.seed}};
+    j["atlas"] = {{"res", or_auto(b.atlas.res)}, {"texel_density", or_auto(b.atlas.texel_density)},
+                  {"subsamples", b.atlas.subsamples}};
+    if (b.env.sky) j["env"] = *b.env.sky;
+    else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
+    if (const auto& l = b.lightmap)
+        j["outputs"]["lightmap"] = {{"passes", l->stop.passes}, {"target_error", l->stop.target_error},
+                                    {"time_limit", l->stop.time_limit}, {"scheme", l->scheme},
+                                    {"light_samples", l->light_samples}, {"light_sampling", l->light_sampling},
+                                    {"stitch", l->stitch}};
+    if (const auto& s = b.sh)
+        j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)}, {"sh_bounces", s->bounces}, {"sh_window", s->window},
+                              {"sh_passes", s->stop.passes}, {"sh_target_error", s->stop.target_error},
+                              {"sh_time_limit", s->stop.time_limit}, {"sh_occluders", s->occluders},
+                              {"sh_receivers", s->receivers}, {"sh_per_texel", s->per_texel}};
+    return j;
+}
+
+namespace {
+
+// A command-line value as the JSON the catalog checks.
+json value_from_text(const Setting& s, const std::string& text) {
+    const std::string flag = s.flag();
+    if (s.accepts_auto && text == "auto") return "auto";
+    auto bad = [&](const std::string& what) { return SpecError(flag, "'" + text + "' is not " + what); };
+    switch (s.type) {
+    case SettingType::Integer: {
+        size_t used = 0;
+        long long v = 0;
+        try {
+            v = std::stoll(text, &used);
+        } catch (const std::exception&) {
+            used = 0;
+        }
+        if (text.empty() || used != text.size()) throw bad(s.accepts_auto ? "an integer or auto" : "an integer");
+        return v;
+    }
+    case SettingType::Number: {
+        size_t used = 0;
+        double v = 0;
+        try {
+            v = std::stod(text, &used);
+        } catch (const std::exception&) {
+            used = 0;
+        }
+        if (text.empty() || used != text.size()) throw bad(s.accepts_auto ? "a number or auto" : "a number");
+        return v;
+    }
+    case SettingType::Choice: return text;
+    case SettingType::Flag: return s.default_value != true;
+    case SettingType::MeshList: {
+        json meshes = json::array();
+        size_t at = 0;
+        while (at < text.size()) {
+            const size_t comma = std::min(text.find(',', at), text.size());
+            const std::string item = text.substr(at, comma - at);
+            if (item.empty() || item.find_first_not_of("0123456789") != std::string::npos || item.size() > 9)
+                throw bad("a list of glTF mesh indices like 0,3,4");
+            meshes.push_back(std::stoi(item));
+            at = comma + 1;
+        }
+        if (text.empty() || text.back() == ',') throw bad("a list of glTF mesh indices like 0,3,4");
+        return meshes;
+    }
+    case SettingType::Environment: {
+        float r, g, b;
+        char tail;
+        if (std::sscanf(text.c_str(), "%f,%f,%f%c", &r, &g, &b, &tail) == 3) return json::array({r, g, b});
+        if (text.find(',') != std::string::npos) throw bad("a sky radiance R,G,B or an environment map file");
+        return text;
+    }
+    }
+    return text;
+}
+
+// A SpecError on a field re-raised under the command-line flag that set it
+// (a field that came from the spec file keeps its field name).
+[[noreturn]] void rethrow_as_flag(const SpecError& e, const std::map<std::string, std::string>& flags) {
+    for (const Setting& s : setting_catalog()) {
+        if (e.field() != s.field() || !flags.count(s.flag())) continue;
+        const std::string what = e.what();
+        throw SpecError(s.flag(), what.substr(s.field().size() + 2));
+    }
+    throw e;
+}
+
+}  // namespace
+
+json bake_json_from_flags(const std::map<std::string, std::string>& flags, const json& base) {
+    json j = base.is_object() ? base : json::object();
+    if (!j.contains("outputs") || !j["outputs"].is_object()) j["outputs"] = json::object();
+    auto select = [&](const std::string& output) {
+        if (!j["outputs"].contains(output)) j["outputs"][output] = json::object();
+    };
+    for (const auto& [flag, text] : flags) {
+        bool is_output = false;
+        for (const std::string& o : output_names())
+            if (flag == "--" + o) {
+                select(o);
+                is_output = true;
+            }
+        if (is_output) continue;
+        const Setting* s = find_setting_by_flag(flag);
+        if (!s) throw SpecError(flag, "unknown bake option");
+        const json value = value_from_text(*s, text);
+        if (s->group.empty()) {
+            j[s->name] = value;
+        } else if (s->group == "atlas") {
+            j["atlas"][s->name] = value;
+        } else {
+            select(s->group);
+            j["outputs"][s->group][s->name] = value;
+        }
+    }
+    if (j["outputs"].empty()) j["outputs"]["lightmap"] = json::object();
+    // Checked here too (without any server's caps), so that a bad value is
+    // reported under its flag.
+    try {
+        SpecLimits no_caps;
+        no_caps.caps.clear();
+        parse_bake_settings(j, no_caps);
+    } catch (const SpecError& e) {
+        rethrow_as_flag(e, flags);
+    }
+    return j;
+}
+
+std::vector<std::pair<std::string, bool>> bake_flags() {
+    std::vector<std::pair<std::string, bool>> flags;
+    for (const std::string& o : output_names()) flags.emplace_back("--" + o, false);
+    for (const Setting& s : setting_catalog()) flags.emplace_back(s.flag(), s.type != SettingType::Flag);
+    return flags;
+}
+
+}  // namespace lf::protocol

@@ -1,0 +1,152 @@
+// The one settings type of a bake: every setting's name, flag, type, range,
+// default and help live once, in setting_catalog(), and one function
+// (parse_bake_settings) decides what is valid. The CLI's `bake` flags, the
+// server's job validation, the OpenAPI document, the README's option table and
+// the worker (`lightfarm bake --spec SPEC.json`) all go through it, so a value
+// is valid in one place exactly when it is valid in all.
+//
+// JSON shape (the "bake" part of a job spec; every key optional but outputs):
+//   {"outputs": {"lightmap": {"passes": 256, …}, "sh": {"sh_bands": "auto", …}},
+//    "atlas":   {"res": 512},          // shared by every per-texel output
+//    "seed": 1,
+//    "env":     [0.5, 0.6, 0.8]}       // uniform sky radiance, or (CLI only) a map file
+// On the command line each setting is `--name-with-dashes VALUE`; a flag
+// setting is `--name` (or `--no-name` when it defaults to true); outputs are
+// chosen by `--lightmap`, `--sh`, or by giving any of their own settings.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace lf::protocol {
+
+// A setting that does not validate. what() is "field: reason", e.g.
+// "lightmap.passes: 0 is below the minimum 1"; field() is "lightmap.passes"
+// (or the CLI flag, "--passes", when the value came from the command line).
+class SpecError : public std::runtime_error {
+public:
+    SpecError(const std::string& field, const std::string& reason)
+        : std::runtime_error(field.empty() ? reason : field + ": " + reason), field_(field) {}
+    const std::string& field() const { return field_; }
+
+private:
+    std::string field_;
+};
+
+// Caps that a server puts on what a job may ask for, by limit key. The keys
+// are the catalog's Setting::limit ("res", "passes", "time_limit") plus the
+// job's own "max_seconds" and "max_attempts".
+struct SpecLimits {
+    std::map<std::string, double> caps = {
+        {"res", 8192}, {"passes", 100000}, {"time_limit", 4 * 3600}, {"max_seconds", 4 * 3600}, {"max_attempts", 10},
+    };
+    // An environment map is a file on the machine that runs the bake: the
+    // CLI may read one, a server must not be told to read its own files.
+    bool allow_local_files = true;
+    double cap(const std::string& key) const;  // +infinity when absent
+};
+
+enum class SettingType {
+    Integer,      // JSON integer; CLI "12"
+    Number,       // JSON number; CLI "0.5"
+    Choice,       // one of `choices`; CLI the word
+    Flag,         // JSON bool; CLI --name (true) or --no-name (false) per its default
+    MeshList,     // glTF mesh indices: JSON [0, 3]; CLI "0,3"
+    Environment,  // JSON [r, g, b] or a file name; CLI "R,G,B" or FILE
+};
+
+struct Setting {
+    std::string group;  // "lightmap" or "sh" (outputs), "atlas", or "" (the job's own: seed, env)
+    std::string name;   // JSON key, e.g. "texel_density"
+    SettingType type = SettingType::Number;
+    nlohmann::json default_value;  // "auto" where the engine chooses; null: none
+    double min = 0, max = 0;       // Integer / Number: the range (min exclusive if min_exclusive)
+    bool min_exclusive = false;
+    bool accepts_auto = false;     // the string "auto" is a value of its own
+    std::vector<std::string> choices;
+    std::string limit;  // SpecLimits key that caps it, or ""
+    std::string help;
+
+    std::string flag() const;   // "--texel-density"; a flag defaulting to true: "--no-stitch"
+    std::string field() const;  // "lightmap.passes", "atlas.res", "seed"
+    std::string value_syntax() const;  // "N", "1..4|auto", "epochs|thesis|pathtrace", … (for usage text)
+};
+
+// Every setting, outputs first (in output order), then the atlas, then the job's.
+const std::vector<Setting>& setting_catalog();
+// The outputs a job can ask for, in a fixed order; each is selected by `--NAME`.
+const std::vector<std::string>& output_names();
+const Setting* find_setting(const std::string& group, const std::string& name);
+const Setting* find_setting_by_flag(const std::string& flag);
+
+// The typed settings, filled from validated JSON with the catalog's defaults.
+struct StopSettings {
+    int passes = 256;
+    double target_error = 0.0;  // 0: no target
+    double time_limit = 0.0;    // seconds, 0: none
+};
+
+struct AtlasSettings {
+    std::optional<int> res;              // empty: auto (the file's TEXCOORD_1 size, or the engine's default)
+    std::optional<double> texel_density; // texels per metre; empty: from res
+    int subsamples = 2;                  // sample points per texel = this squared
+};
+
+struct LightmapSettings {
+    StopSettings stop;
+    std::string scheme = "epochs";
+    int light_samples = 1;
+    std::string light_sampling = "mis";
+    bool stitch = true;
+};
+
+struct ShSettings {
+    std::optional<int> bands;  // empty: auto
+    int bounces = 0;
+    std::string window = "none";
+    StopSettings stop;
+    std::vector<int> occluders, receivers;  // glTF mesh indices, empty = all
+    bool per_texel = false;
+};
+
+// A uniform sky radiance or an environment map file (or nothing).
+struct EnvironmentSetting {
+    std::optional<std::array<float, 3>> sky;
+    std::string map_file;
+    bool given() const { return sky.has_value() || !map_file.empty(); }
+};
+
+struct BakeSettings {
+    std::optional<LightmapSettings> lightmap;
+    std::optional<ShSettings> sh;
+    AtlasSettings atlas;
+    uint32_t seed = 1;
+    EnvironmentSetting env;
+};
+
+// Validates the bake part of a spec ({"outputs", "atlas", "seed", "env"}; other
+// keys are the caller's business and ignored) and fills the defaults. Throws
+// SpecError naming the first bad field. This is THE validity rule.
+BakeSettings parse_bake_settings(const nlohmann::json& j, const SpecLimits& limits = {});
+// The canonical JSON of validated settings: every setting of every chosen
+// output with its value ("auto" where auto), so equal JSON = equal bake.
+nlohmann::json to_json(const BakeSettings& settings);
+
+// The command line: flag -> text as typed (a Flag setting or an output flag
+// maps to ""), applied over `base` (a spec's bake JSON, or {}). Flags win over
+// the base; outputs named by flag (or by giving one of their settings) are
+// added to those of the base; with none at all, the lightmap. Throws SpecError
+// naming the flag.
+nlohmann::json bake_json_from_flags(const std::map<std::string, std::string>& flags,
+                                    const nlohmann::json& base = nlohmann::json::object());
+// Every flag bake_json_from_flags knows: {flag, takes a value}.
+std::vector<std::pair<std::string, bool>> bake_flags();
+
+}  // namespace lf::protocol

@@ -1,0 +1,123 @@
+#include "worker_protocol.h"
+
+#include <stdexcept>
+
+namespace lf::protocol {
+
+using nlohmann::json;
+
+json to_json(const Progress& p) {
+    json j = {{"pass", p.pass}, {"rays", p.rays}, {"seconds", p.seconds}};
+    j["error_estimate"] = p.error_estimate ? json(*p.error_estimate) : json(nullptr);
+    j["eta_seconds"] = p.eta_seconds ? json(*p.eta_seconds) : json(nullptr);
+    return j;
+}
+
+Progress progress_from_json(const json& j) {
+    Progress p;
+    if (!j.is_object()) return p;
+    if (j.contains("pass") && j["pass"].is_number_integer()) p.pass = j["pass"].get<int>();
+    if (j.contains("rays") && j["rays"].is_number()) p.rays = j["rays"].get<uint64_t>();
+    if (j.contains("seconds") && j["seconds"].is_number()) p.seconds = j["seconds"].get<double>();
+    if (j.contains("error_estimate") && j["error_estimate"].is_number()) p.error_estimate = j["error_estimate"].get<double>();
+    if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
+    return p;
+}
+
+namespace {
+
+json progress_fields(const Progress& p) {
+    json j = to_json(p);
+    j.erase("eta_seconds");  // the server's business, not the worker's
+    return j;
+}
+
+std::string string_field(const json& j, const char* key) {
+    if (!j.contains(key) || !j[key].is_string())
+        throw std::invalid_argument(std::string("worker event without a string \"") + key + "\"");
+    return j[key].get<std::string>();
+}
+
+}  // namespace
+
+json to_json(const WorkerEvent& e) {
+    if (const auto* s = std::get_if<StartEvent>(&e))
+        return {{"event", "start"}, {"vendor", s->vendor}, {"renderer", s->renderer}, {"triangles", s->triangles},
+                {"prepare_seconds", s->prepare_seconds}, {"outputs", s->outputs}};
+    if (const auto* p = std::get_if<ProgressEvent>(&e)) {
+        json j = progress_fields(p->progress);
+        j["event"] = "progress";
+        j["output"] = p->output;
+        return j;
+    }
+    if (const auto* s = std::get_if<SnapshotEvent>(&e))
+        return {{"event", "snapshot"}, {"output", s->output}, {"file", s->file}, {"pass", s->pass}};
+    const auto& d = std::get<DoneEvent>(e);
+    json j = progress_fields(d.progress);
+    j["event"] = "done";
+    j["files"] = d.files;
+    j["final"] = d.final_files;
+    return j;
+}
+
+WorkerEvent parse_worker_event(const json& j) {
+    if (!j.is_object()) throw std::invalid_argument("a worker event is a JSON object");
+    const std::string kind = string_field(j, "event");
+    if (kind == "start") {
+        StartEvent s;
+        s.vendor = j.value("vendor", "");
+        s.renderer = j.value("renderer", "");
+        if (j.contains("triangles") && j["triangles"].is_number_unsigned()) s.triangles = j["triangles"].get<uint64_t>();
+        if (j.contains("prepare_seconds") && j["prepare_seconds"].is_number()) s.prepare_seconds = j["prepare_seconds"];
+        if (j.contains("outputs") && j["outputs"].is_object()) s.outputs = j["outputs"];
+        return s;
+    }
+    if (kind == "progress") return ProgressEvent{j.value("output", ""), progress_from_json(j)};
+    if (kind == "snapshot") {
+        if (!j.contains("pass") || !j["pass"].is_number_integer()) throw std::invalid_argument("snapshot event without a pass");
+        return SnapshotEvent{j.value("output", ""), string_field(j, "file"), j["pass"].get<int>()};
+    }
+    if (kind == "done") {
+        DoneEvent d;
+        d.progress = progress_from_json(j);
+        if (j.contains("files") && j["files"].is_array())
+            for (const json& f : j["files"])
+                if (f.is_string()) d.files.push_back(f.get<std::string>());
+        if (j.contains("final") && j["final"].is_object())
+            for (auto it = j["final"].begin(); it != j["final"].end(); ++it)
+                if (it.value().is_string()) d.final_files[it.key()] = it.value().get<std::string>();
+        return d;
+    }
+    throw std::invalid_argument("unknown worker event \"" + kind + "\"");
+}
+
+json to_json(const SceneSummary& s) {
+    json j = s.details.is_object() ? s.details : json::object();
+    j["source"] = s.source;
+    j["triangles"] = s.triangles;
+    j["emissive_triangles"] = s.emissive_triangles;
+    j["punctual_light_count"] = s.punctual_lights;
+    j["max_texture_size"] = s.max_texture_size;
+    j["has_lightmap_uvs"] = s.has_lightmap_uvs;
+    j["min_atlas_res"] = s.min_atlas_res;
+    return j;
+}
+
+SceneSummary scene_summary_from_json(const json& j) {
+    if (!j.is_object()) throw std::invalid_argument("a scene summary is a JSON object");
+    SceneSummary s;
+    s.details = j;
+    s.source = j.value("source", "");
+    auto count = [&](const char* key) -> uint64_t {
+        return j.contains(key) && j[key].is_number_unsigned() ? j[key].get<uint64_t>() : 0;
+    };
+    s.triangles = count("triangles");
+    s.emissive_triangles = count("emissive_triangles");
+    s.punctual_lights = count("punctual_light_count");
+    s.max_texture_size = int(count("max_texture_size"));
+    s.has_lightmap_uvs = j.value("has_lightmap_uvs", false);
+    s.min_atlas_res = int(count("min_atlas_res"));
+    return s;
+}
+
+}  // namespace lf::protocol

@@ -1,0 +1,90 @@
+// The engine-server contract: what a worker (`lightfarm bake --json`) prints,
+// one JSON object per stdout line, what `lightfarm inspect --json` prints, and
+// what a worker's exit status means. The engine encodes these types and the
+// server decodes them; neither side writes or reads the JSON by hand.
+//
+//   {"event":"start", "vendor", "renderer", "triangles", "prepare_seconds", "outputs": {NAME: {...}}}
+//   {"event":"progress", "output":"lightmap", "pass", "rays", "seconds", "error_estimate"}
+//   {"event":"snapshot", "output":"lightmap", "file":"lightmap.pass-0004.exr", "pass":4}
+//   {"event":"done", "pass", "rays", "seconds", "error_estimate", "files":[...], "final":{NAME: FILE}}
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+namespace lf::protocol {
+
+// A worker's exit status. Input errors (a bad setting, a scene that cannot be
+// baked) fail the job at once: running it again cannot help. Anything else
+// (a crash, a lost GPU, a signal) costs one attempt and is retried.
+enum WorkerExit : int {
+    kExitOk = 0,
+    kExitFailure = 1,     // the engine's own trouble: retry
+    kExitUsage = 2,       // bad command line or settings
+    kExitInputError = 3,  // the scene or the settings cannot be baked (no light, atlas cannot fit, bad file)
+};
+inline bool is_input_error_exit(int code) { return code == kExitUsage || code == kExitInputError; }
+
+// Where a progressive bake stands: totals after the latest pass. The engine's
+// pass statistics and the server's progress are this one type.
+struct Progress {
+    int pass = 0;          // passes done so far
+    uint64_t rays = 0;     // rays traced so far
+    double seconds = 0.0;  // time in passes so far
+    std::optional<double> error_estimate;  // relative standard error, once known
+    std::optional<double> eta_seconds;     // the server's estimate of what is left
+};
+nlohmann::json to_json(const Progress& p);
+Progress progress_from_json(const nlohmann::json& j);
+
+struct StartEvent {
+    std::string vendor, renderer;
+    uint64_t triangles = 0;
+    double prepare_seconds = 0.0;  // load, atlas, BVH, methods: once for the whole job
+    nlohmann::json outputs = nlohmann::json::object();  // output name -> what it bakes (texels, vertices, settings)
+};
+struct ProgressEvent {
+    std::string output;
+    Progress progress;
+};
+struct SnapshotEvent {
+    std::string output;
+    std::string file;  // a plain file name in the job's directory
+    int pass = 0;
+};
+struct DoneEvent {
+    Progress progress;               // of the output baked last
+    std::vector<std::string> files;  // every file written, final and intermediate
+    std::map<std::string, std::string> final_files;  // output name -> its main file
+};
+using WorkerEvent = std::variant<StartEvent, ProgressEvent, SnapshotEvent, DoneEvent>;
+
+nlohmann::json to_json(const WorkerEvent& e);
+// Throws std::invalid_argument for a line that is not a worker event.
+WorkerEvent parse_worker_event(const nlohmann::json& j);
+
+// What `lightfarm inspect --json` says of a scene, as the server stores it and
+// checks jobs against it before they run. The engine's summary has more
+// fields (`details`), kept as they are.
+struct SceneSummary {
+    std::string source;  // the file's name as uploaded, never a server path
+    uint64_t triangles = 0;
+    uint64_t emissive_triangles = 0;
+    uint64_t punctual_lights = 0;
+    int max_texture_size = 0;
+    bool has_lightmap_uvs = false;  // every primitive has TEXCOORD_1 (kept as the atlas)
+    // The smallest atlas side a generated atlas fits in (0: unknown or has_lightmap_uvs).
+    int min_atlas_res = 0;
+    nlohmann::json details = nlohmann::json::object();
+    bool has_light() const { return emissive_triangles > 0 || punctual_lights > 0; }
+};
+nlohmann::json to_json(const SceneSummary& s);
+SceneSummary scene_summary_from_json(const nlohmann::json& j);
+
+}  // namespace lf::protocol
