@@ -252,7 +252,7 @@ std::string Setting::field() const { return group.empty() ? name : group + "." +
 std::string Setting::value_syntax() const {
     switch (type) {
     case SettingType::Integer:
-        return (min == 0 && max <= 8 ? number_text(min) + ".." + number_text(max) : std::string("N")) +
+        return (max - min <= 8 ? number_text(min) + ".." + number_text(max) : std::string("N")) +
                (accepts_auto ? "|auto" : "");
     case SettingType::Number: return std::string("X") + (accepts_auto ? "|auto" : "");
     case SettingType::Choice: return joined(choices, "|");
@@ -425,11 +425,21 @@ json value_from_text(const Setting& s, const std::string& text) {
 }  // namespace
 
 json bake_json_from_flags(const std::map<std::string, std::string>& flags, const json& base) {
-    json j = base.is_object() ? base : json::object();
-    if (!j.contains("outputs") || !j["outputs"].is_object()) j["outputs"] = json::object();
+    // A malformed base (a bad --spec file) is reported, never replaced.
+    if (!base.is_object()) throw SpecError("", "a spec must be a JSON object");
+    for (const char* group : {"outputs", "atlas"})
+        if (base.contains(group)) require_object(base[group], group);
+    if (base.contains("outputs"))
+        for (auto it = base["outputs"].begin(); it != base["outputs"].end(); ++it)
+            require_object(it.value(), "outputs." + it.key());
+    json j = base;
+    if (!j.contains("outputs")) j["outputs"] = json::object();
     auto select = [&](const std::string& output) {
         if (!j["outputs"].contains(output)) j["outputs"][output] = json::object();
     };
+    // A flag of the res / texel_density pair wins over the other one in the base.
+    if (flags.count("--res") && j.contains("atlas")) j["atlas"].erase("texel_density");
+    if (flags.count("--texel-density") && j.contains("atlas")) j["atlas"].erase("res");
     for (const auto& [flag, text] : flags) {
         bool is_output = false;
         for (const std::string& o : output_names())

@@ -1,5 +1,7 @@
 #include "job_spec.h"
 
+#include <sstream>
+
 namespace lf::protocol {
 
 using nlohmann::json;
@@ -7,8 +9,17 @@ using nlohmann::json;
 namespace {
 
 std::string type_name(const json& j) {
+    if (j.is_number_integer() || j.is_number_unsigned()) return "an integer";
     const std::string name = j.type_name();
-    return (name == "array" || name == "object" || name == "integer" ? "an " : "a ") + name;
+    return (name == "array" || name == "object" ? "an " : "a ") + name;
+}
+
+// Shortest text for a number: 10, not 10.0.
+std::string number_text(double v) {
+    std::ostringstream s;
+    s.precision(15);
+    s << v;
+    return s.str();
 }
 
 // A job limit: a number in (0, cap] (max_seconds) or an integer in [1, cap] (max_attempts).
@@ -18,7 +29,8 @@ double check_limit(const json& v, bool integer, const SpecLimits& limits, const 
         throw SpecError(field, std::string("must be ") + (integer ? "an integer" : "a number") + ", not " + type_name(v));
     const double x = v.get<double>();
     if (!(integer ? x >= 1.0 : x > 0.0)) throw SpecError(field, std::string("must be ") + (integer ? "at least 1" : "positive"));
-    if (x > limits.cap(key)) throw SpecError(field, v.dump() + " exceeds this server's limit " + json(limits.cap(key)).dump());
+    if (x > limits.cap(key)) throw SpecError(field, number_text(x) + " exceeds this server's limit " + number_text(limits.cap(key)));
+    if (integer && x > 1e6) throw SpecError(field, number_text(x) + " exceeds the maximum 1000000");
     return x;
 }
 

@@ -28,40 +28,47 @@ bool is_final(JobState s) {
     return s == JobState::Succeeded || s == JobState::Failed || s == JobState::Cancelled;
 }
 
-json to_json(const Progress& p) {
-    json j = {{"pass", p.pass}, {"rays", p.rays}, {"seconds", p.seconds}};
-    j["error_estimate"] = p.error_estimate ? json(*p.error_estimate) : json(nullptr);
-    j["eta_seconds"] = p.eta_seconds ? json(*p.eta_seconds) : json(nullptr);
-    return j;
-}
-
-Progress progress_from_json(const json& j) {
-    Progress p;
-    if (!j.is_object()) return p;
-    p.pass = j.value("pass", 0);
-    p.rays = j.value("rays", uint64_t(0));
-    p.seconds = j.value("seconds", 0.0);
-    if (j.contains("error_estimate") && j["error_estimate"].is_number()) p.error_estimate = j["error_estimate"].get<double>();
-    if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
-    return p;
-}
-
-std::optional<double> estimate_eta(const json& settings, const Progress& p) {
-    if (p.pass <= 0 || p.seconds <= 0.0 || !settings.is_object()) return std::nullopt;
+std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p) {
+    if (p.pass <= 0 || p.seconds <= 0.0) return std::nullopt;
     const double per_pass = p.seconds / p.pass;
     std::optional<double> eta;
     auto consider = [&](double left) {
         left = std::max(0.0, left);
         eta = eta ? std::min(*eta, left) : left;
     };
-    if (settings.contains("passes")) consider(per_pass * (settings["passes"].get<double>() - p.pass));
-    if (settings.contains("time_limit")) consider(settings["time_limit"].get<double>() - p.seconds);
-    if (settings.contains("target_error") && p.error_estimate && *p.error_estimate > 0.0) {
+    consider(per_pass * (stop.passes - p.pass));
+    if (stop.time_limit > 0.0) consider(stop.time_limit - p.seconds);
+    if (stop.target_error > 0.0 && p.error_estimate && *p.error_estimate > 0.0) {
         // Monte Carlo error falls as 1/sqrt(passes): passes needed = pass * (E / target)^2.
-        const double ratio = *p.error_estimate / settings["target_error"].get<double>();
+        const double ratio = *p.error_estimate / stop.target_error;
         consider(per_pass * p.pass * (ratio * ratio - 1.0));
     }
     return eta;
+}
+
+json to_json(const LatestFile& f) {
+    return {{"file", f.file}, {"pass", f.pass}, {"final", f.final_file}};
+}
+
+json to_json(const std::map<std::string, LatestFile>& latest) {
+    json j = json::object();
+    for (const auto& [output, f] : latest) j[output] = to_json(f);
+    return j;
+}
+
+std::map<std::string, LatestFile> latest_from_json(const json& j) {
+    std::map<std::string, LatestFile> latest;
+    if (!j.is_object()) return latest;
+    for (auto it = j.begin(); it != j.end(); ++it) {
+        const json& f = it.value();
+        if (!f.is_object() || !f.contains("file") || !f["file"].is_string()) continue;
+        LatestFile l;
+        l.file = f["file"].get<std::string>();
+        if (f.contains("pass") && f["pass"].is_number_integer()) l.pass = f["pass"].get<int>();
+        l.final_file = f.value("final", false);
+        latest[it.key()] = l;
+    }
+    return latest;
 }
 
 json to_json(const JobStatus& s) {
@@ -73,6 +80,7 @@ json to_json(const JobStatus& s) {
               {"attempts", s.attempts},
               {"max_attempts", s.max_attempts},
               {"cached", s.cached},
+              {"latest", to_json(s.latest)},
               {"created_at", s.created_at}};
     j["started_at"] = s.started_at > 0 ? json(s.started_at) : json(nullptr);
     j["finished_at"] = s.finished_at > 0 ? json(s.finished_at) : json(nullptr);
@@ -91,6 +99,7 @@ JobStatus status_from_json(const json& j) {
     s.attempts = j.value("attempts", 0);
     s.max_attempts = j.value("max_attempts", 0);
     s.cached = j.value("cached", false);
+    s.latest = latest_from_json(j.value("latest", json::object()));
     s.error = j.value("error", "");
     s.cause = j.value("cause", "");
     auto time = [&](const char* key) { return j.contains(key) && j[key].is_number() ? j[key].get<double>() : 0.0; };

@@ -2,9 +2,13 @@
 // them: GET /v1/jobs/{id} and the Server-Sent Events of /v1/jobs/{id}/events.
 #pragma once
 
+#include "bake_settings.h"
+#include "worker_protocol.h"
+
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -18,21 +22,24 @@ std::optional<JobState> parse_job_state(const std::string& s);
 // Succeeded, failed and cancelled jobs never change again.
 bool is_final(JobState s);
 
-// The worker's latest progress line plus the server's estimate of what is left.
-struct Progress {
-    int pass = 0;
-    uint64_t rays = 0;
-    double seconds = 0.0;
-    std::optional<double> error_estimate;
-    std::optional<double> eta_seconds;
-};
-nlohmann::json to_json(const Progress& p);
-Progress progress_from_json(const nlohmann::json& j);
+// Seconds left, from an output's stopping rules (passes, time limit, target
+// error) and its progress so far; empty when no rule gives an answer yet.
+// With several rules the bake stops at the first one met.
+std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p);
 
-// Seconds left, from the stopping rules of the job's outputs (passes,
-// time_limit, target_error) and the progress so far; empty when no rule
-// gives an answer yet. With several rules the bake stops at the first one met.
-std::optional<double> estimate_eta(const nlohmann::json& output_settings, const Progress& p);
+// The newest file of one output, as the worker's events named it: a snapshot
+// event's file and pass, replaced by the output's final file when the done
+// event names it. Never found by sorting file names (pass-16384 sorts before
+// pass-2048).
+struct LatestFile {
+    std::string file;    // a plain file name among the job's artifacts
+    int pass = 0;        // the pass it holds (0: unknown)
+    bool final_file = false;  // the output's final file (the done event's "final")
+};
+nlohmann::json to_json(const LatestFile& f);
+// Output name -> its newest file, as JSON {"lightmap": {"file", "pass", "final"}}.
+nlohmann::json to_json(const std::map<std::string, LatestFile>& latest);
+std::map<std::string, LatestFile> latest_from_json(const nlohmann::json& j);
 
 struct JobStatus {
     std::string id;
@@ -45,6 +52,7 @@ struct JobStatus {
     std::string error;    // when failed: what went wrong, for a person
     std::string cause;    // when failed: the last attempt's cause (exit status, stderr line, timeout)
     bool cached = false;  // artifacts reused from an identical earlier bake
+    std::map<std::string, LatestFile> latest;  // output name -> its newest file so far
     double created_at = 0, started_at = 0, finished_at = 0;  // Unix seconds, 0 = not yet
 };
 nlohmann::json to_json(const JobStatus& s);

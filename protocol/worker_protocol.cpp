@@ -1,5 +1,6 @@
 #include "worker_protocol.h"
 
+#include <algorithm>
 #include <stdexcept>
 
 namespace lf::protocol {
@@ -38,6 +39,22 @@ std::string string_field(const json& j, const char* key) {
     return j[key].get<std::string>();
 }
 
+// An optional string: absent is "", any other type is an error.
+std::string optional_string(const json& j, const char* key) {
+    if (!j.contains(key)) return "";
+    if (!j[key].is_string()) throw std::invalid_argument(std::string("\"") + key + "\" must be a string");
+    return j[key].get<std::string>();
+}
+
+// A count: a non-negative integer (signed or not, as JSON built in code or parsed from text has it).
+uint64_t count_field(const json& j, const char* key) {
+    if (!j.contains(key)) return 0;
+    const json& v = j[key];
+    if (v.is_number_unsigned()) return v.get<uint64_t>();
+    if (v.is_number_integer() && v.get<int64_t>() >= 0) return uint64_t(v.get<int64_t>());
+    throw std::invalid_argument(std::string("\"") + key + "\" must be a non-negative integer");
+}
+
 }  // namespace
 
 json to_json(const WorkerEvent& e) {
@@ -65,17 +82,17 @@ WorkerEvent parse_worker_event(const json& j) {
     const std::string kind = string_field(j, "event");
     if (kind == "start") {
         StartEvent s;
-        s.vendor = j.value("vendor", "");
-        s.renderer = j.value("renderer", "");
-        if (j.contains("triangles") && j["triangles"].is_number_unsigned()) s.triangles = j["triangles"].get<uint64_t>();
+        s.vendor = optional_string(j, "vendor");
+        s.renderer = optional_string(j, "renderer");
+        s.triangles = count_field(j, "triangles");
         if (j.contains("prepare_seconds") && j["prepare_seconds"].is_number()) s.prepare_seconds = j["prepare_seconds"];
         if (j.contains("outputs") && j["outputs"].is_object()) s.outputs = j["outputs"];
         return s;
     }
-    if (kind == "progress") return ProgressEvent{j.value("output", ""), progress_from_json(j)};
+    if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j)};
     if (kind == "snapshot") {
         if (!j.contains("pass") || !j["pass"].is_number_integer()) throw std::invalid_argument("snapshot event without a pass");
-        return SnapshotEvent{j.value("output", ""), string_field(j, "file"), j["pass"].get<int>()};
+        return SnapshotEvent{optional_string(j, "output"), string_field(j, "file"), j["pass"].get<int>()};
     }
     if (kind == "done") {
         DoneEvent d;
@@ -107,16 +124,15 @@ SceneSummary scene_summary_from_json(const json& j) {
     if (!j.is_object()) throw std::invalid_argument("a scene summary is a JSON object");
     SceneSummary s;
     s.details = j;
-    s.source = j.value("source", "");
-    auto count = [&](const char* key) -> uint64_t {
-        return j.contains(key) && j[key].is_number_unsigned() ? j[key].get<uint64_t>() : 0;
-    };
-    s.triangles = count("triangles");
-    s.emissive_triangles = count("emissive_triangles");
-    s.punctual_lights = count("punctual_light_count");
-    s.max_texture_size = int(count("max_texture_size"));
+    s.source = optional_string(j, "source");
+    s.triangles = count_field(j, "triangles");
+    s.emissive_triangles = count_field(j, "emissive_triangles");
+    s.punctual_lights = count_field(j, "punctual_light_count");
+    s.max_texture_size = int(std::min<uint64_t>(count_field(j, "max_texture_size"), 1u << 30));
+    if (j.contains("has_lightmap_uvs") && !j["has_lightmap_uvs"].is_boolean())
+        throw std::invalid_argument("\"has_lightmap_uvs\" must be true or false");
     s.has_lightmap_uvs = j.value("has_lightmap_uvs", false);
-    s.min_atlas_res = int(count("min_atlas_res"));
+    s.min_atlas_res = int(std::min<uint64_t>(count_field(j, "min_atlas_res"), 1u << 30));
     return s;
 }
 

@@ -1,16 +1,32 @@
-// The job spec, status and event types of protocol/: validation names the bad
-// field, unknown fields are errors, and everything survives a JSON round trip.
+// protocol/: the one settings catalog and its one validity rule, the job
+// spec, the engine-server contract (worker events, scene summary), job status
+// and events. Validation names the bad field (or the CLI flag), unknown names
+// are errors, everything survives a JSON round trip, and the OpenAPI document
+// and the README's option table say exactly what the catalog says.
+#include "bake_settings.h"
 #include "job_spec.h"
 #include "job_status.h"
+#include "worker_protocol.h"
 
 #include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <set>
+#include <sstream>
 
 namespace lf::protocol {
 namespace {
 
 using nlohmann::json;
 
-// The SpecError message for a spec, or "" when it is valid.
+// ---------------------------------------------------------------------------
+// Helpers
+
+// The SpecError of a job spec ("field: reason"), or "" when it is valid.
 std::string error_of(const json& j, const SpecLimits& limits = {}) {
     try {
         parse_job_spec(j, limits);
@@ -20,42 +36,230 @@ std::string error_of(const json& j, const SpecLimits& limits = {}) {
     }
 }
 
-json valid_spec() {
-    return {{"scene", "abc"}, {"outputs", {{"lightmap", {{"res", 256}, {"passes", 16}}}}}, {"seed", 7}};
+// The field a job spec is refused for, or "" when it is valid.
+std::string field_of(const json& j, const SpecLimits& limits = {}) {
+    try {
+        parse_job_spec(j, limits);
+        return "";
+    } catch (const SpecError& e) {
+        return e.field().empty() ? "(none)" : e.field();
+    }
 }
+
+bool starts_with(const std::string& s, const std::string& prefix) { return s.rfind(prefix, 0) == 0; }
+
+json valid_spec() {
+    return {{"scene", "abc"}, {"outputs", {{"lightmap", {{"passes", 16}}}}}, {"atlas", {{"res", 256}}}, {"seed", 7}};
+}
+
+// A spec asking only for sh with one setting.
+json sh_spec(const std::string& key, const json& value) {
+    return {{"scene", "abc"}, {"outputs", {{"sh", {{key, value}}}}}};
+}
+
+// bake_json_from_flags' SpecError as "what", or "" when it was accepted.
+std::string flag_error_of(const std::map<std::string, std::string>& flags, const json& base = json::object()) {
+    try {
+        bake_json_from_flags(flags, base);
+        return "";
+    } catch (const SpecError& e) {
+        return e.what();
+    }
+}
+
+// The repository's root, from this file's path (tests/test_protocol.cpp).
+std::filesystem::path repo_root() { return std::filesystem::path(__FILE__).parent_path().parent_path(); }
+
+std::string read_text(const std::filesystem::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    std::ostringstream s;
+    s << in.rdbuf();
+    return s.str();
+}
+
+// ---------------------------------------------------------------------------
+// The catalog
+
+TEST(Catalog, NamesFlagsAndFieldsAreUniqueAndConsistent) {
+    std::set<std::string> flags, fields;
+    for (const Setting& s : setting_catalog()) {
+        EXPECT_TRUE(flags.insert(s.flag()).second) << s.flag();
+        EXPECT_TRUE(fields.insert(s.field()).second) << s.field();
+        EXPECT_EQ(find_setting(s.group, s.name), &s);
+        EXPECT_EQ(find_setting_by_flag(s.flag()), &s);
+        EXPECT_FALSE(s.help.empty()) << s.field();
+        const bool known_group = s.group.empty() || s.group == "atlas" ||
+                                 std::count(output_names().begin(), output_names().end(), s.group) == 1;
+        EXPECT_TRUE(known_group) << s.field();
+        if (s.type == SettingType::Choice) {
+            ASSERT_FALSE(s.choices.empty()) << s.field();
+            EXPECT_EQ(s.default_value, s.choices.front()) << s.field();
+        }
+        if (s.accepts_auto) {
+            EXPECT_EQ(s.default_value, "auto") << s.field();
+        }
+        if (s.type == SettingType::Integer || s.type == SettingType::Number) {
+            EXPECT_LT(s.min, s.max) << s.field();
+        }
+    }
+    EXPECT_EQ(find_setting("lightmap", "passes")->field(), "lightmap.passes");
+    EXPECT_EQ(find_setting("atlas", "res")->field(), "atlas.res");
+    EXPECT_EQ(find_setting("", "seed")->field(), "seed");
+    EXPECT_EQ(find_setting("lightmap", "stitch")->flag(), "--no-stitch");
+    EXPECT_EQ(find_setting("sh", "sh_per_texel")->flag(), "--sh-per-texel");
+    EXPECT_EQ(find_setting("atlas", "texel_density")->flag(), "--texel-density");
+    EXPECT_EQ(find_setting("lightmap", "resolution"), nullptr);
+    EXPECT_EQ(find_setting_by_flag("--stitch"), nullptr);
+}
+
+TEST(Catalog, BakeFlagsAreTheOutputsAndEverySetting) {
+    const std::vector<std::pair<std::string, bool>> listed = bake_flags();
+    std::map<std::string, bool> flags(listed.begin(), listed.end());
+    EXPECT_EQ(flags.size(), listed.size()) << "a flag is listed twice";
+    for (const std::string& o : output_names()) EXPECT_EQ(flags.at("--" + o), false) << o;
+    for (const Setting& s : setting_catalog()) EXPECT_EQ(flags.at(s.flag()), s.type != SettingType::Flag) << s.flag();
+    EXPECT_EQ(flags.size(), output_names().size() + setting_catalog().size());
+}
+
+// ---------------------------------------------------------------------------
+// parse_bake_settings / parse_job_spec: the one validity rule
 
 TEST(JobSpec, ParsesAValidSpec) {
     const JobSpec spec = parse_job_spec(valid_spec());
     EXPECT_EQ(spec.scene, "abc");
-    EXPECT_EQ(spec.seed, 7u);
-    ASSERT_EQ(spec.outputs.count("lightmap"), 1u);
-    EXPECT_EQ(spec.outputs.at("lightmap")["res"], 256);
+    EXPECT_EQ(spec.bake.seed, 7u);
+    ASSERT_TRUE(spec.bake.lightmap);
+    EXPECT_FALSE(spec.bake.sh);
+    EXPECT_EQ(spec.bake.lightmap->stop.passes, 16);
+    EXPECT_EQ(spec.bake.atlas.res, 256);
+    EXPECT_FALSE(spec.bake.atlas.texel_density);
     EXPECT_FALSE(spec.limits.max_seconds);
+    EXPECT_FALSE(spec.limits.max_attempts);
+    EXPECT_FALSE(spec.bake.env.given());
 }
 
-TEST(JobSpec, ResolutionOverTheLimitNamesTheField) {
+TEST(JobSpec, DefaultsComeFromTheCatalog) {
+    const BakeSettings b = parse_bake_settings({{"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}}});
+    const json j = to_json(b);
+    // Every setting of every chosen output, the atlas and the job, with the catalog's default.
+    for (const Setting& s : setting_catalog()) {
+        const json* at = nullptr;
+        if (s.group.empty()) at = j.contains(s.name) ? &j[s.name] : nullptr;
+        else if (s.group == "atlas") at = &j["atlas"].at(s.name);
+        else at = &j["outputs"][s.group].at(s.name);
+        if (s.default_value.is_null()) {
+            EXPECT_EQ(at, nullptr) << s.field() << " has no default, so no value";
+            continue;
+        }
+        ASSERT_NE(at, nullptr) << s.field();
+        EXPECT_EQ(*at, s.default_value) << s.field();
+    }
+    // And the typed values agree.
+    ASSERT_TRUE(b.lightmap && b.sh);
+    EXPECT_EQ(b.lightmap->stop.passes, find_setting("lightmap", "passes")->default_value.get<int>());
+    EXPECT_EQ(b.lightmap->scheme, "epochs");
+    EXPECT_EQ(b.lightmap->light_sampling, "mis");
+    EXPECT_TRUE(b.lightmap->stitch);
+    EXPECT_FALSE(b.sh->bands) << "sh_bands defaults to auto";
+    EXPECT_EQ(b.sh->window, "none");
+    EXPECT_EQ(b.sh->stop.passes, find_setting("sh", "sh_passes")->default_value.get<int>());
+    EXPECT_FALSE(b.atlas.res);
+    EXPECT_FALSE(b.atlas.texel_density);
+    EXPECT_EQ(b.atlas.subsamples, find_setting("atlas", "subsamples")->default_value.get<int>());
+    EXPECT_EQ(b.seed, find_setting("", "seed")->default_value.get<uint32_t>());
+}
+
+// The edge values of issue #10: the server once accepted these and the worker refused them.
+TEST(JobSpec, EdgeValuesAreRefusedWithTheFieldNamed) {
+    EXPECT_EQ(error_of(sh_spec("sh_bands", 0)), "sh.sh_bands: 0 is below the minimum 1");
+    EXPECT_EQ(error_of(sh_spec("sh_bands", 9)), "sh.sh_bands: 9 exceeds the maximum 4");
+    EXPECT_EQ(error_of(sh_spec("sh_bounces", 7)), "sh.sh_bounces: 7 exceeds the maximum 4");
+    EXPECT_EQ(error_of(sh_spec("sh_bounces", -1)), "sh.sh_bounces: -1 is below the minimum 0");
+    EXPECT_EQ(field_of(sh_spec("sh_bands", "4")), "sh.sh_bands");
+    EXPECT_EQ(field_of(sh_spec("sh_bands", 2.5)), "sh.sh_bands");
+    EXPECT_EQ(field_of(sh_spec("sh_window", "hamming")), "sh.sh_window");
+    EXPECT_EQ(field_of(sh_spec("sh_per_texel", 1)), "sh.sh_per_texel");
+    EXPECT_EQ(field_of(sh_spec("sh_occluders", json::array({0, -1}))), "sh.sh_occluders");
+    EXPECT_EQ(field_of(sh_spec("sh_receivers", "0,1")), "sh.sh_receivers");
+    for (int bands = 1; bands <= 4; ++bands) EXPECT_EQ(error_of(sh_spec("sh_bands", bands)), "") << bands;
+    EXPECT_EQ(error_of(sh_spec("sh_bounces", 4)), "");
+
     json j = valid_spec();
-    j["outputs"]["lightmap"]["res"] = 100000;
-    EXPECT_EQ(error_of(j), "lightmap.res: 100000 exceeds the limit 8192");
-    SpecLimits small;
-    small.caps["res"] = 512;
-    j["outputs"]["lightmap"]["res"] = 1024;
-    EXPECT_EQ(error_of(j, small), "lightmap.res: 1024 exceeds the limit 512");
+    j["seed"] = 4294967296ull;
+    EXPECT_EQ(error_of(j), "seed: 4294967296 exceeds the maximum 4294967295");
+    j["seed"] = -1;
+    EXPECT_EQ(error_of(j), "seed: -1 is below the minimum 0");
+    j["seed"] = "one";
+    EXPECT_EQ(field_of(j), "seed");
+    j["seed"] = 1.5;
+    EXPECT_EQ(field_of(j), "seed");
+    j["seed"] = 4294967295ull;
+    EXPECT_EQ(error_of(j), "");
+    EXPECT_EQ(parse_job_spec(j).bake.seed, 4294967295u);
+    j["seed"] = 0;
+    EXPECT_EQ(parse_job_spec(j).bake.seed, 0u);
 }
 
-TEST(JobSpec, UnknownFieldsAreErrors) {
+TEST(JobSpec, AutoIsAValueOfItsOwn) {
+    const JobSpec spec = parse_job_spec(sh_spec("sh_bands", "auto"));
+    ASSERT_TRUE(spec.bake.sh);
+    EXPECT_FALSE(spec.bake.sh->bands);
+    EXPECT_EQ(to_json(spec)["outputs"]["sh"]["sh_bands"], "auto");
+    EXPECT_EQ(*parse_job_spec(sh_spec("sh_bands", 3)).bake.sh->bands, 3);
+    EXPECT_EQ(to_json(parse_job_spec(sh_spec("sh_bands", 3)))["outputs"]["sh"]["sh_bands"], 3);
+    // "auto" only where the catalog says so, and no other word.
+    EXPECT_EQ(field_of(sh_spec("sh_bands", "Auto")), "sh.sh_bands");
+    EXPECT_EQ(field_of(sh_spec("sh_bounces", "auto")), "sh.sh_bounces");
+    json j = valid_spec();
+    j["atlas"] = {{"res", "auto"}, {"texel_density", "auto"}};
+    const JobSpec a = parse_job_spec(j);
+    EXPECT_FALSE(a.bake.atlas.res);
+    EXPECT_FALSE(a.bake.atlas.texel_density);
+    EXPECT_EQ(to_json(a)["atlas"]["res"], "auto");
+    EXPECT_EQ(to_json(a)["atlas"]["texel_density"], "auto");
+    j["atlas"] = {{"texel_density", 12.5}};
+    EXPECT_DOUBLE_EQ(*parse_job_spec(j).bake.atlas.texel_density, 12.5);
+    EXPECT_EQ(to_json(parse_job_spec(j))["atlas"]["res"], "auto");
+    j["outputs"]["lightmap"]["passes"] = "auto";
+    EXPECT_EQ(field_of(j), "lightmap.passes");
+}
+
+TEST(JobSpec, ResAndTexelDensityTogetherAreRefused) {
+    json j = valid_spec();
+    j["atlas"] = {{"res", 256}, {"texel_density", 10}};
+    EXPECT_EQ(field_of(j), "atlas.texel_density");
+    EXPECT_NE(error_of(j).find("atlas.res"), std::string::npos) << error_of(j);
+    // One of them "auto" is not both.
+    j["atlas"] = {{"res", "auto"}, {"texel_density", 10}};
+    EXPECT_EQ(error_of(j), "");
+    j["atlas"] = {{"res", 256}, {"texel_density", "auto"}};
+    EXPECT_EQ(error_of(j), "");
+}
+
+TEST(JobSpec, UnknownNamesAreErrors) {
     json j = valid_spec();
     j["colour"] = "blue";
-    EXPECT_EQ(error_of(j).rfind("colour: unknown field", 0), 0u) << error_of(j);
+    EXPECT_TRUE(starts_with(error_of(j), "colour: unknown field")) << error_of(j);
     j = valid_spec();
     j["outputs"]["lightmap"]["resolution"] = 64;
-    EXPECT_EQ(error_of(j).rfind("lightmap.resolution: unknown field", 0), 0u) << error_of(j);
+    EXPECT_TRUE(starts_with(error_of(j), "lightmap.resolution: unknown setting")) << error_of(j);
+    // A setting of another output is unknown here: the sh settings are not the lightmap's.
+    j = valid_spec();
+    j["outputs"]["lightmap"]["sh_bands"] = 2;
+    EXPECT_EQ(field_of(j), "lightmap.sh_bands");
+    // res moved to the atlas.
+    j = valid_spec();
+    j["outputs"]["lightmap"]["res"] = 256;
+    EXPECT_EQ(field_of(j), "lightmap.res");
+    j = valid_spec();
+    j["atlas"]["padding"] = 2;
+    EXPECT_TRUE(starts_with(error_of(j), "atlas.padding: unknown setting")) << error_of(j);
     j = valid_spec();
     j["outputs"]["radiance"] = json::object();
-    EXPECT_EQ(error_of(j).rfind("outputs.radiance: unknown output", 0), 0u) << error_of(j);
+    EXPECT_TRUE(starts_with(error_of(j), "outputs.radiance: unknown output")) << error_of(j);
     j = valid_spec();
     j["limits"] = {{"gpu", 2}};
-    EXPECT_EQ(error_of(j).rfind("limits.gpu: unknown field", 0), 0u) << error_of(j);
+    EXPECT_TRUE(starts_with(error_of(j), "limits.gpu: unknown field")) << error_of(j);
 }
 
 TEST(JobSpec, WrongTypesAndRangesNameTheField) {
@@ -64,32 +268,82 @@ TEST(JobSpec, WrongTypesAndRangesNameTheField) {
         j["outputs"]["lightmap"][key] = v;
         return error_of(j);
     };
-    EXPECT_EQ(with("res", "256"), "lightmap.res: must be a number, not a string");
-    EXPECT_EQ(with("res", 256.5), "lightmap.res: must be an integer, not 256.5");
-    EXPECT_EQ(with("res", 0), "lightmap.res: 0 is below the minimum 1");
+    auto atlas_with = [](const std::string& key, const json& v) {
+        json j = valid_spec();
+        j["atlas"] = {{key, v}};
+        return error_of(j);
+    };
+    EXPECT_EQ(atlas_with("res", 0), "atlas.res: 0 is below the minimum 1");
+    EXPECT_EQ(atlas_with("res", 256.5), "atlas.res: must be an integer, not 256.5");
+    EXPECT_TRUE(starts_with(atlas_with("res", "256"), "atlas.res: must be a number or \"auto\"")) << atlas_with("res", "256");
+    EXPECT_EQ(atlas_with("res", 100000), "atlas.res: 100000 exceeds the maximum 16384");
+    EXPECT_EQ(atlas_with("res", 10000), "atlas.res: 10000 exceeds this server's limit 8192");
+    EXPECT_EQ(atlas_with("texel_density", 0), "atlas.texel_density: 0 is below the minimum (exclusive) 0");
+    EXPECT_EQ(atlas_with("subsamples", 9), "atlas.subsamples: 9 exceeds the maximum 8");
     EXPECT_EQ(with("passes", -3), "lightmap.passes: -3 is below the minimum 1");
-    EXPECT_EQ(with("target_error", 0), "lightmap.target_error: 0 is below the minimum (exclusive) 0");
-    EXPECT_EQ(with("time_limit", 1e9), "lightmap.time_limit: 1000000000 exceeds the limit 14400");
-    EXPECT_EQ(with("texel_density", 10), "lightmap.texel_density: cannot be given together with res");
+    EXPECT_EQ(with("passes", "16"), "lightmap.passes: must be a number, not a string");
+    EXPECT_EQ(with("passes", true), "lightmap.passes: must be a number, not a boolean");
+    EXPECT_EQ(with("target_error", -0.5), "lightmap.target_error: -0.5 is below the minimum 0");
+    EXPECT_EQ(with("target_error", 0), "") << "0: no target";
+    EXPECT_EQ(with("time_limit", 1e9), "lightmap.time_limit: 1000000000 exceeds the maximum 10000000");
+    EXPECT_EQ(with("time_limit", 20000), "lightmap.time_limit: 20000 exceeds this server's limit 14400");
+    EXPECT_TRUE(starts_with(with("scheme", "fast"), "lightmap.scheme: must be one of epochs, thesis, pathtrace"))
+        << with("scheme", "fast");
+    EXPECT_EQ(with("stitch", "no"), "lightmap.stitch: must be true or false, not a string");
 
     json j = valid_spec();
-    j["seed"] = -1;
-    EXPECT_EQ(error_of(j), "seed: must not be negative");
-    j["seed"] = "one";
-    EXPECT_EQ(error_of(j), "seed: must be a non-negative integer, not a string");
-    j = valid_spec();
     j.erase("scene");
     EXPECT_EQ(error_of(j), "scene: is required");
     j = valid_spec();
+    j["scene"] = 3;
+    EXPECT_EQ(field_of(j), "scene");
+    j = valid_spec();
+    j.erase("outputs");
+    EXPECT_EQ(error_of(j), "outputs: is required");
+    j = valid_spec();
     j["outputs"] = json::object();
-    EXPECT_EQ(error_of(j), "outputs: must ask for at least one output");
+    EXPECT_TRUE(starts_with(error_of(j), "outputs: must ask for at least one output")) << error_of(j);
+    j["outputs"] = json::array();
+    EXPECT_EQ(field_of(j), "outputs");
     j = valid_spec();
     j["outputs"]["lightmap"] = 3;
-    EXPECT_EQ(error_of(j), "lightmap: must be an object, not an integer");
+    EXPECT_EQ(error_of(j), "outputs.lightmap: must be an object, not an integer");
+    j = valid_spec();
+    j["atlas"] = 3;
+    EXPECT_EQ(error_of(j), "atlas: must be an object, not an integer");
     j = valid_spec();
     j["limits"] = {{"max_attempts", 100}};
-    EXPECT_EQ(error_of(j), "limits.max_attempts: 100 exceeds the limit 10");
-    EXPECT_EQ(error_of(json::array()), "must be an object, not an array");
+    EXPECT_TRUE(starts_with(error_of(j), "limits.max_attempts: 100 exceeds this server's limit")) << error_of(j);
+    j["limits"] = {{"max_attempts", 0}};
+    EXPECT_EQ(field_of(j), "limits.max_attempts");
+    j["limits"] = {{"max_seconds", 0}};
+    EXPECT_EQ(field_of(j), "limits.max_seconds");
+    j["limits"] = 5;
+    EXPECT_EQ(field_of(j), "limits");
+    EXPECT_EQ(field_of(json::array()), "(none)");
+}
+
+TEST(JobSpec, EnvironmentIsASkyOrAFileTheServiceRefuses) {
+    json j = valid_spec();
+    j["env"] = {0.5, 0.25, 1.0};
+    const JobSpec spec = parse_job_spec(j);
+    ASSERT_TRUE(spec.bake.env.sky);
+    EXPECT_FLOAT_EQ((*spec.bake.env.sky)[1], 0.25f);
+    j["env"] = {0.5, 0.25};
+    EXPECT_EQ(field_of(j), "env");
+    j["env"] = {0.5, -0.25, 1.0};
+    EXPECT_EQ(field_of(j), "env");
+    j["env"] = 3;
+    EXPECT_EQ(field_of(j), "env");
+    // A map file: for sh only, and never on a server.
+    json sh = sh_spec("sh_bands", 4);
+    sh["env"] = "sky.hdr";
+    EXPECT_EQ(parse_job_spec(sh).bake.env.map_file, "sky.hdr");
+    SpecLimits server;
+    server.allow_local_files = false;
+    EXPECT_EQ(field_of(sh, server), "env");
+    j["env"] = "sky.hdr";
+    EXPECT_EQ(field_of(j), "env") << "a lightmap's environment is a uniform sky";
 }
 
 TEST(JobSpec, SpecErrorCarriesTheField) {
@@ -103,57 +357,389 @@ TEST(JobSpec, SpecErrorCarriesTheField) {
     }
 }
 
-TEST(JobSpec, RoundTripsThroughJson) {
+TEST(JobSpec, ServerLimitsCapSettings) {
+    SpecLimits small;
+    small.caps["res"] = 512;
+    small.caps["passes"] = 100;
     json j = valid_spec();
-    j["limits"] = {{"max_seconds", 60.0}, {"max_attempts", 2}};
-    const JobSpec spec = parse_job_spec(j);
-    const JobSpec again = parse_job_spec(to_json(spec));
-    EXPECT_EQ(to_json(spec), to_json(again));
-    EXPECT_EQ(*again.limits.max_attempts, 2);
-    EXPECT_DOUBLE_EQ(*again.limits.max_seconds, 60.0);
+    j["atlas"]["res"] = 1024;
+    EXPECT_EQ(error_of(j, small), "atlas.res: 1024 exceeds this server's limit 512");
+    j["atlas"]["res"] = 512;
+    EXPECT_EQ(error_of(j, small), "");
+    // The "passes" limit caps every output's passes.
+    EXPECT_EQ(field_of(sh_spec("sh_passes", 101), small), "sh.sh_passes");
+    // No cap at all: the catalog's range alone.
+    SpecLimits none;
+    none.caps.clear();
+    j["atlas"]["res"] = 16384;
+    EXPECT_EQ(error_of(j, none), "");
 }
 
-TEST(JobSpec, BakeIdentityIgnoresLimitsAndKeyOrder) {
-    json a = valid_spec();
-    json b = json::parse(R"({"seed": 7, "outputs": {"lightmap": {"passes": 16, "res": 256}}, "scene": "abc",
+// to_json(parse(x)) is canonical: parsing it again gives the same JSON.
+TEST(JobSpec, CanonicalJsonIsAFixedPoint) {
+    const std::vector<json> specs = {
+        valid_spec(),
+        {{"scene", "s"}, {"outputs", {{"sh", json::object()}}}},
+        {{"scene", "s"},
+         {"outputs",
+          {{"lightmap", {{"scheme", "pathtrace"}, {"stitch", false}, {"target_error", 0.01}, {"time_limit", 30}}},
+           {"sh", {{"sh_bands", 2}, {"sh_occluders", {0, 3}}, {"sh_per_texel", true}, {"sh_window", "lanczos"}}}}},
+         {"atlas", {{"texel_density", 12.5}, {"subsamples", 3}}},
+         {"env", {0.1, 0.2, 0.3}},
+         {"seed", 4294967295ull},
+         {"limits", {{"max_seconds", 60.5}, {"max_attempts", 2}}}},
+    };
+    for (const json& x : specs) {
+        SCOPED_TRACE(x.dump());
+        const json once = to_json(parse_job_spec(x));
+        const json twice = to_json(parse_job_spec(once));
+        EXPECT_EQ(once, twice);
+        EXPECT_EQ(to_json(parse_bake_settings(x)), to_json(parse_bake_settings(to_json(parse_bake_settings(x)))));
+        EXPECT_EQ(bake_identity(parse_job_spec(x)), bake_identity(parse_job_spec(once)));
+    }
+    const JobSpec limited = parse_job_spec(specs[2]);
+    EXPECT_EQ(*limited.limits.max_attempts, 2);
+    EXPECT_DOUBLE_EQ(*limited.limits.max_seconds, 60.5);
+    EXPECT_EQ(limited.bake.sh->occluders, (std::vector<int>{0, 3}));
+}
+
+TEST(JobSpec, BakeIdentityIgnoresLimitsAndKeyOrderButNotDefaults) {
+    const json a = valid_spec();
+    json b = json::parse(R"({"seed": 7, "atlas": {"res": 256}, "outputs": {"lightmap": {"passes": 16}}, "scene": "abc",
                              "limits": {"max_attempts": 1}})");
+    EXPECT_EQ(bake_identity(parse_job_spec(a)), bake_identity(parse_job_spec(b)));
+    // A default written out is the same bake as the default left out.
+    b["outputs"]["lightmap"]["scheme"] = "epochs";
     EXPECT_EQ(bake_identity(parse_job_spec(a)), bake_identity(parse_job_spec(b)));
     b["seed"] = 8;
     EXPECT_NE(bake_identity(parse_job_spec(a)), bake_identity(parse_job_spec(b)));
 }
 
-TEST(JobSpec, BakeArgumentsAreTheCliOptions) {
-    json j = valid_spec();
-    j["outputs"]["lightmap"] = {{"texel_density", 12.5}, {"target_error", 0.01}, {"time_limit", 30}};
-    const std::vector<std::string> args = bake_arguments(parse_job_spec(j));
-    // Each output names itself (--lightmap, --sh), so a job asking for both bakes both.
-    const std::vector<std::string> expected = {"--lightmap", "--texel-density", "12.5", "--target-error", "0.01",
-                                               "--time-limit", "30", "--seed", "7"};
-    EXPECT_EQ(args, expected);
-}
+// ---------------------------------------------------------------------------
+// bake_json_from_flags: the CLI's flags through the same catalog
 
-TEST(JobSpec, CliOptionsBecomeOutputs) {
-    auto outputs = outputs_from_bake_options({{"--res", "128"}, {"--target-error", "0.02"}});
-    ASSERT_EQ(outputs.count("lightmap"), 1u);
-    EXPECT_EQ(outputs["lightmap"]["res"], 128);
-    EXPECT_DOUBLE_EQ(outputs["lightmap"]["target_error"].get<double>(), 0.02);
-    EXPECT_EQ(outputs_from_bake_options({}).at("lightmap"), json::object());
+TEST(Flags, ErrorsNameTheFlag) {
+    EXPECT_EQ(flag_error_of({{"--passes", "many"}}), "--passes: 'many' is not an integer");
+    EXPECT_EQ(flag_error_of({{"--res", "0"}}), "--res: 0 is below the minimum 1");
+    EXPECT_EQ(flag_error_of({{"--sh-bands", "0"}}), "--sh-bands: 0 is below the minimum 1");
+    EXPECT_EQ(flag_error_of({{"--sh-bands", "9"}}), "--sh-bands: 9 exceeds the maximum 4");
+    EXPECT_EQ(flag_error_of({{"--sh-bounces", "7"}}), "--sh-bounces: 7 exceeds the maximum 4");
+    EXPECT_EQ(flag_error_of({{"--seed", "4294967296"}}), "--seed: 4294967296 exceeds the maximum 4294967295");
+    EXPECT_EQ(flag_error_of({{"--seed", "4294967295"}}), "");
+    EXPECT_TRUE(starts_with(flag_error_of({{"--scheme", "fast"}}), "--scheme: must be one of")) << flag_error_of({{"--scheme", "fast"}});
+    EXPECT_TRUE(starts_with(flag_error_of({{"--texel-density", "dense"}}), "--texel-density: 'dense' is not a number"));
+    EXPECT_TRUE(starts_with(flag_error_of({{"--sh-occluders", "0,,3"}}), "--sh-occluders:"));
+    EXPECT_TRUE(starts_with(flag_error_of({{"--env", "1,2"}}), "--env:"));
+    EXPECT_TRUE(starts_with(flag_error_of({{"--resolution", "256"}}), "--resolution: unknown bake option"));
+    EXPECT_TRUE(starts_with(flag_error_of({{"--res", "256"}, {"--texel-density", "10"}}), "--texel-density:"));
     try {
-        outputs_from_bake_options({{"--passes", "many"}});
+        bake_json_from_flags({{"--passes", "many"}});
         FAIL();
     } catch (const SpecError& e) {
-        EXPECT_EQ(std::string(e.what()), "--passes: 'many' is not an integer");
+        EXPECT_EQ(e.field(), "--passes");
     }
-    // Every flag the catalog knows is one the CLI accepts, and back.
-    for (const std::string& flag : bake_option_flags()) EXPECT_EQ(flag.rfind("--", 0), 0u);
 }
+
+TEST(Flags, ChooseOutputs) {
+    // No output flag and no output setting: the lightmap.
+    EXPECT_EQ(bake_json_from_flags({})["outputs"], json({{"lightmap", json::object()}}));
+    EXPECT_EQ(bake_json_from_flags({{"--seed", "3"}})["outputs"], json({{"lightmap", json::object()}}));
+    EXPECT_EQ(bake_json_from_flags({{"--res", "128"}})["outputs"], json({{"lightmap", json::object()}}));
+    // An sh setting alone selects only the sh output.
+    const json sh = bake_json_from_flags({{"--sh-bands", "2"}});
+    EXPECT_EQ(sh["outputs"], json({{"sh", {{"sh_bands", 2}}}}));
+    EXPECT_EQ(bake_json_from_flags({{"--sh", ""}})["outputs"], json({{"sh", json::object()}}));
+    EXPECT_EQ(bake_json_from_flags({{"--sh", ""}, {"--lightmap", ""}})["outputs"],
+              json({{"lightmap", json::object()}, {"sh", json::object()}}));
+    EXPECT_EQ(bake_json_from_flags({{"--passes", "8"}, {"--sh", ""}})["outputs"],
+              json({{"lightmap", {{"passes", 8}}}, {"sh", json::object()}}));
+    const BakeSettings b = parse_bake_settings(sh);
+    EXPECT_FALSE(b.lightmap);
+    ASSERT_TRUE(b.sh);
+    EXPECT_EQ(*b.sh->bands, 2);
+}
+
+TEST(Flags, BecomeTheSameSettingsAsJson) {
+    const json j = bake_json_from_flags({{"--res", "128"},
+                                         {"--target-error", "0.02"},
+                                         {"--no-stitch", ""},
+                                         {"--sh-per-texel", ""},
+                                         {"--sh-bands", "auto"},
+                                         {"--sh-occluders", "0,3"},
+                                         {"--env", "0.5,0.25,1"},
+                                         {"--seed", "9"},
+                                         {"--scheme", "thesis"}});
+    const BakeSettings b = parse_bake_settings(j);
+    ASSERT_TRUE(b.lightmap && b.sh);
+    EXPECT_EQ(b.atlas.res, 128);
+    EXPECT_DOUBLE_EQ(b.lightmap->stop.target_error, 0.02);
+    EXPECT_FALSE(b.lightmap->stitch);
+    EXPECT_EQ(b.lightmap->scheme, "thesis");
+    EXPECT_TRUE(b.sh->per_texel);
+    EXPECT_FALSE(b.sh->bands);
+    EXPECT_EQ(b.sh->occluders, (std::vector<int>{0, 3}));
+    ASSERT_TRUE(b.env.sky);
+    EXPECT_FLOAT_EQ((*b.env.sky)[1], 0.25f);
+    EXPECT_EQ(b.seed, 9u);
+    const BakeSettings same = parse_bake_settings(
+        {{"outputs",
+          {{"lightmap", {{"target_error", 0.02}, {"stitch", false}, {"scheme", "thesis"}}},
+           {"sh", {{"sh_per_texel", true}, {"sh_bands", "auto"}, {"sh_occluders", {0, 3}}}}}},
+         {"atlas", {{"res", 128}}},
+         {"env", {0.5, 0.25, 1}},
+         {"seed", 9}});
+    EXPECT_EQ(to_json(b), to_json(same));
+}
+
+TEST(Flags, OverrideABaseSpec) {
+    const json base = {{"scene", "ignored"},
+                       {"outputs", {{"lightmap", {{"passes", 64}, {"scheme", "thesis"}}}}},
+                       {"atlas", {{"res", 512}}},
+                       {"seed", 3}};
+    const json j = bake_json_from_flags({{"--passes", "8"}, {"--res", "128"}, {"--seed", "5"}}, base);
+    const BakeSettings b = parse_bake_settings(j);
+    ASSERT_TRUE(b.lightmap);
+    EXPECT_FALSE(b.sh);
+    EXPECT_EQ(b.lightmap->stop.passes, 8);
+    EXPECT_EQ(b.lightmap->scheme, "thesis") << "what no flag sets comes from the base";
+    EXPECT_EQ(b.atlas.res, 128);
+    EXPECT_EQ(b.seed, 5u);
+    // Outputs named by flag are added to those of the base.
+    const json both = bake_json_from_flags({{"--sh-bands", "2"}}, base);
+    EXPECT_EQ(both["outputs"]["lightmap"], base["outputs"]["lightmap"]);
+    EXPECT_EQ(both["outputs"]["sh"], json({{"sh_bands", 2}}));
+    // A base's outputs stand without output flags: no lightmap is added to an sh spec.
+    const json sh_base = {{"outputs", {{"sh", json::object()}}}};
+    EXPECT_EQ(bake_json_from_flags({{"--seed", "2"}}, sh_base)["outputs"], sh_base["outputs"]);
+    // A bad value in the base keeps its field name; a bad flag is named as the flag.
+    json bad = base;
+    bad["outputs"]["lightmap"]["passes"] = 0;
+    EXPECT_EQ(flag_error_of({{"--seed", "2"}}, bad), "lightmap.passes: 0 is below the minimum 1");
+    EXPECT_EQ(flag_error_of({{"--passes", "0"}}, base), "--passes: 0 is below the minimum 1");
+    EXPECT_EQ(flag_error_of({{"--passes", "4"}}, bad), "") << "the flag replaces the bad value";
+}
+
+// ---------------------------------------------------------------------------
+// check_spec_against_scene: what can be known at submit
+
+TEST(SceneCheck, NoLightNoEnvironmentIsRefusedForTheLightmap) {
+    SceneSummary dark;
+    dark.source = "breakfast_room.gltf";
+    dark.triangles = 1000;
+    const BakeSettings lightmap = parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}});
+    try {
+        check_spec_against_scene(lightmap, dark);
+        FAIL() << "a dark scene was accepted";
+    } catch (const SpecError& e) {
+        EXPECT_EQ(e.field(), "env");
+        const std::string what = e.what();
+        EXPECT_NE(what.find("breakfast_room.gltf"), std::string::npos) << what;
+        EXPECT_NE(what.find("--env"), std::string::npos) << what;
+    }
+    // With a sky it bakes; with a light it bakes; an SH transfer needs no light.
+    EXPECT_NO_THROW(check_spec_against_scene(
+        parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}, {"env", {1, 1, 1}}}), dark));
+    EXPECT_NO_THROW(check_spec_against_scene(parse_bake_settings({{"outputs", {{"sh", json::object()}}}}), dark));
+    SceneSummary lit = dark;
+    lit.emissive_triangles = 2;
+    EXPECT_NO_THROW(check_spec_against_scene(lightmap, lit));
+    lit = dark;
+    lit.punctual_lights = 1;
+    EXPECT_NO_THROW(check_spec_against_scene(lightmap, lit));
+}
+
+TEST(SceneCheck, AnAtlasThatCannotFitNamesTheSmallestRes) {
+    SceneSummary stairs;
+    stairs.source = "staircase.glb";
+    stairs.emissive_triangles = 4;
+    stairs.min_atlas_res = 1536;
+    auto with_res = [](const json& res, const json& outputs) {
+        return parse_bake_settings({{"outputs", outputs}, {"atlas", {{"res", res}}}});
+    };
+    const json lightmap = {{"lightmap", json::object()}};
+    try {
+        check_spec_against_scene(with_res(256, lightmap), stairs);
+        FAIL() << "an atlas of 256 was accepted for a scene that needs 1536";
+    } catch (const SpecError& e) {
+        EXPECT_EQ(e.field(), "atlas.res");
+        const std::string what = e.what();
+        EXPECT_NE(what.find("1536"), std::string::npos) << what;
+        EXPECT_NE(what.find("staircase.glb"), std::string::npos) << what;
+    }
+    EXPECT_NO_THROW(check_spec_against_scene(with_res(1536, lightmap), stairs));
+    EXPECT_NO_THROW(check_spec_against_scene(with_res("auto", lightmap), stairs));
+    // Per-vertex SH uses no atlas; per-texel SH does.
+    EXPECT_NO_THROW(check_spec_against_scene(with_res(256, {{"sh", json::object()}}), stairs));
+    EXPECT_THROW(check_spec_against_scene(with_res(256, {{"sh", {{"sh_per_texel", true}}}}), stairs), SpecError);
+    // The file's own TEXCOORD_1 is the atlas at any res.
+    SceneSummary uvs = stairs;
+    uvs.has_lightmap_uvs = true;
+    EXPECT_NO_THROW(check_spec_against_scene(with_res(256, lightmap), uvs));
+    // Unknown (0): nothing to check.
+    SceneSummary unknown = stairs;
+    unknown.min_atlas_res = 0;
+    EXPECT_NO_THROW(check_spec_against_scene(with_res(16, lightmap), unknown));
+}
+
+// ---------------------------------------------------------------------------
+// The engine-server contract
+
+Progress some_progress() {
+    Progress p;
+    p.pass = 12;
+    p.rays = (uint64_t(1) << 40) + 3;
+    p.seconds = 3.25;
+    p.error_estimate = 0.0125;
+    return p;
+}
+
+void expect_same(const Progress& a, const Progress& b) {
+    EXPECT_EQ(a.pass, b.pass);
+    EXPECT_EQ(a.rays, b.rays);
+    EXPECT_DOUBLE_EQ(a.seconds, b.seconds);
+    EXPECT_EQ(a.error_estimate, b.error_estimate);
+}
+
+// Through text, as a worker's stdout line travels.
+WorkerEvent through_a_line(const WorkerEvent& e) { return parse_worker_event(json::parse(to_json(e).dump())); }
+
+TEST(WorkerEvents, RoundTripEachType) {
+    StartEvent start;
+    start.vendor = "NVIDIA Corporation";
+    start.renderer = "NVIDIA H100 80GB HBM3/PCIe/SSE2";
+    start.triangles = 123456;
+    start.prepare_seconds = 0.75;
+    start.outputs = {{"lightmap", {{"texels", 65536}}}, {"sh", {{"vertices", 100}}}};
+    const WorkerEvent s = through_a_line(start);
+    ASSERT_TRUE(std::holds_alternative<StartEvent>(s));
+    const auto& s2 = std::get<StartEvent>(s);
+    EXPECT_EQ(s2.vendor, start.vendor);
+    EXPECT_EQ(s2.renderer, start.renderer);
+    EXPECT_EQ(s2.triangles, start.triangles);
+    EXPECT_DOUBLE_EQ(s2.prepare_seconds, start.prepare_seconds);
+    EXPECT_EQ(s2.outputs, start.outputs);
+    EXPECT_EQ(to_json(s)["event"], "start");
+
+    ProgressEvent progress{"sh", some_progress()};
+    progress.progress.eta_seconds = 9.0;  // the server's business: not on the worker's line
+    EXPECT_FALSE(to_json(WorkerEvent(progress)).contains("eta_seconds"));
+    const WorkerEvent p = through_a_line(progress);
+    ASSERT_TRUE(std::holds_alternative<ProgressEvent>(p));
+    EXPECT_EQ(std::get<ProgressEvent>(p).output, "sh");
+    expect_same(std::get<ProgressEvent>(p).progress, progress.progress);
+    EXPECT_FALSE(std::get<ProgressEvent>(p).progress.eta_seconds);
+    ProgressEvent early{"lightmap", Progress{}};  // no error estimate yet
+    const WorkerEvent e = through_a_line(early);
+    EXPECT_FALSE(std::get<ProgressEvent>(e).progress.error_estimate);
+
+    const SnapshotEvent snapshot{"lightmap", "lightmap.pass-16384.exr", 16384};
+    const WorkerEvent n = through_a_line(snapshot);
+    ASSERT_TRUE(std::holds_alternative<SnapshotEvent>(n));
+    EXPECT_EQ(std::get<SnapshotEvent>(n).output, "lightmap");
+    EXPECT_EQ(std::get<SnapshotEvent>(n).file, "lightmap.pass-16384.exr");
+    EXPECT_EQ(std::get<SnapshotEvent>(n).pass, 16384);
+
+    DoneEvent done;
+    done.progress = some_progress();
+    done.files = {"lightmap.exr", "lightmap.pass-0001.exr", "scene.sh.glb", "manifest.json"};
+    done.final_files = {{"lightmap", "lightmap.exr"}, {"sh", "scene.sh.glb"}};
+    const WorkerEvent d = through_a_line(done);
+    ASSERT_TRUE(std::holds_alternative<DoneEvent>(d));
+    expect_same(std::get<DoneEvent>(d).progress, done.progress);
+    EXPECT_EQ(std::get<DoneEvent>(d).files, done.files);
+    EXPECT_EQ(std::get<DoneEvent>(d).final_files, done.final_files);
+
+    // Every event's JSON is a fixed point.
+    for (const WorkerEvent& ev : {WorkerEvent(start), WorkerEvent(progress), WorkerEvent(snapshot), WorkerEvent(done)})
+        EXPECT_EQ(to_json(through_a_line(ev)), to_json(ev));
+}
+
+TEST(WorkerEvents, GarbageIsRefused) {
+    const std::vector<json> garbage = {
+        json(nullptr),
+        json("progress"),
+        json::array({"event", "done"}),
+        json::object(),
+        {{"event", 3}},
+        {{"event", "finished"}},
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"pass", 4}},                // no file
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", "a.exr"}},           // no pass
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", 7}, {"pass", 4}},    // file not a string
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", "a.exr"}, {"pass", "4"}},
+    };
+    for (const json& g : garbage) EXPECT_THROW(parse_worker_event(g), std::invalid_argument) << g.dump();
+}
+
+// A field of the wrong type is refused too. (The header promises
+// std::invalid_argument; today some of these throw nlohmann's type_error,
+// which the supervisor's catch of std::exception also takes.)
+TEST(WorkerEvents, WrongFieldTypesAreRefused) {
+    const std::vector<json> garbage = {
+        {{"event", "progress"}, {"output", 3}, {"pass", 1}},
+        {{"event", "start"}, {"vendor", 5}},
+        {{"event", "snapshot"}, {"output", json::array()}, {"file", "a.exr"}, {"pass", 4}},
+    };
+    for (const json& g : garbage) EXPECT_ANY_THROW(parse_worker_event(g)) << g.dump();
+}
+
+TEST(WorkerExit, InputErrorsAreNotRetried) {
+    EXPECT_TRUE(is_input_error_exit(kExitUsage));
+    EXPECT_TRUE(is_input_error_exit(kExitInputError));
+    EXPECT_FALSE(is_input_error_exit(kExitOk));
+    EXPECT_FALSE(is_input_error_exit(kExitFailure));
+    EXPECT_FALSE(is_input_error_exit(137));  // SIGKILL
+    EXPECT_FALSE(is_input_error_exit(-1));
+}
+
+TEST(SceneSummaryJson, RoundTrips) {
+    SceneSummary s;
+    s.source = "breakfast_room.gltf";
+    s.triangles = 269000;
+    s.emissive_triangles = 0;
+    s.punctual_lights = 3;
+    s.max_texture_size = 2048;
+    s.has_lightmap_uvs = false;
+    s.min_atlas_res = 1536;
+    s.details = {{"meshes", 12}, {"warnings", {"no TEXCOORD_1"}}};
+    const json j = to_json(s);
+    EXPECT_EQ(j["meshes"], 12) << "the engine's other fields are kept";
+    EXPECT_EQ(j["punctual_light_count"], 3);
+    const SceneSummary t = scene_summary_from_json(json::parse(j.dump()));
+    EXPECT_EQ(t.source, s.source);
+    EXPECT_EQ(t.triangles, s.triangles);
+    EXPECT_EQ(t.emissive_triangles, s.emissive_triangles);
+    EXPECT_EQ(t.punctual_lights, s.punctual_lights);
+    EXPECT_EQ(t.max_texture_size, s.max_texture_size);
+    EXPECT_EQ(t.has_lightmap_uvs, s.has_lightmap_uvs);
+    EXPECT_EQ(t.min_atlas_res, s.min_atlas_res);
+    EXPECT_TRUE(t.has_light());
+    EXPECT_EQ(to_json(t), j);
+    EXPECT_THROW(scene_summary_from_json(json::array()), std::invalid_argument);
+    // A summary from before min_atlas_res existed: unknown, not an error.
+    const SceneSummary old = scene_summary_from_json(json::parse(R"({"triangles": 12, "emissive_triangles": 2})"));
+    EXPECT_EQ(old.min_atlas_res, 0);
+    EXPECT_TRUE(old.has_light());
+}
+
+TEST(ProgressJson, RoundTrips) {
+    Progress p = some_progress();
+    p.eta_seconds = 4.5;
+    const Progress q = progress_from_json(json::parse(to_json(p).dump()));
+    expect_same(p, q);
+    EXPECT_EQ(q.eta_seconds, p.eta_seconds);
+    EXPECT_EQ(to_json(Progress{})["error_estimate"], nullptr);
+    EXPECT_EQ(progress_from_json(json("junk")).pass, 0);
+}
+
+// ---------------------------------------------------------------------------
+// Job status and events
 
 TEST(JobStatus, RoundTripsThroughJson) {
     JobStatus s;
     s.id = "j1";
     s.scene = "abc";
     s.state = JobState::Failed;
-    s.spec = valid_spec();
+    s.spec = to_json(parse_job_spec(valid_spec()));
     s.progress.pass = 3;
     s.progress.rays = 1u << 20;
     s.progress.seconds = 1.5;
@@ -167,20 +753,39 @@ TEST(JobStatus, RoundTripsThroughJson) {
     EXPECT_EQ(to_json(t), to_json(s));
     EXPECT_EQ(to_json(s)["started_at"], nullptr);
     EXPECT_TRUE(is_final(JobState::Cancelled));
+    EXPECT_TRUE(is_final(JobState::Succeeded));
+    EXPECT_TRUE(is_final(JobState::Failed));
     EXPECT_FALSE(is_final(JobState::Running));
+    EXPECT_FALSE(is_final(JobState::Queued));
     EXPECT_EQ(parse_job_state("running"), JobState::Running);
     EXPECT_FALSE(parse_job_state("paused"));
 }
 
 TEST(JobStatus, EtaFollowsTheStoppingRules) {
     Progress p;
+    StopSettings stop;
+    stop.passes = 10;
+    EXPECT_FALSE(estimate_eta(stop, p)) << "nothing to go on before the first pass";
     p.pass = 4;
     p.seconds = 2.0;  // 0.5 s per pass
-    EXPECT_FALSE(estimate_eta(json::object(), p));
-    EXPECT_DOUBLE_EQ(*estimate_eta({{"passes", 10}}, p), 3.0);
-    EXPECT_DOUBLE_EQ(*estimate_eta({{"passes", 10}, {"time_limit", 3}}, p), 1.0);
+    EXPECT_DOUBLE_EQ(*estimate_eta(stop, p), 3.0);
+    stop.time_limit = 3;  // 1 s left, before the passes run out
+    EXPECT_DOUBLE_EQ(*estimate_eta(stop, p), 1.0);
+    stop = StopSettings{};
+    stop.passes = 1000;
+    stop.target_error = 0.01;
     p.error_estimate = 0.02;  // twice the target: 4x the passes, 12 more
-    EXPECT_DOUBLE_EQ(*estimate_eta({{"target_error", 0.01}}, p), 6.0);
+    EXPECT_DOUBLE_EQ(*estimate_eta(stop, p), 6.0);
+    p.error_estimate = 0.005;  // already there
+    EXPECT_DOUBLE_EQ(*estimate_eta(stop, p), 0.0);
+    // Past the end: never negative.
+    stop = StopSettings{};
+    stop.passes = 2;
+    EXPECT_DOUBLE_EQ(*estimate_eta(stop, p), 0.0);
+    // The catalog's default stop rules give an answer (256 passes).
+    const BakeSettings b = parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}});
+    p.error_estimate.reset();
+    EXPECT_DOUBLE_EQ(*estimate_eta(b.lightmap->stop, p), 0.5 * (256 - 4));
 }
 
 TEST(Sse, FormatsAndParsesInAnyChunking) {
@@ -202,7 +807,338 @@ TEST(Sse, FormatsAndParsesInAnyChunking) {
         }
     }
     EXPECT_TRUE(is_final_event("done"));
+    EXPECT_TRUE(is_final_event("failed"));
+    EXPECT_TRUE(is_final_event("cancelled"));
     EXPECT_FALSE(is_final_event("snapshot"));
+}
+
+// ---------------------------------------------------------------------------
+// protocol/openapi.json: the JobSpec schema is the catalog
+
+std::filesystem::path openapi_path() {
+#ifdef LIGHTFARM_OPENAPI
+    return LIGHTFARM_OPENAPI;
+#else
+    return repo_root() / "protocol" / "openapi.json";
+#endif
+}
+
+json load_openapi() {
+    std::ifstream in(openapi_path());
+    if (!in) throw std::runtime_error("cannot read " + openapi_path().string());
+    return json::parse(in);
+}
+
+// "#/components/schemas/X" -> the schema; anything else as it is.
+const json& resolve(const json& doc, const json& schema) {
+    if (!schema.is_object() || !schema.contains("$ref")) return schema;
+    const std::string ref = schema["$ref"];
+    const std::string prefix = "#/components/schemas/";
+    if (!starts_with(ref, prefix)) throw std::runtime_error("unsupported $ref " + ref);
+    return resolve(doc, doc.at("components").at("schemas").at(ref.substr(prefix.size())));
+}
+
+// The JSON Schema of one setting, as the catalog defines it: what the
+// OpenAPI document must say, word for word. The environment is the service's
+// (a sky [R, G, B]: a server reads no map files).
+json schema_of(const Setting& s) {
+    json range = json::object();
+    switch (s.type) {
+    case SettingType::Integer:
+    case SettingType::Number:
+        range["type"] = s.type == SettingType::Integer ? "integer" : "number";
+        range[s.min_exclusive ? "exclusiveMinimum" : "minimum"] = s.min;
+        range["maximum"] = s.max;
+        break;
+    case SettingType::Choice:
+        range = {{"type", "string"}, {"enum", s.choices}};
+        break;
+    case SettingType::Flag:
+        range = {{"type", "boolean"}};
+        break;
+    case SettingType::MeshList:
+        range = {{"type", "array"}, {"items", {{"type", "integer"}, {"minimum", 0}, {"maximum", 1 << 30}}}};
+        break;
+    case SettingType::Environment:
+        range = {{"type", "array"}, {"items", {{"type", "number"}, {"minimum", 0}}}, {"minItems", 3}, {"maxItems", 3}};
+        break;
+    }
+    json out = s.accepts_auto ? json{{"oneOf", {range, {{"const", "auto"}}}}} : range;
+    if (!s.default_value.is_null()) out["default"] = s.default_value;
+    out["description"] = s.help;
+    if (!s.limit.empty()) out["x-server-limit"] = s.limit;
+    return out;
+}
+
+// Numbers compare by value (1000 == 1000.0), everything else exactly.
+bool same_schema(const json& a, const json& b) {
+    if (a.is_number() && b.is_number()) return a.get<double>() == b.get<double>();
+    if (a.type() != b.type()) return false;
+    if (a.is_object()) {
+        if (a.size() != b.size()) return false;
+        for (auto it = a.begin(); it != a.end(); ++it)
+            if (!b.contains(it.key()) || !same_schema(it.value(), b[it.key()])) return false;
+        return true;
+    }
+    if (a.is_array()) {
+        if (a.size() != b.size()) return false;
+        for (size_t i = 0; i < a.size(); ++i)
+            if (!same_schema(a[i], b[i])) return false;
+        return true;
+    }
+    return a == b;
+}
+
+std::set<std::string> keys_of(const json& properties) {
+    std::set<std::string> keys;
+    for (auto it = properties.begin(); it != properties.end(); ++it) keys.insert(it.key());
+    return keys;
+}
+
+// The object schema that holds a group's settings.
+const json& group_schema(const json& doc, const std::string& group) {
+    const json& spec = resolve(doc, doc["components"]["schemas"]["JobSpec"]);
+    if (group.empty()) return spec;
+    if (group == "atlas") return resolve(doc, spec["properties"]["atlas"]);
+    return resolve(doc, spec["properties"]["outputs"]["properties"][group]);
+}
+
+TEST(OpenApi, JobSpecSchemaIsTheCatalog) {
+    const json doc = load_openapi();
+    const json& spec = resolve(doc, doc["components"]["schemas"]["JobSpec"]);
+    EXPECT_EQ(spec["type"], "object");
+    EXPECT_EQ(spec["additionalProperties"], false);
+    EXPECT_EQ(spec["required"], json({"scene", "outputs"}));
+
+    // The outputs: exactly output_names(), each an object of its settings.
+    const json& outputs = spec["properties"]["outputs"];
+    EXPECT_EQ(outputs["additionalProperties"], false);
+    EXPECT_EQ(outputs["minProperties"], 1);
+    EXPECT_EQ(keys_of(outputs["properties"]), std::set<std::string>(output_names().begin(), output_names().end()));
+
+    // Every group: the same names, and every setting exactly as the catalog says.
+    std::set<std::string> groups = {"", "atlas"};
+    groups.insert(output_names().begin(), output_names().end());
+    for (const std::string& group : groups) {
+        SCOPED_TRACE("group '" + group + "'");
+        const json& object = group_schema(doc, group);
+        ASSERT_TRUE(object.is_object());
+        EXPECT_EQ(object["type"], "object");
+        EXPECT_EQ(object["additionalProperties"], false);
+        std::set<std::string> in_catalog;
+        for (const Setting& s : setting_catalog())
+            if (s.group == group) in_catalog.insert(s.name);
+        std::set<std::string> in_schema = keys_of(object["properties"]);
+        if (group.empty()) {
+            for (const char* own : {"scene", "outputs", "atlas", "limits"}) EXPECT_EQ(in_schema.erase(own), 1u) << own;
+        }
+        EXPECT_EQ(in_schema, in_catalog);
+        for (const Setting& s : setting_catalog()) {
+            if (s.group != group || !object["properties"].contains(s.name)) continue;
+            const json& documented = object["properties"][s.name];
+            EXPECT_TRUE(same_schema(documented, schema_of(s)))
+                << s.field() << " is documented as\n"
+                << documented.dump(2) << "\nbut the catalog says\n"
+                << schema_of(s).dump(2);
+        }
+    }
+
+    // The job's own limits.
+    const json& limits = spec["properties"]["limits"];
+    EXPECT_EQ(limits["additionalProperties"], false);
+    EXPECT_EQ(keys_of(limits["properties"]), (std::set<std::string>{"max_attempts", "max_seconds"}));
+    EXPECT_EQ(limits["properties"]["max_seconds"]["type"], "number");
+    EXPECT_EQ(limits["properties"]["max_attempts"]["type"], "integer");
+    EXPECT_EQ(spec["properties"]["scene"]["type"], "string");
+}
+
+// A small JSON Schema validator, for the subset openapi.json uses.
+bool valid_against(const json& doc, const json& schema_ref, const json& v) {
+    const json& schema = resolve(doc, schema_ref);
+    if (schema.contains("oneOf")) {
+        int matches = 0;
+        for (const json& alt : schema["oneOf"]) matches += valid_against(doc, alt, v);
+        if (matches != 1) return false;
+    }
+    if (schema.contains("const") && v != schema["const"]) return false;
+    if (schema.contains("enum") && std::find(schema["enum"].begin(), schema["enum"].end(), v) == schema["enum"].end())
+        return false;
+    if (schema.contains("type")) {
+        const std::string t = schema["type"];
+        const bool ok = t == "integer"  ? (v.is_number_integer() || v.is_number_unsigned())
+                        : t == "number" ? v.is_number()
+                        : t == "string" ? v.is_string()
+                        : t == "boolean" ? v.is_boolean()
+                        : t == "array"  ? v.is_array()
+                        : t == "object" ? v.is_object()
+                                        : false;
+        if (!ok) return false;
+    }
+    if (v.is_number()) {
+        const double x = v.get<double>();
+        if (!std::isfinite(x)) return false;
+        if (schema.contains("minimum") && x < schema["minimum"].get<double>()) return false;
+        if (schema.contains("exclusiveMinimum") && x <= schema["exclusiveMinimum"].get<double>()) return false;
+        if (schema.contains("maximum") && x > schema["maximum"].get<double>()) return false;
+    }
+    if (v.is_string() && schema.contains("minLength") && v.get<std::string>().size() < schema["minLength"].get<size_t>())
+        return false;
+    if (v.is_array()) {
+        if (schema.contains("minItems") && v.size() < schema["minItems"].get<size_t>()) return false;
+        if (schema.contains("maxItems") && v.size() > schema["maxItems"].get<size_t>()) return false;
+        if (schema.contains("items"))
+            for (const json& item : v)
+                if (!valid_against(doc, schema["items"], item)) return false;
+    }
+    if (v.is_object()) {
+        if (schema.contains("minProperties") && v.size() < schema["minProperties"].get<size_t>()) return false;
+        if (schema.contains("required"))
+            for (const json& r : schema["required"])
+                if (!v.contains(r.get<std::string>())) return false;
+        const json props = schema.value("properties", json::object());
+        for (auto it = v.begin(); it != v.end(); ++it) {
+            if (props.contains(it.key())) {
+                if (!valid_against(doc, props[it.key()], it.value())) return false;
+            } else if (schema.value("additionalProperties", json(true)) == false) {
+                return false;
+            }
+        }
+    }
+    return true;
+}
+
+// A value is valid in the OpenAPI document exactly when the server's parser
+// takes it: every setting at and past its edges, of every wrong type.
+TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
+    const json doc = load_openapi();
+    const json& schema = doc["components"]["schemas"]["JobSpec"];
+    SpecLimits server;  // the catalog's ranges; the server's own caps are its configuration
+    server.caps.clear();
+    server.allow_local_files = false;
+    auto accepted = [&](const json& spec) { return error_of(spec, server).empty(); };
+
+    const json base = {{"scene", "s"}, {"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}}};
+    int checked = 0;
+    for (const Setting& s : setting_catalog()) {
+        std::vector<json> values = {nullptr, true, "auto", "x", json::array(), json::object(), 1.5, -1, 0, 1, 3};
+        if (s.type == SettingType::Integer || s.type == SettingType::Number) {
+            for (double d : {s.min - 1, s.min - 0.5, s.min, s.min + 0.5, s.max - 0.5, s.max, s.max + 0.5, s.max + 1}) {
+                values.push_back(d);
+                if (d == std::floor(d) && std::abs(d) < 9e15) values.push_back(int64_t(d));
+            }
+        }
+        for (const std::string& c : s.choices) values.push_back(c);
+        for (const json& v : {json::array({0, 3}), json::array({-1}), json::array({1.5}), json::array({1, 2, 3}),
+                              json::array({0.5, 0.5}), json::array({-1, 0, 0}), json("0,3"), json("sky.hdr")})
+            values.push_back(v);
+        for (const json& v : values) {
+            json spec = base;
+            if (s.group.empty()) spec[s.name] = v;
+            else if (s.group == "atlas") spec["atlas"][s.name] = v;
+            else spec["outputs"][s.group][s.name] = v;
+            EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec))
+                << s.field() << " = " << v.dump() << ": the schema says " << valid_against(doc, schema, spec)
+                << ", the server " << (accepted(spec) ? "accepts" : "refuses (" + error_of(spec, server) + ")");
+            ++checked;
+        }
+    }
+    for (const json& limits : {json{{"max_seconds", 0}}, json{{"max_seconds", 0.5}}, json{{"max_seconds", "1"}},
+                               json{{"max_attempts", 0}}, json{{"max_attempts", 1}}, json{{"max_attempts", 1.5}},
+                               json{{"gpu", 1}}, json(3)}) {
+        json spec = base;
+        spec["limits"] = limits;
+        EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec)) << limits.dump();
+    }
+    for (const json& spec : {json{{"outputs", {{"lightmap", json::object()}}}}, json{{"scene", "s"}},
+                             json{{"scene", "s"}, {"outputs", json::object()}},
+                             json{{"scene", "s"}, {"outputs", {{"probes", json::object()}}}},
+                             json{{"scene", "s"}, {"outputs", {{"lightmap", json::object()}}}, {"colour", 1}}})
+        EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec)) << spec.dump();
+    // The canonical JSON the server stores (and JobStatus.spec shows) is valid too.
+    for (const json& spec : {base, valid_spec()})
+        EXPECT_TRUE(valid_against(doc, schema, to_json(parse_job_spec(spec)))) << to_json(parse_job_spec(spec)).dump();
+    EXPECT_GT(checked, 300);
+}
+
+// ---------------------------------------------------------------------------
+// README.md: the `lightfarm bake` option table is the catalog's
+
+std::string cell_number(double v) {
+    std::ostringstream s;
+    s.precision(15);
+    s << v;
+    return s.str();
+}
+
+std::string values_cell(const Setting& s) {
+    std::string v;
+    switch (s.type) {
+    case SettingType::Integer:
+        v = "integer " + cell_number(s.min) + "–" + cell_number(s.max);
+        break;
+    case SettingType::Number:
+        v = s.min_exclusive ? "number > " + cell_number(s.min) + ", ≤ " + cell_number(s.max)
+                            : "number " + cell_number(s.min) + "–" + cell_number(s.max);
+        break;
+    case SettingType::Choice:
+        for (const std::string& c : s.choices) v += (v.empty() ? "" : ", ") + ("`" + c + "`");
+        break;
+    case SettingType::Flag:
+        v = std::string("flag: sets `") + (s.default_value == true ? "false" : "true") + "`";
+        break;
+    case SettingType::MeshList:
+        v = "glTF mesh indices: `0,3` (JSON `[0, 3]`)";
+        break;
+    case SettingType::Environment:
+        v = "`R,G,B` (JSON `[R, G, B]`), or a map file (CLI)";
+        break;
+    }
+    if (s.accepts_auto) v += ", or `auto`";
+    return v;
+}
+
+std::string default_cell(const Setting& s) {
+    if (s.default_value.is_null()) return "none";
+    if (s.default_value.is_string()) return "`" + s.default_value.get<std::string>() + "`";
+    return "`" + s.default_value.dump() + "`";
+}
+
+// A table cell: a `|` inside one would split it.
+std::string cell(const std::string& text) {
+    std::string out;
+    for (char c : text) out += c == '|' ? std::string("\\|") : std::string(1, c);
+    return out;
+}
+
+// The table README.md holds between its bake-options markers.
+std::string bake_options_markdown() {
+    std::string t = "| flag | JSON field | values | default | meaning |\n|---|---|---|---|---|\n";
+    for (const Setting& s : setting_catalog()) {
+        std::string meaning = s.help;
+        if (!s.limit.empty()) meaning += "; a service caps it (`--limit " + s.limit + "=N`)";
+        t += "| " + cell("`" + s.flag() + "`") + " | " + cell("`" + s.field() + "`") + " | " + cell(values_cell(s)) +
+             " | " + cell(default_cell(s)) + " | " + cell(meaning) + " |\n";
+    }
+    return t;
+}
+
+TEST(Readme, BakeOptionTableIsTheCatalog) {
+    const std::filesystem::path readme = repo_root() / "README.md";
+    const std::string text = read_text(readme);
+    ASSERT_FALSE(text.empty()) << "cannot read " << readme;
+    const std::string begin = "<!-- bake-options:begin -->\n", end = "<!-- bake-options:end -->";
+    const size_t from = text.find(begin);
+    const size_t to = text.find(end);
+    const std::string expected = bake_options_markdown();
+    ASSERT_NE(from, std::string::npos) << "README.md has no " << begin << "paste this between the markers:\n\n"
+                                       << begin << expected << end;
+    ASSERT_NE(to, std::string::npos) << "README.md has no " << end;
+    ASSERT_LT(from, to);
+    const std::string table = text.substr(from + begin.size(), to - from - begin.size());
+    EXPECT_EQ(table, expected) << "README.md's bake option table is not the catalog's; replace it with:\n\n"
+                               << begin << expected << end << "\n";
+    // Every setting's flag has its row.
+    for (const Setting& s : setting_catalog()) EXPECT_NE(table.find("`" + s.flag() + "`"), std::string::npos) << s.flag();
 }
 
 }  // namespace
