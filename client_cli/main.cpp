@@ -53,7 +53,11 @@ std::string one_scene(const Args& args, const char* command) {
 
 int inspect(int argc, char** argv) {
     Args args(argc, argv, 2, {}, {"--json"});
-    const lf::Scene scene = lf::load_scene(one_scene(args, "inspect"));
+    // Sizes are checked from image headers; pixels are not decoded (an upload
+    // check must not cost what a hostile image would make it cost).
+    lf::LoadLimits limits;
+    limits.decode_images = false;
+    const lf::Scene scene = lf::load_scene(one_scene(args, "inspect"), limits);
     if (args.flag("--json")) {
         lf::protocol::SceneSummary summary = lf::summarize(scene);
         // What the service checks a job against before it runs: the smallest

@@ -22,12 +22,16 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 const char* const kRemoteUsage = R"(remote commands (a lightfarmd server):
-  submit SCENE [bake options] [--seed N] [--wait [--out DIR] [--json]]
+  submit SCENE [bake options] [--wait [--out DIR] [--json]]
                                      upload SCENE (a .glb, or a .gltf with its files),
                                      create a job, print its id; --wait follows it and
-                                     downloads the results into --out (default ./JOB)
+                                     downloads the results into --out (default ./JOB).
+                                     The bake options are those of `lightfarm bake`:
+                                     every output (--lightmap, --sh) and setting
   watch JOB [--json]                 follow a job's progress until it ends
-  fetch JOB [--out DIR] [--latest]   download a job's files (--latest: the newest snapshot)
+  fetch JOB [--out DIR] [--latest]   download a job's files (--latest: the newest file
+                                     of each output: its final file once done, else
+                                     its newest snapshot)
   cancel JOB                         cancel a queued or running job
   jobs [--json]                      list your jobs
   every remote command: --server URL (default http://127.0.0.1:8750)
@@ -196,19 +200,17 @@ protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_line
 
 // Downloads artifacts into `dir` (temp file + rename, like the server's own).
 void fetch(Remote& remote, const std::string& job, const fs::path& dir, bool latest_only) {
-    const json listing = remote.call(remote.http().Get("/v1/jobs/" + job + "/artifacts"), "list the files of job " + job);
     std::vector<std::string> names;
-    for (const json& a : listing["artifacts"]) names.push_back(a["name"]);
     if (latest_only) {
-        // The newest snapshot (names sort by pass), and the final files if any.
-        std::vector<std::string> keep;
-        std::string newest;
-        for (const std::string& n : names) {
-            if (n.find(".pass-") != std::string::npos) newest = std::max(newest, n);
-            else keep.push_back(n);
-        }
-        if (!newest.empty()) keep.push_back(newest);
-        names = keep;
+        // The newest file of each output, as the server learnt it from the
+        // worker's events (file names do not sort by pass: pass-16384 < pass-2048).
+        const json status = remote.call(remote.http().Get("/v1/jobs/" + job), "read job " + job);
+        for (const auto& [output, latest] : protocol::latest_from_json(status.value("latest", json::object())))
+            names.push_back(latest.file);
+    } else {
+        const json listing =
+            remote.call(remote.http().Get("/v1/jobs/" + job + "/artifacts"), "list the files of job " + job);
+        for (const json& a : listing["artifacts"]) names.push_back(a["name"]);
     }
     if (names.empty()) throw RemoteError("job " + job + " has no files yet");
     fs::create_directories(dir);
@@ -249,21 +251,23 @@ std::string one_job(const Args& args, const std::string& command) {
 }
 
 int submit(int argc, char** argv) {
-    std::set<std::string> valued = with_common({"--seed", "--out"});
-    for (const std::string& f : protocol::bake_option_flags()) valued.insert(f);
-    const Args args(argc, argv, 2, valued, {"--wait", "--json"});
+    // Every output and setting of `lightfarm bake`, from the one catalog.
+    std::set<std::string> valued = with_common({"--out"});
+    std::set<std::string> flags = {"--wait", "--json"};
+    for (const auto& [flag, takes_value] : protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
+    const Args args(argc, argv, 2, valued, flags);
     if (args.positional().size() != 1) throw UsageError("submit takes exactly one SCENE argument");
-    std::map<std::string, std::string> bake_values;
-    for (const std::string& f : protocol::bake_option_flags())
-        if (args.has(f)) bake_values[f] = args.get(f);
-
-    json spec = {{"outputs", json::object()}, {"seed", 1}};
+    std::map<std::string, std::string> bake;
+    for (const auto& [flag, takes_value] : protocol::bake_flags()) {
+        if (takes_value && args.has(flag)) bake[flag] = args.get(flag);
+        if (!takes_value && args.flag(flag)) bake[flag] = "";
+    }
+    json spec;
     try {
-        for (auto& [name, settings] : protocol::outputs_from_bake_options(bake_values)) spec["outputs"][name] = settings;
+        spec = protocol::bake_json_from_flags(bake);
     } catch (const protocol::SpecError& e) {
         throw UsageError(e.what());
     }
-    if (args.has("--seed")) spec["seed"] = uint64_t(args.number("--seed", 1));
 
     Remote remote(args);
     spec["scene"] = upload_scene(remote, args.positional()[0]);

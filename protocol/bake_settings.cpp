@@ -139,8 +139,10 @@ json check_environment(const json& v, const SpecLimits& limits, const std::strin
         if (v.size() != 3) throw SpecError(field, "a uniform sky is [R, G, B], not " + std::to_string(v.size()) + " values");
         json out = json::array();
         for (const json& c : v) {
-            if (!c.is_number() || !std::isfinite(c.get<double>()) || c.get<double>() < 0.0)
-                throw SpecError(field, "sky radiance components must be finite numbers >= 0");
+            // Stored as float32: a value that overflows it would come back as
+            // null and make an accepted spec invalid (found by fuzzing).
+            if (!c.is_number() || !(c.get<double>() >= 0.0) || c.get<double>() > std::numeric_limits<float>::max())
+                throw SpecError(field, "sky radiance components must be numbers from 0 to 3.4e38");
             out.push_back(c.get<double>());
         }
         return out;
@@ -471,6 +473,12 @@ json bake_json_from_flags(const std::map<std::string, std::string>& flags, const
         rethrow_as_flag(e, flags);
     }
     return j;
+}
+
+uint64_t estimated_bake_bytes(uint64_t atlas_texels) {
+    constexpr uint64_t kBytesPerTexel = 520;  // 505 measured, rounded up
+    constexpr uint64_t kBase = 100ull << 20;
+    return kBase + kBytesPerTexel * atlas_texels;
 }
 
 std::vector<std::pair<std::string, bool>> bake_flags() {

@@ -1,6 +1,7 @@
 #include "worker_protocol.h"
 
 #include <algorithm>
+#include <limits>
 #include <stdexcept>
 
 namespace lf::protocol {
@@ -17,8 +18,14 @@ json to_json(const Progress& p) {
 Progress progress_from_json(const json& j) {
     Progress p;
     if (!j.is_object()) return p;
-    if (j.contains("pass") && j["pass"].is_number_integer()) p.pass = j["pass"].get<int>();
-    if (j.contains("rays") && j["rays"].is_number()) p.rays = j["rays"].get<uint64_t>();
+    // Counts are read only when they are non-negative integers in range: a
+    // float or negative "rays" was undefined behaviour (found by fuzzing).
+    if (j.contains("pass") && j["pass"].is_number_integer() && j["pass"].get<int64_t>() >= 0 &&
+        j["pass"].get<int64_t>() <= std::numeric_limits<int>::max())
+        p.pass = int(j["pass"].get<int64_t>());
+    if (j.contains("rays") && j["rays"].is_number_unsigned()) p.rays = j["rays"].get<uint64_t>();
+    else if (j.contains("rays") && j["rays"].is_number_integer() && j["rays"].get<int64_t>() >= 0)
+        p.rays = uint64_t(j["rays"].get<int64_t>());
     if (j.contains("seconds") && j["seconds"].is_number()) p.seconds = j["seconds"].get<double>();
     if (j.contains("error_estimate") && j["error_estimate"].is_number()) p.error_estimate = j["error_estimate"].get<double>();
     if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
@@ -91,8 +98,9 @@ WorkerEvent parse_worker_event(const json& j) {
     }
     if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j)};
     if (kind == "snapshot") {
-        if (!j.contains("pass") || !j["pass"].is_number_integer()) throw std::invalid_argument("snapshot event without a pass");
-        return SnapshotEvent{optional_string(j, "output"), string_field(j, "file"), j["pass"].get<int>()};
+        const Progress at = progress_from_json(j);
+        if (!j.contains("pass") || at.pass != j["pass"]) throw std::invalid_argument("snapshot event without a valid pass");
+        return SnapshotEvent{optional_string(j, "output"), string_field(j, "file"), at.pass};
     }
     if (kind == "done") {
         DoneEvent d;

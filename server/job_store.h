@@ -19,6 +19,7 @@ namespace lf::server {
 using protocol::JobEvent;
 using protocol::JobState;
 using protocol::JobStatus;
+using protocol::LatestFile;
 using protocol::Progress;
 
 struct SceneRecord {
@@ -59,6 +60,9 @@ public:
     // The oldest queued job, now running with one more attempt counted.
     virtual std::optional<JobRecord> claim_next() = 0;
     virtual void set_progress(const std::string& id, const Progress& p) = 0;
+    // The newest file of one output (from a snapshot or done event), kept
+    // across attempts until a newer event replaces it.
+    virtual void set_latest(const std::string& id, const std::string& output, const LatestFile& file) = 0;
     // Running -> queued after a failed attempt (or, with refund, an
     // interruption that is not the job's fault). Appends `event` (a
     // "retrying" event) in the same transaction. False if no longer running.

@@ -79,6 +79,23 @@ std::vector<Artifact> artifacts_in(const fs::path& dir) {
     return found;
 }
 
+// A stored scene's summary as the checks at submit read it, named as the
+// user uploaded it. A summary from an older engine that does not say whether
+// the scene has a light is taken as lit: what is not known is not refused.
+protocol::SceneSummary summary_of(const SceneRecord& scene) {
+    protocol::SceneSummary summary;
+    try {
+        summary = protocol::scene_summary_from_json(scene.summary);
+    } catch (const std::invalid_argument&) {
+        summary.has_lightmap_uvs = true;
+    }
+    if (!scene.summary.is_object() || !scene.summary.contains("emissive_triangles") ||
+        !scene.summary.contains("punctual_light_count"))
+        summary.emissive_triangles = std::max<uint64_t>(summary.emissive_triangles, 1);
+    summary.source = scene.main_file.empty() ? summary.source : scene.main_file;
+    return summary;
+}
+
 // "/v1/jobs/{id}/artifacts/{name}" -> regex with one group per parameter.
 std::string route_regex(const std::string& path) {
     static const std::regex param(R"(\{[a-z_]+\})");
@@ -299,14 +316,28 @@ void Service::get_scene(const httplib::Request& req, httplib::Response& res, con
 void Service::post_job(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
     const json body = json::parse(req.body, nullptr, false);
     if (body.is_discarded()) throw HttpError(400, "the request body is not JSON");
+    // The one validity rule (protocol/bake_settings.h) under this server's
+    // caps; a server never reads files a job names. A spec is validated here,
+    // once: the supervisor trusts what was stored.
+    protocol::SpecLimits limits = config_.limits.spec;
+    limits.allow_local_files = false;
     protocol::JobSpec spec;
     try {
-        spec = protocol::parse_job_spec(body, config_.limits.spec);
+        spec = protocol::parse_job_spec(body, limits);
     } catch (const protocol::SpecError& e) {
         throw HttpError(400, e.what(), {{"field", e.field()}});
     }
     if (!store_->scene_owned_by(spec.scene, caller.owner))
         throw HttpError(404, "scene: no scene " + spec.scene + " (upload it with POST /v1/scenes first)", {{"field", "scene"}});
+    // What the scene makes impossible is known now, from its upload's
+    // summary: a 400 naming the field and the fix, not three failed workers.
+    if (const std::optional<SceneRecord> scene = store_->scene(spec.scene)) {
+        try {
+            protocol::check_spec_against_scene(spec.bake, summary_of(*scene));
+        } catch (const protocol::SpecError& e) {
+            throw HttpError(400, e.what(), {{"field", e.field()}});
+        }
+    }
     const int queued = store_->queued_count(caller.owner);
     if (queued >= config_.limits.queued_jobs)
         throw HttpError(429, "queued_jobs: " + std::to_string(queued) + " jobs already queued, the limit is " +
@@ -343,9 +374,14 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
             job.status.state = JobState::Succeeded;
             job.status.cached = true;
             job.status.progress = earlier->status.progress;
+            job.status.latest = earlier->status.latest;
             job.status.started_at = job.status.finished_at = job.status.created_at;
             json done = protocol::to_json(job.status.progress);
             done["files"] = files;
+            json finals = json::object();
+            for (const auto& [output, latest] : job.status.latest)
+                if (latest.final_file) finals[output] = latest.file;
+            done["final"] = finals;
             done["cached"] = true;
             done["cached_from"] = earlier->status.id;
             store_->insert_job(job, {{0, "done", done}});
@@ -462,20 +498,17 @@ void Service::get_artifact(const httplib::Request& req, httplib::Response& res, 
 
 void Service::preview(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
     const JobRecord job = owned_job(req, caller);
-    // The newest lightmap: the final one if there is one, else the snapshot
-    // of the highest pass (names are zero-padded, so name order is pass order).
-    std::string chosen;
-    for (const Artifact& a : artifacts_in(supervisor_->job_dir(job.status.id))) {
-        if (fs::path(a.name).extension() != ".exr") continue;
-        const bool final_file = a.name.find(".pass-") == std::string::npos;
-        const bool chosen_final = !chosen.empty() && chosen.find(".pass-") == std::string::npos;
-        if (final_file || !chosen_final) chosen = a.name;
-        if (final_file && a.name == "lightmap.exr") break;
-    }
-    if (chosen.empty()) throw HttpError(404, "job " + job.status.id + " has no snapshot yet", {{"id", job.status.id}});
+    // The newest lightmap, as the worker's events named it (its final file
+    // once done, else its latest snapshot): never guessed from file names.
+    const auto latest = job.status.latest.find("lightmap");
+    if (latest == job.status.latest.end() || !is_artifact_name(latest->second.file))
+        throw HttpError(404, "job " + job.status.id + " has no lightmap snapshot yet", {{"id", job.status.id}});
+    const std::string chosen = latest->second.file;
 
     const fs::path path = supervisor_->job_dir(job.status.id) / chosen;
     std::error_code ec;
+    if (!fs::is_regular_file(path, ec))
+        throw HttpError(404, "job " + job.status.id + " has no artifact " + chosen, {{"id", job.status.id}});
     const std::string source = path.string() + ":" + std::to_string(fs::file_size(path, ec)) + ":" +
                                std::to_string(fs::last_write_time(path, ec).time_since_epoch().count());
     std::string png;

@@ -26,7 +26,8 @@ CREATE TABLE IF NOT EXISTS jobs(
   id TEXT UNIQUE NOT NULL, owner TEXT NOT NULL, scene TEXT NOT NULL, spec TEXT NOT NULL,
   state TEXT NOT NULL, progress TEXT NOT NULL, attempts INTEGER NOT NULL, max_attempts INTEGER NOT NULL,
   max_seconds REAL NOT NULL, error TEXT NOT NULL, cause TEXT NOT NULL, cache_key TEXT NOT NULL,
-  cached INTEGER NOT NULL, created_at REAL NOT NULL, started_at REAL NOT NULL, finished_at REAL NOT NULL);
+  cached INTEGER NOT NULL, created_at REAL NOT NULL, started_at REAL NOT NULL, finished_at REAL NOT NULL,
+  latest TEXT NOT NULL DEFAULT '{}');
 CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_key ON jobs(cache_key, state);
@@ -36,7 +37,7 @@ CREATE TABLE IF NOT EXISTS events(
 
 constexpr const char* kJobColumns =
     "id, owner, scene, spec, state, progress, attempts, max_attempts, max_seconds, error, cause, "
-    "cache_key, cached, created_at, started_at, finished_at";
+    "cache_key, cached, created_at, started_at, finished_at, latest";
 }  // namespace
 
 // A prepared statement: bind with `bind(...)`, then step() row by row.
@@ -106,6 +107,13 @@ SqliteJobStore::SqliteJobStore(const std::string& path) : path_(path) {
     exec("PRAGMA journal_mode=WAL");
     exec("PRAGMA synchronous=NORMAL");
     exec(kSchema);
+    // A store created before jobs had `latest` (the newest file per output).
+    bool has_latest = false;
+    {
+        Statement columns(db_, "PRAGMA table_info(jobs)");
+        while (columns.step()) has_latest = has_latest || columns.text(1) == "latest";
+    }
+    if (!has_latest) exec("ALTER TABLE jobs ADD COLUMN latest TEXT NOT NULL DEFAULT '{}'");
 }
 
 SqliteJobStore::~SqliteJobStore() { sqlite3_close(db_); }
@@ -165,12 +173,12 @@ void SqliteJobStore::insert_job(const JobRecord& job, const std::vector<JobEvent
     Transaction t(db_);
     const JobStatus& s = job.status;
     Statement q(db_, std::string("INSERT INTO jobs(") + kJobColumns +
-                         ") VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                         ") VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
     q.bind(1, s.id).bind(2, job.owner).bind(3, s.scene).bind(4, s.spec.dump()).bind(5, to_string(s.state));
     q.bind(6, protocol::to_json(s.progress).dump()).bind(7, s.attempts).bind(8, s.max_attempts);
     q.bind(9, job.max_seconds).bind(10, s.error).bind(11, s.cause).bind(12, job.cache_key);
     q.bind(13, int(s.cached)).bind(14, s.created_at > 0 ? s.created_at : now_seconds());
-    q.bind(15, s.started_at).bind(16, s.finished_at);
+    q.bind(15, s.started_at).bind(16, s.finished_at).bind(17, protocol::to_json(s.latest).dump());
     q.step();
     for (const JobEvent& e : events) insert_event_locked(s.id, e);
 }
@@ -198,6 +206,7 @@ std::vector<JobRecord> SqliteJobStore::select_jobs(const std::string& where, con
         s.created_at = q.real(13);
         s.started_at = q.real(14);
         s.finished_at = q.real(15);
+        s.latest = protocol::latest_from_json(json::parse(q.text(16), nullptr, false));
         jobs.push_back(std::move(r));
     }
     return jobs;
@@ -260,6 +269,20 @@ void SqliteJobStore::set_progress(const std::string& id, const Progress& p) {
     std::lock_guard lock(mutex_);
     Statement q(db_, "UPDATE jobs SET progress = ? WHERE id = ? AND state = 'running'");
     q.bind(1, protocol::to_json(p).dump()).bind(2, id);
+    q.step();
+}
+
+void SqliteJobStore::set_latest(const std::string& id, const std::string& output, const LatestFile& file) {
+    std::lock_guard lock(mutex_);
+    Transaction t(db_);
+    Statement read(db_, "SELECT latest FROM jobs WHERE id = ? AND state = 'running'");
+    read.bind(1, id);
+    if (!read.step()) return;
+    json latest = json::parse(read.text(0), nullptr, false);
+    if (!latest.is_object()) latest = json::object();
+    latest[output] = protocol::to_json(file);
+    Statement q(db_, "UPDATE jobs SET latest = ? WHERE id = ?");
+    q.bind(1, latest.dump()).bind(2, id);
     q.step();
 }
 

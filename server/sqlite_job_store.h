@@ -30,6 +30,7 @@ public:
 
     std::optional<JobRecord> claim_next() override;
     void set_progress(const std::string& id, const Progress& p) override;
+    void set_latest(const std::string& id, const std::string& output, const LatestFile& file) override;
     bool requeue(const std::string& id, const JobEvent& event, bool refund_attempt) override;
     bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
                 const JobEvent& event) override;

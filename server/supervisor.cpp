@@ -5,21 +5,25 @@
 
 #include <signal.h>
 
+#include <algorithm>
 #include <chrono>
 #include <fstream>
 #include <sstream>
+#include <variant>
 
 namespace lf::server {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using Clock = std::chrono::steady_clock;
+using Clock = Supervisor::Clock;
 
 namespace {
 // A worker's pid, kept in its job directory (hidden from the artifacts by the
 // leading dot) so that a restarted lightfarmd can end a worker its
 // predecessor left behind before running the job again.
 constexpr const char* kPidFile = ".worker.pid";
+// The job's spec as the worker reads it (`--spec`), hidden the same way.
+constexpr const char* kSpecFile = ".spec.json";
 
 void kill_leftover_worker(const fs::path& dir) {
     std::ifstream in(dir / kPidFile);
@@ -32,11 +36,6 @@ void kill_leftover_worker(const fs::path& dir) {
         ::kill(-pid, SIGKILL);
         log_line("killed worker " + std::to_string(pid) + " left running in " + dir.string());
     }
-}
-
-std::optional<double> number_field(const json& j, const char* key) {
-    if (j.contains(key) && j[key].is_number()) return j[key].get<double>();
-    return std::nullopt;
 }
 
 // A file name the worker reported must stay inside its output directory.
@@ -155,44 +154,202 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
     }
 }
 
-void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
-    const std::string& id = job.status.id;
-    const protocol::JobSpec spec = protocol::parse_job_spec(job.status.spec, config_.limits.spec);
-    const std::optional<SceneRecord> scene = store_.scene(spec.scene);
-    if (!scene) {
-        store_.finish(id, JobState::Failed, "scene " + spec.scene + " is missing", "",
-                      {0, "failed", {{"error", "scene " + spec.scene + " is missing"}, {"cause", ""}, {"attempts", job.status.attempts}}});
-        return;
-    }
-    const fs::path dir = job_dir(id);
-    fs::create_directories(dir);
+void Supervisor::fail_now(const JobRecord& job, const std::string& error, const std::string& cause) {
+    log_line("job " + job.status.id + ": " + error + (cause.empty() ? "" : ": " + cause));
+    store_.finish(job.status.id, JobState::Failed, error, cause,
+                  {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", job.status.attempts}}});
+}
 
-    std::vector<std::string> argv = {engine_, "bake", scene_path(*scene).string(), "--out", dir.string(), "--json"};
-    for (std::string& a : protocol::bake_arguments(spec)) argv.push_back(std::move(a));
+namespace {
+
+// The output a progress event without a name is about: the only one asked for.
+std::string output_or_only(const std::string& output, const protocol::BakeSettings& bake) {
+    if (!output.empty()) return output;
+    if (bake.lightmap && !bake.sh) return "lightmap";
+    if (bake.sh && !bake.lightmap) return "sh";
+    return "";
+}
+
+std::optional<protocol::StopSettings> stop_settings_of(const std::string& output, const protocol::BakeSettings& bake) {
+    if (output == "lightmap" && bake.lightmap) return bake.lightmap->stop;
+    if (output == "sh" && bake.sh) return bake.sh->stop;
+    return std::nullopt;
+}
+
+}  // namespace
+
+AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::WorkerEvent& event,
+                                 const protocol::BakeSettings& bake, const std::string& job_id, int attempt) {
+    AttemptUpdate u;
+    u.state = state;
+    const std::string base = "/v1/jobs/" + job_id + "/artifacts/";
+
+    if (const auto* start = std::get_if<protocol::StartEvent>(&event)) {
+        json data = protocol::to_json(protocol::WorkerEvent(*start));
+        data.erase("event");
+        data["attempt"] = attempt;
+        u.event = JobEvent{0, "started", data};
+    } else if (const auto* progress = std::get_if<protocol::ProgressEvent>(&event)) {
+        const std::string output = output_or_only(progress->output, bake);
+        Progress p = progress->progress;
+        if (const auto stop = stop_settings_of(output, bake)) p.eta_seconds = protocol::estimate_eta(*stop, p);
+        // Rays are counted per output: each output's totals start again at 0.
+        const uint64_t seen = state.rays.count(output) ? state.rays.at(output) : 0;
+        u.new_rays = p.rays >= seen ? p.rays - seen : p.rays;
+        u.state.rays[output] = p.rays;
+        u.state.passes[output] = p.pass;
+        if (p.seconds > 0) u.rays_per_second = double(p.rays) / p.seconds;
+        u.progress = p;
+        json data = protocol::to_json(p);
+        if (!output.empty()) data["output"] = output;
+        u.event = JobEvent{0, "progress", data};
+    } else if (const auto* snapshot = std::get_if<protocol::SnapshotEvent>(&event)) {
+        if (!plain_file_name(snapshot->file)) {
+            u.ignored = "a snapshot with a bad file name: " + snapshot->file;
+            return u;
+        }
+        const std::string output = output_or_only(snapshot->output, bake);
+        if (output.empty()) {
+            u.ignored = "a snapshot of no output: " + snapshot->file;
+            return u;
+        }
+        u.latest[output] = LatestFile{snapshot->file, snapshot->pass, false};
+        u.event = JobEvent{0, "snapshot", {{"output", output}, {"file", snapshot->file}, {"pass", snapshot->pass},
+                                           {"url", base + snapshot->file}}};
+    } else {
+        const auto& done = std::get<protocol::DoneEvent>(event);
+        Progress p = done.progress;
+        p.eta_seconds = 0.0;
+        u.progress = p;
+        json files = json::array();
+        for (const std::string& f : done.files)
+            if (plain_file_name(f)) files.push_back(f);
+        json finals = json::object();
+        for (const auto& [output, file] : done.final_files) {
+            if (!plain_file_name(file)) continue;
+            finals[output] = file;
+            // The pass the output's final file holds: its last progress.
+            const int pass = state.passes.count(output) ? state.passes.at(output) : p.pass;
+            u.latest[output] = LatestFile{file, pass, true};
+        }
+        json data = protocol::to_json(p);
+        data["files"] = files;
+        data["final"] = finals;
+        u.state.done = data;
+    }
+    return u;
+}
+
+std::string user_facing(std::string line, const fs::path& scene_path, const std::string& scene_name,
+                        const fs::path& scene_dir, const fs::path& job_dir, const fs::path& data_dir) {
+    auto replace_all = [&line](const std::string& from, const std::string& to) {
+        if (from.empty()) return;
+        for (size_t at = line.find(from); at != std::string::npos; at = line.find(from, at + to.size()))
+            line.replace(at, from.size(), to);
+    };
+    // Each path as given and as the worker may have resolved it, longest first.
+    auto forms = [](const fs::path& p) {
+        std::vector<std::string> out = {p.string()};
+        std::error_code ec;
+        const fs::path resolved = fs::weakly_canonical(p, ec);
+        if (!ec && resolved.string() != p.string()) out.push_back(resolved.string());
+        return out;
+    };
+    for (const std::string& f : forms(scene_path)) replace_all(f, scene_name);
+    for (const std::string& f : forms(scene_dir)) replace_all(f + "/", "");
+    for (const std::string& f : forms(job_dir / ".spec.json")) replace_all(f, "the job's settings");
+    for (const std::string& f : forms(job_dir)) {
+        replace_all(f + "/", "");
+        replace_all(f, "the job's output directory");
+    }
+    for (const std::string& f : forms(data_dir)) replace_all(f, "the server's data directory");
+    return line;
+}
+
+std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const protocol::JobSpec& spec,
+                                                     const SceneRecord& scene, const std::string& device) {
+    const fs::path dir = job_dir(job.status.id);
+    fs::create_directories(dir);
+    // The worker reads the job's own spec: no translation into flags.
+    const fs::path spec_file = dir / kSpecFile;
+    {
+        const fs::path tmp = dir / (std::string(kSpecFile) + ".tmp");
+        std::ofstream out(tmp);
+        out << protocol::to_json(spec).dump() << "\n";
+        if (!out) throw std::runtime_error("cannot write " + tmp.string());
+        out.close();
+        fs::rename(tmp, spec_file);
+    }
+    std::vector<std::string> argv = {engine_, "bake", scene_path(scene).string(), "--out", dir.string(),
+                                     "--json", "--spec", spec_file.string()};
     if (!device.empty()) {
         argv.push_back("--device");
         argv.push_back(device);
     }
-    // ETA follows the stopping rules of the first output asked for.
-    const json settings = spec.outputs.begin()->second;
-
     ++metrics_.worker_starts;
+    auto child = std::make_unique<Subprocess>(argv);
+    std::ofstream(dir / kPidFile) << child->pid() << "\n";
+    log_line("job " + job.status.id + ": attempt " + std::to_string(job.status.attempts) + ", worker " +
+             std::to_string(child->pid()));
+    return child;
+}
+
+void Supervisor::store_update(const std::string& id, const AttemptUpdate& u) {
+    metrics_.rays_total += u.new_rays;
+    if (u.rays_per_second) metrics_.set_job_rate(id, *u.rays_per_second);
+    if (u.progress) store_.set_progress(id, *u.progress);
+    for (const auto& [output, file] : u.latest) store_.set_latest(id, output, file);
+    if (u.event) store_.append_event(id, *u.event);
+}
+
+std::string Supervisor::limit_exceeded(const JobRecord& job, Clock::time_point now, Clock::time_point deadline,
+                                       Clock::time_point last_output) const {
+    std::ostringstream s;
+    if (now > deadline) {
+        s << "worker ran past the job's deadline of " << job.max_seconds << " s and was killed";
+    } else if (now - last_output > std::chrono::duration<double>(config_.stall_seconds)) {
+        s << "worker printed nothing for " << config_.stall_seconds << " s (hung) and was killed";
+    }
+    return s.str();
+}
+
+bool Supervisor::cancel_requested(const std::string& job_id) {
+    std::lock_guard lock(cancel_mutex_);
+    return cancelled_.count(job_id) > 0;
+}
+
+void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
+    const std::string& id = job.status.id;
+    // Validated once, at submit, against the limits of that day: a lower
+    // --limit since then applies to new jobs, not to this one.
+    protocol::JobSpec spec;
+    try {
+        protocol::SpecLimits stored;
+        stored.caps.clear();
+        stored.allow_local_files = false;
+        spec = protocol::parse_job_spec(job.status.spec, stored);
+    } catch (const protocol::SpecError& e) {
+        fail_now(job, "the job's stored spec is not valid any more", e.what());
+        return;
+    }
+    const std::optional<SceneRecord> scene = store_.scene(spec.scene);
+    if (!scene) {
+        fail_now(job, "scene " + spec.scene + " is missing", "");
+        return;
+    }
+
     std::unique_ptr<Subprocess> child;
     try {
-        child = std::make_unique<Subprocess>(argv);
+        child = start_worker(job, spec, *scene, device);
     } catch (const std::exception& e) {
         attempt_failed(job, e.what());
         return;
     }
-    std::ofstream(dir / kPidFile) << child->pid() << "\n";
-    log_line("job " + id + ": attempt " + std::to_string(job.status.attempts) + ", worker " + std::to_string(child->pid()));
 
     const auto started = Clock::now();
     const auto deadline = started + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(job.max_seconds));
-    const auto stall = std::chrono::duration<double>(config_.stall_seconds);
     auto last_output = started;
-    uint64_t rays_seen = 0;
-    std::optional<json> done;
+    AttemptState state;
     std::string cause;  // set when we end the worker ourselves
     bool cancelled = false;
 
@@ -203,96 +360,72 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
             store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}}, true);
             return;
         }
-        {
-            std::lock_guard lock(cancel_mutex_);
-            cancelled = cancelled_.count(id) > 0;
-        }
-        if (cancelled) {
+        if ((cancelled = cancel_requested(id))) {
             child->kill();
             break;
         }
-        const Subprocess::Read r = child->read_line(line, std::chrono::milliseconds(200));
+        // The limits hold on every turn, however much the worker prints.
         const auto now = Clock::now();
+        if (cause = limit_exceeded(job, now, deadline, last_output); !cause.empty()) {
+            child->kill();
+            break;
+        }
+        const auto wait = std::clamp(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - now) +
+                                         std::chrono::milliseconds(1),
+                                     std::chrono::milliseconds(1), std::chrono::milliseconds(200));
+        const Subprocess::Read r = child->read_line(line, wait);
         if (r == Subprocess::Read::End) break;
-        if (r == Subprocess::Read::Timeout) {
-            if (now > deadline) {
-                std::ostringstream s;
-                s << "worker ran past the job's deadline of " << job.max_seconds << " s and was killed";
-                cause = s.str();
-            } else if (now - last_output > stall) {
-                std::ostringstream s;
-                s << "worker printed nothing for " << config_.stall_seconds << " s (hung) and was killed";
-                cause = s.str();
-            }
-            if (!cause.empty()) {
-                child->kill();
-                break;
-            }
-            continue;
-        }
-        last_output = now;
+        if (r == Subprocess::Read::Timeout) continue;
+        last_output = Clock::now();
 
-        const json msg = json::parse(line, nullptr, false);
-        if (!msg.is_object() || !msg.contains("event") || !msg["event"].is_string()) {
-            log_line("job " + id + ": ignoring worker output: " + line.substr(0, 200));
+        std::optional<protocol::WorkerEvent> event;
+        try {
+            event = protocol::parse_worker_event(json::parse(line));
+        } catch (const std::exception& e) {
+            log_line("job " + id + ": ignoring worker output (" + e.what() + "): " + line.substr(0, 200));
             continue;
         }
-        const std::string event = msg["event"];
-        if (event == "start") {
-            json data = msg;
-            data.erase("event");
-            data["attempt"] = job.status.attempts;
-            store_.append_event(id, {0, "started", data});
-        } else if (event == "progress" || event == "done") {
-            Progress p;
-            p.pass = int(number_field(msg, "pass").value_or(0));
-            p.rays = uint64_t(number_field(msg, "rays").value_or(0));
-            p.seconds = number_field(msg, "seconds").value_or(0);
-            p.error_estimate = number_field(msg, "error_estimate");
-            if (event == "progress") p.eta_seconds = protocol::estimate_eta(settings, p);
-            else p.eta_seconds = 0.0;
-            metrics_.rays_total += p.rays >= rays_seen ? p.rays - rays_seen : p.rays;
-            rays_seen = p.rays;
-            if (p.seconds > 0) metrics_.set_job_rate(id, double(p.rays) / p.seconds);
-            store_.set_progress(id, p);
-            if (event == "progress") {
-                store_.append_event(id, {0, "progress", protocol::to_json(p)});
-            } else {
-                json data = protocol::to_json(p);
-                data["files"] = msg.contains("files") ? msg["files"] : json::array();
-                done = data;
-            }
-        } else if (event == "snapshot") {
-            const std::string file = msg.value("file", "");
-            if (!plain_file_name(file)) {
-                log_line("job " + id + ": ignoring snapshot with a bad file name: " + line.substr(0, 200));
-                continue;
-            }
-            store_.append_event(id, {0, "snapshot", {{"file", file}, {"pass", msg.value("pass", 0)},
-                                                     {"url", "/v1/jobs/" + id + "/artifacts/" + file}}});
+        const AttemptUpdate update = apply_worker_event(state, *event, spec.bake, id, job.status.attempts);
+        if (!update.ignored.empty()) {
+            log_line("job " + id + ": ignoring " + update.ignored);
+            continue;
         }
+        state = update.state;
+        store_update(id, update);
         changes_.notify();
     }
 
     const ExitStatus status = child->wait();
     std::error_code ec;
-    fs::remove(dir / kPidFile, ec);
+    fs::remove(job_dir(id) / kPidFile, ec);
     if (cancelled) {
         log_line("job " + id + ": cancelled, worker killed");
         return;  // the cancel route already recorded the final state
     }
-    if (cause.empty()) {
-        if (status.success() && done) {
-            (*done)["cached"] = false;
-            store_.finish(id, JobState::Succeeded, "", "", {0, "done", *done});
-            log_line("job " + id + ": succeeded");
-            return;
-        }
-        cause = status.success() ? "worker exited without reporting done" : "worker " + status.describe();
-        const std::string last = child->stderr_last_line();
-        if (!last.empty()) cause += ": " + last;
+    if (!cause.empty()) {
+        attempt_failed(job, cause);
+        return;
     }
-    attempt_failed(job, cause);
+    if (status.success() && state.done) {
+        json done = *state.done;
+        done["cached"] = false;
+        store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
+        log_line("job " + id + ": succeeded");
+        return;
+    }
+    const std::string scene_name = scene->main_file.empty() ? scene->summary.value("source", "the scene") : scene->main_file;
+    const std::string last = user_facing(child->stderr_last_line(), scene_path(*scene), scene_name,
+                                         fs::path(config_.data_dir) / "scenes" / scene->id, job_dir(id), config_.data_dir);
+    if (status.exited && protocol::is_input_error_exit(status.code)) {
+        // The scene or the settings cannot be baked: another run cannot help.
+        ++metrics_.worker_failures;
+        fail_now(job, "the bake cannot run on this scene with these settings (not retried)",
+                 last.empty() ? "worker " + status.describe() : last);
+        return;
+    }
+    std::string failure = status.success() ? "worker exited without reporting done" : "worker " + status.describe();
+    if (!last.empty()) failure += ": " + last;
+    attempt_failed(job, failure);
 }
 
 }  // namespace lf::server

@@ -1,16 +1,15 @@
-// Runs queued jobs in worker processes (`lightfarm bake ... --json`) and turns
-// what they print into progress, events and a final state.
+// Runs queued jobs in worker processes and turns what they print into
+// progress, events and a final state.
 //
-// The worker contract: one JSON object per stdout line,
-//   {"event":"start","renderer":...,"vendor":...,"texels":N}
-//   {"event":"progress","pass":P,"rays":R,"seconds":S,"error_estimate":E}
-//   {"event":"snapshot","file":"lightmap.pass-0004.exr","pass":4}
-//   {"event":"done","files":[...],"pass":P,"rays":R,"seconds":S,"error_estimate":E}
-// exit 0 on success; otherwise nonzero with a one-line error on stderr.
-// A worker that exits otherwise, is killed by a signal, prints nothing for
-// --stall-timeout seconds or runs past the job's deadline costs the job one
-// attempt; after the last one the job fails with that cause. Nothing a worker
-// does can stop the server.
+// The worker contract (protocol/worker_protocol.h): the supervisor writes the
+// job's spec to DIR/.spec.json and runs
+//   ENGINE bake SCENE --out DIR --json --spec DIR/.spec.json [--device gpu:N]
+// which prints typed events (start, progress, snapshot, done) one per stdout
+// line and exits with a WorkerExit status. An input error (exit 2 or 3) fails
+// the job at once: running it again cannot help. A worker that exits
+// otherwise, is killed by a signal, prints nothing for --stall-timeout seconds
+// or runs past the job's deadline costs the job one attempt; after the last
+// one the job fails with that cause. Nothing a worker does can stop the server.
 #pragma once
 
 #include "config.h"
@@ -19,7 +18,9 @@
 #include "metrics.h"
 
 #include <atomic>
+#include <chrono>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <set>
@@ -29,8 +30,45 @@
 
 namespace lf::server {
 
+// What one attempt has seen of its worker so far.
+struct AttemptState {
+    std::map<std::string, uint64_t> rays;         // output -> rays its progress reported last
+    std::map<std::string, int> passes;            // output -> pass its progress reported last
+    std::optional<nlohmann::json> done;           // the "done" event's data, once the worker reported done
+};
+
+// What applying one worker event asks the supervisor to store. Empty parts
+// change nothing.
+struct AttemptUpdate {
+    AttemptState state;                           // the attempt's state after the event
+    std::optional<Progress> progress;             // the job's progress
+    std::optional<JobEvent> event;                // a non-final event for the job's stream
+    std::map<std::string, LatestFile> latest;     // output -> its newest file
+    uint64_t new_rays = 0;                        // rays traced since the previous event
+    std::optional<double> rays_per_second;        // this worker's rate
+    std::string ignored;                          // why the event was ignored ("" = it was not)
+};
+
+// The pure heart of supervision: one decoded worker event of attempt
+// `attempt` of job `job_id`, whose validated settings are `bake`, applied to
+// `state`. No process, no store, no clock: unit-tested alone.
+AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::WorkerEvent& event,
+                                 const protocol::BakeSettings& bake, const std::string& job_id, int attempt);
+
+// A worker's stderr line fit for the job's owner: the server's own paths
+// replaced by what the user knows. The scene's stored path becomes its
+// uploaded name, a file inside the stored upload its name in the upload, and
+// the job directory and the data directory are not shown.
+std::string user_facing(std::string line, const std::filesystem::path& scene_path, const std::string& scene_name,
+                        const std::filesystem::path& scene_dir, const std::filesystem::path& job_dir,
+                        const std::filesystem::path& data_dir);
+
+class Subprocess;
+
 class Supervisor {
 public:
+    using Clock = std::chrono::steady_clock;
+
     Supervisor(JobStore& store, const ServerConfig& config, ChangeSignal& changes, Metrics& metrics);
     ~Supervisor();  // stop()
 
@@ -51,8 +89,21 @@ private:
     // `device`: the engine's --device for this worker ("" = its default).
     void worker_loop(const std::string& device);
     int count_gpus() const;
+    // One worker run of a claimed job, start to end state.
     void run_attempt(const JobRecord& job, const std::string& device);
+    // Writes the spec into the job directory and starts the engine on it.
+    std::unique_ptr<Subprocess> start_worker(const JobRecord& job, const protocol::JobSpec& spec,
+                                             const SceneRecord& scene, const std::string& device);
+    // Stores what apply_worker_event asked for.
+    void store_update(const std::string& job_id, const AttemptUpdate& update);
+    // Why the worker must be ended now ("" = it may go on): the job's
+    // deadline or a stall. Checked on every turn of the read loop.
+    std::string limit_exceeded(const JobRecord& job, Clock::time_point now, Clock::time_point deadline,
+                               Clock::time_point last_output) const;
+    bool cancel_requested(const std::string& job_id);
     void attempt_failed(const JobRecord& job, const std::string& cause);
+    // Ends the job now, without another attempt (input errors, a stored spec gone bad, a missing scene).
+    void fail_now(const JobRecord& job, const std::string& error, const std::string& cause);
 
     JobStore& store_;
     const ServerConfig& config_;

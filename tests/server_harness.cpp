@@ -58,7 +58,10 @@ cmd="$1"; shift
 if [ "$cmd" = inspect ]; then
   if grep -q BROKEN "$1"; then echo "lightfarm inspect: error: $1: not a glTF" >&2; exit 1; fi
   if grep -q SEGV "$1"; then kill -SEGV $$; fi
-  echo "{\"triangles\": $(cat "$state/triangles" 2>/dev/null || echo 12), \"textures\": []}"
+  if [ -f "$state/summary" ]; then cat "$state/summary"; exit 0; fi
+  echo "{\"source\": \"$(basename "$1")\", \"triangles\": $(cat "$state/triangles" 2>/dev/null || echo 12), \"textures\": [],"\
+       "\"emissive_triangles\": 2, \"punctual_light_count\": 0, \"max_texture_size\": 0,"\
+       "\"has_lightmap_uvs\": true, \"min_atlas_res\": 0}"
   exit 0
 fi
 if [ "$cmd" = devices ]; then
@@ -68,40 +71,74 @@ fi
 [ "$cmd" = bake ] || { echo "fake lightfarm: unknown command $cmd" >&2; exit 2; }
 echo "$@" > "$state/last_args"
 echo "$@" >> "$state/all_args"
-out=""; passes=4
+scene="$1"; shift
+out=""; passes=4; spec=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out="$2"; shift 2;;
     --passes) passes="$2"; shift 2;;
+    --spec) spec="$2"; shift 2;;
     *) shift;;
   esac
 done
+with_sh=no
+if [ -n "$spec" ]; then
+  cp "$spec" "$state/last_spec.json"
+  # The spec is canonical JSON on one line: outputs.lightmap.passes is the only "passes" key.
+  p=$(grep -o '"passes":[0-9]*' "$spec" | head -n 1 | cut -d: -f2)
+  [ -n "$p" ] && passes=$p
+  grep -q '"sh":{' "$spec" && with_sh=yes
+fi
 runs=$(( $(cat "$state/runs" 2>/dev/null || echo 0) + 1 ))
 echo $runs > "$state/runs.tmp" && mv "$state/runs.tmp" "$state/runs"
 mode=$(cat "$state/mode" 2>/dev/null || echo ok)
 delay=$(cat "$state/delay" 2>/dev/null || echo 0)
-echo '{"event":"start","renderer":"fake","vendor":"tests","texels":16}'
+echo '{"event":"start","renderer":"fake","vendor":"tests","triangles":12,"prepare_seconds":0,"outputs":{}}'
 case "$mode" in
-  crash_first) if [ $runs -eq 1 ]; then echo "lightfarm bake: error: lost the GPU context" >&2; exit 3; fi;;
+  crash_first) if [ $runs -eq 1 ]; then echo "lightfarm bake: error: lost the GPU context" >&2; exit 1; fi;;
   always_crash) echo "lightfarm bake: error: about to die" >&2; kill -KILL $$;;
   hang_first) if [ $runs -eq 1 ]; then sleep 60; fi;;
   hang_always) sleep 60;;
+  input_error) echo "lightfarm bake: error: $scene: nothing to bake: no emissive surface (spec $spec)" >&2; exit 3;;
 esac
-p=1
-while [ $p -le $passes ]; do
-  [ "$delay" = 0 ] || sleep "$delay"
-  echo "{\"event\":\"progress\",\"pass\":$p,\"rays\":$((p * 1000)),\"seconds\":$p,\"error_estimate\":$((100 / p))}"
-  case $p in 1|2|4|8|16|32|64)
-    name=$(printf 'lightmap.pass-%04d.exr' $p)
-    cp "$state/snapshot.exr" "$out/.$name.tmp" && mv "$out/.$name.tmp" "$out/$name"
-    echo "{\"event\":\"snapshot\",\"file\":\"$name\",\"pass\":$p}";;
-  esac
-  p=$((p + 1))
-done
+snap() {  # snap OUTPUT FILE PASS
+  cp "$state/snapshot.exr" "$out/.$2.tmp" && mv "$out/.$2.tmp" "$out/$2"
+  echo "{\"event\":\"snapshot\",\"output\":\"$1\",\"file\":\"$2\",\"pass\":$3}"
+}
+progress() {  # progress OUTPUT PASS
+  echo "{\"event\":\"progress\",\"output\":\"$1\",\"pass\":$2,\"rays\":$(($2 * 1000)),\"seconds\":$2,\"error_estimate\":$((100 / $2))}"
+}
+if [ -f "$state/snapshot_passes" ]; then
+  # Snapshots at the passes listed, named as the engine names them (%04d: pass-2048, pass-16384).
+  for p in $(cat "$state/snapshot_passes"); do
+    progress lightmap $p
+    snap lightmap "$(printf 'lightmap.pass-%04d.exr' $p)" $p
+    passes=$p
+  done
+else
+  p=1
+  while [ $p -le $passes ]; do
+    [ "$delay" = 0 ] || sleep "$delay"
+    progress lightmap $p
+    case $p in 1|2|4|8|16|32|64) snap lightmap "$(printf 'lightmap.pass-%04d.exr' $p)" $p;; esac
+    p=$((p + 1))
+  done
+fi
+if [ $with_sh = yes ]; then
+  progress sh 1
+  snap sh sh_transfer.pass-0001.bin 1
+fi
 [ "$mode" = no_done ] && exit 0
 cp "$state/snapshot.exr" "$out/.lightmap.exr.tmp" && mv "$out/.lightmap.exr.tmp" "$out/lightmap.exr"
 echo "{\"passes\": $passes}" > "$out/.manifest.json.tmp" && mv "$out/.manifest.json.tmp" "$out/manifest.json"
-echo "{\"event\":\"done\",\"files\":[\"lightmap.exr\",\"manifest.json\"],\"pass\":$passes,\"rays\":$((passes * 1000)),\"seconds\":$passes,\"error_estimate\":1}"
+final="\"lightmap\":\"lightmap.exr\""
+files="\"lightmap.exr\",\"manifest.json\""
+if [ $with_sh = yes ]; then
+  cp "$state/snapshot.exr" "$out/.scene.sh.glb.tmp" && mv "$out/.scene.sh.glb.tmp" "$out/scene.sh.glb"
+  final="$final,\"sh\":\"scene.sh.glb\""
+  files="\"lightmap.exr\",\"manifest.json\",\"scene.sh.glb\""
+fi
+echo "{\"event\":\"done\",\"files\":[$files],\"final\":{$final},\"pass\":$passes,\"rays\":$((passes * 1000)),\"seconds\":$passes,\"error_estimate\":1}"
 )sh";
 }  // namespace
 

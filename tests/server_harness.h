@@ -30,13 +30,23 @@ std::string read_text(const fs::path& path);
 // A tiny EXR (w x h, constant colour) for the fake engine to hand out.
 void write_exr(const fs::path& path, int w, int h, float r, float g, float b);
 
-// A shell script that speaks the worker contract. Its behaviour is read from
-// files in its state directory at every run, so a test can change it:
-//   mode     ok | crash_first | always_crash | hang_first | hang_always | no_done
+// A shell script that speaks the worker contract (protocol/worker_protocol.h):
+// `bake SCENE --out DIR --json --spec SPEC [--device D]`, typed events with
+// their output, done with "final". Its behaviour is read from files in its
+// state directory at every run, so a test can change it:
+//   mode     ok | crash_first (exit 1 once) | always_crash | hang_first | hang_always
+//            | no_done | input_error (one stderr line naming the scene, exit 3)
 //   delay    seconds between passes (default 0)
+//   snapshot_passes  e.g. "2048 16384": lightmap snapshots at exactly these passes
 //   runs     incremented at every `bake` (how many workers were started)
-// `inspect` prints {"triangles": N} (N from the file `triangles`, default 12)
-// and fails with "not a glTF" for files containing the word BROKEN.
+//   last_spec.json, last_args, all_args: what the last worker was given
+// Passes come from the spec's lightmap "passes" (default 4); a spec with an
+// "sh" output also gets an SH snapshot (sh_transfer.pass-0001.bin) and final
+// file (scene.sh.glb).
+// `inspect` prints the file `summary` verbatim when there is one, else a
+// summary with a light and lightmap UVs: {"source", "triangles": N (N from the
+// file `triangles`, default 12), "emissive_triangles": 2, ...}; it fails with
+// "not a glTF" for files containing the word BROKEN.
 struct FakeEngine {
     explicit FakeEngine(const fs::path& dir);
     void set(const std::string& name, const std::string& value) const { write_text(dir / name, value); }

@@ -1,6 +1,19 @@
 # The service's tests: protocol types, lightfarmd end to end on loopback
 # (with a fake engine, so crashes and hangs can be staged), and the client.
-# Included from tests/CMakeLists.txt, which defines lightfarm_test().
+# Included from tests/CMakeLists.txt, which defines lightfarm_test(), or on its
+# own from the root for the ThreadSanitizer build (LIGHTFARM_TSAN), which
+# builds only the protocol, the server and these tests.
+
+if(NOT COMMAND lightfarm_test)
+  find_package(GTest REQUIRED)
+  include(GoogleTest)
+  function(lightfarm_test name)
+    add_executable(${name} ${CMAKE_CURRENT_FUNCTION_LIST_DIR}/${name}.cpp ${ARGN})
+    target_link_libraries(${name} PRIVATE GTest::gtest_main)
+    target_include_directories(${name} PRIVATE ${CMAKE_CURRENT_FUNCTION_LIST_DIR})
+    gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60 PROPERTIES LABELS ${name})
+  endfunction()
+endif()
 
 find_package(OpenEXR REQUIRED)  # the fake engine hands out a small EXR
 set(LIGHTFARM_OPENAPI_DOC "${CMAKE_CURRENT_LIST_DIR}/../protocol/openapi.json")
@@ -8,7 +21,7 @@ set(LIGHTFARM_OPENAPI_DOC "${CMAKE_CURRENT_LIST_DIR}/../protocol/openapi.json")
 lightfarm_test(test_protocol)
 target_link_libraries(test_protocol PRIVATE lightfarm_protocol)
 
-lightfarm_test(test_server server_harness.cpp)
+lightfarm_test(test_server ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
 target_link_libraries(test_server PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
 target_compile_definitions(test_server PRIVATE
   LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
@@ -17,7 +30,7 @@ add_dependencies(test_server lightfarmd)
 
 # client_cli/remote.cpp is compiled in here too, so that the client is tested
 # against a real server without the GL engine the lightfarm binary links.
-lightfarm_test(test_remote server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp)
+lightfarm_test(test_remote ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp)
 target_include_directories(test_remote PRIVATE ${CMAKE_CURRENT_LIST_DIR}/../client_cli)
 target_link_libraries(test_remote PRIVATE lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
 target_compile_definitions(test_remote PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
@@ -27,8 +40,8 @@ add_dependencies(test_remote lightfarmd)
 # engine; LIGHTFARM_LOAD_ENGINE=real runs it with this build's lightfarm (the
 # figures in docs/service-benchmarks.md). Not lightfarm_test(): it loads both
 # cores for ~10 s, so ctest runs it alone (RUN_SERIAL), with a time limit.
-add_executable(test_server_load test_server_load.cpp server_harness.cpp)
-target_include_directories(test_server_load PRIVATE ${CMAKE_CURRENT_SOURCE_DIR})
+add_executable(test_server_load ${CMAKE_CURRENT_LIST_DIR}/test_server_load.cpp ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+target_include_directories(test_server_load PRIVATE ${CMAKE_CURRENT_LIST_DIR})
 target_link_libraries(test_server_load PRIVATE GTest::gtest_main lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
 target_compile_definitions(test_server_load PRIVATE
   LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
@@ -44,7 +57,7 @@ gtest_discover_tests(test_server_load DISCOVERY_TIMEOUT 60
 # box bake through the service against `lightfarm bake` (bit for bit); SIGKILL
 # of a worker, and of lightfarmd, mid-bake (about 15 s in all on llvmpipe).
 if(TARGET lightfarm)
-  lightfarm_test(test_server_e2e server_harness.cpp)
+  lightfarm_test(test_server_e2e ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
   # lightfarm_gi for its EXR reader only: the test compares pixels, the server stays GL-free.
   target_link_libraries(test_server_e2e PRIVATE lightfarm_server lightfarm_gi PkgConfig::CPP_HTTPLIB)
   target_compile_definitions(test_server_e2e PRIVATE

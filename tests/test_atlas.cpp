@@ -149,6 +149,24 @@ TEST(Atlas, DensityTooHighForTheResolutionShrinks) {
     EXPECT_GT(report.texel_density, 1.0f);
 }
 
+// The smallest resolution an upload's generated atlas fits: every smaller
+// one is refused by the atlas itself, that one is not. A triangle 1e30 m wide
+// (finite, so the loader takes it) packs nowhere and is answered with 0, not
+// an int overflow (found by fuzzing; this suite also runs under UBSan).
+TEST(Atlas, SmallestResolutionIsTheSmallestThatPacks) {
+    Scene s = mixed_scene();
+    const int smallest = smallest_atlas_resolution(s);
+    ASSERT_GT(smallest, 1);
+    Scene fits = s, too_small = s;
+    EXPECT_NO_THROW(generate_lightmap_uvs(fits, {.resolution = smallest}));
+    EXPECT_THROW(generate_lightmap_uvs(too_small, {.resolution = smallest - 1}), std::runtime_error);
+
+    Scene huge;
+    test::add_mesh(huge, {{0, 0, 0}, {1e30f, 0, 0}, {0, 0, 1e30f}}, {{0, 1, 2}}, test::add_material(huge, glm::vec3(0.5f)));
+    EXPECT_EQ(smallest_atlas_resolution(huge, {.max_resolution = 512}), 0);
+    EXPECT_THROW(generate_lightmap_uvs(huge, {.resolution = 256}), std::runtime_error);
+}
+
 TEST(Atlas, SplitVerticesKeepPositionsAndMapBack) {
     Scene original = mixed_scene();
     Scene s = original;

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <algorithm>
+#include <chrono>
 #include <fstream>
 #include <iterator>
 #include <unistd.h>
@@ -206,6 +207,22 @@ TEST(CliBake, AnAtlasThatCannotFitNamesTheSmallestThatDoes) {
     ASSERT_EQ(inspect.exit_code, 0) << inspect.err;
     EXPECT_EQ(nlohmann::json::parse(inspect.out)["min_atlas_res"], smallest);
     EXPECT_EQ(nlohmann::json::parse(inspect.out)["source"], "wooden_staircase.gltf") << "a file name, never a path";
+    fs::remove_all(out);
+}
+
+// --res 16384 passes the catalog (its range) but needs ~140 GB: refused at
+// once with the estimate and a resolution that fits, before the atlas's
+// texel samples are allocated (it used to end in std::bad_alloc).
+TEST(CliBake, ABakeThatCannotFitInMemoryIsRefusedUpFront) {
+    const fs::path out = fresh_dir("huge");
+    const auto start = std::chrono::steady_clock::now();
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --res 16384 --out " + out.string());
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_EQ(r.exit_code, 3) << r.err;
+    EXPECT_NE(r.err.find("needs about 139.7 GB"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("bake at --res "), std::string::npos) << r.err;
+    EXPECT_LT(seconds, 30.0);
+    EXPECT_FALSE(fs::exists(out / "lightmap.exr"));
     fs::remove_all(out);
 }
 

@@ -1143,3 +1143,28 @@ TEST(Readme, BakeOptionTableIsTheCatalog) {
 
 }  // namespace
 }  // namespace lf::protocol
+
+namespace lf::protocol {
+namespace {
+
+// Found by fuzzing: a sky component that overflows float32 was accepted, then
+// stored as inf, written as null and refused when the worker read the spec.
+TEST(FuzzFindings, ASkyBeyondFloatIsRefusedAtSubmit) {
+    const nlohmann::json spec = {{"scene", "s"}, {"outputs", {{"lightmap", nlohmann::json::object()}}}, {"env", {1e39, 0, 0}}};
+    EXPECT_THROW(parse_job_spec(spec), SpecError);
+    const JobSpec ok = parse_job_spec({{"scene", "s"}, {"outputs", {{"lightmap", nlohmann::json::object()}}}, {"env", {3e38, 0, 0}}});
+    EXPECT_NO_THROW(parse_job_spec(to_json(ok)));
+}
+
+// Found by fuzzing: "rays" as a float or a negative number was converted to
+// uint64_t (undefined behaviour); such counts are not read.
+TEST(FuzzFindings, ProgressCountsAreReadOnlyWhenTheyAreCounts) {
+    EXPECT_EQ(progress_from_json({{"rays", 1e20}}).rays, 0u);
+    EXPECT_EQ(progress_from_json({{"rays", -1.5}}).rays, 0u);
+    EXPECT_EQ(progress_from_json({{"pass", -3}, {"rays", 7}}).pass, 0);
+    EXPECT_EQ(progress_from_json({{"pass", 3}, {"rays", 7}}).rays, 7u);
+    EXPECT_THROW(parse_worker_event({{"event", "snapshot"}, {"file", "a.exr"}, {"pass", 1.5}}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace lf::protocol

@@ -12,6 +12,8 @@
 namespace lf::test {
 namespace {
 
+using nlohmann::json;
+
 const std::string kToken = "remote-test-token";
 
 // Runs `lightfarm ARGS...` through run_remote_command, capturing stdout and stderr.
@@ -63,7 +65,9 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
     EXPECT_EQ(id.size(), 24u) << r.out;
     EXPECT_EQ(read_text(out / "lightmap.exr"), read_text(engine.dir / "snapshot.exr"));
     EXPECT_TRUE(fs::exists(out / "manifest.json"));
-    EXPECT_NE(read_text(engine.dir / "last_args").find("--passes 3 --seed 9"), std::string::npos);
+    const json spec = json::parse(read_text(engine.dir / "last_spec.json"));
+    EXPECT_EQ(spec["outputs"]["lightmap"]["passes"], 3);
+    EXPECT_EQ(spec["seed"], 9);
 
     const CliRun list = run(with_common({"jobs"}));
     EXPECT_EQ(list.status, 0);
@@ -71,8 +75,9 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
 
     const CliRun latest = run(with_common({"fetch", id, "--latest", "--out", (tmp.path / "latest").string()}));
     EXPECT_EQ(latest.status, 0) << latest.err;
-    EXPECT_TRUE(fs::exists(tmp.path / "latest" / "lightmap.pass-0002.exr"));
-    EXPECT_FALSE(fs::exists(tmp.path / "latest" / "lightmap.pass-0001.exr"));
+    // Done: the newest file of the lightmap is its final one.
+    EXPECT_TRUE(fs::exists(tmp.path / "latest" / "lightmap.exr"));
+    EXPECT_FALSE(fs::exists(tmp.path / "latest" / "lightmap.pass-0002.exr"));
 
     const CliRun w = run(with_common({"watch", id, "--json"}));
     EXPECT_EQ(w.status, 0);
@@ -105,11 +110,67 @@ TEST_F(RemoteTest, CancelAndErrorsAreOneLine) {
     EXPECT_NE(bad_token.err.find("HTTP 401"), std::string::npos) << bad_token.err;
     EXPECT_EQ(std::count(bad_token.err.begin(), bad_token.err.end(), '\n'), 1);
 
+    // Refused by the catalog before anything is sent, under the flag's name.
     const CliRun too_big = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--res", "100000"}));
-    EXPECT_EQ(too_big.status, 1);
-    EXPECT_NE(too_big.err.find("lightmap.res: 100000 exceeds the limit 8192 (HTTP 400)"), std::string::npos) << too_big.err;
+    EXPECT_EQ(too_big.status, 2);
+    EXPECT_NE(too_big.err.find("--res: 100000 exceeds the maximum 16384"), std::string::npos) << too_big.err;
+    // Refused by the server: it reads no file a job names.
+    const CliRun env_file = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh", "--env", "sky.exr"}));
+    EXPECT_EQ(env_file.status, 1);
+    EXPECT_NE(env_file.err.find("env: an environment map file cannot be given to the service"), std::string::npos)
+        << env_file.err;
+    EXPECT_NE(env_file.err.find("(HTTP 400)"), std::string::npos) << env_file.err;
     EXPECT_EQ(run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "x"})).status, 2);
     EXPECT_EQ(run({"jobs", "--server", "http://127.0.0.1:1", "--token", "t"}).status, 1);
+}
+
+// `submit` takes every output and option of `bake`, flags as flags.
+TEST_F(RemoteTest, SubmitTakesEveryBakeOption) {
+    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--lightmap", "--sh", "--sh-bands",
+                                      "auto", "--sh-bounces", "2", "--sh-per-texel", "--no-stitch", "--res", "128",
+                                      "--scheme", "thesis", "--env", "0.5,0.5,1", "--seed", "5", "--wait", "--out",
+                                      (tmp.path / "out").string()}));
+    ASSERT_EQ(r.status, 0) << r.err;
+    const json spec = json::parse(read_text(engine.dir / "last_spec.json"));
+    EXPECT_EQ(spec["outputs"]["sh"]["sh_bands"], "auto");
+    EXPECT_EQ(spec["outputs"]["sh"]["sh_bounces"], 2);
+    EXPECT_EQ(spec["outputs"]["sh"]["sh_per_texel"], true);
+    EXPECT_EQ(spec["outputs"]["lightmap"]["stitch"], false);
+    EXPECT_EQ(spec["outputs"]["lightmap"]["scheme"], "thesis");
+    EXPECT_EQ(spec["atlas"]["res"], 128);
+    EXPECT_EQ(spec["env"], json({0.5, 0.5, 1.0}));
+    EXPECT_EQ(spec["seed"], 5);
+    EXPECT_TRUE(fs::exists(tmp.path / "out" / "scene.sh.glb"));
+
+    // Giving an output's setting asks for that output alone.
+    const CliRun sh_only = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh-bands", "2", "--wait",
+                                            "--out", (tmp.path / "out2").string()}));
+    ASSERT_EQ(sh_only.status, 0) << sh_only.err;
+    const json sh_spec = json::parse(read_text(engine.dir / "last_spec.json"));
+    EXPECT_FALSE(sh_spec["outputs"].contains("lightmap")) << sh_spec.dump();
+    EXPECT_EQ(sh_spec["outputs"]["sh"]["sh_bands"], 2);
+
+    const CliRun bad = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh-bands", "9"}));
+    EXPECT_EQ(bad.status, 2);
+    EXPECT_NE(bad.err.find("--sh-bands"), std::string::npos) << bad.err;
+    EXPECT_EQ(run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh=1"})).status, 2) << "a flag takes no value";
+}
+
+// `fetch --latest` takes each output's newest file from the job's status (the
+// worker's events), not from sorting names: pass-16384 sorts before pass-2048,
+// and an SH file after both.
+TEST_F(RemoteTest, FetchLatestTakesTheNewestFileOfEachOutput) {
+    engine.set("snapshot_passes", "2048 16384");
+    engine.set("mode", "no_done");
+    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--lightmap", "--sh", "--wait"}));
+    EXPECT_EQ(r.status, 1) << "the fake worker never reports done";
+    const std::string id = r.out.substr(0, r.out.find('\n'));
+    const fs::path out = tmp.path / "latest";
+    const CliRun f = run(with_common({"fetch", id, "--latest", "--out", out.string()}));
+    ASSERT_EQ(f.status, 0) << f.err;
+    EXPECT_TRUE(fs::exists(out / "lightmap.pass-16384.exr"));
+    EXPECT_TRUE(fs::exists(out / "sh_transfer.pass-0001.bin"));
+    EXPECT_FALSE(fs::exists(out / "lightmap.pass-2048.exr"));
 }
 
 }  // namespace

@@ -582,6 +582,24 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     EXPECT_EQ(summary["punctual_lights"]["point"], 1);
 }
 
+// The upload check (`inspect`) reads image headers only: sizes and the texel
+// budget are checked, no pixel is decoded, so a small file claiming a huge
+// image costs nothing to look at. The same file still refuses an image over
+// the size limit.
+TEST(GeneratedScenes, HeadersOnlyLoadChecksSizesWithoutDecoding) {
+    TempDir dir;
+    const GltfWriter w = textured_quad({{"uri", std::string("data:image/png;base64,") + kGreyPng}});
+    LoadLimits headers_only;
+    headers_only.decode_images = false;
+    const Scene s = load_scene(w.write(dir.path(), "scene.gltf"), headers_only);
+    ASSERT_EQ(s.textures.size(), 1u);
+    EXPECT_EQ(s.textures[0].width, 1);
+    EXPECT_EQ(s.textures[0].height, 1);
+    EXPECT_TRUE(s.textures[0].texels.empty());
+    headers_only.max_texture_dim = 0;
+    EXPECT_THROW(load_scene(w.write(dir.path(), "scene.gltf"), headers_only), SceneError);
+}
+
 TEST(GeneratedScenes, TexturesAreDecodedFromSrgb) {
     TempDir dir;
     const Scene s = load_written(textured_quad({{"uri", std::string("data:image/png;base64,") + kGreyPng}}), dir);

@@ -7,6 +7,7 @@
 
 #include "hash.h"
 #include "service.h"
+#include "supervisor.h"
 
 #include <gtest/gtest.h>
 
@@ -51,9 +52,15 @@ protected:
     httplib::Result post_job(const json& spec, const std::string& token = kAlice) {
         return client(token).Post("/v1/jobs", spec.dump(), "application/json");
     }
+    // `lightmap`: the lightmap's settings, and "res", which is the atlas's.
     std::string submit(const std::string& scene, json lightmap = {{"passes", 4}}, uint64_t seed = 1,
                        const std::string& token = kAlice, json limits = nullptr) {
-        json spec = {{"scene", scene}, {"outputs", {{"lightmap", lightmap}}}, {"seed", seed}};
+        json spec = {{"scene", scene}, {"seed", seed}};
+        if (lightmap.contains("res")) {
+            spec["atlas"]["res"] = lightmap["res"];
+            lightmap.erase("res");
+        }
+        spec["outputs"]["lightmap"] = lightmap;
         if (!limits.is_null()) spec["limits"] = limits;
         auto r = post_job(spec, token);
         EXPECT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
@@ -208,10 +215,12 @@ TEST_F(ServerTest, BadJobSpecsNameTheField) {
         EXPECT_EQ(json::parse(r->body)["error"].get<std::string>().rfind(error, 0), 0u) << r->body;
     };
     expect_400("{not json", "the request body is not JSON");
-    const json ok = {{"scene", scene}, {"outputs", {{"lightmap", {{"res", 256}}}}}};
+    const json ok = {{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 256}}}};
     json j = ok;
-    j["outputs"]["lightmap"]["res"] = 100000;
-    expect_400(j.dump(), "lightmap.res: 100000 exceeds the limit 8192");
+    j["atlas"]["res"] = 100000;
+    expect_400(j.dump(), "atlas.res: 100000 exceeds the maximum 16384");
+    j["atlas"]["res"] = 10000;
+    expect_400(j.dump(), "atlas.res: 10000 exceeds this server's limit 8192");
     j = ok;
     j["priority"] = 1;
     expect_400(j.dump(), "priority: unknown field");
@@ -223,7 +232,7 @@ TEST_F(ServerTest, BadJobSpecsNameTheField) {
     expect_400(j.dump(), "lightmap.passes: must be an integer");
     j = ok;
     j["limits"] = {{"max_attempts", 0}};
-    expect_400(j.dump(), "limits.max_attempts: 0 is below the minimum 1");
+    expect_400(j.dump(), "limits.max_attempts: must be at least 1");
     auto r = post_job(ok);
     EXPECT_EQ(r->status, 201);
     EXPECT_EQ(json::parse(r->body)["state"], "queued");
@@ -273,14 +282,24 @@ TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
     ASSERT_GE(all.size(), 3u);
     EXPECT_EQ(all[2].data["file"], "lightmap.pass-0001.exr");
     EXPECT_EQ(all.back().data["files"], json({"lightmap.exr", "manifest.json"}));
+    EXPECT_EQ(all.back().data["final"], json({{"lightmap", "lightmap.exr"}}));
+    // The worker gets the job's own spec, written into the job directory, not a translation into flags.
     const std::string args = read_text(engine.dir / "last_args");
-    EXPECT_NE(args.find("--json --lightmap --res 64 --passes 4 --seed 42\n"), std::string::npos) << args;
+    const fs::path job_dir = tmp.path / "data" / "jobs" / id;
+    EXPECT_NE(args.find("--out " + job_dir.string() + " --json --spec " + (job_dir / ".spec.json").string() + "\n"),
+              std::string::npos)
+        << args;
+    const json spec = json::parse(read_text(engine.dir / "last_spec.json"));
+    EXPECT_EQ(spec["outputs"]["lightmap"]["passes"], 4);
+    EXPECT_EQ(spec["atlas"]["res"], 64);
+    EXPECT_EQ(spec["seed"], 42);
 
     const json status = wait_finished(id);
     EXPECT_EQ(status["state"], "succeeded");
     EXPECT_EQ(status["attempts"], 1);
     EXPECT_EQ(status["progress"]["pass"], 4);
     EXPECT_EQ(status["progress"]["rays"], 4000);
+    EXPECT_EQ(status["latest"], json({{"lightmap", {{"file", "lightmap.exr"}, {"pass", 4}, {"final", true}}}}));
 
     auto c = client();
     auto r = c.Get("/v1/jobs/" + id + "/artifacts");
@@ -303,6 +322,7 @@ TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
     EXPECT_EQ(r->get_header_value("Content-Length"), std::to_string(r->body.size()));
     EXPECT_EQ(r->body, read_text(engine.dir / "snapshot.exr"));
     EXPECT_EQ(c.Get("/v1/jobs/" + id + "/artifacts/.worker.pid")->status, 404);
+    EXPECT_EQ(c.Get("/v1/jobs/" + id + "/artifacts/.spec.json")->status, 404);
     EXPECT_EQ(c.Get("/v1/jobs/" + id + "/artifacts/nothing.exr")->status, 404);
     EXPECT_EQ(c.Get("/v1/jobs/" + id + "/artifacts/..%2Fjobs.sqlite")->status, 404);
 
@@ -346,7 +366,7 @@ TEST_F(ServerTest, ACrashedWorkerCostsOneAttempt) {
     const auto all = events(id);
     ASSERT_GE(all.size(), 2u);
     EXPECT_EQ(all[1].type, "retrying");
-    EXPECT_EQ(all[1].data["cause"], "worker exited with status 3: lightfarm bake: error: lost the GPU context");
+    EXPECT_EQ(all[1].data["cause"], "worker exited with status 1: lightfarm bake: error: lost the GPU context");
     EXPECT_EQ(engine.runs(), 2);
 }
 
@@ -538,6 +558,307 @@ TEST_F(ServerTest, MetricsAndTheStatusPage) {
     const httplib::Headers with_cookie = {{"Cookie", cookie.substr(0, cookie.find(';'))}};
     EXPECT_EQ(browser.Get("/v1/jobs", with_cookie)->status, 200);
     EXPECT_EQ(browser.Post("/v1/jobs/" + id + "/cancel", with_cookie, "", "application/json")->status, 401);
+}
+
+// ---- What the scene or the settings make impossible is a 400 at submit, naming the field.
+
+TEST_F(ServerTest, EdgeValuesAreRefusedAtSubmitNamingTheField) {
+    start();
+    const std::string scene = upload();
+    auto expect_400 = [&](json spec, const std::string& field) {
+        spec["scene"] = scene;
+        auto r = post_job(spec);
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 400) << spec.dump() << ": " << r->body;
+        const json body = json::parse(r->body);
+        EXPECT_EQ(body.value("field", ""), field) << spec.dump() << ": " << r->body;
+        EXPECT_EQ(body.value("error", "").rfind(field + ": ", 0), 0u) << r->body;
+    };
+    expect_400({{"outputs", {{"sh", {{"sh_bands", 0}}}}}}, "sh.sh_bands");
+    expect_400({{"outputs", {{"sh", {{"sh_bands", 9}}}}}}, "sh.sh_bands");
+    expect_400({{"outputs", {{"sh", {{"sh_bounces", 7}}}}}}, "sh.sh_bounces");
+    expect_400({{"outputs", {{"lightmap", json::object()}}}, {"seed", 4294967296ull}}, "seed");
+    expect_400({{"outputs", {{"lightmap", json::object()}}}, {"seed", -1}}, "seed");
+    // The service reads no file a job names: an environment is a uniform sky.
+    expect_400({{"outputs", {{"sh", json::object()}}}, {"env", "sky.exr"}}, "env");
+    expect_400({{"outputs", {{"sh", json::object()}}}, {"env", "/etc/passwd"}}, "env");
+    expect_400({{"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 0}}}}, "atlas.res");
+    // The values next to them are accepted ("auto" is a value of its own).
+    for (const json& bake : {json{{"outputs", {{"sh", {{"sh_bands", "auto"}}}}}},
+                             json{{"outputs", {{"sh", {{"sh_bands", 4}, {"sh_bounces", 4}}}}}, {"seed", 4294967295ull}},
+                             json{{"outputs", {{"sh", json::object()}}}, {"env", {0.5, 0.6, 0.8}}}}) {
+        json spec = bake;
+        spec["scene"] = scene;
+        auto r = post_job(spec);
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 201) << spec.dump() << ": " << r->body;
+    }
+}
+
+TEST_F(ServerTest, ASceneWithoutLightNeedsAnEnvironment) {
+    engine.set("summary", R"({"source": "dark.glb", "triangles": 12, "emissive_triangles": 0,
+                             "punctual_light_count": 0, "has_lightmap_uvs": true, "min_atlas_res": 0})");
+    start();
+    const std::string scene = upload();
+    auto r = post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}});
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400) << r->body;
+    const json body = json::parse(r->body);
+    EXPECT_EQ(body["field"], "env");
+    const std::string error = body["error"];
+    EXPECT_NE(error.find("scene.glb"), std::string::npos) << error;  // the file as uploaded
+    EXPECT_NE(error.find("\"env\": [R, G, B]"), std::string::npos) << error;  // and the fix
+    EXPECT_EQ(error.find(tmp.path.string()), std::string::npos) << error;
+    EXPECT_EQ(engine.runs(), 0);
+    // With a sky it bakes; SH transfer needs no light at all.
+    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"env", {1, 1, 1}}})->status, 201);
+    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"sh", json::object()}}}})->status, 201);
+}
+
+TEST_F(ServerTest, AnAtlasThatCannotFitIsRefusedWithTheSmallestThatDoes) {
+    engine.set("summary", R"({"source": "stairs.glb", "triangles": 12, "emissive_triangles": 2,
+                             "punctual_light_count": 0, "has_lightmap_uvs": false, "min_atlas_res": 300})");
+    start();
+    const std::string scene = upload();
+    auto r = post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 256}}}});
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400) << r->body;
+    const json body = json::parse(r->body);
+    EXPECT_EQ(body["field"], "atlas.res");
+    EXPECT_NE(body["error"].get<std::string>().find("300"), std::string::npos) << r->body;
+    EXPECT_EQ(engine.runs(), 0);
+    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 300}}}})->status, 201);
+    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"seed", 2}})->status, 201);  // res auto
+}
+
+// ---- Supervision: input errors, deadlines, stored specs, the newest snapshot.
+
+TEST_F(ServerTest, AnInputErrorFailsTheJobAtOnceNamingTheUsersFile) {
+    engine.set("mode", "input_error");
+    start({"--attempts", "3"});
+    const std::string id = submit(upload());
+    const json status = wait_finished(id);
+    EXPECT_EQ(status["state"], "failed") << status.dump();
+    EXPECT_EQ(status["attempts"], 1);
+    EXPECT_EQ(engine.runs(), 1) << "an input error costs one worker run, not three";
+    const std::string cause = status["cause"];
+    EXPECT_NE(cause.find("scene.glb: nothing to bake"), std::string::npos) << cause;
+    EXPECT_EQ(cause.find((tmp.path / "data").string()), std::string::npos) << cause;
+    EXPECT_EQ(cause.find("/scenes/"), std::string::npos) << cause;
+    const auto all = events(id);
+    ASSERT_FALSE(all.empty());
+    EXPECT_EQ(all.back().type, "failed");
+    for (const auto& e : all) EXPECT_NE(e.type, "retrying");
+}
+
+TEST_F(ServerTest, TheDeadlineHoldsWhileTheWorkerPrintsEveryPass) {
+    engine.set("delay", "0.05");  // a progress line every ~50 ms, for 1200 passes (a minute)
+    start();
+    const std::string scene = upload();
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::string id = submit(scene, {{"passes", 1200}}, 1, kAlice, {{"max_seconds", 4}, {"max_attempts", 1}});
+    const json status = wait_finished(id, std::chrono::seconds(15));
+    const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    EXPECT_EQ(status["state"], "failed") << status.dump();
+    EXPECT_NE(status.value("cause", "").find("deadline of 4 s"), std::string::npos) << status.dump();
+    EXPECT_GT(status["progress"]["pass"].get<int>(), 10) << "the worker was printing";
+    EXPECT_GE(took, 3.9);
+    EXPECT_LE(took, 7.0) << "the job ended " << took << " s after submit, its deadline was 4 s";
+}
+
+TEST_F(ServerTest, AQueuedJobStillRunsAfterARestartWithALowerLimit) {
+    engine.set("mode", "hang_always");
+    start({"--workers", "1"});
+    const std::string scene = upload();
+    const std::string blocker = submit(scene, {{"passes", 1}}, 1);
+    auto c = client();
+    wait_for_job(c, blocker, [](const json& s) { return s["state"] == "running"; });
+    const std::string queued = submit(scene, {{"passes", 50}}, 2);
+    server->stop();
+
+    engine.set("mode", "ok");
+    server = std::make_unique<Lightfarmd>(tmp.path / "data", tmp.path / "tokens", engine.script,
+                                          std::vector<std::string>{"--workers", "1", "--limit", "passes=10"});
+    server->start();
+    const json status = wait_finished(queued);
+    EXPECT_EQ(status["state"], "succeeded") << "validated at submit, under the limits of that day: " << status.dump();
+    EXPECT_EQ(status["progress"]["pass"], 50);
+    EXPECT_EQ(wait_finished(blocker)["state"], "succeeded");
+    // A new job meets the new limit.
+    auto r = post_job({{"scene", scene}, {"outputs", {{"lightmap", {{"passes", 50}}}}}, {"seed", 3}});
+    EXPECT_EQ(r->status, 400);
+    EXPECT_EQ(json::parse(r->body)["field"], "lightmap.passes") << r->body;
+}
+
+TEST_F(ServerTest, TheNewestSnapshotComesFromTheEventsNotFromNames) {
+    // pass-16384 sorts before pass-2048, and an SH snapshot after both.
+    engine.set("snapshot_passes", "2048 16384");
+    engine.set("mode", "no_done");
+    start();
+    const std::string scene = upload();
+    json spec = {{"scene", scene}, {"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}},
+                 {"limits", {{"max_attempts", 1}}}};
+    auto r = post_job(spec);
+    ASSERT_EQ(r->status, 201) << r->body;
+    const std::string id = json::parse(r->body)["id"];
+    json status = wait_finished(id);
+    EXPECT_EQ(status["state"], "failed");  // no done: the snapshots are all there is
+    EXPECT_EQ(status["latest"]["lightmap"], json({{"file", "lightmap.pass-16384.exr"}, {"pass", 16384}, {"final", false}}));
+    EXPECT_EQ(status["latest"]["sh"]["file"], "sh_transfer.pass-0001.bin");
+    auto png = client().Get("/v1/jobs/" + id + "/preview.png");
+    ASSERT_EQ(png->status, 200) << png->body;
+    EXPECT_EQ(png->get_header_value("X-Lightfarm-Source"), "lightmap.pass-16384.exr");
+
+    // Once done, each output's newest file is its final one.
+    engine.set("mode", "ok");
+    spec["seed"] = 2;
+    r = post_job(spec);
+    ASSERT_EQ(r->status, 201) << r->body;
+    const std::string done = json::parse(r->body)["id"];
+    status = wait_finished(done);
+    EXPECT_EQ(status["state"], "succeeded") << status.dump();
+    EXPECT_EQ(status["latest"]["lightmap"], json({{"file", "lightmap.exr"}, {"pass", 16384}, {"final", true}}));
+    EXPECT_EQ(status["latest"]["sh"], json({{"file", "scene.sh.glb"}, {"pass", 1}, {"final", true}}));
+    png = client().Get("/v1/jobs/" + done + "/preview.png");
+    EXPECT_EQ(png->get_header_value("X-Lightfarm-Source"), "lightmap.exr");
+
+    // A cached copy of that bake has the same newest files.
+    r = post_job(spec);
+    ASSERT_EQ(r->status, 201);
+    EXPECT_EQ(json::parse(r->body)["cached"], true);
+    const json cached = wait_finished(json::parse(r->body)["id"]);
+    EXPECT_EQ(cached["latest"], status["latest"]);
+}
+
+// ---- apply_worker_event: one event in, what to store out. No process, no store.
+
+protocol::BakeSettings lightmap_and_sh() {
+    return protocol::parse_bake_settings(
+        {{"outputs", {{"lightmap", {{"passes", 100}}}, {"sh", {{"sh_passes", 10}, {"sh_time_limit", 5}}}}}});
+}
+
+TEST(ApplyWorkerEvent, StartBecomesAStartedEventOfTheAttempt) {
+    protocol::StartEvent start;
+    start.renderer = "llvmpipe";
+    start.triangles = 36;
+    const server::AttemptUpdate u = server::apply_worker_event({}, start, lightmap_and_sh(), "job1", 2);
+    ASSERT_TRUE(u.event);
+    EXPECT_EQ(u.event->type, "started");
+    EXPECT_EQ(u.event->data["attempt"], 2);
+    EXPECT_EQ(u.event->data["renderer"], "llvmpipe");
+    EXPECT_FALSE(u.event->data.contains("event"));
+    EXPECT_FALSE(u.progress);
+    EXPECT_TRUE(u.latest.empty());
+    EXPECT_TRUE(u.ignored.empty());
+}
+
+TEST(ApplyWorkerEvent, ProgressGetsTheEtaOfItsOwnOutputAndCountsRaysPerOutput) {
+    const protocol::BakeSettings bake = lightmap_and_sh();
+    protocol::ProgressEvent p{"lightmap", {}};
+    p.progress.pass = 10;
+    p.progress.rays = 1000;
+    p.progress.seconds = 2.0;
+    server::AttemptUpdate u = server::apply_worker_event({}, p, bake, "job1", 1);
+    ASSERT_TRUE(u.progress);
+    ASSERT_TRUE(u.progress->eta_seconds);
+    EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 0.2 * 90);  // 90 passes of 0.2 s left
+    EXPECT_EQ(u.new_rays, 1000u);
+    ASSERT_TRUE(u.rays_per_second);
+    EXPECT_DOUBLE_EQ(*u.rays_per_second, 500.0);
+    ASSERT_TRUE(u.event);
+    EXPECT_EQ(u.event->type, "progress");
+    EXPECT_EQ(u.event->data["output"], "lightmap");
+    EXPECT_EQ(u.event->data["pass"], 10);
+
+    p.progress.pass = 20;
+    p.progress.rays = 2500;
+    p.progress.seconds = 4.0;
+    u = server::apply_worker_event(u.state, p, bake, "job1", 1);
+    EXPECT_EQ(u.new_rays, 1500u);
+
+    // The SH output's own rules: 10 passes or 5 s, whichever first; its rays start at 0.
+    protocol::ProgressEvent sh{"sh", {}};
+    sh.progress.pass = 2;
+    sh.progress.rays = 300;
+    sh.progress.seconds = 4.0;
+    u = server::apply_worker_event(u.state, sh, bake, "job1", 1);
+    ASSERT_TRUE(u.progress->eta_seconds);
+    EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 1.0);  // the time limit, before 8 passes of 2 s
+    EXPECT_EQ(u.new_rays, 300u);
+    EXPECT_EQ(u.state.passes.at("lightmap"), 20);
+    EXPECT_EQ(u.state.passes.at("sh"), 2);
+
+    // An output the job did not ask for gets no ETA.
+    protocol::ProgressEvent probes{"probes", p.progress};
+    EXPECT_FALSE(server::apply_worker_event(u.state, probes, bake, "job1", 1).progress->eta_seconds);
+}
+
+TEST(ApplyWorkerEvent, SnapshotsAreTheNewestFileOfTheirOutput) {
+    const protocol::BakeSettings bake = lightmap_and_sh();
+    server::AttemptUpdate u =
+        server::apply_worker_event({}, protocol::SnapshotEvent{"lightmap", "lightmap.pass-16384.exr", 16384}, bake, "j", 1);
+    ASSERT_EQ(u.latest.size(), 1u);
+    EXPECT_EQ(u.latest.at("lightmap").file, "lightmap.pass-16384.exr");
+    EXPECT_EQ(u.latest.at("lightmap").pass, 16384);
+    EXPECT_FALSE(u.latest.at("lightmap").final_file);
+    ASSERT_TRUE(u.event);
+    EXPECT_EQ(u.event->type, "snapshot");
+    EXPECT_EQ(u.event->data["output"], "lightmap");
+    EXPECT_EQ(u.event->data["url"], "/v1/jobs/j/artifacts/lightmap.pass-16384.exr");
+
+    for (const std::string bad : {"../jobs.sqlite", "a/b.exr", ".worker.pid", ""}) {
+        u = server::apply_worker_event({}, protocol::SnapshotEvent{"lightmap", bad, 1}, bake, "j", 1);
+        EXPECT_FALSE(u.ignored.empty()) << bad;
+        EXPECT_TRUE(u.latest.empty()) << bad;
+        EXPECT_FALSE(u.event) << bad;
+    }
+    // Without an output name, the job's only output; with two, nothing to guess.
+    const protocol::BakeSettings only_lightmap = protocol::parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}});
+    u = server::apply_worker_event({}, protocol::SnapshotEvent{"", "lightmap.pass-0001.exr", 1}, only_lightmap, "j", 1);
+    EXPECT_EQ(u.latest.count("lightmap"), 1u);
+    u = server::apply_worker_event({}, protocol::SnapshotEvent{"", "x.pass-0001.exr", 1}, bake, "j", 1);
+    EXPECT_FALSE(u.ignored.empty());
+}
+
+TEST(ApplyWorkerEvent, DoneIsKeptForTheEndAndNamesTheFinalFiles) {
+    const protocol::BakeSettings bake = lightmap_and_sh();
+    server::AttemptState state;
+    state.passes = {{"lightmap", 100}, {"sh", 7}};
+    protocol::DoneEvent done;
+    done.progress.pass = 7;
+    done.progress.rays = 700;
+    done.files = {"lightmap.exr", "scene.sh.glb", "manifest.json", "../evil"};
+    done.final_files = {{"lightmap", "lightmap.exr"}, {"sh", "scene.sh.glb"}};
+    const server::AttemptUpdate u = server::apply_worker_event(state, done, bake, "j", 1);
+    EXPECT_FALSE(u.event) << "the final event is stored when the worker has exited";
+    ASSERT_TRUE(u.state.done);
+    EXPECT_EQ((*u.state.done)["files"], json({"lightmap.exr", "scene.sh.glb", "manifest.json"}));
+    EXPECT_EQ((*u.state.done)["final"], json({{"lightmap", "lightmap.exr"}, {"sh", "scene.sh.glb"}}));
+    ASSERT_EQ(u.latest.size(), 2u);
+    EXPECT_EQ(u.latest.at("lightmap").file, "lightmap.exr");
+    EXPECT_EQ(u.latest.at("lightmap").pass, 100);
+    EXPECT_TRUE(u.latest.at("lightmap").final_file);
+    EXPECT_EQ(u.latest.at("sh").pass, 7);
+    ASSERT_TRUE(u.progress);
+    EXPECT_EQ(u.progress->eta_seconds, 0.0);
+}
+
+TEST(UserFacing, TheServersPathsBecomeTheUploadedName) {
+    const fs::path data = "/srv/lightfarm-data";
+    const fs::path scene_dir = data / "scenes" / "68b3";
+    const fs::path scene = scene_dir / "breakfast_room.gltf";
+    const fs::path job = data / "jobs" / "abc";
+    EXPECT_EQ(server::user_facing(scene.string() + ": nothing to bake: no light", scene, "breakfast_room.gltf",
+                                  scene_dir, job, data),
+              "breakfast_room.gltf: nothing to bake: no light");
+    EXPECT_EQ(server::user_facing("cannot read " + (scene_dir / "textures/wall.png").string(), scene,
+                                  "breakfast_room.gltf", scene_dir, job, data),
+              "cannot read textures/wall.png");
+    const std::string other = server::user_facing("cannot write " + (job / "lightmap.exr").string() + " in " +
+                                                      (data / "tmp").string(),
+                                                  scene, "breakfast_room.gltf", scene_dir, job, data);
+    EXPECT_EQ(other.find(data.string()), std::string::npos) << other;
+    EXPECT_NE(other.find("lightmap.exr"), std::string::npos) << other;
 }
 
 // Every route the server registers is in protocol/openapi.json and every

@@ -70,7 +70,7 @@ struct Bake {
     int passes = 16;
     int seed = 3;
     json spec(const std::string& scene) const {
-        return {{"scene", scene}, {"outputs", {{"lightmap", {{"res", res}, {"passes", passes}}}}}, {"seed", seed}};
+        return {{"scene", scene}, {"outputs", {{"lightmap", {{"passes", passes}}}}}, {"atlas", {{"res", res}}}, {"seed", seed}};
     }
 };
 

@@ -337,7 +337,14 @@ ChartShape lay_out_chart(const Scene& scene, const Chart& chart, std::vector<Tri
 // A chart's rectangle in whole texels: its extent at the density, rounded up
 // (at least one texel, so a chart smaller than a texel still owns one).
 glm::ivec2 chart_rect(const ChartShape& shape, double density) {
-    auto side = [&](double metres) { return std::max(1, int(std::ceil(metres * density - 1e-9))); };
+    // Clamped before the conversion: a chart of a hostile scene (coordinates
+    // of 1e21 m, found by fuzzing) would overflow int; any side this large
+    // fails to pack anyway.
+    constexpr double kLargest = 1 << 30;
+    auto side = [&](double metres) {
+        const double texels = std::ceil(metres * density - 1e-9);
+        return std::max(1, int(std::isfinite(texels) ? std::min(texels, kLargest) : kLargest));
+    };
     return {side(shape.size.x), side(shape.size.y)};
 }
 
@@ -447,7 +454,10 @@ struct Packing {
 std::optional<Packing> pack_at_resolution(const std::vector<ChartShape>& shapes, int size, int padding,
                                           double density_cap) {
     auto attempt = [&](double d) { return pack_charts(shapes, d, size, size, padding); };
-    double guess = estimate_density(shapes, double(size) * size, padding, 0.9);
+    // Never 0: at a guess of 0 every chart is one texel, that "fits", and
+    // growing hi = 0 * 1.25 would never end (an atlas just big enough for
+    // its charts' padding used to hang here).
+    double guess = std::max(estimate_density(shapes, double(size) * size, padding, 0.9), 1e-9);
     if (density_cap > 0.0) guess = std::min(guess, density_cap);
 
     std::optional<std::vector<glm::ivec2>> best;
@@ -463,12 +473,12 @@ std::optional<Packing> pack_at_resolution(const std::vector<ChartShape>& shapes,
     } else {
         hi = guess;
         lo = guess;
-        for (int tries = 0; tries < 60 && !best; ++tries) {
-            lo *= 0.7;
-            if (lo < 1e-12) lo = 0.0;
+        // Down to one texel per chart (the density smallest_atlas_resolution
+        // packs at); density 0 would collapse every chart to a point.
+        for (int tries = 0; tries < 120 && !best && lo > 1e-12; ++tries) {
+            lo = std::max(lo * 0.7, 1e-12);
             best = attempt(lo);
             if (!best) hi = lo;
-            if (lo == 0.0) break;
         }
         if (!best) return std::nullopt;  // not even one texel per chart fits
     }

@@ -9,6 +9,8 @@
 #include "scene/gltf_loader.h"
 
 #include <chrono>
+#include <cstdio>
+#include <fstream>
 #include <memory>
 #include <regex>
 
@@ -22,6 +24,36 @@ namespace {
 double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
 bool needs_atlas(const protocol::BakeSettings& s) { return s.lightmap || (s.sh && s.sh->per_texel); }
+
+// Bytes of memory this machine has available now (MemAvailable), or 0 when unknown.
+uint64_t available_memory() {
+    std::ifstream meminfo("/proc/meminfo");
+    std::string key;
+    uint64_t kb = 0;
+    std::string unit;
+    while (meminfo >> key >> kb >> unit)
+        if (key == "MemAvailable:") return kb * 1024;
+    return 0;
+}
+
+std::string gigabytes(uint64_t bytes) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.1f GB", double(bytes) / 1e9);
+    return text;
+}
+
+// Refuses, before anything large is allocated, an atlas whose bake would not
+// fit in memory, naming the largest resolution that would.
+void check_bake_memory(const std::string& name, int width, int height) {
+    const uint64_t available = available_memory();
+    const uint64_t needed = protocol::estimated_bake_bytes(uint64_t(width) * uint64_t(height));
+    if (available == 0 || needed <= available) return;
+    int fits = 0;
+    while (protocol::estimated_bake_bytes(uint64_t(fits + 64) * uint64_t(fits + 64)) <= available) fits += 64;
+    throw BakeInputError(name + ": a " + std::to_string(width) + "x" + std::to_string(height) + " atlas needs about " +
+                         gigabytes(needed) + " to bake and this machine has " + gigabytes(available) +
+                         " available; bake at --res " + std::to_string(fits) + " or less (or a lower --texel-density)");
+}
 
 // The lightmap atlas on a copy of the scene (a generated atlas splits
 // vertices; per-vertex outputs keep the input's), and its texel samples.
@@ -39,6 +71,7 @@ void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
                              (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")"
                                            : ""));
     }
+    check_bake_memory(name, p.atlas.width, p.atlas.height);
     p.texels = rasterize_texel_samples(*p.atlas_scene, p.atlas.width, p.atlas.height, settings.subsamples);
 }
 

@@ -96,6 +96,16 @@ void ImageDecoder::decode(tinygltf::Image* image, int index, const unsigned char
                      std::to_string(limits_.max_total_texels) + " texels in all)");
     }
 
+    if (!limits_.decode_images) {  // header only: sizes known, no pixels
+        image->image.clear();
+        image->width = width;
+        image->height = height;
+        image->component = 4;
+        image->bits = 8;
+        image->pixel_type = TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE;
+        texels_left_ -= texels;
+        return;
+    }
     int decoded_width = 0, decoded_height = 0, decoded_channels = 0;
     stbi_uc* pixels = stbi_load_from_memory(bytes, int(size), &decoded_width, &decoded_height, &decoded_channels, 4);
     if (pixels == nullptr) errors_.fail(label + ": image cannot be decoded (" + stbi_failure_reason() + ")");
@@ -138,6 +148,7 @@ Texture srgb_texture(const tinygltf::Image& image, std::string name) {
     texture.width = image.width;
     texture.height = image.height;
     const size_t texels = size_t(std::max(image.width, 0)) * size_t(std::max(image.height, 0));
+    if (image.image.empty() && image.component == 4) return texture;  // not decoded (LoadLimits::decode_images)
     if (image.component != 4 || image.bits != 8 || image.image.size() != texels * 4)
         throw std::logic_error("srgb_texture: image is not decoded RGBA8");
     texture.texels.resize(texels);

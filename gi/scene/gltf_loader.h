@@ -28,6 +28,10 @@ struct LoadLimits {
     // Texels of all decoded textures together (each becomes 16 bytes of
     // linear float RGBA): 2^26 = one 8192² texture, or 1 GiB.
     uint64_t max_total_texels = uint64_t(1) << 26;
+    // false: images are checked from their headers (format, sizes, budget)
+    // and not decoded; Texture::texels stay empty. What an upload check
+    // needs: a 200 KB PNG of 8192² zeros would otherwise cost 1.3 GB.
+    bool decode_images = true;
 };
 
 // A file lightfarm cannot or will not load. what() is one line:

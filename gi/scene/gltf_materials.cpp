@@ -77,13 +77,15 @@ int MaterialBuilder::texture(const tinygltf::TextureInfo& info, const std::strin
     if (const auto it = texture_of_image_.find(image); it != texture_of_image_.end()) return it->second;
 
     tinygltf::Image& img = model_.images[size_t(image)];
-    if (img.bufferView >= 0 && img.image.empty()) {
+    // Checked from its header only (LoadLimits::decode_images): sizes, no pixels.
+    const bool header_only = img.image.empty() && img.width > 0;
+    if (img.bufferView >= 0 && img.image.empty() && !header_only) {
         // GLB-embedded: decoded here, from a view check_buffer_views() has checked.
         size_t size = 0;
         const unsigned char* bytes = reader_.view_data(img.bufferView, &size);
         images_.decode(&img, image, bytes, size);
     }
-    if (img.image.empty())
+    if (img.image.empty() && img.width <= 0)
         errors_.fail(Errors::label("image", image, img.name),
                      "could not be loaded" + (img.uri.empty() ? std::string() : " from " + in_quotes(img.uri)));
 

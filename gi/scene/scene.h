@@ -35,7 +35,7 @@ struct Texture {
     std::string name;
     int width = 0;
     int height = 0;
-    std::vector<glm::vec4> texels;
+    std::vector<glm::vec4> texels;  // empty when loaded with LoadLimits::decode_images = false
     glm::vec4 fetch(int x, int y) const { return texels[size_t(y) * size_t(width) + size_t(x)]; }
     // Bilinear lookup with glTF's default REPEAT wrapping; uv (0,0) is the top-left corner.
     glm::vec4 sample(glm::vec2 uv) const;
