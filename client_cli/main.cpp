@@ -9,6 +9,7 @@
 #include "sh/sh_glb.h"
 #include "sh/transfer_file.h"
 #include "gpu/context.h"
+#include "probes/probe_eval.h"
 #include "io/reference_error.h"
 #include "scene/gltf_loader.h"
 #include "scene/scene_summary.h"
@@ -43,6 +44,7 @@ commands:
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]
   compare TRANSFER.bin REFERENCE.bin error against a reference (JSON)
+  probe-eval PROBES.json POINTS.json irradiance/pi at points from baked probes, four estimators (JSON)
 )";
 
 std::string one_scene(const Args& args, const char* command) {
@@ -168,6 +170,7 @@ public:
         : json_(json), terminal_(!json && isatty(STDERR_FILENO)) {
         if (settings.lightmap) max_passes_["lightmap"] = settings.lightmap->stop.passes;
         if (settings.sh) max_passes_["sh"] = settings.sh->stop.passes;
+        if (settings.probes) max_passes_["probes"] = settings.probes->stop.passes;
     }
 
     void operator()(const lf::protocol::WorkerEvent& e) {
@@ -179,8 +182,10 @@ public:
         if (const auto* start = std::get_if<p::StartEvent>(&e)) {
             std::cerr << "baking";
             for (auto it = start->outputs.begin(); it != start->outputs.end(); ++it)
-                std::cerr << " " << it.key() << " (" << it.value().value("texels", it.value().value("vertices", 0))
-                          << (it.value().contains("texels") ? " texels)" : " vertices)");
+                std::cerr << " " << it.key() << " ("
+                          << (it.value().contains("texels")     ? std::to_string(it.value()["texels"].get<uint64_t>()) + " texels)"
+                              : it.value().contains("probes") ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
+                                                              : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
             std::cerr << " on " << start->renderer << ", prepared in " << start->prepare_seconds << " s\n";
         } else if (const auto* progress = std::get_if<p::ProgressEvent>(&e); progress && terminal_) {
             if (progress->output != drawing_ && !drawing_.empty()) std::cerr << "\n";
@@ -282,6 +287,53 @@ int sh_shade(int argc, char** argv) {
     return 0;
 }
 
+
+// Irradiance / pi at points (POINTS: [{"position": [x,y,z], "normal": [x,y,z]}, ...])
+// from a baked probe set, by the four estimators of gi/probes/probe_eval.h.
+int probe_eval(int argc, char** argv) {
+    Args args(argc, argv, 2, {}, {});
+    if (args.positional().size() != 2) throw UsageError("probe-eval takes PROBES.json and POINTS.json");
+    const std::string probes_path = args.positional()[0], points_path = args.positional()[1];
+    nlohmann::json out = {{"points", nlohmann::json::array()}};
+    try {
+        const lf::ProbeSet set = lf::read_probe_set(probes_path);
+        std::ifstream in(points_path);
+        if (!in) throw std::runtime_error(points_path + ": cannot be read");
+        const nlohmann::json doc = nlohmann::json::parse(in, nullptr, false);
+        const std::string shape = R"( must be [{"position": [x,y,z], "normal": [x,y,z]}, ...])";
+        if (!doc.is_array()) throw std::runtime_error(points_path + shape);
+        const auto vec3 = [&](const nlohmann::json& p, const char* key, size_t i) {
+            const nlohmann::json* v = p.is_object() && p.contains(key) ? &p[key] : nullptr;
+            if (!v || !v->is_array() || v->size() != 3 || !(*v)[0].is_number() || !(*v)[1].is_number() ||
+                !(*v)[2].is_number())
+                throw std::runtime_error(points_path + ": point " + std::to_string(i) + ": " + key + shape);
+            const glm::vec3 r((*v)[0].get<float>(), (*v)[1].get<float>(), (*v)[2].get<float>());
+            if (!std::isfinite(r.x) || !std::isfinite(r.y) || !std::isfinite(r.z))
+                throw std::runtime_error(points_path + ": point " + std::to_string(i) + ": " + key + " is not finite");
+            return r;
+        };
+        std::vector<std::pair<glm::vec3, glm::vec3>> points;
+        for (size_t i = 0; i < doc.size(); ++i) {
+            const glm::vec3 position = vec3(doc[i], "position", i), normal = vec3(doc[i], "normal", i);
+            if (glm::length(normal) == 0.0f)
+                throw std::runtime_error(points_path + ": point " + std::to_string(i) + ": normal is zero");
+            points.push_back({position, glm::normalize(normal)});
+        }
+        const lf::ProbeEvaluator evaluator(set);  // throws when no probe is valid
+        const auto rgb = [](glm::vec3 c) { return nlohmann::json{c.r, c.g, c.b}; };
+        for (const auto& [position, normal] : points) {
+            const lf::ProbeEvaluation e = evaluator.evaluate(position, normal);
+            out["points"].push_back({{"sh9", rgb(e.sh9)}, {"point_to_point", rgb(e.point_to_point)},
+                                     {"polygon_to_point", rgb(e.polygon_to_point)}, {"ddgi", rgb(e.ddgi)}});
+        }
+    } catch (const std::exception& e) {  // an unreadable or malformed input file
+        std::cerr << "lightfarm probe-eval: error: " << e.what() << "\n";
+        return lf::protocol::kExitInputError;
+    }
+    std::cout << out.dump(2) << "\n";
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -298,6 +350,7 @@ int main(int argc, char** argv) {
         if (command == "compare") return compare(argc, argv);
         if (command == "devices") return devices(argc, argv);
         if (command == "sh-shade") return sh_shade(argc, argv);
+        if (command == "probe-eval") return probe_eval(argc, argv);
         throw UsageError("unknown command '" + command + "'");
     } catch (const std::invalid_argument& e) {  // a bad option value
         std::cerr << "lightfarm: " << e.what() << "\n";

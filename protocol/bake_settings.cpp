@@ -1,6 +1,8 @@
 #include "bake_settings.h"
 
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <limits>
 #include <sstream>
 
@@ -85,6 +87,17 @@ std::vector<Setting> build_catalog() {
         typed("sh", "sh_receivers", T::MeshList, json::array(), "glTF meshes that get transfer (empty: all)"),
         typed("sh", "sh_per_texel", T::Flag, false, "transfer per lightmap texel too (sh_transfer.exr, the atlas below)"),
 
+        typed("probes", "probe_positions", T::Positions, json::array(),
+              "probe reference points [{\"position\": [x, y, z]}, …] (CLI: a JSON file); empty: a grid"),
+        with_auto(number("probes", "probe_spacing", 0, 0, true, 1e4, "",
+                         "grid spacing in metres (auto: a quarter of the scene's largest extent)")),
+        integer("probes", "probe_res", 32, 16, 256, "", "capture texels per cube face side (R)"),
+        integer("probes", "probe_m", 4, 1, 16, "", "texels per face side after downsampling (M, divides R)"),
+        integer("probes", "probe_passes", 64, 1, kMaxPasses, "passes", "stop after this many passes of one path per texel"),
+        number("probes", "probe_target_error", 0, 0, false, 1e3, "",
+               "stop when the radiance's relative standard error falls below this (0: no target)"),
+        number("probes", "probe_time_limit", 0, 0, false, 1e7, "time_limit", "stop after this many seconds of passes (0: none)"),
+
         with_auto(integer("atlas", "res", 0, 1, 16384, "res",
                           "atlas width and height in texels (auto: the file's TEXCOORD_1 at 256, or from texel_density)")),
         with_auto(number("atlas", "texel_density", 0, 0, true, 1e4, "",
@@ -157,6 +170,24 @@ json check_environment(const json& v, const SpecLimits& limits, const std::strin
     throw SpecError(field, "must be [R, G, B] or an environment map file, not " + type_name(v));
 }
 
+// Points as [{"position": [x, y, z]}, …], each coordinate a finite float.
+json check_positions(const json& v, const std::string& field) {
+    constexpr size_t kMaxPoints = 4096;
+    if (!v.is_array()) throw SpecError(field, "must be an array of {\"position\": [x, y, z]}, not " + type_name(v));
+    if (v.size() > kMaxPoints) throw SpecError(field, std::to_string(v.size()) + " points exceed the maximum 4096");
+    for (size_t k = 0; k < v.size(); ++k) {
+        const std::string point = "point " + std::to_string(k);
+        if (!v[k].is_object() || v[k].size() != 1 || !v[k].contains("position"))
+            throw SpecError(field, point + " must be {\"position\": [x, y, z]}");
+        const json& p = v[k]["position"];
+        bool ok = p.is_array() && p.size() == 3;
+        for (size_t c = 0; ok && c < 3; ++c)
+            ok = p[c].is_number() && std::abs(p[c].get<double>()) <= std::numeric_limits<float>::max();
+        if (!ok) throw SpecError(field, point + ": position must be [x, y, z], finite float32 numbers");
+    }
+    return v;
+}
+
 // One value against its setting: returns it in canonical form.
 json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
     const std::string field = s.field();
@@ -187,6 +218,8 @@ json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
     }
     case SettingType::Environment:
         return check_environment(v, limits, field);
+    case SettingType::Positions:
+        return check_positions(v, field);
     }
     return v;
 }
@@ -230,8 +263,11 @@ StopSettings stop_from(const json& j, const std::string& prefix) {
 void check_combination(const BakeSettings& b) {
     if (b.atlas.res && b.atlas.texel_density)
         throw SpecError("atlas.texel_density", "cannot be given together with atlas.res (give one; the other follows)");
-    if (b.lightmap && !b.env.map_file.empty())
-        throw SpecError("env", "a lightmap's environment is a uniform sky R,G,B; environment maps work with the sh output only");
+    if (b.probes && b.probes->res % b.probes->m != 0)
+        throw SpecError("probes.probe_m", std::to_string(b.probes->m) + " does not divide probe_res " +
+                                              std::to_string(b.probes->res) + " (M must divide R)");
+    if ((b.lightmap || b.probes) && !b.env.map_file.empty())
+        throw SpecError("env", "a lightmap's or probes' environment is a uniform sky R,G,B; environment maps work with the sh output only");
 }
 
 }  // namespace
@@ -261,6 +297,7 @@ std::string Setting::value_syntax() const {
     case SettingType::Flag: return "";
     case SettingType::MeshList: return "MESHES";
     case SettingType::Environment: return "R,G,B|FILE";
+    case SettingType::Positions: return "FILE.json";
     }
     return "";
 }
@@ -271,7 +308,7 @@ const std::vector<Setting>& setting_catalog() {
 }
 
 const std::vector<std::string>& output_names() {
-    static const std::vector<std::string> names = {"lightmap", "sh"};
+    static const std::vector<std::string> names = {"lightmap", "sh", "probes"};
     return names;
 }
 
@@ -332,6 +369,18 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
         sh.per_texel = s["sh_per_texel"];
         b.sh = sh;
     }
+    if (outputs.contains("probes")) {
+        const json p = settings_of_group("probes", outputs["probes"], limits);
+        ProbesSettings probes;
+        for (const json& point : p["probe_positions"])
+            probes.positions.push_back({point["position"][0].get<float>(), point["position"][1].get<float>(),
+                                        point["position"][2].get<float>()});
+        if (!p["probe_spacing"].is_string()) probes.spacing = p["probe_spacing"].get<double>();
+        probes.res = p["probe_res"];
+        probes.m = p["probe_m"];
+        probes.stop = stop_from(p, "probe_");
+        b.probes = probes;
+    }
     check_combination(b);
     return b;
 }
@@ -353,6 +402,13 @@ json to_json(const BakeSettings& b) {
                               {"sh_passes", s->stop.passes}, {"sh_target_error", s->stop.target_error},
                               {"sh_time_limit", s->stop.time_limit}, {"sh_occluders", s->occluders},
                               {"sh_receivers", s->receivers}, {"sh_per_texel", s->per_texel}};
+    if (const auto& p = b.probes) {
+        json positions = json::array();
+        for (const auto& q : p->positions) positions.push_back({{"position", {q[0], q[1], q[2]}}});
+        j["outputs"]["probes"] = {{"probe_positions", positions}, {"probe_spacing", or_auto(p->spacing)},
+                                  {"probe_res", p->res}, {"probe_m", p->m}, {"probe_passes", p->stop.passes},
+                                  {"probe_target_error", p->stop.target_error}, {"probe_time_limit", p->stop.time_limit}};
+    }
     return j;
 }
 
@@ -401,6 +457,18 @@ json value_from_text(const Setting& s, const std::string& text) {
         }
         if (text.empty() || text.back() == ',') throw bad("a list of glTF mesh indices like 0,3,4");
         return meshes;
+    }
+    case SettingType::Positions: {
+        // The JSON itself, or a file holding it.
+        std::string content = text;
+        if (text.empty() || text[0] != '[') {
+            std::ifstream in(text);
+            if (!in) throw SpecError(flag, "cannot read " + text);
+            content.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+        }
+        json points = json::parse(content, nullptr, false);
+        if (points.is_discarded()) throw bad("JSON (a file of [{\"position\": [x, y, z]}, …])");
+        return points;
     }
     case SettingType::Environment: {
         float r, g, b;

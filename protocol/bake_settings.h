@@ -60,10 +60,11 @@ enum class SettingType {
     Flag,         // JSON bool; CLI --name (true) or --no-name (false) per its default
     MeshList,     // glTF mesh indices: JSON [0, 3]; CLI "0,3"
     Environment,  // JSON [r, g, b] or a file name; CLI "R,G,B" or FILE
+    Positions,    // points: JSON [{"position": [x, y, z]}, …]; CLI a JSON file of that (or the JSON itself)
 };
 
 struct Setting {
-    std::string group;  // "lightmap" or "sh" (outputs), "atlas", or "" (the job's own: seed, env)
+    std::string group;  // "lightmap", "sh" or "probes" (outputs), "atlas", or "" (the job's own: seed, env)
     std::string name;   // JSON key, e.g. "texel_density"
     SettingType type = SettingType::Number;
     nlohmann::json default_value;  // "auto" where the engine chooses; null: none
@@ -116,6 +117,14 @@ struct ShSettings {
     bool per_texel = false;
 };
 
+struct ProbesSettings {
+    std::vector<std::array<float, 3>> positions;  // explicit reference points; empty: a grid
+    std::optional<double> spacing;                // grid spacing in metres; empty: auto (from the scene's extent)
+    int res = 32;                                 // R: capture texels per cube face side
+    int m = 4;                                    // M: texels per face side after downsampling (divides R)
+    StopSettings stop;
+};
+
 // A uniform sky radiance or an environment map file (or nothing).
 struct EnvironmentSetting {
     std::optional<std::array<float, 3>> sky;
@@ -126,6 +135,7 @@ struct EnvironmentSetting {
 struct BakeSettings {
     std::optional<LightmapSettings> lightmap;
     std::optional<ShSettings> sh;
+    std::optional<ProbesSettings> probes;
     AtlasSettings atlas;
     uint32_t seed = 1;
     EnvironmentSetting env;

@@ -76,8 +76,8 @@ json to_json(const JobSpec& spec) {
 
 void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scene) {
     const std::string name = scene.source.empty() ? "the scene" : scene.source;
-    if (bake.lightmap && !scene.has_light() && !bake.env.given())
-        throw SpecError("env", name + " has no emissive surface and no punctual light, so its lightmap would be black; "
+    if ((bake.lightmap || bake.probes) && !scene.has_light() && !bake.env.given())
+        throw SpecError("env", name + " has no emissive surface and no punctual light, so its lightmap and probes would be black; "
                                "give a sky with \"env\": [R, G, B] (--env R,G,B)");
     const bool per_texel = bake.lightmap || (bake.sh && bake.sh->per_texel);
     if (per_texel && !scene.has_lightmap_uvs && scene.min_atlas_res > 0 && bake.atlas.res &&

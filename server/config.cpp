@@ -14,7 +14,8 @@ namespace fs = std::filesystem;
 const char* const kServerUsage = R"(usage: lightfarmd [options]
 
   --listen HOST:PORT     address to serve on (default 127.0.0.1:8750; port 0 = any free port)
-  --data DIR             jobs, scenes and artifacts (default ./lightfarm-data)
+  --data DIR             jobs, scenes and artifacts (default $XDG_DATA_HOME/lightfarm,
+                         else ~/.local/share/lightfarm); one lightfarmd per DIR
   --tokens FILE          bearer tokens, one per line (default DATA/tokens, created
                          with a new random token when missing)
   --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)
@@ -24,7 +25,10 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
   --job-timeout S        kill an attempt running longer than S seconds (default 14400)
   --http-threads N       request threads; each event stream holds one (default 64)
   --limit KEY=VALUE      upload_bytes, triangles, texture_size, queued_jobs,
-                         res, passes, time_limit, max_seconds, max_attempts
+                         res, passes, time_limit, max_seconds, max_attempts;
+                         HTTP: header_seconds, request_seconds, keep_alive_seconds,
+                         header_bytes, connections, connections_per_address,
+                         event_streams, event_streams_per_token
 )";
 
 namespace {
@@ -49,6 +53,14 @@ void set_limit(ServerLimits& limits, const std::string& assignment) {
     else if (key == "triangles") limits.triangles = int64_t(v);
     else if (key == "texture_size") limits.texture_size = int64_t(v);
     else if (key == "queued_jobs") limits.queued_jobs = int(v);
+    else if (key == "header_seconds") limits.header_seconds = v;
+    else if (key == "request_seconds") limits.request_seconds = v;
+    else if (key == "keep_alive_seconds") limits.keep_alive_seconds = v;
+    else if (key == "header_bytes") limits.header_bytes = int64_t(v);
+    else if (key == "connections") limits.connections = int(v);
+    else if (key == "connections_per_address") limits.connections_per_address = int(v);
+    else if (key == "event_streams") limits.event_streams = int(v);
+    else if (key == "event_streams_per_token") limits.event_streams_per_token = int(v);
     else if (limits.spec.caps.count(key)) limits.spec.caps[key] = v;
     else throw std::invalid_argument("--limit: unknown key '" + key + "'");
 }
@@ -61,6 +73,10 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
         const std::string& a = args[i];
         if (a == "--help" || a == "-h") {
             help = true;
+            continue;
+        }
+        if (a == "--accept-empty-store") {
+            c.accept_empty_store = true;
             continue;
         }
         if (i + 1 >= args.size()) throw std::invalid_argument(a.rfind("--", 0) == 0 ? a + " needs a value" : "unexpected argument '" + a + "'");
@@ -79,12 +95,30 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
         else if (a == "--job-timeout") c.default_max_seconds = parse_number(a, v);
         else if (a == "--http-threads") c.http_threads = int(parse_number(a, v));
         else if (a == "--limit") set_limit(c.limits, v);
+        else if (a == "--max-inspects") c.max_inspects = int(parse_number(a, v));
+        else if (a == "--inspect-memory-mb") c.inspect_memory_bytes = uint64_t(parse_number(a, v) * 1048576.0);
+        else if (a == "--event-retention-days") c.event_retention_days = parse_number(a, v);
         else throw std::invalid_argument("unknown option " + a);
     }
     if (c.workers < 0 || (c.workers == 0 && std::find(args.begin(), args.end(), "--workers") != args.end()))
         throw std::invalid_argument("--workers must be at least 1");
     if (c.default_attempts < 1) throw std::invalid_argument("--attempts must be at least 1");
     if (c.http_threads < 4) throw std::invalid_argument("--http-threads must be at least 4");
+    if (c.max_inspects < 1) throw std::invalid_argument("--max-inspects must be at least 1");
+    if (c.inspect_memory_bytes < (64ull << 20)) throw std::invalid_argument("--inspect-memory-mb must be at least 64");
+    if (c.event_retention_days < 0) throw std::invalid_argument("--event-retention-days must be at least 0");
+    const ServerLimits& l = c.limits;
+    if (!(l.header_seconds > 0) || !(l.request_seconds >= l.header_seconds) || !(l.keep_alive_seconds > 0))
+        throw std::invalid_argument("--limit: header_seconds and keep_alive_seconds must be positive, request_seconds at least header_seconds");
+    if (l.header_bytes < 8192 || l.header_bytes > (16 << 20))
+        throw std::invalid_argument("--limit header_bytes: between 8192 and 16777216");
+    // cpp-httplib (built without poll) answers 500 on a socket numbered
+    // FD_SETSIZE (1024) or above: the connections must stay below it.
+    if (l.connections < 1 || l.connections > 900) throw std::invalid_argument("--limit connections: between 1 and 900");
+    if (l.connections_per_address < 1 || l.event_streams < 0 || l.event_streams_per_token < 1)
+        throw std::invalid_argument("--limit: connections_per_address and event_streams_per_token must be at least 1");
+    // Event streams hold a request thread each: they may never take more than half.
+    c.limits.event_streams = l.event_streams == 0 ? c.http_threads / 2 : std::min(l.event_streams, c.http_threads / 2);
     return c;
 }
 

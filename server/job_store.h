@@ -3,6 +3,11 @@
 // and a networked store can be added beside it without touching them.
 //
 // Every method is safe to call from several threads at once.
+//
+// A store never lies: every method either did what it says (a write is
+// committed, durable against a crash of lightfarmd) or throws StoreError and
+// changed nothing. Routes answer a StoreError with 503 and Retry-After (never
+// a 201 for something not stored); the supervisor retries its writes.
 #pragma once
 
 #include "job_status.h"
@@ -11,10 +16,19 @@
 
 #include <map>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
 namespace lf::server {
+
+// The store could not read or write (disk full, I/O error, a database file made
+// read-only, locked for too long). Nothing of the failed call was stored. The
+// message names what failed, never a path.
+class StoreError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
 
 using protocol::JobEvent;
 using protocol::JobState;
@@ -73,12 +87,27 @@ public:
                         const std::string& cause, const JobEvent& event) = 0;
     // Jobs left running by a previous lightfarmd (it stopped or was killed).
     virtual std::vector<JobRecord> running_jobs() = 0;
+    // True when the store holds no job and no scene (a new store, or one that
+    // lost its records: lightfarmd checks this against the data directory).
+    virtual bool empty() = 0;
+    virtual bool has_job(const std::string& id) = 0;
 
-    // --- events: ids are assigned here, 1, 2, 3 ... per job
+    // --- events: ids are assigned here, 1, 2, 3 ... per job, never reused
     // Appends a non-final event while the job is running; returns its id, or
     // 0 when the job is no longer running (the event is dropped).
+    //
+    // Progress events are coalesced so that the store grows with jobs, not
+    // passes: of one output's progress events, those of passes 1..32 and of
+    // every power of two are kept, and of the others only the newest (a new
+    // one replaces it). Every other event is kept. So a client resuming after
+    // event N (Last-Event-ID) gets every later event that is not a replaced
+    // progress event, in order, each once; ids may skip the replaced ones.
     virtual int64_t append_event(const std::string& id, const JobEvent& event) = 0;
     virtual std::vector<JobEvent> events_after(const std::string& id, int64_t after) = 0;
+    // Retention: of jobs that finished before `finished_before` (seconds since
+    // the epoch), keeps every event but progress, and of progress only the
+    // newest per output. Returns the number of events removed.
+    virtual int64_t compact_events(double finished_before) = 0;
 };
 
 }  // namespace lf::server

@@ -1,15 +1,22 @@
 // lightfarmd: the bake service. With no arguments it serves on
-// 127.0.0.1:8750 with its data in ./lightfarm-data and a token it creates
-// there, so `scripts/run` gives a working local service.
+// 127.0.0.1:8750 with its data in $XDG_DATA_HOME/lightfarm (else
+// ~/.local/share/lightfarm) and a token it creates there, so `scripts/run`
+// gives a working local service.
 #include "config.h"
 #include "hash.h"
 #include "log.h"
 #include "service.h"
+#include "sqlite_job_store.h"
 
+#include <fcntl.h>
 #include <signal.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -19,6 +26,95 @@ namespace fs = std::filesystem;
 using namespace lf::server;
 
 namespace {
+
+// Where the data lives without --data: the user's data directory (XDG), never
+// the current directory (a checkout would commit the tokens).
+std::string default_data_dir() {
+    if (const char* xdg = std::getenv("XDG_DATA_HOME"); xdg && xdg[0] == '/') return (fs::path(xdg) / "lightfarm").string();
+    if (const char* home = std::getenv("HOME"); home && home[0] == '/')
+        return (fs::path(home) / ".local" / "share" / "lightfarm").string();
+    throw std::runtime_error("neither XDG_DATA_HOME nor HOME is set: say where the data goes with --data DIR");
+}
+
+// One lightfarmd per data directory: an exclusive flock on DATA/lightfarmd.lock,
+// held (fd kept open, close-on-exec so no worker inherits it) until the
+// process ends, however it ends. The file holds the holder's pid.
+void lock_data_dir(const std::string& data_dir) {
+    const std::string path = (fs::path(data_dir) / "lightfarmd.lock").string();
+    const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0600);
+    if (fd < 0) throw std::runtime_error("cannot open " + path + ": " + strerror(errno));
+    if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+        const int e = errno;
+        char buf[32] = {};
+        const ssize_t n = ::pread(fd, buf, sizeof buf - 1, 0);
+        ::close(fd);
+        std::string holder = n > 0 ? std::string(buf, size_t(n)) : "";
+        while (!holder.empty() && (holder.back() == '\n' || holder.back() == ' ')) holder.pop_back();
+        if (e == EWOULDBLOCK)
+            throw std::runtime_error("another lightfarmd" + (holder.empty() ? "" : " (pid " + holder + ")") +
+                                     " is using the data directory " + data_dir +
+                                     "; stop it first, or give this one its own --data DIR");
+        throw std::runtime_error("cannot lock " + path + ": " + strerror(e));
+    }
+    const std::string pid = std::to_string(getpid()) + "\n";
+    if (::ftruncate(fd, 0) != 0 || ::pwrite(fd, pid.data(), pid.size(), 0) != ssize_t(pid.size()))
+        log_line("cannot write the pid into " + path + " (the lock holds regardless)");
+    // fd stays open for the life of the process: that is the lock.
+}
+
+// Directories under DATA/jobs and DATA/scenes (the stored jobs' and scenes').
+std::vector<fs::path> record_dirs(const std::string& data_dir) {
+    std::vector<fs::path> dirs;
+    for (const char* kind : {"jobs", "scenes"}) {
+        std::error_code ec;
+        for (fs::directory_iterator it(fs::path(data_dir) / kind, ec), end; !ec && it != end; it.increment(ec))
+            if (it->is_directory(ec)) dirs.push_back(it->path());
+    }
+    return dirs;
+}
+
+// A store that lost its records (kill -9 and a lost jobs.sqlite-wal, a
+// deleted jobs.sqlite) must not start silently empty beside the jobs it lost:
+// refuse, unless --accept-empty-store, which moves the orphaned directories to
+// DATA/orphaned-<time>/ (kept for the operator, invisible to the service).
+// With a store that holds records, job directories it does not know are
+// logged (a partial loss), not refused.
+void check_store_against_data_dir(const ServerConfig& config) {
+    const fs::path data = config.data_dir;
+    SqliteJobStore store((data / "jobs.sqlite").string());
+    const std::vector<fs::path> dirs = record_dirs(config.data_dir);
+    if (store.empty()) {
+        if (dirs.empty()) return;
+        if (!config.accept_empty_store)
+            throw std::runtime_error(
+                "the job store " + (data / "jobs.sqlite").string() + " is empty, but " + std::to_string(dirs.size()) +
+                " job and scene directories are in " + data.string() +
+                " (was jobs.sqlite or jobs.sqlite-wal lost?). Restore jobs.sqlite with its -wal file from a backup, "
+                "or start with --accept-empty-store to begin with an empty store (the directories are moved to " +
+                (data / "orphaned-TIME").string() + ", not deleted)");
+        char stamp[32];
+        const std::time_t t = std::time(nullptr);
+        std::tm tm{};
+        gmtime_r(&t, &tm);
+        std::strftime(stamp, sizeof stamp, "%Y%m%dT%H%M%SZ", &tm);
+        const fs::path aside = data / (std::string("orphaned-") + stamp);
+        for (const fs::path& dir : dirs) {
+            const fs::path to = aside / dir.parent_path().filename() / dir.filename();
+            fs::create_directories(to.parent_path());
+            fs::rename(dir, to);
+        }
+        log_line("--accept-empty-store: starting with an empty store; moved " + std::to_string(dirs.size()) +
+                 " orphaned job and scene directories to " + aside.string());
+        return;
+    }
+    std::vector<std::string> unknown;
+    for (const fs::path& dir : dirs)
+        if (dir.parent_path().filename() == "jobs" && !store.has_job(dir.filename().string()))
+            unknown.push_back(dir.filename().string());
+    if (!unknown.empty())
+        log_line("warning: " + std::to_string(unknown.size()) + " job directories in " + (data / "jobs").string() +
+                 " are not in the job store (lost records?), e.g. " + unknown.front() + "; they are left alone");
+}
 
 // The tokens to accept: --tokens FILE, else DATA/tokens, created with one new
 // random token (readable by this user only) when it does not exist.
@@ -49,6 +145,7 @@ void write_url_file(const ServerConfig& config, const std::string& url) {
     const fs::path path = fs::path(config.data_dir) / "lightfarmd.url";
     const fs::path tmp = path.string() + ".tmp";
     std::ofstream(tmp) << url << "\n";
+    chmod(tmp.c_str(), 0600);
     fs::rename(tmp, path);
 }
 
@@ -78,9 +175,20 @@ int main(int argc, char** argv) {
     sigaddset(&stop_signals, SIGTERM);
     pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
 
+    // Everything lightfarmd and its workers create is this user's only:
+    // files 0600, directories 0700.
+    umask(077);
+
     try {
+        if (config.data_dir.empty()) config.data_dir = default_data_dir();
         fs::create_directories(config.data_dir);
         config.data_dir = fs::canonical(config.data_dir).string();
+        // The data directory itself too, when it existed with a wider mode.
+        if (struct stat st{}; ::stat(config.data_dir.c_str(), &st) == 0 && (st.st_mode & 0077) &&
+                              ::chmod(config.data_dir.c_str(), 0700) == 0)
+            log_line("made " + config.data_dir + " readable by its owner only (0700)");
+        lock_data_dir(config.data_dir);
+        check_store_against_data_dir(config);
         bool created = false;
         const std::vector<std::string> tokens = load_tokens(config, created);
         Service service(config, tokens);

@@ -29,6 +29,11 @@ void Metrics::observe_request(const std::string& route, int status, double secon
     ++requests_[{route, status}];
 }
 
+void Metrics::count_refusal(const std::string& reason) {
+    std::lock_guard lock(mutex_);
+    ++refusals_[reason];
+}
+
 std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_state) const {
     using protocol::JobState;
     std::ostringstream m;
@@ -48,7 +53,17 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     m << "# HELP lightfarm_rays_total Rays traced by finished passes.\n# TYPE lightfarm_rays_total counter\n";
     m << "lightfarm_rays_total " << rays_total.load() << "\n";
 
+    m << "# HELP lightfarm_http_connections Open HTTP connections.\n# TYPE lightfarm_http_connections gauge\n";
+    m << "lightfarm_http_connections " << http_connections.load() << "\n";
+    m << "# HELP lightfarm_http_reading_headers Connections whose request line and headers are still arriving.\n";
+    m << "# TYPE lightfarm_http_reading_headers gauge\nlightfarm_http_reading_headers " << http_reading_headers.load() << "\n";
+    m << "# HELP lightfarm_event_streams Open event streams.\n# TYPE lightfarm_event_streams gauge\n";
+    m << "lightfarm_event_streams " << event_streams.load() << "\n";
+
     std::lock_guard lock(mutex_);
+    m << "# HELP lightfarm_http_refused_total Connections and requests refused or ended by the HTTP limits.\n";
+    m << "# TYPE lightfarm_http_refused_total counter\n";
+    for (const auto& [reason, n] : refusals_) m << "lightfarm_http_refused_total{reason=\"" << reason << "\"} " << n << "\n";
     double rate = 0;
     for (const auto& [job, r] : job_rates_) rate += r;
     m << "# HELP lightfarm_rays_per_second Current ray throughput of all running bakes.\n";

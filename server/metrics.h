@@ -17,12 +17,20 @@ public:
     std::atomic<uint64_t> worker_starts{0};
     std::atomic<uint64_t> worker_failures{0};  // attempts that crashed, hung or timed out
     std::atomic<uint64_t> rays_total{0};
+    // The HTTP layer: open connections, those still sending their request
+    // line and headers, open event streams.
+    std::atomic<int64_t> http_connections{0};
+    std::atomic<int64_t> http_reading_headers{0};
+    std::atomic<int64_t> event_streams{0};
 
     // The latest rays/s of a running job (its progress); cleared when it stops.
     void set_job_rate(const std::string& job, double rays_per_second);
     void clear_job(const std::string& job);
     // One answered request, by route pattern ("/v1/jobs/{id}").
     void observe_request(const std::string& route, int status, double seconds);
+    // A connection or request refused or ended by the HTTP layer's limits
+    // ("connections", "connections_per_address", "event_streams", "header_timeout", ...).
+    void count_refusal(const std::string& reason);
 
     std::string render(const std::map<protocol::JobState, int>& jobs_by_state) const;
 
@@ -36,6 +44,7 @@ private:
     std::map<std::string, double> job_rates_;
     std::map<std::string, Histogram> latency_;
     std::map<std::pair<std::string, int>, uint64_t> requests_;
+    std::map<std::string, uint64_t> refusals_;
 };
 
 }  // namespace lf::server

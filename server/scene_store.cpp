@@ -6,6 +6,7 @@
 #include "subprocess.h"
 
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -117,6 +118,39 @@ int64_t largest_texture(const json& summary) {
 SceneStore::SceneStore(const ServerConfig& config, JobStore& store)
     : config_(config), store_(store), engine_(find_engine(config.engine)) {}
 
+class SceneStore::InspectTurn {
+public:
+    explicit InspectTurn(SceneStore& s) : s_(s) {
+        std::unique_lock lock(s_.inspect_mutex_);
+        const int slots = std::max(1, s_.config_.max_inspects);
+        auto busy = [&] {
+            return HttpError(503, "the server is checking too many scene uploads; try again in a few seconds",
+                             {{"retry_after", 5}});
+        };
+        if (s_.inspecting_ >= slots) {
+            if (s_.waiting_ >= 4 * slots) throw busy();
+            ++s_.waiting_;
+            const bool got = s_.inspect_cv_.wait_for(lock, std::chrono::duration<double>(s_.config_.inspect_seconds),
+                                                     [&] { return s_.inspecting_ < slots; });
+            --s_.waiting_;
+            if (!got) throw busy();
+        }
+        ++s_.inspecting_;
+    }
+    ~InspectTurn() {
+        {
+            std::lock_guard lock(s_.inspect_mutex_);
+            --s_.inspecting_;
+        }
+        s_.inspect_cv_.notify_one();
+    }
+    InspectTurn(const InspectTurn&) = delete;
+    InspectTurn& operator=(const InspectTurn&) = delete;
+
+private:
+    SceneStore& s_;
+};
+
 SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, const std::string& owner) {
     if (files.empty()) throw HttpError(400, "the upload holds no file");
     std::set<std::string> names;
@@ -172,8 +206,14 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
     for (const UploadFile& f : files) write_file(tmp / fs::path(f.name).lexically_normal(), f.bytes);
     const std::string main_name = fs::path(main.name).lexically_normal().string();
 
-    const RunResult r = run_command({engine_, "inspect", (tmp / main_name).string(), "--json"},
-                                    std::chrono::milliseconds(int64_t(config_.inspect_seconds * 1000)));
+    RunResult r;
+    {
+        const InspectTurn turn(*this);
+        SpawnLimits limits;
+        limits.address_space_bytes = config_.inspect_memory_bytes;
+        r = run_command({engine_, "inspect", (tmp / main_name).string(), "--json"},
+                        std::chrono::milliseconds(int64_t(config_.inspect_seconds * 1000)), 16 << 20, limits);
+    }
     if (r.timed_out)
         throw HttpError(400, "scene rejected: the loader took longer than " + std::to_string(int(config_.inspect_seconds)) + " s");
     if (!r.status.exited)
@@ -200,8 +240,15 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
     fs::create_directories(final_dir.parent_path());
     std::error_code ec;
     fs::rename(tmp, final_dir, ec);  // fails harmlessly when a concurrent upload of the same bytes won
+    const bool moved = !ec;
     SceneRecord record{id, main_name, summary};
-    store_.add_scene(record);
+    try {
+        store_.add_scene(record);
+    } catch (const StoreError&) {
+        // Not recorded: keep no directory the store does not know of.
+        if (moved) fs::remove_all(final_dir, ec);
+        throw;
+    }
     const bool created = store_.add_scene_owner(id, owner);
     return {record, created};
 }

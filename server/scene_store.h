@@ -6,6 +6,8 @@
 #include "config.h"
 #include "job_store.h"
 
+#include <condition_variable>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -25,13 +27,25 @@ public:
         bool created;  // false: this token had uploaded these bytes before
     };
     // One .glb or .gltf (with data: URIs), or a .gltf with the files it
-    // references. Throws HttpError (400 bad input, 413 over a limit).
+    // references. Throws HttpError (400 bad input, 413 over a limit, 503 when
+    // too many uploads are being checked: body {"retry_after": seconds}) and
+    // StoreError (the store could not record it; nothing is kept).
+    //
+    // At most config.max_inspects checks (`lightfarm inspect`) run at once,
+    // each under an address-space limit of config.inspect_memory_bytes; up to
+    // 4 x max_inspects more uploads wait (at most inspect_seconds) for a turn.
     Result upload(const std::vector<UploadFile>& files, const std::string& owner);
 
 private:
+    // A turn to run the checker: waits for one, or throws HttpError 503.
+    class InspectTurn;
     const ServerConfig& config_;
     JobStore& store_;
     std::string engine_;
+    std::mutex inspect_mutex_;
+    std::condition_variable inspect_cv_;
+    int inspecting_ = 0;  // checks running
+    int waiting_ = 0;     // uploads waiting for a turn
 };
 
 // Checks a relative path from an upload or a glTF URI: no absolute paths, no

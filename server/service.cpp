@@ -7,8 +7,14 @@
 #include "sqlite_job_store.h"
 #include "status_page.h"
 
+#include <arpa/inet.h>
+#include <fcntl.h>
 #include <httplib.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/epoll.h>
 #include <sys/socket.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -17,6 +23,7 @@
 #include <filesystem>
 #include <fstream>
 #include <regex>
+#include <thread>
 
 namespace lf::server {
 
@@ -34,7 +41,8 @@ std::string owner_of(const std::string& token) { return sha256_hex("lightfarm-to
 
 void send_json(httplib::Response& res, int status, const json& body) {
     res.status = status;
-    res.set_content(body.dump(2) + "\n", "application/json");
+    // A message may quote what a client sent: never let its bytes make the answer fail.
+    res.set_content(body.dump(2, ' ', false, json::error_handler_t::replace) + "\n", "application/json");
 }
 
 // The route being served on this thread and when it started, for /metrics.
@@ -104,6 +112,541 @@ std::string route_regex(const std::string& path) {
 
 }  // namespace
 
+// ---------------------------------------------------------------------------
+// The connection gate.
+//
+// cpp-httplib 0.11 serves a connection on one pool thread from accept() to
+// close: a client that trickles its header lines holds a thread for as long
+// as every single read arrives within the read timeout, and 64 of them stop
+// the API. Its options (read timeout, keep-alive count and timeout, payload
+// length) are per read or per body; none bounds a whole request, none counts
+// connections, and the request line is buffered whole before its 414.
+//
+// So lightfarmd keeps cpp-httplib for parsing, routing and writing answers,
+// and takes the sockets before it: Server::process_and_close_socket is
+// virtual and Server::process_request (which parses and answers one request
+// from any httplib::Stream) is protected. GatedServer's
+// process_and_close_socket runs on the listener thread (an inline task
+// queue), counts the connection against the caps and hands it to one epoll
+// thread that gathers the request line and headers without a request thread,
+// bounded in bytes and in time. Only a request whose headers are whole goes
+// to a request thread, which reads the body through GateStream under the
+// whole request's deadline; a kept-alive connection goes back to the gate
+// between requests, so idle connections hold no thread either.
+// ---------------------------------------------------------------------------
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// What the request being served on this thread learnt below httplib.
+struct RequestContext {
+    bool close_after = false;  // the body was not read: close once answered
+    bool timed_out = false;    // the body did not arrive within request_seconds
+    bool over_budget = false;  // the body ran past upload_bytes
+};
+thread_local RequestContext* tl_request = nullptr;
+
+constexpr size_t kRequestLineMax = 8192;  // CPPHTTPLIB_REQUEST_URI_MAX_LENGTH
+constexpr int kMaxRequestsPerConnection = 100;
+constexpr auto kLinger = std::chrono::seconds(1);
+constexpr size_t kLingerBytes = 1 << 20;
+constexpr int kWriteTimeoutMs = 30000;
+constexpr int kMaxUncountedLingering = 256;
+
+std::string canned_response(int status, const char* reason, const json& body, const std::string& headers = "") {
+    const std::string text = body.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
+    return "HTTP/1.1 " + std::to_string(status) + " " + reason +
+           "\r\nContent-Type: application/json\r\nConnection: close\r\nContent-Length: " + std::to_string(text.size()) +
+           "\r\n" + headers + "\r\n" + text;
+}
+
+void send_best_effort(int fd, const std::string& data) {
+    size_t off = 0;
+    while (off < data.size()) {
+        const ssize_t n = ::send(fd, data.data() + off, data.size() - off, MSG_NOSIGNAL | MSG_DONTWAIT);
+        if (n <= 0) return;
+        off += size_t(n);
+    }
+}
+
+// Whether the client is still there: not hung up, not shut down its side.
+bool peer_alive(int fd) {
+    pollfd p{fd, short(POLLIN | POLLRDHUP), 0};
+    if (::poll(&p, 1, 0) < 0) return errno == EINTR;
+    if (p.revents & (POLLERR | POLLHUP | POLLRDHUP | POLLNVAL)) return false;
+    if (p.revents & POLLIN) {
+        char c;
+        const ssize_t n = ::recv(fd, &c, 1, MSG_PEEK | MSG_DONTWAIT);
+        if (n == 0) return false;
+        if (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) return false;
+    }
+    return true;
+}
+
+void address_of(const sockaddr_storage& sa, std::string& ip, int& port) {
+    char text[INET6_ADDRSTRLEN] = "";
+    if (sa.ss_family == AF_INET) {
+        const auto* in = reinterpret_cast<const sockaddr_in*>(&sa);
+        inet_ntop(AF_INET, &in->sin_addr, text, sizeof text);
+        port = ntohs(in->sin_port);
+    } else if (sa.ss_family == AF_INET6) {
+        const auto* in6 = reinterpret_cast<const sockaddr_in6*>(&sa);
+        inet_ntop(AF_INET6, &in6->sin6_addr, text, sizeof text);
+        port = ntohs(in6->sin6_port);
+    }
+    ip = text;
+}
+
+class InlineQueue : public httplib::TaskQueue {
+public:
+    void enqueue(std::function<void()> fn) override { fn(); }
+    void shutdown() override {}
+};
+
+}  // namespace
+
+class GatedServer : public httplib::Server {
+public:
+    GatedServer(const ServerLimits& limits, int threads, Metrics& metrics)
+        : limits_(limits), threads_(threads), metrics_(metrics) {
+        new_task_queue = [] { return new InlineQueue; };
+        set_keep_alive_timeout(time_t(std::max(1.0, limits.keep_alive_seconds)));
+        set_keep_alive_max_count(kMaxRequestsPerConnection);
+    }
+    ~GatedServer() override { stop_gate(); }
+
+    // Before listen_after_bind(), and after it returned.
+    void start_gate() {
+        epoll_ = ::epoll_create1(EPOLL_CLOEXEC);
+        if (epoll_ < 0) throw std::runtime_error(std::string("epoll_create1: ") + strerror(errno));
+        pool_ = std::make_unique<httplib::ThreadPool>(size_t(threads_));
+        gate_ = std::thread([this] { gate_loop(); });
+    }
+    void stop_gate() {
+        {
+            std::lock_guard lock(mutex_);
+            if (stopping_ || !gate_.joinable()) return;
+            stopping_ = true;
+        }
+        gate_.join();
+        {
+            std::lock_guard lock(mutex_);
+            for (auto& [fd, c] : waiting_) close_locked(*c);
+            waiting_.clear();
+        }
+        pool_->shutdown();  // request threads end: event streams see the service stopping
+        ::close(epoll_);
+    }
+
+private:
+    struct Conn {
+        int fd = -1;
+        std::string ip, local_ip;
+        int port = 0, local_port = 0;
+        std::string buf;               // read, not yet consumed
+        Clock::time_point started;     // the request began (accept, or its first byte)
+        Clock::time_point deadline;    // headers (or, draining, the linger) end by then
+        bool got_bytes = false;
+        bool draining = false;         // answered and shut down: reading only to close cleanly
+        bool counted = false;          // holds a place in the connection caps
+        int served = 0;
+        size_t drained = 0;
+    };
+
+    // A request's body, read on a request thread: first what the gate read
+    // past the headers, then the socket, under the request's deadline and
+    // within its byte budget.
+    class GateStream : public httplib::Stream {
+    public:
+        GateStream(Conn& c, Clock::time_point deadline, uint64_t budget, RequestContext& ctx)
+            : c_(c), deadline_(deadline), budget_(budget), ctx_(ctx) {}
+        bool is_readable() const override {
+            if (pos_ < c_.buf.size()) return true;
+            pollfd p{c_.fd, POLLIN, 0};
+            return ::poll(&p, 1, remaining_ms()) > 0;
+        }
+        bool is_writable() const override { return !failed_ && peer_alive(c_.fd); }
+        ssize_t read(char* ptr, size_t size) override {
+            if (pos_ >= c_.buf.size() && !refill()) return failed_ ? -1 : 0;
+            const size_t n = std::min(size, c_.buf.size() - pos_);
+            std::memcpy(ptr, c_.buf.data() + pos_, n);
+            pos_ += n;
+            return ssize_t(n);
+        }
+        ssize_t write(const char* ptr, size_t size) override {
+            size_t off = 0;
+            while (!failed_ && off < size) {
+                const ssize_t n = ::send(c_.fd, ptr + off, size - off, MSG_NOSIGNAL | MSG_DONTWAIT);
+                if (n > 0) {
+                    off += size_t(n);
+                } else if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+                    pollfd p{c_.fd, POLLOUT, 0};
+                    if (::poll(&p, 1, kWriteTimeoutMs) <= 0) failed_ = true;  // a client that stopped reading
+                } else if (!(n < 0 && errno == EINTR)) {
+                    failed_ = true;
+                }
+            }
+            return failed_ ? -1 : ssize_t(size);
+        }
+        void get_remote_ip_and_port(std::string& ip, int& port) const override { ip = c_.ip, port = c_.port; }
+        void get_local_ip_and_port(std::string& ip, int& port) const override { ip = c_.local_ip, port = c_.local_port; }
+        socket_t socket() const override { return c_.fd; }
+
+        bool failed() const { return failed_; }
+        // What was read past this request: the start of the next one.
+        void keep_leftover() { c_.buf.erase(0, pos_); pos_ = 0; }
+
+    private:
+        int remaining_ms() const {
+            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - Clock::now()).count();
+            return int(std::clamp<int64_t>(left, 0, 1 << 30));
+        }
+        bool refill() {
+            if (read_ >= budget_) {
+                ctx_.over_budget = failed_ = true;
+                return false;
+            }
+            c_.buf.erase(0, pos_);
+            pos_ = 0;
+            for (;;) {
+                const int ms = remaining_ms();
+                pollfd p{c_.fd, POLLIN, 0};
+                const int ready = ms > 0 ? ::poll(&p, 1, ms) : 0;
+                if (ready == 0) {
+                    ctx_.timed_out = failed_ = true;
+                    return false;
+                }
+                if (ready < 0) {
+                    if (errno == EINTR) continue;
+                    failed_ = true;
+                    return false;
+                }
+                char tmp[64 * 1024];
+                const ssize_t n = ::recv(c_.fd, tmp, size_t(std::min<uint64_t>(sizeof tmp, budget_ - read_ + 1)), 0);
+                if (n > 0) {
+                    c_.buf.append(tmp, size_t(n));
+                    read_ += uint64_t(n);
+                    return true;
+                }
+                if (n == 0) return false;  // the client closed
+                if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+                    failed_ = true;
+                    return false;
+                }
+            }
+        }
+
+        Conn& c_;
+        Clock::time_point deadline_;
+        uint64_t budget_;
+        RequestContext& ctx_;
+        size_t pos_ = 0;
+        uint64_t read_ = 0;
+        bool failed_ = false;
+    };
+
+    bool process_and_close_socket(socket_t sock) override {
+        auto c = std::make_unique<Conn>();
+        c->fd = int(sock);
+        sockaddr_storage sa{};
+        socklen_t len = sizeof sa;
+        if (::getpeername(c->fd, reinterpret_cast<sockaddr*>(&sa), &len) == 0) address_of(sa, c->ip, c->port);
+        len = sizeof sa;
+        if (::getsockname(c->fd, reinterpret_cast<sockaddr*>(&sa), &len) == 0) address_of(sa, c->local_ip, c->local_port);
+        ::fcntl(c->fd, F_SETFL, ::fcntl(c->fd, F_GETFL) | O_NONBLOCK);
+
+        std::lock_guard lock(mutex_);
+        if (stopping_) {
+            ::close(c->fd);
+            return true;
+        }
+        const char* reason = nullptr;
+        int limit = 0;
+        if (open_ >= limits_.connections) reason = "connections", limit = limits_.connections;
+        else if (by_address_[c->ip] >= limits_.connections_per_address)
+            reason = "connections_per_address", limit = limits_.connections_per_address;
+        if (reason) {
+            if (by_address_[c->ip] == 0) by_address_.erase(c->ip);
+            metrics_.count_refusal(reason);
+            send_best_effort(c->fd, canned_response(503, "Service Unavailable",
+                                                    {{"error", std::string(reason) + ": too many open connections (the limit is " +
+                                                                   std::to_string(limit) + "); retry later"},
+                                                     {"field", reason}, {"limit", limit}},
+                                                    "Retry-After: 1\r\n"));
+            if (uncounted_lingering_ >= kMaxUncountedLingering) {
+                ::close(c->fd);
+                return true;
+            }
+            ++uncounted_lingering_;
+            start_linger_locked(std::move(c), true);
+            return true;
+        }
+        c->counted = true;
+        ++open_;
+        ++by_address_[c->ip];
+        ++metrics_.http_connections;
+        c->started = Clock::now();
+        c->deadline = c->started + seconds(limits_.header_seconds);
+        add_waiting_locked(std::move(c));
+        return true;
+    }
+
+    static Clock::duration seconds(double s) {
+        return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
+    }
+
+    void add_waiting_locked(std::unique_ptr<Conn> c) {
+        const int fd = c->fd;
+        if (!c->draining) ++metrics_.http_reading_headers;
+        Conn& ref = *c;
+        waiting_[fd] = std::move(c);
+        epoll_event ev{};
+        ev.events = EPOLLIN | EPOLLRDHUP;
+        ev.data.fd = fd;
+        if (::epoll_ctl(epoll_, EPOLL_CTL_ADD, fd, &ev) != 0) {
+            finish_locked(fd);
+            return;
+        }
+        if (!ref.draining && !ref.buf.empty()) check_headers_locked(ref);  // a pipelined request
+    }
+
+    // Closes a connection that the gate holds (and forgets it).
+    void finish_locked(int fd) {
+        auto it = waiting_.find(fd);
+        if (it == waiting_.end()) return;
+        std::unique_ptr<Conn> c = std::move(it->second);
+        waiting_.erase(it);
+        ::epoll_ctl(epoll_, EPOLL_CTL_DEL, fd, nullptr);
+        if (!c->draining) --metrics_.http_reading_headers;
+        close_locked(*c);
+    }
+
+    void close_locked(Conn& c) {
+        ::close(c.fd);
+        if (c.counted) {
+            --open_;
+            if (--by_address_[c.ip] <= 0) by_address_.erase(c.ip);
+            --metrics_.http_connections;
+        } else if (c.draining) {
+            --uncounted_lingering_;
+        }
+        c.fd = -1;
+    }
+
+    // After an answer that leaves the request's body unread: shut our side
+    // down and read (discarding, bounded) until the client closes, so that
+    // it gets the answer rather than a reset.
+    void start_linger_locked(std::unique_ptr<Conn> c, bool new_entry) {
+        (void)new_entry;
+        ::shutdown(c->fd, SHUT_WR);
+        c->draining = true;
+        c->buf.clear();
+        c->deadline = Clock::now() + kLinger;
+        add_waiting_locked(std::move(c));
+    }
+
+    void refuse_locked(Conn& c, int status, const char* reason, const std::string& message, const std::string& field) {
+        metrics_.count_refusal(field);
+        send_best_effort(c.fd, canned_response(status, reason, {{"error", message}, {"field", field}}));
+        const int fd = c.fd;
+        std::unique_ptr<Conn> owned = std::move(waiting_[fd]);
+        waiting_.erase(fd);
+        ::epoll_ctl(epoll_, EPOLL_CTL_DEL, fd, nullptr);
+        --metrics_.http_reading_headers;
+        start_linger_locked(std::move(owned), false);
+    }
+
+    void check_headers_locked(Conn& c) {
+        const size_t line_end = c.buf.find('\n');
+        if ((line_end == std::string::npos ? c.buf.size() : line_end) > kRequestLineMax) {
+            refuse_locked(c, 414, "URI Too Long", "the request line exceeds " + std::to_string(kRequestLineMax) + " bytes",
+                          "request_line");
+            return;
+        }
+        const size_t end = c.buf.find("\r\n\r\n");
+        const size_t header_bytes = size_t(limits_.header_bytes);
+        if (end == std::string::npos ? c.buf.size() > header_bytes : end + 4 > header_bytes) {
+            refuse_locked(c, 431, "Request Header Fields Too Large",
+                          "the request line and headers exceed " + std::to_string(header_bytes) + " bytes", "header_bytes");
+            return;
+        }
+        if (end == std::string::npos) return;
+        // Whole: to a request thread.
+        const int fd = c.fd;
+        std::unique_ptr<Conn> owned = std::move(waiting_[fd]);
+        waiting_.erase(fd);
+        ::epoll_ctl(epoll_, EPOLL_CTL_DEL, fd, nullptr);
+        --metrics_.http_reading_headers;
+        Conn* raw = owned.release();
+        pool_->enqueue([this, raw] { serve(std::unique_ptr<Conn>(raw)); });
+    }
+
+    void on_readable_locked(Conn& c) {
+        char tmp[16 * 1024];
+        for (;;) {
+            const size_t room = c.draining ? sizeof tmp
+                                           : std::min(sizeof tmp, size_t(limits_.header_bytes) + 1 - std::min(c.buf.size(), size_t(limits_.header_bytes) + 1));
+            if (room == 0) break;
+            const ssize_t n = ::recv(c.fd, tmp, room, 0);
+            if (n > 0) {
+                if (c.draining) {
+                    c.drained += size_t(n);
+                    if (c.drained > kLingerBytes) return finish_locked(c.fd);
+                    continue;
+                }
+                if (!c.got_bytes) {
+                    c.got_bytes = true;
+                    if (c.served > 0) {  // a kept-alive connection's next request starts now
+                        c.started = Clock::now();
+                        c.deadline = c.started + seconds(limits_.header_seconds);
+                    }
+                }
+                c.buf.append(tmp, size_t(n));
+                continue;
+            }
+            if (n == 0) {
+                // The client closed its side; a whole request it sent before is still answered.
+                if (!c.draining && c.buf.find("\r\n\r\n") != std::string::npos) return check_headers_locked(c);
+                return finish_locked(c.fd);
+            }
+            if (errno == EINTR) continue;
+            if (errno == EAGAIN || errno == EWOULDBLOCK) break;
+            return finish_locked(c.fd);
+        }
+        if (!c.draining) check_headers_locked(c);
+    }
+
+    void gate_loop() {
+        std::vector<epoll_event> events(256);
+        for (;;) {
+            const int n = ::epoll_wait(epoll_, events.data(), int(events.size()), 100);
+            std::lock_guard lock(mutex_);
+            if (stopping_) return;
+            for (int i = 0; i < n; ++i) {
+                auto it = waiting_.find(events[size_t(i)].data.fd);
+                if (it != waiting_.end()) on_readable_locked(*it->second);
+            }
+            const Clock::time_point now = Clock::now();
+            std::vector<int> expired;
+            for (const auto& [fd, c] : waiting_)
+                if (now >= c->deadline) expired.push_back(fd);
+            for (int fd : expired) {
+                auto it = waiting_.find(fd);
+                if (it == waiting_.end()) continue;
+                Conn& c = *it->second;
+                if (c.draining || !c.got_bytes) {
+                    finish_locked(fd);  // lingered long enough, or an idle kept-alive connection
+                } else {
+                    refuse_locked(c, 408, "Request Timeout",
+                                  "the request line and headers did not arrive within " +
+                                      json(limits_.header_seconds).dump() + " s",
+                                  "header_seconds");
+                }
+            }
+        }
+    }
+
+    // On a request thread: one request, then back to the gate (kept alive)
+    // or closed.
+    void serve(std::unique_ptr<Conn> c) {
+        RequestContext ctx;
+        bool stopping;
+        {
+            std::lock_guard lock(mutex_);
+            stopping = stopping_;
+        }
+        const bool close = stopping || c->served + 1 >= kMaxRequestsPerConnection;
+        bool closed = false;
+        bool ok;
+        {
+            GateStream strm(*c, c->started + seconds(limits_.request_seconds),
+                            limits_.upload_bytes + (1 << 20) + uint64_t(limits_.header_bytes), ctx);
+            tl_request = &ctx;
+            ok = process_request(strm, close, closed, nullptr) && !strm.failed();
+            tl_request = nullptr;
+            strm.keep_leftover();
+        }
+        ++c->served;
+        if (ctx.timed_out) metrics_.count_refusal("request_seconds");
+        std::lock_guard lock(mutex_);
+        if (stopping_) {
+            close_locked(*c);
+        } else if (ctx.close_after || ctx.timed_out || ctx.over_budget) {
+            start_linger_locked(std::move(c), false);
+        } else if (!ok || closed || close) {
+            close_locked(*c);
+        } else {
+            c->got_bytes = !c->buf.empty();
+            c->started = Clock::now();
+            c->deadline = c->started + seconds(c->got_bytes ? limits_.header_seconds : limits_.keep_alive_seconds);
+            add_waiting_locked(std::move(c));
+        }
+    }
+
+    const ServerLimits limits_;
+    const int threads_;
+    Metrics& metrics_;
+    std::unique_ptr<httplib::ThreadPool> pool_;
+    std::thread gate_;
+    int epoll_ = -1;
+
+    std::mutex mutex_;
+    bool stopping_ = false;
+    std::map<int, std::unique_ptr<Conn>> waiting_;  // by fd: gathering headers, or lingering
+    int open_ = 0;
+    std::map<std::string, int> by_address_;
+    int uncounted_lingering_ = 0;
+};
+
+namespace {
+
+// A name (a path, an id, an artifact name, a parameter) is used exactly as
+// sent or refused: no NUL, no control character, valid UTF-8 (no overlong
+// forms, surrogates or code points past U+10FFFF), no C1 controls.
+bool is_clean_text(const std::string& s) {
+    const auto* p = reinterpret_cast<const unsigned char*>(s.data());
+    const size_t n = s.size();
+    for (size_t i = 0; i < n;) {
+        const unsigned char c = p[i];
+        if (c < 0x80) {
+            if (c < 0x20 || c == 0x7f) return false;
+            ++i;
+            continue;
+        }
+        size_t len;
+        uint32_t cp;
+        if (c >= 0xc2 && c <= 0xdf) len = 2, cp = c & 0x1f;
+        else if (c >= 0xe0 && c <= 0xef) len = 3, cp = c & 0x0f;
+        else if (c >= 0xf0 && c <= 0xf4) len = 4, cp = c & 0x07;
+        else return false;
+        if (i + len > n) return false;
+        for (size_t k = 1; k < len; ++k) {
+            if ((p[i + k] & 0xc0) != 0x80) return false;
+            cp = (cp << 6) | (p[i + k] & 0x3f);
+        }
+        if ((len == 3 && cp < 0x800) || (len == 4 && cp < 0x10000) || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff) ||
+            (cp >= 0x80 && cp <= 0x9f))
+            return false;
+        i += len;
+    }
+    return true;
+}
+
+// What failed, for a 500's message: without the server's paths (the log has
+// the whole message).
+std::string describe_failure(const std::exception& e, const std::string& data_dir) {
+    if (const auto* fe = dynamic_cast<const fs::filesystem_error*>(&e))
+        return std::string("a file operation failed: ") + fe->code().message();
+    std::string m = e.what();
+    if (!data_dir.empty())
+        for (size_t at = m.find(data_dir); at != std::string::npos; at = m.find(data_dir, at + 6)) m.replace(at, data_dir.size(), "<data>");
+    static const std::regex absolute_path(R"((^|[\s'"(=:\[])/[^\s'"()\],;]*)");
+    return std::regex_replace(m, absolute_path, "$1<path>");
+}
+
+}  // namespace
+
 const std::vector<Service::Route>& Service::routes() {
     static const std::vector<Route> table = {
         {"GET", "/healthz", Auth::None, &Service::healthz},
@@ -130,7 +673,8 @@ std::vector<Service::RouteInfo> Service::route_table() {
 }
 
 Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
-    : config_(std::move(config)), http_(std::make_unique<httplib::Server>()) {
+    : config_(std::move(config)) {
+    if (config_.limits.event_streams <= 0) config_.limits.event_streams = std::max(1, config_.http_threads / 2);
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
     fs::create_directories(fs::path(config_.data_dir) / "jobs");
     fs::create_directories(fs::path(config_.data_dir) / "scenes");
@@ -138,9 +682,9 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
     store_ = std::make_unique<SqliteJobStore>((fs::path(config_.data_dir) / "jobs.sqlite").string());
     scenes_ = std::make_unique<SceneStore>(config_, *store_);
     supervisor_ = std::make_unique<Supervisor>(*store_, config_, changes_, metrics_);
+    http_ = std::make_unique<GatedServer>(config_.limits, config_.http_threads, metrics_);
+    for (const Route& r : routes()) route_regexes_.emplace_back(route_regex(r.path));
 
-    const int threads = config_.http_threads;
-    http_->new_task_queue = [threads] { return new httplib::ThreadPool(size_t(threads)); };
     // Keep the listening socket, to raise its backlog in bind().
     http_->set_socket_options([this](socket_t sock) {
         httplib::default_socket_options(sock);
@@ -179,28 +723,53 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
             } catch (const HttpError& e) {
                 send_json(res, e.status(), e.body());
             } catch (const std::exception& e) {
-                log_line(std::string(route.method) + " " + req.path + ": " + e.what());
-                send_json(res, 500, {{"error", std::string("internal error: ") + e.what()}});
+                // The log has the whole message; the client learns what
+                // failed, without the server's paths.
+                log_line(std::string(route.method) + " " + route.path + ": " + e.what());
+                send_json(res, 500, {{"error", std::string(route.method) + " " + route.path + " failed: " +
+                                                   describe_failure(e, config_.data_dir)}});
             }
         };
         if (std::string(route.method) == "GET") http_->Get(route_regex(route.path), handler);
         else http_->Post(route_regex(route.path), handler);
     }
 
-    // Statuses cpp-httplib answers itself (no route, body too large) get a
-    // JSON body too; answers that already have one pass through.
+    // Statuses cpp-httplib answers itself (a body that did not arrive, ...)
+    // get a JSON body too; answers that already have one pass through.
     http_->set_error_handler([this](const httplib::Request&, httplib::Response& res) {
         if (!res.body.empty()) return;
-        if (res.status == 404) send_json(res, 404, {{"error", "no such route"}});
-        else if (res.status == 413)
+        if (tl_request && tl_request->timed_out)
+            send_json(res, 408, {{"error", "the request did not arrive whole within " + json(config_.limits.request_seconds).dump() + " s"},
+                                 {"field", "request_seconds"}});
+        else if (res.status == 413 || (tl_request && tl_request->over_budget))
             send_json(res, 413, {{"error", "request body exceeds the limit of " + std::to_string(config_.limits.upload_bytes) + " bytes"},
                                  {"field", "upload_bytes"}, {"limit", config_.limits.upload_bytes}});
+        else if (res.status == 404) send_json(res, 404, {{"error", "no such route"}});
         else send_json(res, res.status, {{"error", "HTTP " + std::to_string(res.status)}});
     });
-    http_->set_pre_routing_handler([](const httplib::Request&, httplib::Response&) {
-        current_route = "unmatched";
+    // Anything thrown outside a route's own handler: a JSON 500, never the
+    // exception's text in a header.
+    http_->set_exception_handler([](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
+        std::string what = "unknown exception";
+        try {
+            if (ep) std::rethrow_exception(ep);
+        } catch (const std::exception& e) {
+            what = e.what();
+        } catch (...) {
+        }
+        log_line(req.method + " " + current_route + ": " + what);
+        send_json(res, 500, {{"error", "internal error serving " + current_route}});
+    });
+    // Before the body: a client that sends `Expect: 100-continue` is answered
+    // before it sends the body; every other one before it is read.
+    http_->set_expect_100_continue_handler([this](const httplib::Request& req, httplib::Response& res) {
         request_started = std::chrono::steady_clock::now();
-        return httplib::Server::HandlerResponse::Unhandled;
+        return check_before_body(req, res) ? res.status : 100;
+    });
+    http_->set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
+        if (req.get_header_value("Expect") != "100-continue") request_started = std::chrono::steady_clock::now();
+        return check_before_body(req, res) ? httplib::Server::HandlerResponse::Handled
+                                           : httplib::Server::HandlerResponse::Unhandled;
     });
     http_->set_logger([this](const httplib::Request&, const httplib::Response& res) {
         // An event stream lasts as long as its job; it is not a latency.
@@ -210,8 +779,92 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
     });
 }
 
+const Service::Route* Service::match_route(const std::string& method, const std::string& path) const {
+    const std::string m = method == "HEAD" ? "GET" : method;
+    for (size_t i = 0; i < routes().size(); ++i)
+        if (m == routes()[i].method && std::regex_match(path, route_regexes_[i])) return &routes()[i];
+    return nullptr;
+}
+
+bool Service::check_before_body(const httplib::Request& req, httplib::Response& res) {
+    // The request object is httplib's own (process_request's local): the
+    // framing fixes below change its headers before its body is read.
+    auto& mutable_req = const_cast<httplib::Request&>(req);
+    const bool has_length = req.has_header("Content-Length");
+    const bool has_encoding = req.has_header("Transfer-Encoding");
+    const bool is_post = req.method == "POST";
+    // An answer now leaves any body unread: the connection closes after it.
+    auto answer = [&](int status, json body) {
+        if (has_encoding || (has_length && req.get_header_value("Content-Length") != "0")) {
+            if (tl_request) tl_request->close_after = true;
+            mutable_req.set_header("Connection", "close");
+        }
+        send_json(res, status, body);
+        return true;
+    };
+
+    const Route* route = nullptr;
+    current_route = "unmatched";
+    if (!is_clean_text(req.path))
+        return answer(400, {{"error", "the path holds a NUL byte, a control character or invalid UTF-8"}, {"field", "path"}});
+    for (const auto& [key, value] : req.params)
+        if (!is_clean_text(key) || !is_clean_text(value))
+            return answer(400, {{"error", "a query parameter holds a NUL byte, a control character or invalid UTF-8"}, {"field", "query"}});
+    route = match_route(req.method, req.path);
+    if (!route) return answer(404, {{"error", "no such route"}});
+    current_route = route->path;
+
+    if (route->auth == Auth::Token && !authenticate(req, std::string(route->method) == "GET")) {
+        res.set_header("WWW-Authenticate", "Bearer");
+        return answer(401, {{"error", "missing or unknown bearer token (send 'Authorization: Bearer TOKEN')"}});
+    }
+
+    if (!is_post) {
+        // httplib reads no body of a GET: one that came would be read as the next request.
+        if (has_encoding || (has_length && req.get_header_value("Content-Length") != "0")) {
+            if (tl_request) tl_request->close_after = true;
+            mutable_req.set_header("Connection", "close");
+        }
+        return false;
+    }
+    if (has_encoding)
+        return answer(411, {{"error", "send the body with a Content-Length: Transfer-Encoding (chunked) is not accepted"},
+                            {"field", "Content-Length"}});
+    if (!has_length) {
+        // A POST without a body and without Content-Length (curl -X POST)
+        // has an empty body (RFC 9112 6.3), not one that lasts until the
+        // connection closes.
+        mutable_req.set_header("Content-Length", "0");
+    } else {
+        const std::string text = req.get_header_value("Content-Length");
+        uint64_t length = 0;
+        const bool digits = !text.empty() && text.size() <= 19 && text.find_first_not_of("0123456789") == std::string::npos;
+        if (!digits || req.get_header_value_count("Content-Length") != 1)
+            return answer(400, {{"error", "Content-Length: '" + text + "' is not a length"}, {"field", "Content-Length"}});
+        length = std::stoull(text);
+        if (length > config_.limits.upload_bytes)
+            return answer(413, {{"error", "request body of " + text + " bytes exceeds the limit of " +
+                                              std::to_string(config_.limits.upload_bytes) + " bytes"},
+                                {"field", "upload_bytes"}, {"limit", config_.limits.upload_bytes}});
+    }
+    const std::string type = req.get_header_value("Content-Type");
+    if (type.rfind("application/x-www-form-urlencoded", 0) == 0) {
+        // What curl sends when told nothing: not a scene, and httplib would
+        // parse it as a form (and refuse one over 8 KiB as a 413).
+        if (std::string(route->path) == "/v1/scenes")
+            return answer(415, {{"error", "Content-Type: send a .glb as model/gltf-binary, a .gltf as model/gltf+json, "
+                                          "or a .gltf with its files as multipart/form-data (curl sends "
+                                          "application/x-www-form-urlencoded unless told: add -H 'Content-Type: model/gltf-binary')"},
+                                {"field", "Content-Type"}});
+        mutable_req.headers.erase("Content-Type");
+        mutable_req.set_header("Content-Type", "application/json");
+    }
+    return false;
+}
+
 Service::~Service() {
     stop();
+    http_->stop_gate();  // (run() did already, when it ran)
 }
 
 int Service::bind() {
@@ -230,7 +883,9 @@ int Service::bind() {
 
 void Service::run() {
     supervisor_->start();
+    http_->start_gate();
     http_->listen_after_bind();
+    http_->stop_gate();
 }
 
 void Service::stop() {
@@ -383,7 +1038,8 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
                 if (latest.final_file) finals[output] = latest.file;
             done["final"] = finals;
             done["cached"] = true;
-            done["cached_from"] = earlier->status.id;
+            // Another token's job is not this caller's to know of.
+            if (earlier->owner == caller.owner) done["cached_from"] = earlier->status.id;
             store_->insert_job(job, {{0, "done", done}});
             changes_.notify();
             send_json(res, 201, {{"id", job.status.id}, {"state", "succeeded"}, {"cached", true}});
@@ -423,9 +1079,46 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
             throw HttpError(400, "Last-Event-ID: '" + text + "' is not an event id", {{"field", "Last-Event-ID"}});
     }
     const std::string id = job.status.id;
+
+    // Event streams have their own budget of request threads: in total and
+    // per token, well below --http-threads, so that they never take the
+    // threads the rest of the API needs.
+    {
+        std::lock_guard lock(streams_mutex_);
+        const int total = config_.limits.event_streams, per_token = config_.limits.event_streams_per_token;
+        const char* field = streams_open_ >= total ? "event_streams"
+                            : streams_by_owner_[caller.owner] >= per_token ? "event_streams_per_token"
+                                                                         : nullptr;
+        if (field) {
+            if (streams_by_owner_[caller.owner] == 0) streams_by_owner_.erase(caller.owner);
+            const int limit = std::string(field) == "event_streams" ? total : per_token;
+            metrics_.count_refusal(field);
+            res.set_header("Retry-After", "5");
+            throw HttpError(503,
+                            std::string(field) + ": " + std::to_string(limit) + " event streams are open" +
+                                (std::string(field) == "event_streams" ? "" : " for this token") +
+                                ", the limit; retry later or poll GET /v1/jobs/" + id,
+                            {{"field", field}, {"limit", limit}});
+        }
+        ++streams_open_;
+        ++streams_by_owner_[caller.owner];
+        ++metrics_.event_streams;
+    }
+    auto release = [this, owner = caller.owner](bool) {
+        std::lock_guard lock(streams_mutex_);
+        --streams_open_;
+        if (--streams_by_owner_[owner] <= 0) streams_by_owner_.erase(owner);
+        --metrics_.event_streams;
+    };
+
     auto last = std::make_shared<int64_t>(after);
+    auto last_write = std::make_shared<std::chrono::steady_clock::time_point>(std::chrono::steady_clock::now());
     res.set_header("Cache-Control", "no-cache");
-    res.set_chunked_content_provider("text/event-stream", [this, id, last](size_t, httplib::DataSink& sink) {
+    res.set_chunked_content_provider("text/event-stream", [this, id, last, last_write](size_t, httplib::DataSink& sink) {
+        // On every wake-up: is the client still there? (Progress of any job
+        // wakes every stream; a stream whose client left ends here, whether
+        // or not its own job has news.)
+        if (!sink.is_writable()) return false;
         const uint64_t seen = changes_.generation();
         // The state first, then the events: finish() stores a final state and
         // the final event in one transaction, so when the state read here is
@@ -439,6 +1132,7 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
             const std::string text = protocol::format_sse(e);
             if (!sink.write(text.data(), text.size())) return false;
             *last = e.id;
+            *last_write = std::chrono::steady_clock::now();
             if (protocol::is_final_event(e.type)) {
                 sink.done();
                 return true;
@@ -446,19 +1140,24 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
         }
         if (!events.empty()) return true;
         // Nothing new. A finished job's stream ends here (the client had
-        // everything); otherwise wait for a change, with a comment now and
-        // then so that proxies and clients see the connection is alive.
+        // everything); otherwise wait for a change, with a comment when
+        // nothing was written for 15 s so that proxies and clients see the
+        // connection is alive, and a look at the client every 2 s at most.
         if (ended || changes_.stopping()) {
             sink.done();
             return true;
         }
-        changes_.wait(seen, std::chrono::seconds(15));
-        if (changes_.generation() == seen && !changes_.stopping()) {
+        using namespace std::chrono;
+        const auto since = duration_cast<milliseconds>(steady_clock::now() - *last_write);
+        changes_.wait(seen, std::clamp(milliseconds(15000) - since, milliseconds(1), milliseconds(2000)));
+        if (!sink.is_writable()) return false;
+        if (changes_.generation() == seen && !changes_.stopping() && steady_clock::now() - *last_write >= seconds(15)) {
             static const std::string keep_alive = ": keep-alive\n\n";
+            *last_write = steady_clock::now();
             return sink.write(keep_alive.data(), keep_alive.size());
         }
         return true;
-    });
+    }, release);
 }
 
 void Service::list_artifacts(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
@@ -479,11 +1178,15 @@ void Service::get_artifact(const httplib::Request& req, httplib::Response& res, 
         throw HttpError(404, "job " + job.status.id + " has no artifact " + name, {{"id", job.status.id}, {"name", name}});
     // Open once: a worker may replace the file (rename) meanwhile, and this
     // download then keeps the version it started with, whole.
-    auto file = std::make_shared<std::ifstream>(supervisor_->job_dir(job.status.id) / name, std::ios::binary);
-    if (!*file)
+    const fs::path path = supervisor_->job_dir(job.status.id) / name;
+    std::error_code ec;
+    auto file = std::make_shared<std::ifstream>(path, std::ios::binary);
+    if (!fs::is_regular_file(path, ec) || !*file)
         throw HttpError(404, "job " + job.status.id + " has no artifact " + name, {{"id", job.status.id}, {"name", name}});
     file->seekg(0, std::ios::end);
-    const size_t size = size_t(file->tellg());
+    const std::streamoff end = file->tellg();
+    if (end < 0) throw HttpError(404, "job " + job.status.id + " has no artifact " + name, {{"id", job.status.id}, {"name", name}});
+    const size_t size = size_t(end);
     file->seekg(0);
     res.set_content_provider(size, content_type_of(name), [file](size_t offset, size_t length, httplib::DataSink& sink) {
         char buf[64 * 1024];

@@ -12,6 +12,8 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <regex>
 #include <set>
 #include <string>
 #include <vector>
@@ -23,6 +25,8 @@ struct Response;
 }  // namespace httplib
 
 namespace lf::server {
+
+class GatedServer;  // cpp-httplib's server behind lightfarmd's connection gate (service.cpp)
 
 class Service {
 public:
@@ -62,6 +66,11 @@ private:
     static const std::vector<Route>& routes();
 
     std::optional<Caller> authenticate(const httplib::Request& req, bool allow_cookie) const;
+    // What can be decided from the request line and headers, before any body
+    // is read: names, the route, the token, the body's framing and size.
+    // Answers (fills `res`, returns true) when the request must go no further.
+    bool check_before_body(const httplib::Request& req, httplib::Response& res);
+    const Route* match_route(const std::string& method, const std::string& path) const;
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
     nlohmann::json status_json(const JobRecord& job) const;
 
@@ -86,7 +95,13 @@ private:
     Metrics metrics_;
     std::unique_ptr<SceneStore> scenes_;
     std::unique_ptr<Supervisor> supervisor_;
-    std::unique_ptr<httplib::Server> http_;
+    std::unique_ptr<GatedServer> http_;
+    std::vector<std::regex> route_regexes_;  // routes()[i]'s path as a regex
+
+    // Open event streams, in total and by owner (their own budget of request threads).
+    std::mutex streams_mutex_;
+    int streams_open_ = 0;
+    std::map<std::string, int> streams_by_owner_;
     int listen_socket_ = -1;
     static constexpr int kListenBacklog = 1024;
 

@@ -1,8 +1,12 @@
 #include "sqlite_job_store.h"
 
 #include <sqlite3.h>
+#include <sys/stat.h>
 
+#include <atomic>
 #include <chrono>
+#include <cstring>
+#include <mutex>
 #include <stdexcept>
 
 namespace lf::server {
@@ -32,8 +36,126 @@ CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_key ON jobs(cache_key, state);
 CREATE TABLE IF NOT EXISTS events(
-  job TEXT NOT NULL, id INTEGER NOT NULL, type TEXT NOT NULL, data TEXT NOT NULL, PRIMARY KEY(job, id));
+  job TEXT NOT NULL, id INTEGER NOT NULL, type TEXT NOT NULL, data TEXT NOT NULL,
+  coalesce_key TEXT, permanent INTEGER NOT NULL DEFAULT 1, PRIMARY KEY(job, id));
 )sql";
+
+// Progress events of passes 1..kKeepProgressUpTo and of every power of two
+// are kept; of the others only the newest per output (append_event).
+constexpr int kKeepProgressUpTo = 32;
+
+bool permanent_progress(const nlohmann::json& data) {
+    const int64_t pass = data.is_object() && data.contains("pass") && data["pass"].is_number_integer()
+                             ? data["pass"].get<int64_t>()
+                             : 0;
+    return pass <= kKeepProgressUpTo || (pass & (pass - 1)) == 0;
+}
+
+[[noreturn]] void store_failed(sqlite3* db, const std::string& what) {
+    throw StoreError("job store: " + what + ": " + sqlite3_errmsg(db));
+}
+
+// ---- the test hook: a VFS over the default one whose writes can fail -------
+std::atomic<bool> g_full_disk{false};
+sqlite3_vfs* g_real_vfs = nullptr;
+sqlite3_vfs g_fault_vfs;
+sqlite3_io_methods g_fault_io;
+
+struct FaultFile {
+    sqlite3_file base;
+    sqlite3_file* real;
+};
+sqlite3_file* real_of(sqlite3_file* f) { return reinterpret_cast<FaultFile*>(f)->real; }
+
+int fault_close(sqlite3_file* f) { return real_of(f)->pMethods->xClose(real_of(f)); }
+int fault_read(sqlite3_file* f, void* b, int n, sqlite3_int64 o) { return real_of(f)->pMethods->xRead(real_of(f), b, n, o); }
+int fault_write(sqlite3_file* f, const void* b, int n, sqlite3_int64 o) {
+    if (g_full_disk) return SQLITE_FULL;
+    return real_of(f)->pMethods->xWrite(real_of(f), b, n, o);
+}
+int fault_truncate(sqlite3_file* f, sqlite3_int64 n) { return real_of(f)->pMethods->xTruncate(real_of(f), n); }
+int fault_sync(sqlite3_file* f, int flags) { return real_of(f)->pMethods->xSync(real_of(f), flags); }
+int fault_size(sqlite3_file* f, sqlite3_int64* n) { return real_of(f)->pMethods->xFileSize(real_of(f), n); }
+int fault_lock(sqlite3_file* f, int l) { return real_of(f)->pMethods->xLock(real_of(f), l); }
+int fault_unlock(sqlite3_file* f, int l) { return real_of(f)->pMethods->xUnlock(real_of(f), l); }
+int fault_reserved(sqlite3_file* f, int* r) { return real_of(f)->pMethods->xCheckReservedLock(real_of(f), r); }
+int fault_control(sqlite3_file* f, int op, void* a) { return real_of(f)->pMethods->xFileControl(real_of(f), op, a); }
+int fault_sector(sqlite3_file* f) { return real_of(f)->pMethods->xSectorSize(real_of(f)); }
+int fault_characteristics(sqlite3_file* f) { return real_of(f)->pMethods->xDeviceCharacteristics(real_of(f)); }
+int fault_shm_map(sqlite3_file* f, int pg, int sz, int ext, void volatile** p) {
+    return real_of(f)->pMethods->xShmMap(real_of(f), pg, sz, ext, p);
+}
+int fault_shm_lock(sqlite3_file* f, int off, int n, int flags) { return real_of(f)->pMethods->xShmLock(real_of(f), off, n, flags); }
+void fault_shm_barrier(sqlite3_file* f) { real_of(f)->pMethods->xShmBarrier(real_of(f)); }
+int fault_shm_unmap(sqlite3_file* f, int del) { return real_of(f)->pMethods->xShmUnmap(real_of(f), del); }
+int fault_fetch(sqlite3_file* f, sqlite3_int64 o, int n, void** p) { return real_of(f)->pMethods->xFetch(real_of(f), o, n, p); }
+int fault_unfetch(sqlite3_file* f, sqlite3_int64 o, void* p) { return real_of(f)->pMethods->xUnfetch(real_of(f), o, p); }
+
+int fault_open(sqlite3_vfs*, sqlite3_filename name, sqlite3_file* f, int flags, int* out_flags) {
+    auto* ff = reinterpret_cast<FaultFile*>(f);
+    ff->real = reinterpret_cast<sqlite3_file*>(reinterpret_cast<char*>(f) + sizeof(FaultFile));
+    const int rc = g_real_vfs->xOpen(g_real_vfs, name, ff->real, flags, out_flags);
+    // Methods of our own exactly when the real file has some (SQLite then closes it).
+    f->pMethods = ff->real->pMethods ? &g_fault_io : nullptr;
+    return rc;
+}
+int fault_delete(sqlite3_vfs*, const char* n, int sync) { return g_real_vfs->xDelete(g_real_vfs, n, sync); }
+int fault_access(sqlite3_vfs*, const char* n, int flags, int* out) { return g_real_vfs->xAccess(g_real_vfs, n, flags, out); }
+int fault_full_path(sqlite3_vfs*, const char* n, int size, char* out) { return g_real_vfs->xFullPathname(g_real_vfs, n, size, out); }
+void* fault_dlopen(sqlite3_vfs*, const char* n) { return g_real_vfs->xDlOpen(g_real_vfs, n); }
+void fault_dlerror(sqlite3_vfs*, int n, char* out) { g_real_vfs->xDlError(g_real_vfs, n, out); }
+void (*fault_dlsym(sqlite3_vfs*, void* h, const char* s))(void) { return g_real_vfs->xDlSym(g_real_vfs, h, s); }
+void fault_dlclose(sqlite3_vfs*, void* h) { g_real_vfs->xDlClose(g_real_vfs, h); }
+int fault_random(sqlite3_vfs*, int n, char* out) { return g_real_vfs->xRandomness(g_real_vfs, n, out); }
+int fault_sleep(sqlite3_vfs*, int us) { return g_real_vfs->xSleep(g_real_vfs, us); }
+int fault_time(sqlite3_vfs*, double* t) { return g_real_vfs->xCurrentTime(g_real_vfs, t); }
+int fault_last_error(sqlite3_vfs*, int n, char* out) { return g_real_vfs->xGetLastError(g_real_vfs, n, out); }
+int fault_time64(sqlite3_vfs*, sqlite3_int64* t) { return g_real_vfs->xCurrentTimeInt64(g_real_vfs, t); }
+
+void install_fault_vfs() {
+    sqlite3_initialize();
+    g_real_vfs = sqlite3_vfs_find(nullptr);
+    if (!g_real_vfs || g_real_vfs->iVersion < 2) throw std::runtime_error("no default SQLite VFS to wrap");
+    g_fault_io = sqlite3_io_methods{};
+    g_fault_io.iVersion = 3;
+    g_fault_io.xClose = fault_close;
+    g_fault_io.xRead = fault_read;
+    g_fault_io.xWrite = fault_write;
+    g_fault_io.xTruncate = fault_truncate;
+    g_fault_io.xSync = fault_sync;
+    g_fault_io.xFileSize = fault_size;
+    g_fault_io.xLock = fault_lock;
+    g_fault_io.xUnlock = fault_unlock;
+    g_fault_io.xCheckReservedLock = fault_reserved;
+    g_fault_io.xFileControl = fault_control;
+    g_fault_io.xSectorSize = fault_sector;
+    g_fault_io.xDeviceCharacteristics = fault_characteristics;
+    g_fault_io.xShmMap = fault_shm_map;
+    g_fault_io.xShmLock = fault_shm_lock;
+    g_fault_io.xShmBarrier = fault_shm_barrier;
+    g_fault_io.xShmUnmap = fault_shm_unmap;
+    g_fault_io.xFetch = fault_fetch;
+    g_fault_io.xUnfetch = fault_unfetch;
+    g_fault_vfs = sqlite3_vfs{};
+    g_fault_vfs.iVersion = 2;
+    g_fault_vfs.szOsFile = int(sizeof(FaultFile)) + g_real_vfs->szOsFile;
+    g_fault_vfs.mxPathname = g_real_vfs->mxPathname;
+    g_fault_vfs.zName = "lightfarm-test-full-disk";
+    g_fault_vfs.xOpen = fault_open;
+    g_fault_vfs.xDelete = fault_delete;
+    g_fault_vfs.xAccess = fault_access;
+    g_fault_vfs.xFullPathname = fault_full_path;
+    g_fault_vfs.xDlOpen = fault_dlopen;
+    g_fault_vfs.xDlError = fault_dlerror;
+    g_fault_vfs.xDlSym = fault_dlsym;
+    g_fault_vfs.xDlClose = fault_dlclose;
+    g_fault_vfs.xRandomness = fault_random;
+    g_fault_vfs.xSleep = fault_sleep;
+    g_fault_vfs.xCurrentTime = fault_time;
+    g_fault_vfs.xGetLastError = fault_last_error;
+    g_fault_vfs.xCurrentTimeInt64 = fault_time64;
+    if (sqlite3_vfs_register(&g_fault_vfs, 1) != SQLITE_OK) throw std::runtime_error("cannot register the test VFS");
+}
 
 constexpr const char* kJobColumns =
     "id, owner, scene, spec, state, progress, attempts, max_attempts, max_seconds, error, cause, "
@@ -45,7 +167,7 @@ class SqliteJobStore::Statement {
 public:
     Statement(sqlite3* db, const std::string& sql) : db_(db) {
         if (sqlite3_prepare_v2(db, sql.c_str(), -1, &stmt_, nullptr) != SQLITE_OK)
-            throw std::runtime_error(std::string("job store: ") + sqlite3_errmsg(db) + " in: " + sql);
+            store_failed(db, "cannot prepare '" + sql.substr(0, 60) + "'");
     }
     ~Statement() { sqlite3_finalize(stmt_); }
     Statement& bind(int i, const std::string& v) {
@@ -61,12 +183,13 @@ public:
         sqlite3_bind_double(stmt_, i, v);
         return *this;
     }
-    // True while there is a row; throws on errors.
+    // True while there is a row; throws StoreError on errors (in autocommit
+    // mode a write's commit is part of its step: its failure lands here).
     bool step() {
         const int rc = sqlite3_step(stmt_);
         if (rc == SQLITE_ROW) return true;
         if (rc == SQLITE_DONE) return false;
-        throw std::runtime_error(std::string("job store: ") + sqlite3_errmsg(db_));
+        store_failed(db_, sqlite3_stmt_readonly(stmt_) ? "read failed" : "write failed");
     }
     std::string text(int i) const {
         const auto* p = sqlite3_column_text(stmt_, i);
@@ -82,17 +205,43 @@ private:
 };
 
 namespace {
-// Commits at the end of scope unless an exception is flying.
+// A write transaction: commit() stores it (and throws StoreError when the
+// COMMIT fails: then nothing of it is stored); leaving the scope without
+// commit() rolls it back.
 class Transaction {
 public:
-    explicit Transaction(sqlite3* db) : db_(db) { run("BEGIN IMMEDIATE"); }
-    ~Transaction() { run(std::uncaught_exceptions() ? "ROLLBACK" : "COMMIT"); }
+    explicit Transaction(sqlite3* db) : db_(db) {
+        if (sqlite3_exec(db_, "BEGIN IMMEDIATE", nullptr, nullptr, nullptr) != SQLITE_OK)
+            store_failed(db_, "cannot begin a transaction");
+    }
+    ~Transaction() {
+        if (!done_) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+    }
+    Transaction(const Transaction&) = delete;
+    Transaction& operator=(const Transaction&) = delete;
+    void commit() {
+        if (sqlite3_exec(db_, "COMMIT", nullptr, nullptr, nullptr) != SQLITE_OK) {
+            const std::string why = sqlite3_errmsg(db_);
+            // A failed COMMIT may leave the transaction open: end it, so
+            // the next call starts clean, and say what failed.
+            if (sqlite3_get_autocommit(db_) == 0) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+            done_ = true;
+            throw StoreError("job store: commit failed: " + why);
+        }
+        done_ = true;
+    }
 
 private:
-    void run(const char* sql) { sqlite3_exec(db_, sql, nullptr, nullptr, nullptr); }
     sqlite3* db_;
+    bool done_ = false;
 };
 }  // namespace
+
+void SqliteJobStore::simulate_full_disk_for_tests(bool fail) {
+    static std::once_flag installed;
+    std::call_once(installed, install_fault_vfs);
+    g_full_disk = fail;
+}
 
 SqliteJobStore::SqliteJobStore(const std::string& path) : path_(path) {
     if (sqlite3_open_v2(path.c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
@@ -114,6 +263,23 @@ SqliteJobStore::SqliteJobStore(const std::string& path) : path_(path) {
         while (columns.step()) has_latest = has_latest || columns.text(1) == "latest";
     }
     if (!has_latest) exec("ALTER TABLE jobs ADD COLUMN latest TEXT NOT NULL DEFAULT '{}'");
+    // A store created before progress events were coalesced: its progress
+    // rows are kept (permanent) until compact_events() reaches their jobs.
+    bool has_coalesce = false;
+    {
+        Statement columns(db_, "PRAGMA table_info(events)");
+        while (columns.step()) has_coalesce = has_coalesce || columns.text(1) == "coalesce_key";
+    }
+    if (!has_coalesce) {
+        exec("ALTER TABLE events ADD COLUMN coalesce_key TEXT");
+        exec("ALTER TABLE events ADD COLUMN permanent INTEGER NOT NULL DEFAULT 1");
+        if (sqlite3_exec(db_, "UPDATE events SET coalesce_key = COALESCE(json_extract(data, '$.output'), '') "
+                              "WHERE type = 'progress'", nullptr, nullptr, nullptr) != SQLITE_OK)
+            exec("UPDATE events SET coalesce_key = '' WHERE type = 'progress'");
+    }
+    // Readable by lightfarmd's user only (-wal and -shm take the same mode).
+    struct stat st{};
+    if (::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode) && (st.st_mode & 0077)) ::chmod(path.c_str(), 0600);
 }
 
 SqliteJobStore::~SqliteJobStore() { sqlite3_close(db_); }
@@ -123,7 +289,7 @@ void SqliteJobStore::exec(const char* sql) {
     if (sqlite3_exec(db_, sql, nullptr, nullptr, &message) != SQLITE_OK) {
         const std::string why = message ? message : "unknown error";
         sqlite3_free(message);
-        throw std::runtime_error("job store " + path_ + ": " + why);
+        throw StoreError("job store " + path_ + ": " + why);
     }
 }
 
@@ -158,12 +324,28 @@ bool SqliteJobStore::scene_owned_by(const std::string& id, const std::string& ow
 }
 
 int64_t SqliteJobStore::insert_event_locked(const std::string& id, const JobEvent& event) {
+    // The id first: the event a progress event replaces may be the newest,
+    // and an id is never given twice.
     Statement next(db_, "SELECT COALESCE(MAX(id), 0) + 1 FROM events WHERE job = ?");
     next.bind(1, id);
     next.step();
     const int64_t event_id = next.integer(0);
-    Statement q(db_, "INSERT INTO events(job, id, type, data) VALUES(?, ?, ?, ?)");
+    const bool progress = event.type == "progress";
+    std::string key;
+    bool permanent = true;
+    if (progress) {
+        key = event.data.is_object() && event.data.contains("output") && event.data["output"].is_string()
+                  ? event.data["output"].get<std::string>()
+                  : "";
+        permanent = permanent_progress(event.data);
+        Statement replace(db_, "DELETE FROM events WHERE job = ? AND coalesce_key = ? AND permanent = 0");
+        replace.bind(1, id).bind(2, key);
+        replace.step();
+    }
+    Statement q(db_, "INSERT INTO events(job, id, type, data, coalesce_key, permanent) VALUES(?, ?, ?, ?, ?, ?)");
     q.bind(1, id).bind(2, event_id).bind(3, event.type).bind(4, event.data.dump());
+    if (progress) q.bind(5, key);  // else NULL
+    q.bind(6, int(permanent));
     q.step();
     return event_id;
 }
@@ -181,6 +363,7 @@ void SqliteJobStore::insert_job(const JobRecord& job, const std::vector<JobEvent
     q.bind(15, s.started_at).bind(16, s.finished_at).bind(17, protocol::to_json(s.latest).dump());
     q.step();
     for (const JobEvent& e : events) insert_event_locked(s.id, e);
+    t.commit();
 }
 
 std::vector<JobRecord> SqliteJobStore::select_jobs(const std::string& where, const std::vector<std::string>& args) {
@@ -262,6 +445,7 @@ std::optional<JobRecord> SqliteJobStore::claim_next() {
     q.bind(1, job.status.attempts).bind(2, job.status.started_at);
     q.bind(3, protocol::to_json(job.status.progress).dump()).bind(4, job.status.id);
     q.step();
+    t.commit();
     return job;
 }
 
@@ -284,6 +468,7 @@ void SqliteJobStore::set_latest(const std::string& id, const std::string& output
     Statement q(db_, "UPDATE jobs SET latest = ? WHERE id = ?");
     q.bind(1, latest.dump()).bind(2, id);
     q.step();
+    t.commit();
 }
 
 bool SqliteJobStore::requeue(const std::string& id, const JobEvent& event, bool refund_attempt) {
@@ -294,6 +479,7 @@ bool SqliteJobStore::requeue(const std::string& id, const JobEvent& event, bool 
     q.step();
     if (q.changes() == 0) return false;
     insert_event_locked(id, event);
+    t.commit();
     return true;
 }
 
@@ -307,6 +493,7 @@ bool SqliteJobStore::finish(const std::string& id, JobState state, const std::st
     q.step();
     if (q.changes() == 0) return false;
     insert_event_locked(id, event);
+    t.commit();
     return true;
 }
 
@@ -315,13 +502,39 @@ std::vector<JobRecord> SqliteJobStore::running_jobs() {
     return select_jobs("WHERE state = 'running' ORDER BY seq", {});
 }
 
+bool SqliteJobStore::empty() {
+    std::lock_guard lock(mutex_);
+    Statement q(db_, "SELECT (SELECT COUNT(*) FROM jobs) + (SELECT COUNT(*) FROM scenes)");
+    q.step();
+    return q.integer(0) == 0;
+}
+
+bool SqliteJobStore::has_job(const std::string& id) {
+    std::lock_guard lock(mutex_);
+    Statement q(db_, "SELECT 1 FROM jobs WHERE id = ?");
+    q.bind(1, id);
+    return q.step();
+}
+
+int64_t SqliteJobStore::compact_events(double finished_before) {
+    std::lock_guard lock(mutex_);
+    Statement q(db_, "DELETE FROM events WHERE coalesce_key IS NOT NULL AND job IN "
+                     "(SELECT id FROM jobs WHERE state IN ('succeeded', 'failed', 'cancelled') AND finished_at < ?) "
+                     "AND id < (SELECT MAX(e.id) FROM events e WHERE e.job = events.job AND e.coalesce_key = events.coalesce_key)");
+    q.bind(1, finished_before);
+    q.step();
+    return q.changes();
+}
+
 int64_t SqliteJobStore::append_event(const std::string& id, const JobEvent& event) {
     std::lock_guard lock(mutex_);
     Transaction t(db_);
     Statement check(db_, "SELECT 1 FROM jobs WHERE id = ? AND state = 'running'");
     check.bind(1, id);
     if (!check.step()) return 0;
-    return insert_event_locked(id, event);
+    const int64_t event_id = insert_event_locked(id, event);
+    t.commit();
+    return event_id;
 }
 
 std::vector<JobEvent> SqliteJobStore::events_after(const std::string& id, int64_t after) {

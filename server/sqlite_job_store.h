@@ -1,5 +1,7 @@
 // JobStore in one SQLite file (DATA/jobs.sqlite). One connection behind a
 // mutex: the store is tiny next to a bake, and this keeps transactions simple.
+// Every statement's and every COMMIT's result is checked: a failure is a
+// StoreError and the transaction is rolled back.
 #pragma once
 
 #include "job_store.h"
@@ -35,9 +37,18 @@ public:
     bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
                 const JobEvent& event) override;
     std::vector<JobRecord> running_jobs() override;
+    bool empty() override;
+    bool has_job(const std::string& id) override;
 
     int64_t append_event(const std::string& id, const JobEvent& event) override;
     std::vector<JobEvent> events_after(const std::string& id, int64_t after) override;
+    int64_t compact_events(double finished_before) override;
+
+    // Test hook: every SQLite database this process opens *after the first
+    // call* goes through a VFS that, while `fail` is true, fails each write
+    // as a full disk does (SQLITE_FULL); reads still work. lightfarmd never
+    // calls it. (As root, chmod cannot make a file unwritable; this can.)
+    static void simulate_full_disk_for_tests(bool fail);
 
 private:
     class Statement;

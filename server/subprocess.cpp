@@ -4,10 +4,13 @@
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <stdexcept>
 
@@ -22,6 +25,81 @@ void close_fd(int& fd) {
     if (fd >= 0) ::close(fd);
     fd = -1;
 }
+
+// argv[0] as execv() takes it: a name without '/' looked up in PATH here, in
+// the parent, so that the forked child only makes async-signal-safe calls.
+std::string resolve_program(const std::string& name) {
+    if (name.find('/') != std::string::npos) return name;
+    const char* path = std::getenv("PATH");
+    std::string dirs = path ? path : "/usr/local/bin:/usr/bin:/bin";
+    size_t start = 0;
+    while (start <= dirs.size()) {
+        const size_t colon = std::min(dirs.find(':', start), dirs.size());
+        const std::string dir = dirs.substr(start, colon - start);
+        const std::string candidate = (dir.empty() ? std::string(".") : dir) + "/" + name;
+        if (::access(candidate.c_str(), X_OK) == 0) return candidate;
+        start = colon + 1;
+    }
+    return name;  // execv fails with ENOENT, reported to the caller
+}
+
+// fork + exec with resource limits, which posix_spawn cannot set. The child
+// only calls async-signal-safe functions (the server has many threads).
+pid_t spawn_limited(const std::vector<std::string>& argv, int out_fd, int err_fd, const SpawnLimits& limits) {
+    const std::string program = resolve_program(argv[0]);
+    std::vector<char*> args;
+    for (const std::string& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+    args.push_back(nullptr);
+    int report[2];  // the child writes errno here when exec fails; closed on exec
+    if (pipe2(report, O_CLOEXEC) != 0) throw std::runtime_error(std::string("pipe: ") + strerror(errno));
+    const pid_t pid = fork();
+    if (pid < 0) {
+        const int e = errno;
+        ::close(report[0]);
+        ::close(report[1]);
+        throw std::runtime_error(std::string("fork: ") + strerror(e));
+    }
+    if (pid == 0) {
+        setpgid(0, 0);  // its own group: kill() reaches its children too
+        struct sigaction dfl{};
+        dfl.sa_handler = SIG_DFL;
+        for (int sig : {SIGPIPE, SIGTERM, SIGINT}) sigaction(sig, &dfl, nullptr);
+        sigset_t none;
+        sigemptyset(&none);
+        sigprocmask(SIG_SETMASK, &none, nullptr);
+        const int in = ::open("/dev/null", O_RDONLY);
+        if (in >= 0 && in != 0) {
+            dup2(in, 0);
+            ::close(in);
+        }
+        dup2(out_fd, 1);
+        dup2(err_fd, 2);
+        if (limits.address_space_bytes > 0) {
+            const rlimit as{rlim_t(limits.address_space_bytes), rlim_t(limits.address_space_bytes)};
+            if (setrlimit(RLIMIT_AS, &as) != 0) {
+                const int e = errno;
+                (void)!::write(report[1], &e, sizeof e);
+                _exit(127);
+            }
+        }
+        execv(program.c_str(), args.data());
+        const int e = errno;
+        (void)!::write(report[1], &e, sizeof e);
+        _exit(127);
+    }
+    setpgid(pid, pid);  // also here: no window in which kill(-pid) misses it
+    ::close(report[1]);
+    int child_errno = 0;
+    ssize_t got;
+    while ((got = ::read(report[0], &child_errno, sizeof child_errno)) < 0 && errno == EINTR) {}
+    ::close(report[0]);
+    if (got == ssize_t(sizeof child_errno)) {
+        int st = 0;
+        while (waitpid(pid, &st, 0) < 0 && errno == EINTR) {}
+        throw std::runtime_error("cannot start " + argv[0] + ": " + strerror(child_errno));
+    }
+    return pid;
+}
 }  // namespace
 
 std::string ExitStatus::describe() const {
@@ -29,7 +107,7 @@ std::string ExitStatus::describe() const {
     return "killed by signal " + std::to_string(signal) + " (" + strsignal(signal) + ")";
 }
 
-Subprocess::Subprocess(const std::vector<std::string>& argv) {
+Subprocess::Subprocess(const std::vector<std::string>& argv, const SpawnLimits& limits) {
     if (argv.empty()) throw std::runtime_error("no command to run");
     int out[2], err[2];
     // O_CLOEXEC: the pipes of one worker must not leak into another worker.
@@ -38,6 +116,19 @@ Subprocess::Subprocess(const std::vector<std::string>& argv) {
         ::close(out[0]);
         ::close(out[1]);
         throw std::runtime_error(std::string("pipe: ") + strerror(errno));
+    }
+    if (limits.address_space_bytes > 0) {
+        try {
+            pid_ = spawn_limited(argv, out[1], err[1], limits);
+        } catch (...) {
+            for (int fd : {out[0], out[1], err[0], err[1]}) ::close(fd);
+            throw;
+        }
+        ::close(out[1]);
+        ::close(err[1]);
+        out_fd_ = out[0];
+        err_fd_ = err[0];
+        return;
     }
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
@@ -172,9 +263,10 @@ std::string Subprocess::stderr_last_line() const {
     return "";
 }
 
-RunResult run_command(const std::vector<std::string>& argv, std::chrono::milliseconds timeout, size_t max_output) {
+RunResult run_command(const std::vector<std::string>& argv, std::chrono::milliseconds timeout, size_t max_output,
+                      const SpawnLimits& limits) {
     RunResult result;
-    Subprocess child(argv);
+    Subprocess child(argv, limits);
     const auto deadline = std::chrono::steady_clock::now() + timeout;
     std::string line;
     for (;;) {

@@ -9,6 +9,7 @@
 #include <sys/types.h>
 
 #include <chrono>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -22,11 +23,17 @@ struct ExitStatus {
     std::string describe() const;  // "exited with status 3", "killed by signal 9 (Killed)"
 };
 
+struct SpawnLimits {
+    // RLIMIT_AS of the child (0: none): an allocation beyond it fails in the
+    // child (std::bad_alloc, a crash), never in the server or the machine.
+    uint64_t address_space_bytes = 0;
+};
+
 class Subprocess {
 public:
     // Starts argv[0] (searched in PATH when it has no '/'). Throws
     // std::runtime_error when it cannot be started.
-    explicit Subprocess(const std::vector<std::string>& argv);
+    explicit Subprocess(const std::vector<std::string>& argv, const SpawnLimits& limits = {});
     ~Subprocess();  // kills and reaps a child that is still running
     Subprocess(const Subprocess&) = delete;
     Subprocess& operator=(const Subprocess&) = delete;
@@ -65,6 +72,6 @@ struct RunResult {
     std::string err_last_line;
 };
 RunResult run_command(const std::vector<std::string>& argv, std::chrono::milliseconds timeout,
-                      size_t max_output = 16 << 20);
+                      size_t max_output = 16 << 20, const SpawnLimits& limits = {});
 
 }  // namespace lf::server

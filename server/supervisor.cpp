@@ -56,6 +56,7 @@ fs::path Supervisor::scene_path(const SceneRecord& scene) const {
 }
 
 void Supervisor::start() {
+    compact_events();
     for (const JobRecord& job : store_.running_jobs()) {
         const std::string& id = job.status.id;
         kill_leftover_worker(job_dir(id));
@@ -108,12 +109,67 @@ void Supervisor::cancel(const std::string& job_id) {
     cancelled_.insert(job_id);
 }
 
+void Supervisor::store_trouble(const std::string& message) {
+    std::lock_guard lock(trouble_mutex_);
+    const auto now = Clock::now();
+    if (now - last_trouble_log_ < std::chrono::seconds(10)) {
+        ++unlogged_trouble_;
+        return;
+    }
+    log_line(message + (unlogged_trouble_ ? " (and " + std::to_string(unlogged_trouble_) + " more store failures)" : ""));
+    unlogged_trouble_ = 0;
+    last_trouble_log_ = now;
+}
+
+bool Supervisor::persist(const std::string& what, const std::function<void()>& write) {
+    auto backoff = std::chrono::milliseconds(50);
+    const auto first = Clock::now();
+    for (int tries = 1;; ++tries) {
+        try {
+            write();
+            if (tries > 1)
+                log_line(what + ": stored after " + std::to_string(tries) + " tries (" +
+                         std::to_string(std::chrono::duration_cast<std::chrono::seconds>(Clock::now() - first).count()) + " s)");
+            return true;
+        } catch (const StoreError& e) {
+            if (stopping_) {
+                log_line(what + ": " + e.what() + "; lightfarmd is stopping: the job stays running in the store "
+                         "and its next start queues it again");
+                return false;
+            }
+            store_trouble(what + ": " + e.what() + "; retrying");
+        }
+        const auto until = Clock::now() + backoff;
+        while (!stopping_ && Clock::now() < until) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        backoff = std::min(backoff * 2, std::chrono::milliseconds(2000));
+    }
+}
+
+void Supervisor::compact_events() {
+    const int64_t now = std::chrono::duration_cast<std::chrono::seconds>(Clock::now().time_since_epoch()).count();
+    last_compaction_ = now;
+    const double before = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count() -
+                          config_.event_retention_days * 86400.0;
+    try {
+        if (const int64_t removed = store_.compact_events(before); removed > 0)
+            log_line("event retention: removed " + std::to_string(removed) + " progress events of jobs finished over " +
+                     std::to_string(config_.event_retention_days) + " days ago");
+    } catch (const StoreError& e) {
+        store_trouble(std::string("event retention: ") + e.what());
+    }
+}
+
 void Supervisor::worker_loop(const std::string& device) {
     while (!stopping_) {
         const uint64_t seen = changes_.generation();
+        const int64_t now = std::chrono::duration_cast<std::chrono::seconds>(Clock::now().time_since_epoch()).count();
+        if (int64_t last = last_compaction_; now - last >= 3600 && last_compaction_.compare_exchange_strong(last, now))
+            compact_events();
         std::optional<JobRecord> job;
         try {
             job = store_.claim_next();
+        } catch (const StoreError& e) {
+            store_trouble(std::string("cannot take a job from the queue: ") + e.what());
         } catch (const std::exception& e) {
             log_line(std::string("cannot read the queue: ") + e.what());
         }
@@ -145,19 +201,25 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
     const int attempts = job.status.attempts;
     if (attempts < job.status.max_attempts) {
         log_line("job " + id + ": attempt " + std::to_string(attempts) + " failed (" + cause + "), retrying");
-        store_.requeue(id, {0, "retrying", {{"attempt", attempts}, {"cause", cause}}}, false);
+        persist("job " + id + ": requeue", [&] {
+            store_.requeue(id, {0, "retrying", {{"attempt", attempts}, {"cause", cause}}}, false);
+        });
     } else {
         const std::string error = "bake failed after " + std::to_string(attempts) + " attempt" + (attempts == 1 ? "" : "s");
         log_line("job " + id + ": " + error + ": " + cause);
-        store_.finish(id, JobState::Failed, error, cause,
-                      {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", attempts}}});
+        persist("job " + id + ": failed state", [&] {
+            store_.finish(id, JobState::Failed, error, cause,
+                          {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", attempts}}});
+        });
     }
 }
 
 void Supervisor::fail_now(const JobRecord& job, const std::string& error, const std::string& cause) {
     log_line("job " + job.status.id + ": " + error + (cause.empty() ? "" : ": " + cause));
-    store_.finish(job.status.id, JobState::Failed, error, cause,
-                  {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", job.status.attempts}}});
+    persist("job " + job.status.id + ": failed state", [&] {
+        store_.finish(job.status.id, JobState::Failed, error, cause,
+                      {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", job.status.attempts}}});
+    });
 }
 
 namespace {
@@ -295,11 +357,25 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
 }
 
 void Supervisor::store_update(const std::string& id, const AttemptUpdate& u) {
-    metrics_.rays_total += u.new_rays;
-    if (u.rays_per_second) metrics_.set_job_rate(id, *u.rays_per_second);
+    // Each write is idempotent but the event, which comes last: a retry after
+    // a failure in any of them stores the event once.
     if (u.progress) store_.set_progress(id, *u.progress);
     for (const auto& [output, file] : u.latest) store_.set_latest(id, output, file);
     if (u.event) store_.append_event(id, *u.event);
+}
+
+bool Supervisor::flush_updates(const std::string& id, std::deque<AttemptUpdate>& unsaved) {
+    while (!unsaved.empty()) {
+        try {
+            store_update(id, unsaved.front());
+        } catch (const StoreError& e) {
+            store_trouble("job " + id + ": " + e.what() + "; " + std::to_string(unsaved.size()) +
+                          " update(s) kept until the store takes them");
+            return false;
+        }
+        unsaved.pop_front();
+    }
+    return true;
 }
 
 std::string Supervisor::limit_exceeded(const JobRecord& job, Clock::time_point now, Clock::time_point deadline,
@@ -352,14 +428,27 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     AttemptState state;
     std::string cause;  // set when we end the worker ourselves
     bool cancelled = false;
+    // What the store could not take yet (a full disk): kept, in order, and
+    // stored when it can again; the worker bakes on meanwhile. A progress
+    // update replaces an unsaved one of the same output, so this stays small.
+    std::deque<AttemptUpdate> unsaved;
+    auto progress_only = [](const AttemptUpdate& u) {
+        return u.latest.empty() && u.event && u.event->type == "progress";
+    };
 
     for (std::string line;;) {
         if (stopping_) {
             child->kill();
             child->wait();
-            store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}}, true);
+            try {
+                flush_updates(id, unsaved);
+                store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}}, true);
+            } catch (const StoreError& e) {
+                log_line("job " + id + ": " + e.what() + "; it stays running in the store and the next start queues it again");
+            }
             return;
         }
+        if (!unsaved.empty()) flush_updates(id, unsaved);
         if ((cancelled = cancel_requested(id))) {
             child->kill();
             break;
@@ -391,13 +480,25 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
             continue;
         }
         state = update.state;
-        store_update(id, update);
+        metrics_.rays_total += update.new_rays;
+        if (update.rays_per_second) metrics_.set_job_rate(id, *update.rays_per_second);
+        if (!unsaved.empty() && progress_only(update) && progress_only(unsaved.back()) &&
+            unsaved.back().event->data.value("output", "") == update.event->data.value("output", ""))
+            unsaved.back() = update;
+        else
+            unsaved.push_back(update);
+        flush_updates(id, unsaved);
         changes_.notify();
     }
 
     const ExitStatus status = child->wait();
     std::error_code ec;
     fs::remove(job_dir(id) / kPidFile, ec);
+    // The attempt's events before its end, so that the final event stays last.
+    if (!unsaved.empty())
+        persist("job " + id + ": events", [&] {
+            if (!flush_updates(id, unsaved)) throw StoreError("job store: the events are not stored yet");
+        });
     if (cancelled) {
         log_line("job " + id + ": cancelled, worker killed");
         return;  // the cancel route already recorded the final state
@@ -409,7 +510,7 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     if (status.success() && state.done) {
         json done = *state.done;
         done["cached"] = false;
-        store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
+        persist("job " + id + ": succeeded state", [&] { store_.finish(id, JobState::Succeeded, "", "", {0, "done", done}); });
         log_line("job " + id + ": succeeded");
         return;
     }

@@ -19,7 +19,9 @@
 
 #include <atomic>
 #include <chrono>
+#include <deque>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -94,8 +96,22 @@ private:
     // Writes the spec into the job directory and starts the engine on it.
     std::unique_ptr<Subprocess> start_worker(const JobRecord& job, const protocol::JobSpec& spec,
                                              const SceneRecord& scene, const std::string& device);
-    // Stores what apply_worker_event asked for.
+    // Stores what apply_worker_event asked for; throws StoreError.
     void store_update(const std::string& job_id, const AttemptUpdate& update);
+    // Stores the updates the store could not take yet, oldest first; false
+    // (and the rest kept) at the first StoreError.
+    bool flush_updates(const std::string& job_id, std::deque<AttemptUpdate>& unsaved);
+    // Runs `write` until it stops throwing StoreError (backing off up to 2 s
+    // between tries) or lightfarmd stops. A job's end (its final state, a
+    // requeue) is never dropped: while the store cannot take it, the job
+    // stays `running` in the store with this thread still trying; if
+    // lightfarmd stops first, its next start requeues the job (or fails it
+    // when no attempt is left). Returns false when it gave up on stop.
+    bool persist(const std::string& what, const std::function<void()>& write);
+    // Logs a store failure, at most every 10 s (with how many were not logged).
+    void store_trouble(const std::string& message);
+    // Event retention (JobStore::compact_events), at start and hourly.
+    void compact_events();
     // Why the worker must be ended now ("" = it may go on): the job's
     // deadline or a stall. Checked on every turn of the read loop.
     std::string limit_exceeded(const JobRecord& job, Clock::time_point now, Clock::time_point deadline,
@@ -114,6 +130,10 @@ private:
     std::vector<std::thread> threads_;
     std::mutex cancel_mutex_;
     std::set<std::string> cancelled_;  // running here, to be killed
+    std::mutex trouble_mutex_;
+    Clock::time_point last_trouble_log_{};
+    int unlogged_trouble_ = 0;
+    std::atomic<int64_t> last_compaction_{0};  // steady-clock seconds
 };
 
 }  // namespace lf::server

@@ -64,6 +64,7 @@ public:
     void stop();    // SIGTERM, then SIGKILL after a few seconds
     void kill9();   // SIGKILL, as a crash
     bool running() const { return pid_ > 0; }
+    pid_t pid() const { return pid_; }
     std::string log() const;
 
     std::string url;

@@ -28,6 +28,18 @@ target_compile_definitions(test_server PRIVATE
   LIGHTFARM_OPENAPI="${LIGHTFARM_OPENAPI_DOC}")
 add_dependencies(test_server lightfarmd)
 
+# The store, the data directory and the upload checks under failure (issue #15).
+lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+target_link_libraries(test_store PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+target_compile_definitions(test_store PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+add_dependencies(test_store lightfarmd)
+
+# The HTTP layer under slow, idle, oversized and hostile clients (issue #15).
+lightfarm_test(test_server_http ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+target_link_libraries(test_server_http PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+target_compile_definitions(test_server_http PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+add_dependencies(test_server_http lightfarmd)
+
 # client_cli/remote.cpp is compiled in here too, so that the client is tested
 # against a real server without the GL engine the lightfarm binary links.
 lightfarm_test(test_remote ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp)

@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -139,7 +141,8 @@ TEST(JobSpec, ParsesAValidSpec) {
 }
 
 TEST(JobSpec, DefaultsComeFromTheCatalog) {
-    const BakeSettings b = parse_bake_settings({{"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}}});
+    const BakeSettings b =
+        parse_bake_settings({{"outputs", {{"lightmap", json::object()}, {"sh", json::object()}, {"probes", json::object()}}}});
     const json j = to_json(b);
     // Every setting of every chosen output, the atlas and the job, with the catalog's default.
     for (const Setting& s : setting_catalog()) {
@@ -862,6 +865,16 @@ json schema_of(const Setting& s) {
     case SettingType::Environment:
         range = {{"type", "array"}, {"items", {{"type", "number"}, {"minimum", 0}}}, {"minItems", 3}, {"maxItems", 3}};
         break;
+    case SettingType::Positions: {
+        const double f = std::numeric_limits<float>::max();
+        const json coordinate = {{"type", "number"}, {"minimum", -f}, {"maximum", f}};
+        const json point = {{"type", "object"},
+                            {"required", {"position"}},
+                            {"additionalProperties", false},
+                            {"properties", {{"position", {{"type", "array"}, {"items", coordinate}, {"minItems", 3}, {"maxItems", 3}}}}}};
+        range = {{"type", "array"}, {"items", point}, {"maxItems", 4096}};
+        break;
+    }
     }
     json out = s.accepts_auto ? json{{"oneOf", {range, {{"const", "auto"}}}}} : range;
     if (!s.default_value.is_null()) out["default"] = s.default_value;
@@ -1017,7 +1030,8 @@ TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
     server.allow_local_files = false;
     auto accepted = [&](const json& spec) { return error_of(spec, server).empty(); };
 
-    const json base = {{"scene", "s"}, {"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}}};
+    const json base = {{"scene", "s"},
+                       {"outputs", {{"lightmap", json::object()}, {"sh", json::object()}, {"probes", json::object()}}}};
     int checked = 0;
     for (const Setting& s : setting_catalog()) {
         std::vector<json> values = {nullptr, true, "auto", "x", json::array(), json::object(), 1.5, -1, 0, 1, 3};
@@ -1036,6 +1050,9 @@ TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
             if (s.group.empty()) spec[s.name] = v;
             else if (s.group == "atlas") spec["atlas"][s.name] = v;
             else spec["outputs"][s.group][s.name] = v;
+            // "M divides R" is a rule between two settings, which the schema
+            // states in words: at R = 48 every M of the range divides it.
+            if (s.name == "probe_m") spec["outputs"]["probes"]["probe_res"] = 48;
             EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec))
                 << s.field() << " = " << v.dump() << ": the schema says " << valid_against(doc, schema, spec)
                 << ", the server " << (accepted(spec) ? "accepts" : "refuses (" + error_of(spec, server) + ")");
@@ -1091,6 +1108,9 @@ std::string values_cell(const Setting& s) {
         break;
     case SettingType::Environment:
         v = "`R,G,B` (JSON `[R, G, B]`), or a map file (CLI)";
+        break;
+    case SettingType::Positions:
+        v = "a JSON file of `[{\"position\": [x, y, z]}, …]` (JSON: that array)";
         break;
     }
     if (s.accepts_auto) v += ", or `auto`";

@@ -3,6 +3,7 @@
 #include "atlas/atlas.h"
 #include "atlas/lightmapped_gltf.h"
 #include "bake/prepared_scene.h"
+#include "bake/probes_method.h"
 #include "bake/radiosity_map_method.h"
 #include "bake/sh_transfer_method.h"
 #include "io/image_files.h"
@@ -81,7 +82,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
     p->file = job.scene;
     p->scene = load_scene(job.scene);
     const protocol::BakeSettings& s = job.settings;
-    if (s.lightmap && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
+    if ((s.lightmap || s.probes) && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
                              "environment was given (give a uniform sky with --env R,G,B)");
@@ -96,6 +97,7 @@ std::vector<std::unique_ptr<ProgressiveMethod>> make_methods(const PreparedScene
     std::vector<std::unique_ptr<ProgressiveMethod>> methods;
     if (s.lightmap) methods.push_back(std::make_unique<RadiosityMapMethod>(p, s));
     if (s.sh) methods.push_back(std::make_unique<ShTransferMethod>(p, s));
+    if (s.probes) methods.push_back(std::make_unique<ProbesMethod>(p, s));
     return methods;
 }
 

@@ -13,12 +13,6 @@ namespace {
 
 constexpr int kAccumulatorVec4s = 5;  // per covered texel, see radiosity_texels.glsl
 
-float uint_bits(uint32_t u) {
-    float f;
-    std::memcpy(&f, &u, sizeof f);
-    return f;
-}
-
 float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
 }  // namespace
@@ -73,70 +67,9 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
       settings_(settings),
       width_(texels.width),
       height_(texels.height),
-      gather_("radiosity_gather.comp", gather_defines(settings)) {
-    upload_scene(scene);
+      gather_("radiosity_gather.comp", gather_defines(settings)),
+      shading_(scene) {
     upload_texels(texels);
-}
-
-// Scene data the passes read: what a ray needs where it lands (lightmap UVs,
-// sidedness, emission and its emitter-sampling density), emitters, lights.
-void RadiosityMapBaker::upload_scene(const Scene& scene) {
-    // Emissive triangles, chosen in proportion to their power (area x radiance).
-    std::vector<uint32_t> emitter_triangles;
-    std::vector<double> power;
-    double total = 0.0;
-    for (size_t t = 0; t < scene.triangles.size(); ++t) {
-        const Material& m = scene.materials[scene.triangle_material[t]];
-        if (!m.is_emissive() || scene.triangle_area(t) <= 0.0f) continue;
-        const glm::vec3 radiance = scene.emission_at(t, glm::vec2(1.0f / 3.0f));
-        const double p = double(scene.triangle_area(t)) * double(channel_mean(radiance)) * (m.double_sided ? 2.0 : 1.0);
-        if (p <= 0.0) continue;
-        emitter_triangles.push_back(uint32_t(t));
-        power.push_back(p);
-        total += p;
-    }
-
-    constexpr size_t kSurfaceVec4s = 4;  // see SurfaceTriangles in lightmap_lookup.glsl
-    std::vector<glm::vec4> surfaces(kSurfaceVec4s * std::max<size_t>(scene.triangles.size(), 1), glm::vec4(0.0f));
-    for (size_t t = 0; t < scene.triangles.size(); ++t) {
-        const glm::uvec3 tri = scene.triangles[t];
-        const bool two_sided = scene.materials[scene.triangle_material[t]].double_sided;
-        surfaces[kSurfaceVec4s * t] = glm::vec4(scene.uv1[tri.x], scene.uv1[tri.y]);
-        surfaces[kSurfaceVec4s * t + 1] = glm::vec4(scene.uv1[tri.z], uint_bits(two_sided ? 1u : 0u), 0.0f);
-        surfaces[kSurfaceVec4s * t + 3] = glm::vec4(scene.albedo_at(t, glm::vec2(1.0f / 3.0f)), 0.0f);
-    }
-
-    std::vector<glm::vec4> emitters;
-    double running = 0.0;
-    for (size_t e = 0; e < emitter_triangles.size(); ++e) {
-        const uint32_t t = emitter_triangles[e];
-        const glm::uvec3 tri = scene.triangles[t];
-        const float area = scene.triangle_area(t);
-        const float pdf_choose = float(power[e] / total);
-        const glm::vec3 radiance = scene.emission_at(t, glm::vec2(1.0f / 3.0f));
-        running += power[e];
-        const float cdf = e + 1 == emitter_triangles.size() ? 1.0f : float(running / total);
-        emitters.push_back(glm::vec4(scene.positions[tri.x], cdf));
-        emitters.push_back(glm::vec4(scene.positions[tri.y], pdf_choose));
-        emitters.push_back(glm::vec4(scene.positions[tri.z], area));
-        emitters.push_back(glm::vec4(radiance, scene.materials[scene.triangle_material[t]].double_sided ? 1.0f : 0.0f));
-        surfaces[kSurfaceVec4s * t + 1].w = pdf_choose / area;
-        surfaces[kSurfaceVec4s * t + 2] = glm::vec4(radiance, uint_bits(uint32_t(e)));
-    }
-    emitter_count_ = uint32_t(emitter_triangles.size());
-    emitters_ = GpuBuffer(emitters);
-    surface_triangles_ = GpuBuffer(surfaces);
-
-    std::vector<glm::vec4> lights;
-    for (const PunctualLight& l : scene.lights) {
-        const float type = l.type == PunctualLight::Type::Point ? 0.0f : l.type == PunctualLight::Type::Spot ? 1.0f : 2.0f;
-        lights.push_back(glm::vec4(l.position, type));
-        lights.push_back(glm::vec4(glm::normalize(l.direction), l.range));
-        lights.push_back(glm::vec4(l.intensity, std::cos(l.inner_cone)));
-        lights.push_back(glm::vec4(std::cos(l.outer_cone), 0.0f, 0.0f, 0.0f));
-    }
-    punctual_count_ = uint32_t(scene.lights.size());
-    punctual_lights_ = GpuBuffer(lights);
 }
 
 void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
@@ -171,7 +104,7 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     // Two vec4 per work group of the resolve pass, however it is dispatched.
     error_partials_ = GpuBuffer(2 * std::max<size_t>(1, resolve_.groups_1d(covered_count_)) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
-    rays_per_texel_ = uint64_t(1 + punctual_count_ + (emitter_count_ ? settings_.light_samples : 0));
+    rays_per_texel_ = uint64_t(1 + shading_.punctual_count() + (shading_.emitter_count() ? settings_.light_samples : 0));
     relocate_samples_inside_geometry(texels.samples.size());
 }
 
@@ -220,9 +153,7 @@ PassStats RadiosityMapBaker::step() {
     covered_.bind(3);
     accumulators_.bind(4);
     reflected_.bind(5);
-    surface_triangles_.bind(6);
-    emitters_.bind(7);
-    punctual_lights_.bind(8);
+    shading_.bind();
     error_partials_.bind(9);
     texel_anchors_.bind(11);
 
@@ -236,8 +167,7 @@ PassStats RadiosityMapBaker::step() {
     glUniform3fv(gather_.uniform("background"), 1, &settings_.background.x);
     glUniform1f(gather_.uniform("far"), far);
     glUniform2ui(gather_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
-    glUniform1ui(gather_.uniform("emitter_count"), emitter_count_);
-    glUniform1ui(gather_.uniform("punctual_count"), punctual_count_);
+    shading_.set_uniforms(gather_);
     gather_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 

@@ -5,6 +5,7 @@
 
 #include "atlas/texel_samples.h"
 #include "bake/progressive.h"
+#include "bake/scene_shading.h"
 #include "gpu/shader.h"
 #include "io/image_files.h"
 #include "scene/scene.h"
@@ -78,7 +79,6 @@ public:
     size_t covered_texels() const { return covered_count_; }
 
 private:
-    void upload_scene(const Scene& scene);
     void upload_texels(const TexelSamples& texels);
     void relocate_samples_inside_geometry(size_t sample_count);
     void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
@@ -87,15 +87,15 @@ private:
     RadiosityMapSettings settings_;
     int width_ = 0, height_ = 0;
     size_t covered_count_ = 0;
-    uint32_t punctual_count_ = 0, emitter_count_ = 0;
     std::vector<uint32_t> covered_atlas_index_;
     std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices
 
     ComputeProgram gather_;
     ComputeProgram resolve_{"radiosity_resolve.comp"};
     ComputeProgram copy_{"copy_texels.comp"};
-    GpuBuffer sample_points_, covered_, accumulators_, reflected_, surface_triangles_;
-    GpuBuffer emitters_, punctual_lights_, error_partials_, dilation_pairs_, texel_anchors_;
+    SceneShading shading_;
+    GpuBuffer sample_points_, covered_, accumulators_, reflected_;
+    GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
 
     PassStats stats_;
     int pass_in_epoch_ = 0;

@@ -13,44 +13,14 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 #include "lightmap_lookup.glsl"
 #include "direct_light.glsl"
 #include "radiosity_texels.glsl"
+#include "path_trace.glsl"
 
 
 uniform uint pass;            // 0-based pass count since the bake began
 uniform uint pass_in_epoch;   // 0-based; the stratification restarts with each epoch
 uniform uint seed;
 uniform uint light_samples;   // emitter samples per texel per pass
-uniform vec3 background;      // radiance of rays that escape (W/(sr·m²))
-uniform float far;            // longer than any ray inside the scene
 
-#ifdef LF_PATH_TRACE
-// Radiance reflected towards the previous vertex by the path continuing from
-// `hit` (emission excluded: the first vertex counts it by MIS), E/pi units.
-vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint rays) {
-    vec3 result = vec3(0.0);
-    vec3 throughput = vec3(1.0);
-    for (int bounce = 0; bounce < 64; ++bounce) {
-        vec3 ny = normalize(hit.front ? hit.normal : -hit.normal);  // the side the path arrived on
-        vec3 y = offset_ray_origin(origin + hit.t * dir, ny);
-        throughput *= hit_albedo(hit);
-        float keep = max(throughput.r, max(throughput.g, throughput.b));
-        if (keep <= 0.0) break;
-        vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
-        rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
-        result += throughput * e * (1.0 / PI);
-        if (bounce >= 3) {
-            if (rng_next(rng) >= keep) break;
-            throughput /= keep;
-        }
-        origin = y;
-        dir = sample_cosine_hemisphere(ny, rng_next2(rng));
-        hit = trace_closest(origin, dir, far);
-        rays += 1u;
-        if (hit.triangle == LF_NO_HIT) { result += throughput * background; break; }
-        if (!(hit.front || hit_is_double_sided(hit))) break;
-    }
-    return result;
-}
-#endif
 
 void main() {
     uint i = covered_index();

@@ -1,0 +1,182 @@
+#include "bake/probes_method.h"
+
+#include "bake/bake_job.h"
+#include "probes/probe_eval.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace lf {
+
+namespace {
+
+uint64_t capture_texels(size_t probes, int r) { return uint64_t(probes) * 6u * uint64_t(r) * uint64_t(r); }
+
+}  // namespace
+
+std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::ProbesSettings& settings, float* spacing) {
+    *spacing = 0.0f;
+    std::vector<glm::vec3> points;
+    if (!settings.positions.empty()) {
+        for (const auto& p : settings.positions) points.emplace_back(p[0], p[1], p[2]);
+        return points;
+    }
+    // A grid of cell centres over the bounds; auto spacing: a quarter of the
+    // largest extent (4 probes along it).
+    const glm::vec3 extent = scene.bounds.extent();
+    const float largest = std::max({extent.x, extent.y, extent.z});
+    const float step = settings.spacing ? float(*settings.spacing) : largest / 4.0f;
+    if (!(step > 0.0f)) return points;
+    *spacing = step;
+    glm::ivec3 counts;
+    for (int a = 0; a < 3; ++a) counts[a] = std::max(1, int(std::floor(extent[a] / step)));
+    const uint64_t total = uint64_t(counts.x) * uint64_t(counts.y) * uint64_t(counts.z);
+    if (total > 4096)
+        throw BakeInputError("probes: a grid at " + std::to_string(step) + " m spacing has " + std::to_string(total) +
+                             " probes, more than 4096; raise --probe-spacing");
+    const glm::vec3 lo = scene.bounds.centre() - 0.5f * glm::vec3(counts) * step;
+    for (int z = 0; z < counts.z; ++z)
+        for (int y = 0; y < counts.y; ++y)
+            for (int x = 0; x < counts.x; ++x)
+                points.push_back(lo + (glm::vec3(x, y, z) + 0.5f) * step);
+    return points;
+}
+
+ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
+    : prepared_(prepared),
+      settings_(*settings.probes),
+      stop_(stop_rule_from(settings.probes->stop)),
+      seed_(settings.seed),
+      shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene) {
+    if (settings.env.sky) background_ = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
+    positions_ = place(prepared.scene, settings_, &spacing_);
+    if (positions_.empty()) throw BakeInputError(prepared.file.filename().string() + ": probes: no point to place a probe at");
+    const uint64_t texels = capture_texels(positions_.size(), settings_.res);
+    if (texels > kMaxCaptureTexels)
+        throw BakeInputError("probes: " + std::to_string(positions_.size()) + " probes at --probe-res " +
+                             std::to_string(settings_.res) + " are " + std::to_string(texels) +
+                             " capture texels, more than " + std::to_string(kMaxCaptureTexels) +
+                             "; lower --probe-res or place fewer probes");
+    std::vector<glm::vec4> points;
+    for (const glm::vec3& p : positions_) points.emplace_back(p, 0.0f);
+    positions_buffer_ = GpuBuffer(points);
+    texels_ = GpuBuffer(size_t(texels) * 2 * sizeof(glm::vec4));
+    texels_.clear_zero();
+    rays_ = GpuBuffer(std::vector<uint32_t>{0u});
+}
+
+nlohmann::json ProbesMethod::description() const {
+    return {{"probes", positions_.size()},
+            {"settings", {{"method", "robust_probes"}, {"placement", settings_.positions.empty() ? "grid" : "explicit"},
+                          {"spacing", spacing_}, {"capture_resolution", settings_.res}, {"m", settings_.m},
+                          {"radiance", "emission + reflected light traced as paths from the hit point"},
+                          {"max_passes", stop_.max_passes}, {"target_error", stop_.target_error},
+                          {"time_limit", stop_.time_limit}, {"seed", seed_}}}};
+}
+
+PassStats ProbesMethod::step() {
+    const auto start = std::chrono::steady_clock::now();
+    const uint64_t texels = capture_texels(positions_.size(), settings_.res);
+    prepared_.tracer->bind();
+    shading_.bind();
+    positions_buffer_.bind(12);
+    texels_.bind(13);
+    rays_.bind(14);
+    capture_.use();
+    shading_.set_uniforms(capture_);
+    glUniform1ui(capture_.uniform("texel_count"), GLuint(texels));
+    glUniform1ui(capture_.uniform("resolution"), GLuint(settings_.res));
+    glUniform1ui(capture_.uniform("pass"), GLuint(stats_.pass));
+    glUniform1ui(capture_.uniform("seed"), seed_);
+    glUniform3fv(capture_.uniform("background"), 1, &background_.x);
+    glUniform1f(capture_.uniform("far"), 1e30f);
+    capture_.dispatch_1d(texels);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+
+    // The error estimate, as the lightmap's: the texels' RMS standard error
+    // over their mean radiance, sqrt(Σ Var(mean) / n) / (Σ mean / n) (reading
+    // it back also waits for the pass).
+    const std::vector<glm::vec4> acc = texels_.read<glm::vec4>();
+    double variance = 0.0, level = 0.0;
+    for (size_t t = 0; t < texels; ++t) {
+        const glm::vec4 a = acc[2 * t], b = acc[2 * t + 1];
+        if (a.w < 1.0f) continue;
+        const double mean = (double(a.r) + a.g + a.b) / (3.0 * a.w);
+        level += mean;
+        if (a.w >= 2.0f) variance += std::max(0.0, double(b.w) / a.w - mean * mean) / (a.w - 1.0);
+    }
+    ++stats_.pass;
+    stats_.rays += rays_.read<uint32_t>()[0];  // this pass's rays (a 32-bit counter, reset every pass)
+    rays_.clear_zero();
+    stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (stats_.pass >= 2 && level > 0.0) stats_.error_estimate = std::sqrt(variance / double(texels)) / (level / double(texels));
+    return stats_;
+}
+
+ProbeSet ProbesMethod::current_set() const {
+    const int r = settings_.res, m = settings_.m;
+    const size_t per_probe = size_t(6) * r * r;
+    const std::vector<glm::vec4> acc = texels_.read<glm::vec4>();
+    ProbeSet set;
+    set.m = m;
+    set.capture_resolution = r;
+    set.settings = description()["settings"];
+    for (size_t k = 0; k < positions_.size(); ++k) {
+        std::vector<glm::vec3> radiance(per_probe);
+        std::vector<float> distance(per_probe);
+        double rays = 0.0, backfaces = 0.0;
+        float nearest = kMissDistance;
+        for (size_t t = 0; t < per_probe; ++t) {
+            const glm::vec4 a = acc[2 * (k * per_probe + t)], b = acc[2 * (k * per_probe + t) + 1];
+            radiance[t] = a.w > 0.0f ? glm::vec3(a) / a.w : glm::vec3(0.0f);
+            distance[t] = b.y > 0.0f ? b.x / b.y : kMissDistance;
+            nearest = std::min(nearest, distance[t]);
+            rays += a.w;
+            backfaces += b.z;
+        }
+        Probe p;
+        p.position = positions_[k];
+        p.backface_fraction = rays > 0.0 ? float(backfaces / rays) : 0.0f;
+        if (p.backface_fraction > kInsideBackfaceFraction) {
+            p.valid = false;
+            p.why = "inside geometry";
+        } else if (spacing_ > 0.0f && nearest > kFarInSpacings * spacing_) {
+            p.valid = false;
+            p.why = "far from every surface";
+        }
+        if (p.valid) {
+            p.sh9 = project_cube_to_sh9(r, radiance);
+            downsample_faces(r, radiance, distance, m, p.radiance, p.distance);
+        }
+        set.probes.push_back(std::move(p));
+    }
+    return set;
+}
+
+std::vector<std::string> ProbesMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
+    std::string stem = snapshot_file_name("probes", stats.pass, "");  // "probes.pass-0004."
+    stem.pop_back();
+    return write_probe_set(dir, current_set(), stem);
+}
+
+MethodResult ProbesMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
+    const ProbeSet set = current_set();
+    MethodResult result;
+    result.files = write_probe_set(dir, set);
+    nlohmann::json kept = nlohmann::json::object();
+    for (const Probe& p : set.probes) kept[p.why] = kept.value(p.why, 0) + 1;
+    result.manifest = {
+        {"settings", description()["settings"]},
+        {"result", protocol::to_json(stats)},
+        {"probes", set.probes.size()},
+        {"kept", kept},
+        {"files", {{"probes.json", "probe positions, validity and why, SH9 per probe, settings (gi/probes/probe_set.h)"},
+                   {"probes.exr", "every probe's M x M cube faces: R,G,B radiance and Z distance (layout in probes.json's header)"},
+                   {"probes.pass-NNNN.json", "intermediate probe set"},
+                   {"probes.pass-NNNN.exr", "intermediate probe images"}}},
+    };
+    return result;
+}
+
+}  // namespace lf

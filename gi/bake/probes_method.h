@@ -1,0 +1,65 @@
+// The probes output of a bake job (Umenhoffer & Szirmay-Kalos, "Robust
+// Diffuse Final Gathering on the GPU"): light probes for dynamic objects.
+// Each probe is a cube map from its reference point of the radiance and the
+// distance of the surfaces it sees (gi/shaders/probe_capture.comp, one ray
+// and path per texel per pass through the job's one tracer), downsampled to
+// M x M per face and written as probes.exr + probes.json (gi/probes/probe_set.h).
+//
+// Placement models no more than the scene needs: explicit points, or a grid
+// over the scene's bounds; a probe whose rays mostly meet the backs of
+// one-sided surfaces is inside geometry and is dropped, and so is a grid
+// probe far from every surface. probes.json says which were kept and why.
+#pragma once
+
+#include "bake/prepared_scene.h"
+#include "bake/progressive.h"
+#include "bake/scene_shading.h"
+#include "bake_settings.h"
+#include "gpu/shader.h"
+#include "probes/probe_set.h"
+
+#include <vector>
+
+namespace lf {
+
+class ProbesMethod : public ProgressiveMethod {
+public:
+    // A probe is inside geometry when more of its rays than this meet backs.
+    static constexpr float kInsideBackfaceFraction = 0.25f;
+    // A grid probe is far from every surface when its nearest hit is farther
+    // than this many grid spacings.
+    static constexpr float kFarInSpacings = 1.5f;
+    // Capture texels (probes x 6 x R²) a job may ask for: 32 bytes each on the GPU.
+    static constexpr uint64_t kMaxCaptureTexels = uint64_t(1) << 25;
+
+    // Throws BakeInputError for a grid or capture too large.
+    ProbesMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings);
+
+    std::string output() const override { return "probes"; }
+    StopRule stop_rule() const override { return stop_; }
+    nlohmann::json description() const override;
+    PassStats step() override;
+    std::vector<std::string> snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
+    MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
+
+    // The reference points a job's settings place in a scene (explicit, or
+    // the grid), before validity is known. Public for tests.
+    static std::vector<glm::vec3> place(const Scene& scene, const protocol::ProbesSettings& settings, float* spacing);
+
+private:
+    ProbeSet current_set() const;
+
+    const PreparedScene& prepared_;
+    protocol::ProbesSettings settings_;
+    StopRule stop_;
+    uint32_t seed_;
+    glm::vec3 background_{0.0f};
+    float spacing_ = 0.0f;  // 0 for explicit points
+    std::vector<glm::vec3> positions_;
+    SceneShading shading_;
+    ComputeProgram capture_{"probe_capture.comp"};
+    GpuBuffer positions_buffer_, texels_, rays_;
+    PassStats stats_;
+};
+
+}  // namespace lf

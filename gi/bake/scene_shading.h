@@ -1,0 +1,33 @@
+// What a ray needs where it lands, on the GPU, for every method that shades
+// hits (the radiosity map, the probes): per triangle its lightmap UVs,
+// sidedness, emission and emitter-sampling density, and albedo
+// (lightmap_lookup.glsl's SurfaceTriangles, binding 6); the emissive
+// triangles chosen in proportion to their power (direct_light.glsl's
+// Emitters, binding 7); and the punctual lights (binding 8).
+#pragma once
+
+#include "gpu/shader.h"
+#include "scene/scene.h"
+
+#include <cstdint>
+
+namespace lf {
+
+class SceneShading {
+public:
+    explicit SceneShading(const Scene& scene);
+
+    // Binds the three buffers at the bindings the shaders declare.
+    void bind() const;
+    // Sets direct_light.glsl's emitter_count and punctual_count on `program` (in use).
+    void set_uniforms(const ComputeProgram& program) const;
+
+    uint32_t emitter_count() const { return emitter_count_; }
+    uint32_t punctual_count() const { return punctual_count_; }
+
+private:
+    GpuBuffer surface_triangles_, emitters_, punctual_lights_;
+    uint32_t emitter_count_ = 0, punctual_count_ = 0;
+};
+
+}  // namespace lf

@@ -1,0 +1,487 @@
+#include "probes/probe_eval.h"
+
+#include "sh/sh_basis.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace lf {
+
+namespace {
+
+using glm::dvec3;
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Lambert's sum over the edges of a polygon given by its corners relative to x.
+double lambert_sum(const dvec3* r, int count, dvec3 n) {
+    double sum = 0.0;
+    for (int l = 0; l < count; ++l) {
+        const dvec3 a = r[l], b = r[(l + 1) % count];
+        const dvec3 c = glm::cross(a, b);
+        const double len = glm::length(c);
+        // An edge through x (or a zero-length one) has no direction to project.
+        if (!(len > 1e-15 * glm::length(a) * glm::length(b))) continue;
+        sum += std::atan2(len, glm::dot(a, b)) * glm::dot(c, n) / len;
+    }
+    return sum / (2.0 * kPi);
+}
+
+// Clips the polygon r (relative to x) to n · r >= 0; returns the corner count.
+int clip_to_plane(const dvec3* r, int count, dvec3 n, dvec3* out) {
+    int k = 0;
+    for (int l = 0; l < count; ++l) {
+        const dvec3 a = r[l], b = r[(l + 1) % count];
+        const double ha = glm::dot(n, a), hb = glm::dot(n, b);
+        if (ha >= 0.0) out[k++] = a;
+        if ((ha >= 0.0) != (hb >= 0.0)) out[k++] = a + (b - a) * (ha / (ha - hb));
+    }
+    return k;
+}
+
+double clipped_sum(const dvec3* r, int count, dvec3 n) {
+    dvec3 clipped[2 * 8 + 2];
+    const int k = clip_to_plane(r, count, n, clipped);
+    return k >= 3 ? lambert_sum(clipped, k, n) : 0.0;
+}
+
+// Face coordinates (u, v) of a point on the cube [-1, 1]³ lying on `face`
+// (the inverse of cube_direction's table).
+glm::dvec2 cube_face_uv(int face, dvec3 p) {
+    double s, t;
+    switch (face) {
+    case 0: s = -p.z / p.x; t = -p.y / p.x; break;
+    case 1: s = p.z / -p.x; t = -p.y / -p.x; break;
+    case 2: s = p.x / p.y; t = p.z / p.y; break;
+    case 3: s = p.x / -p.y; t = -p.z / -p.y; break;
+    case 4: s = p.x / p.z; t = -p.y / p.z; break;
+    default: s = -p.x / -p.z; t = -p.y / -p.z; break;
+    }
+    return {(s + 1.0) / 2.0, (t + 1.0) / 2.0};
+}
+
+bool on_face(int face, dvec3 p) {
+    const int axis = face / 2;
+    const double sign = face % 2 == 0 ? 1.0 : -1.0;
+    return p[axis] * sign > 1.0 - 1e-6;
+}
+
+double area_term(double x, double y) { return std::atan2(x * y, std::sqrt(x * x + y * y + 1.0)); }
+
+}  // namespace
+
+float polygon_to_point_form_factor(glm::vec3 x, glm::vec3 n, const glm::vec3* corners, int count) {
+    if (count < 3 || count > 64) throw std::invalid_argument("polygon_to_point_form_factor: 3..64 corners");
+    dvec3 r[64];
+    for (int l = 0; l < count; ++l) r[l] = dvec3(corners[l]) - dvec3(x);
+    return float(lambert_sum(r, count, dvec3(n)));
+}
+
+float clipped_polygon_to_point_form_factor(glm::vec3 x, glm::vec3 n, const glm::vec3* corners, int count) {
+    if (count < 3 || count > 8) throw std::invalid_argument("clipped_polygon_to_point_form_factor: 3..8 corners");
+    dvec3 r[8];
+    for (int l = 0; l < count; ++l) r[l] = dvec3(corners[l]) - dvec3(x);
+    return float(clipped_sum(r, count, dvec3(n)));
+}
+
+double cube_texel_solid_angle(int r, int i, int j) {
+    // The solid angle of the face-plane rectangle [0, x] × [0, y] at unit
+    // distance is atan(xy / sqrt(x² + y² + 1)); a texel by inclusion-exclusion.
+    const double x0 = 2.0 * i / r - 1.0, x1 = 2.0 * (i + 1) / r - 1.0;
+    const double y0 = 2.0 * j / r - 1.0, y1 = 2.0 * (j + 1) / r - 1.0;
+    return area_term(x0, y0) - area_term(x0, y1) - area_term(x1, y0) + area_term(x1, y1);
+}
+
+std::array<glm::vec3, 9> project_cube_to_sh9(int r, const std::vector<glm::vec3>& radiance) {
+    if (r < 1 || radiance.size() != size_t(6) * r * r)
+        throw std::invalid_argument("project_cube_to_sh9: radiance must hold 6·r·r texels");
+    std::vector<double> solid(size_t(r) * r);
+    for (int j = 0; j < r; ++j)
+        for (int i = 0; i < r; ++i) solid[size_t(j) * r + i] = cube_texel_solid_angle(r, i, j);
+    std::array<dvec3, 9> sum{};
+    for (int face = 0; face < 6; ++face)
+        for (int j = 0; j < r; ++j)
+            for (int i = 0; i < r; ++i) {
+                const glm::vec3 d = cube_direction(face, (i + 0.5f) / r, (j + 0.5f) / r);
+                const ShCoefficients y = sh_evaluate(d);
+                const dvec3 l = dvec3(radiance[(size_t(face) * r + j) * r + i]) * solid[size_t(j) * r + i];
+                for (int c = 0; c < 9; ++c) sum[c] += l * double(y[c]);
+            }
+    std::array<glm::vec3, 9> out;
+    for (int c = 0; c < 9; ++c) out[c] = glm::vec3(sum[c]);
+    return out;
+}
+
+glm::vec3 sh9_irradiance_over_pi(const std::array<glm::vec3, 9>& sh9, glm::vec3 n) {
+    // Ramamoorthi & Hanrahan's A_l / π: 1, 2/3, 1/4.
+    static constexpr float kBand[9] = {1.0f, 2.0f / 3, 2.0f / 3, 2.0f / 3, 0.25f, 0.25f, 0.25f, 0.25f, 0.25f};
+    const ShCoefficients y = sh_evaluate(glm::normalize(n));
+    glm::vec3 e(0.0f);
+    for (int c = 0; c < 9; ++c) e += sh9[c] * (kBand[c] * y[c]);
+    return e;
+}
+
+double texel_mean_stretch(int m, int i, int j) {
+    // The mean of |q| = sqrt(1 + s² + t²) over the texel's square in face
+    // coordinates (the capture's rays are spread evenly in (s, t)): a wall at
+    // depth z along the face axis is seen at distances z·|q|.
+    constexpr int kSteps = 16;
+    double sum = 0.0;
+    for (int b = 0; b < kSteps; ++b)
+        for (int a = 0; a < kSteps; ++a) {
+            const double s = 2.0 * (i + (a + 0.5) / kSteps) / m - 1.0, t = 2.0 * (j + (b + 0.5) / kSteps) / m - 1.0;
+            sum += std::sqrt(1.0 + s * s + t * t);
+        }
+    return sum / (kSteps * kSteps);
+}
+
+std::vector<float> cube_texel_depths(int m, const std::vector<float>& distance) {
+    if (m < 1 || distance.size() != size_t(6) * m * m)
+        throw std::invalid_argument("cube_texel_depths: distance must hold 6·M·M texels");
+    std::vector<double> stretch(size_t(m) * m);
+    for (int j = 0; j < m; ++j)
+        for (int i = 0; i < m; ++i) stretch[size_t(j) * m + i] = texel_mean_stretch(m, i, j);
+    std::vector<float> depth(distance.size());
+    for (int face = 0; face < 6; ++face)
+        for (int j = 0; j < m; ++j)
+            for (int i = 0; i < m; ++i) {
+                const size_t k = (size_t(face) * m + j) * m + i;
+                depth[k] = distance[k] < kMissDistance ? float(distance[k] / stretch[size_t(j) * m + i]) : kMissDistance;
+            }
+    return depth;
+}
+
+std::vector<float> cube_corner_distances(int m, const std::vector<float>& distance) {
+    const std::vector<float> depth = cube_texel_depths(m, distance);
+    const int side = m + 1;
+    std::vector<float> out(size_t(6) * side * side, kMissDistance);
+    for (int face = 0; face < 6; ++face)
+        for (int b = 0; b <= m; ++b)
+            for (int a = 0; a <= m; ++a) {
+                const dvec3 d(cube_direction(face, float(a) / m, float(b) / m));
+                // The corner's point on the cube [-1, 1]³: |p| is the distance
+                // along the corner direction to depth 1 on every face it lies on.
+                const dvec3 p = d / std::max({std::abs(d.x), std::abs(d.y), std::abs(d.z)});
+                double sum = 0.0;
+                int hits = 0;
+                for (int f = 0; f < 6; ++f) {
+                    if (!on_face(f, p)) continue;
+                    const glm::dvec2 uv = cube_face_uv(f, p);
+                    const int ca = int(std::lround(uv.x * m)), cb = int(std::lround(uv.y * m));
+                    for (int j = cb - 1; j <= cb; ++j)
+                        for (int i = ca - 1; i <= ca; ++i) {
+                            if (i < 0 || j < 0 || i >= m || j >= m) continue;
+                            const float z = depth[(size_t(f) * m + j) * m + i];
+                            if (z < kMissDistance) {
+                                sum += z;
+                                ++hits;
+                            }
+                        }
+                }
+                if (hits > 0) out[(size_t(face) * side + b) * side + a] = float(glm::length(p) * sum / hits);
+            }
+    return out;
+}
+
+PreparedProbe prepare_probe(const Probe& probe, int m) {
+    const size_t texels = size_t(6) * m * m;
+    if (m < 1 || probe.radiance.size() != texels || probe.distance.size() != texels)
+        throw std::invalid_argument("prepare_probe: the probe's faces must hold 6·M·M texels");
+    PreparedProbe p;
+    p.position = probe.position;
+    p.m = m;
+    p.sh9 = probe.sh9;
+    p.texels.resize(texels);
+    const std::vector<float> corner = cube_corner_distances(m, probe.distance);
+    const std::vector<float> depth = cube_texel_depths(m, probe.distance);
+    const int side = m + 1;
+    for (int face = 0; face < 6; ++face)
+        for (int j = 0; j < m; ++j)
+            for (int i = 0; i < m; ++i) {
+                const size_t k = (size_t(face) * m + j) * m + i;
+                PreparedProbe::Texel& t = p.texels[k];
+                t.radiance = probe.radiance[k];
+                t.distance = probe.distance[k];
+                t.direction = cube_direction(face, (i + 0.5f) / m, (j + 0.5f) / m);
+                // The virtual light: on the texel's plane (depth) along its centre direction.
+                const float s = 2.0f * (i + 0.5f) / m - 1.0f, tc = 2.0f * (j + 0.5f) / m - 1.0f;
+                const float centre_distance = depth[k] < kMissDistance ? depth[k] * std::sqrt(1.0f + s * s + tc * tc)
+                                                                       : kMissDistance;
+                t.centre = p.position + centre_distance * t.direction;
+                t.solid_angle = float(cube_texel_solid_angle(m, i, j));
+                // Counter-clockwise about the outward direction: cube_direction's
+                // (∂/∂u × ∂/∂v) points inward on every face, so (u, v) corners go
+                // (i, j), (i, j+1), (i+1, j+1), (i+1, j).
+                const int ca[4] = {i, i, i + 1, i + 1}, cb[4] = {j, j + 1, j + 1, j};
+                for (int c = 0; c < 4; ++c) {
+                    const glm::vec3 d = cube_direction(face, float(ca[c]) / m, float(cb[c]) / m);
+                    t.corner_directions[c] = d;
+                    t.corners[c] = p.position + corner[(size_t(face) * side + cb[c]) * side + ca[c]] * d;
+                }
+                glm::vec3 normal = glm::cross(t.corners[2] - t.corners[0], t.corners[3] - t.corners[1]);
+                const float len = glm::length(normal);
+                normal = len > 0.0f && std::isfinite(len) ? normal / len : -t.direction;
+                if (glm::dot(normal, -t.direction) < 0.0f) normal = -normal;
+                t.normal = normal;
+                // The surface seen through the texel: its area from the solid
+                // angle and distance, tilted by the polygon's normal (floored so
+                // that a grazing polygon does not make it unbounded).
+                const float facing = std::max(glm::dot(normal, -t.direction), 0.02f);
+                t.area = t.solid_angle * centre_distance * centre_distance / facing;
+            }
+    return p;
+}
+
+glm::vec3 probe_sh9(const PreparedProbe& p, glm::vec3 n) { return sh9_irradiance_over_pi(p.sh9, n); }
+
+glm::vec3 probe_point_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n) {
+    const dvec3 xd(x), nd(glm::normalize(n));
+    dvec3 sum(0.0);
+    for (const PreparedProbe::Texel& t : p.texels) {
+        if (t.radiance == glm::vec3(0.0f)) continue;
+        const dvec3 to_light = dvec3(t.centre) - xd;
+        const double r2 = glm::dot(to_light, to_light);
+        if (!(r2 > 0.0)) continue;  // x exactly on the virtual light: undefined, skipped
+        const double r = std::sqrt(r2);
+        const double cos_x = glm::dot(nd, to_light) / r;
+        const double cos_y = -glm::dot(dvec3(t.normal), to_light) / r;
+        if (cos_x <= 0.0 || cos_y <= 0.0) continue;
+        sum += dvec3(t.radiance) * (cos_x * cos_y * double(t.area) / (kPi * r2));
+    }
+    return glm::vec3(sum);
+}
+
+glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, bool clip_to_horizon) {
+    const dvec3 xd(x), nd(glm::normalize(n));
+    dvec3 sum(0.0);
+    for (const PreparedProbe::Texel& t : p.texels) {
+        if (t.radiance == glm::vec3(0.0f)) continue;
+        dvec3 r[4];
+        for (int c = 0; c < 4; ++c) r[c] = dvec3(t.corners[c]) - xd;
+        const double f = clip_to_horizon ? clipped_sum(r, 4, nd) : lambert_sum(r, 4, nd);
+        sum += dvec3(t.radiance) * std::max(f, 0.0);
+    }
+    return glm::vec3(sum);
+}
+
+glm::vec3 probe_convolved_irradiance(const PreparedProbe& p, glm::vec3 n) {
+    const dvec3 nd(glm::normalize(n));
+    dvec3 sum(0.0);
+    for (const PreparedProbe::Texel& t : p.texels) {
+        if (t.radiance == glm::vec3(0.0f)) continue;
+        dvec3 r[4];
+        for (int c = 0; c < 4; ++c) r[c] = dvec3(t.corner_directions[c]);
+        sum += dvec3(t.radiance) * std::max(clipped_sum(r, 4, nd), 0.0);
+    }
+    return glm::vec3(sum);
+}
+
+glm::vec2 probe_distance_moments(const PreparedProbe& p, glm::vec3 w, float power) {
+    const dvec3 wd(glm::normalize(w));
+    double sw = 0.0, s1 = 0.0, s2 = 0.0;
+    for (const PreparedProbe::Texel& t : p.texels) {
+        const double c = glm::dot(wd, dvec3(t.direction));
+        if (c <= 0.0) continue;
+        const double weight = std::pow(c, double(power)) * t.solid_angle;
+        sw += weight;
+        s1 += weight * t.distance;
+        s2 += weight * double(t.distance) * t.distance;
+    }
+    if (!(sw > 0.0)) return {kMissDistance, double(kMissDistance) * kMissDistance};
+    return {float(s1 / sw), float(s2 / sw)};
+}
+
+float ddgi_probe_weight(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, const ProbeEvalOptions& options) {
+    const glm::vec3 nn = glm::normalize(n);
+    // Backface: probes behind the surface count less (smooth, never zero).
+    const glm::vec3 to_probe = p.position - x;
+    const float to_probe_len = glm::length(to_probe);
+    const float cos_back = to_probe_len > 0.0f ? glm::dot(to_probe / to_probe_len, nn) : 1.0f;
+    const float wrap = std::max(1e-4f, (cos_back + 1.0f) * 0.5f);
+    double weight = double(wrap) * wrap + 0.2;
+    // Visibility: Chebyshev's bound on the chance that the surface towards x
+    // is at least as far as x, from the distance moments in that direction.
+    const glm::vec3 v = x + options.ddgi_normal_bias * nn - p.position;
+    const double dist = glm::length(v);
+    double chebyshev = 1.0;
+    if (dist > 1e-6) {
+        const glm::vec2 moments = probe_distance_moments(p, v / float(dist), options.ddgi_moment_power);
+        const double mean = moments.x;
+        if (dist > mean) {
+            const double variance = std::abs(mean * mean - double(moments.y));
+            chebyshev = variance / (variance + (dist - mean) * (dist - mean));
+            chebyshev = std::max(chebyshev * chebyshev * chebyshev, 0.0);
+        }
+    }
+    weight *= std::max(0.05, chebyshev);
+    weight = std::max(weight, 1e-6);
+    const double crush = 0.2;
+    if (weight < crush) weight *= weight * weight / (crush * crush);
+    return float(weight);
+}
+
+ProbeEvaluation evaluate_probe(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, const ProbeEvalOptions& options) {
+    ProbeEvaluation e;
+    e.sh9 = probe_sh9(p, n);
+    e.point_to_point = probe_point_to_point(p, x, n);
+    e.polygon_to_point = probe_polygon_to_point(p, x, n, options.clip_to_horizon);
+    e.ddgi = probe_convolved_irradiance(p, n);
+    return e;
+}
+
+// ------------------------------------------------------------- sets ----
+
+ProbeEvaluator::ProbeEvaluator(const ProbeSet& set, ProbeEvalOptions options) : options_(options) {
+    const size_t n = set.probes.size();
+    prepared_.resize(n);
+    valid_.assign(n, false);
+    for (size_t k = 0; k < n; ++k) {
+        if (!set.probes[k].valid) continue;
+        prepared_[k] = prepare_probe(set.probes[k], set.m);
+        valid_[k] = true;
+        ++valid_count_;
+    }
+    if (valid_count_ == 0) throw std::invalid_argument("the probe set has no valid probe");
+
+    // A full regular lattice? (All probes, valid or not, on distinct lattice points.)
+    glm::vec3 lo(1e30f), hi(-1e30f);
+    for (const Probe& p : set.probes) {
+        lo = glm::min(lo, p.position);
+        hi = glm::max(hi, p.position);
+    }
+    const float tolerance = 1e-4f * (1.0f + glm::length(hi - lo));
+    size_t cells = 1;
+    for (int a = 0; a < 3; ++a) {
+        std::vector<float> values;
+        for (const Probe& p : set.probes) values.push_back(p.position[a]);
+        std::sort(values.begin(), values.end());
+        for (float v : values)
+            if (axis_[a].empty() || v - axis_[a].back() > tolerance) axis_[a].push_back(v);
+        cells *= axis_[a].size();
+    }
+    if (cells != n) return;
+    // A lattice is evenly spaced on each axis.
+    for (int a = 0; a < 3; ++a)
+        for (size_t i = 2; i < axis_[a].size(); ++i) {
+            const float step = axis_[a][1] - axis_[a][0];
+            if (std::abs(axis_[a][i] - axis_[a][0] - step * float(i)) > tolerance) return;
+        }
+    lattice_.assign(n, -1);
+    for (size_t k = 0; k < n; ++k) {
+        size_t index = 0;
+        for (int a = 2; a >= 0; --a) {
+            const auto& axis = axis_[a];
+            const auto it = std::lower_bound(axis.begin(), axis.end(), set.probes[k].position[a] - tolerance);
+            index = index * axis.size() + size_t(it - axis.begin());
+        }
+        if (index >= n || lattice_[index] != -1) {
+            lattice_.clear();
+            return;
+        }
+        lattice_[index] = int(k);
+    }
+    grid_ = true;
+}
+
+std::vector<std::pair<int, float>> ProbeEvaluator::weights(glm::vec3 x) const {
+    std::vector<std::pair<int, float>> out;
+    if (grid_) {
+        int i0[3];
+        float f[3];
+        for (int a = 0; a < 3; ++a) {
+            const auto& axis = axis_[a];
+            if (axis.size() == 1) {
+                i0[a] = 0;
+                f[a] = 0.0f;
+                continue;
+            }
+            const int i = int(std::upper_bound(axis.begin(), axis.end(), x[a]) - axis.begin()) - 1;
+            i0[a] = std::clamp(i, 0, int(axis.size()) - 2);
+            f[a] = std::clamp((x[a] - axis[i0[a]]) / (axis[i0[a] + 1] - axis[i0[a]]), 0.0f, 1.0f);
+        }
+        double total = 0.0;
+        for (int corner = 0; corner < 8; ++corner) {
+            float w = 1.0f;
+            size_t index = 0;
+            bool outside = false;
+            for (int a = 2; a >= 0; --a) {
+                const int bit = (corner >> a) & 1;
+                if (bit && axis_[a].size() == 1) outside = true;
+                w *= bit ? f[a] : 1.0f - f[a];
+                index = index * axis_[a].size() + size_t(i0[a] + bit);
+            }
+            if (outside || w <= 0.0f) continue;
+            const int k = lattice_[index];
+            if (!valid_[size_t(k)]) continue;
+            out.push_back({k, w});
+            total += w;
+        }
+        if (total > 0.0) {
+            for (auto& [k, w] : out) w = float(w / total);
+            return out;
+        }
+        out.clear();  // every corner of the cell is invalid: fall back to the nearest valid probes
+    }
+    std::vector<std::pair<float, int>> by_distance;
+    for (size_t k = 0; k < prepared_.size(); ++k)
+        if (valid_[k]) by_distance.push_back({glm::length(prepared_[k].position - x), int(k)});
+    std::sort(by_distance.begin(), by_distance.end());
+    if (by_distance.front().first < 1e-6f || by_distance.size() == 1) return {{by_distance.front().second, 1.0f}};
+    const size_t count = std::min<size_t>(8, by_distance.size());
+    const double radius = count < by_distance.size() ? by_distance[count].first : by_distance[count - 1].first * 1.5;
+    double total = 0.0;
+    for (size_t i = 0; i < count; ++i) {
+        const double d = by_distance[i].first;
+        const double w = std::pow(std::max(0.0, radius - d) / (radius * d), 2.0);
+        if (w <= 0.0) continue;
+        out.push_back({by_distance[i].second, float(w)});
+        total += w;
+    }
+    if (total <= 0.0) {  // every one of them as far as the next: equal weights
+        out.clear();
+        for (size_t i = 0; i < count; ++i) out.push_back({by_distance[i].second, 1.0f / float(count)});
+        return out;
+    }
+    for (auto& [k, w] : out) w = float(w / total);
+    return out;
+}
+
+ProbeEvaluation ProbeEvaluator::evaluate(glm::vec3 x, glm::vec3 n) const {
+    ProbeEvaluation e;
+    double ddgi_total = 0.0;
+    for (const auto& [k, w] : weights(x)) {
+        const PreparedProbe& p = prepared_[size_t(k)];
+        e.sh9 += w * probe_sh9(p, n);
+        e.point_to_point += w * probe_point_to_point(p, x, n);
+        e.polygon_to_point += w * probe_polygon_to_point(p, x, n, options_.clip_to_horizon);
+        const float dw = w * ddgi_probe_weight(p, x, n, options_);
+        e.ddgi += dw * probe_convolved_irradiance(p, n);
+        ddgi_total += dw;
+    }
+    if (ddgi_total > 0.0) e.ddgi /= float(ddgi_total);
+    return e;
+}
+
+ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const ProbeEvalOptions& options) {
+    return ProbeEvaluator(set, options).evaluate(x, n);
+}
+
+size_t probe_buffer_stride(int m) { return size_t(6) * m * m + (size_t(6) * (m + 1) * (m + 1) + 3) / 4; }
+
+std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
+    const int m = set.m;
+    const size_t stride = probe_buffer_stride(m), texels = size_t(6) * m * m;
+    std::vector<glm::vec4> out(stride * set.probes.size(), glm::vec4(0.0f));
+    for (size_t k = 0; k < set.probes.size(); ++k) {
+        const Probe& p = set.probes[k];
+        if (!p.valid || p.radiance.size() != texels || p.distance.size() != texels) continue;
+        glm::vec4* block = out.data() + k * stride;
+        for (size_t t = 0; t < texels; ++t) block[t] = glm::vec4(p.radiance[t], p.distance[t]);
+        const std::vector<float> corners = cube_corner_distances(m, p.distance);
+        for (size_t c = 0; c < corners.size(); ++c) block[texels + c / 4][int(c % 4)] = corners[c];
+    }
+    return out;
+}
+
+}  // namespace lf

@@ -1,0 +1,142 @@
+#include "probes/probe_set.h"
+
+#include "io/image_files.h"
+
+#include <fstream>
+#include <stdexcept>
+
+namespace lf {
+
+glm::vec3 cube_direction(int face, float u, float v) {
+    // OpenGL's table "selection of cube map images": s, t in [-1, 1] with t
+    // growing down the face (rows from the top).
+    const float s = 2.0f * u - 1.0f, t = 2.0f * v - 1.0f;
+    glm::vec3 d;
+    switch (face) {
+    case 0: d = {1.0f, -t, -s}; break;   // +X
+    case 1: d = {-1.0f, -t, s}; break;   // -X
+    case 2: d = {s, 1.0f, t}; break;     // +Y
+    case 3: d = {s, -1.0f, -t}; break;   // -Y
+    case 4: d = {s, -t, 1.0f}; break;    // +Z
+    default: d = {-s, -t, -1.0f}; break; // -Z
+    }
+    return glm::normalize(d);
+}
+
+void downsample_faces(int r, const std::vector<glm::vec3>& radiance, const std::vector<float>& distance, int m,
+                      std::vector<glm::vec3>& radiance_out, std::vector<float>& distance_out) {
+    if (m < 1 || r < m || r % m != 0) throw std::invalid_argument("downsample_faces: R must be a multiple of M");
+    const int block = r / m;
+    radiance_out.assign(size_t(6) * m * m, glm::vec3(0.0f));
+    distance_out.assign(size_t(6) * m * m, 0.0f);
+    for (int face = 0; face < 6; ++face)
+        for (int j = 0; j < m; ++j)
+            for (int i = 0; i < m; ++i) {
+                glm::vec3 l(0.0f);
+                double hit_sum = 0.0;
+                int hits = 0;
+                for (int y = j * block; y < (j + 1) * block; ++y)
+                    for (int x = i * block; x < (i + 1) * block; ++x) {
+                        const size_t fine = (size_t(face) * r + size_t(y)) * r + size_t(x);
+                        l += radiance[fine];
+                        if (distance[fine] < kMissDistance) {
+                            hit_sum += distance[fine];
+                            ++hits;
+                        }
+                    }
+                const size_t coarse = (size_t(face) * m + size_t(j)) * m + size_t(i);
+                radiance_out[coarse] = l / float(block * block);
+                distance_out[coarse] = hits > 0 ? float(hit_sum / hits) : kMissDistance;
+            }
+}
+
+namespace {
+
+nlohmann::json vec3_json(glm::vec3 v) { return {v.x, v.y, v.z}; }
+
+glm::vec3 json_vec3(const nlohmann::json& j, const std::string& what) {
+    if (!j.is_array() || j.size() != 3 || !j[0].is_number() || !j[1].is_number() || !j[2].is_number())
+        throw std::runtime_error(what + " must be [x, y, z]");
+    return {j[0].get<float>(), j[1].get<float>(), j[2].get<float>()};
+}
+
+}  // namespace
+
+std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const ProbeSet& set, const std::string& stem) {
+    const int m = set.m, n = int(set.probes.size());
+    FloatImage image;
+    image.width = 6 * m;
+    image.height = std::max(1, m * n);
+    std::vector<float>* rgb[3] = {&image.channel("R"), &image.channel("G"), &image.channel("B")};
+    std::vector<float>& z = image.channel("Z");
+    nlohmann::json probes = nlohmann::json::array();
+    for (int k = 0; k < n; ++k) {
+        const Probe& p = set.probes[size_t(k)];
+        nlohmann::json sh9 = nlohmann::json::array();
+        for (const glm::vec3& c : p.sh9) sh9.push_back(vec3_json(c));
+        probes.push_back({{"position", vec3_json(p.position)}, {"valid", p.valid}, {"why", p.why},
+                          {"backface_fraction", p.backface_fraction}, {"sh9", sh9}});
+        if (!p.valid || p.radiance.size() != size_t(6) * m * m) continue;
+        for (int face = 0; face < 6; ++face)
+            for (int j = 0; j < m; ++j)
+                for (int i = 0; i < m; ++i) {
+                    const size_t from = set.texel(face, i, j);
+                    const size_t to = size_t(k * m + j) * size_t(image.width) + size_t(face * m + i);
+                    for (int c = 0; c < 3; ++c) (*rgb[c])[to] = p.radiance[from][c];
+                    z[to] = p.distance[from];
+                }
+    }
+    image.number_attributes["lightfarm.probeM"] = m;
+    image.string_attributes["lightfarm.layout"] =
+        "faces +X,-X,+Y,-Y,+Z,-Z side by side (M columns each), probe k in rows [k*M, (k+1)*M); R,G,B radiance, Z distance (m)";
+    const std::string exr = stem + ".exr", json = stem + ".json";
+    write_exr(dir / exr, image);
+    const nlohmann::json doc = {{"format", "lightfarm.probes"}, {"version", 1}, {"image", exr}, {"m", m},
+                                {"capture_resolution", set.capture_resolution}, {"probes", probes},
+                                {"settings", set.settings}};
+    write_file_atomic(dir / json, doc.dump(2) + "\n");
+    return {json, exr};
+}
+
+ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
+    const std::string name = probes_json.filename().string();
+    std::ifstream in(probes_json);
+    if (!in) throw std::runtime_error(probes_json.string() + ": cannot be read");
+    const nlohmann::json doc = nlohmann::json::parse(in, nullptr, false);
+    if (!doc.is_object() || doc.value("format", "") != "lightfarm.probes")
+        throw std::runtime_error(name + ": not a lightfarm probes file");
+    ProbeSet set;
+    set.m = doc.value("m", 0);
+    set.capture_resolution = doc.value("capture_resolution", 0);
+    if (set.m < 1 || set.m > 256) throw std::runtime_error(name + ": m must be 1..256");
+    set.settings = doc.value("settings", nlohmann::json::object());
+    const FloatImage image = read_exr(probes_json.parent_path() / doc.value("image", "probes.exr"));
+    const auto& probes = doc.at("probes");
+    if (image.width != 6 * set.m || image.height < set.m * int(probes.size()))
+        throw std::runtime_error(name + ": the image's size does not match m and the probe count");
+    const std::vector<float>*rgb[3] = {&image.at("R"), &image.at("G"), &image.at("B")}, &z = image.at("Z");
+    for (size_t k = 0; k < probes.size(); ++k) {
+        const nlohmann::json& j = probes[k];
+        Probe p;
+        p.position = json_vec3(j.at("position"), name + ": probe " + std::to_string(k) + " position");
+        p.valid = j.value("valid", true);
+        p.why = j.value("why", "");
+        p.backface_fraction = j.value("backface_fraction", 0.0f);
+        if (j.contains("sh9") && j["sh9"].is_array() && j["sh9"].size() == 9)
+            for (size_t c = 0; c < 9; ++c) p.sh9[c] = json_vec3(j["sh9"][c], name + ": sh9");
+        p.radiance.assign(size_t(6) * set.m * set.m, glm::vec3(0.0f));
+        p.distance.assign(size_t(6) * set.m * set.m, 0.0f);
+        for (int face = 0; face < 6; ++face)
+            for (int jj = 0; jj < set.m; ++jj)
+                for (int i = 0; i < set.m; ++i) {
+                    const size_t from = size_t(int(k) * set.m + jj) * size_t(image.width) + size_t(face * set.m + i);
+                    const size_t to = set.texel(face, i, jj);
+                    p.radiance[to] = glm::vec3((*rgb[0])[from], (*rgb[1])[from], (*rgb[2])[from]);
+                    p.distance[to] = z[from];
+                }
+        set.probes.push_back(std::move(p));
+    }
+    return set;
+}
+
+}  // namespace lf

@@ -1,0 +1,73 @@
+// A baked set of light probes (Umenhoffer & Szirmay-Kalos, "Robust Diffuse
+// Final Gathering on the GPU"): per probe, a cube map taken from its
+// reference point holding, per texel, the radiance of the surface seen
+// through it and that surface's distance, downsampled to M x M per face.
+// This is what probes.exr + probes.json hold, and what evaluation reads.
+//
+// Cube faces, in this order: +X, -X, +Y, -Y, +Z, -Z (OpenGL's cube map
+// convention). Within a face, texel (i, j) (column i, row j, row 0 at the
+// top) covers face coordinates u in [i/M, (i+1)/M], v in [j/M, (j+1)/M];
+// cube_direction(face, u, v) gives the direction through (u, v). The same
+// mapping is gi/shaders/probe_cube.glsl's lf_cube_direction (tested equal).
+//
+// probes.exr: width 6·M (the faces side by side, in the order above),
+// height M·N (probe k in rows [k·M, (k+1)·M)); channels R, G, B (radiance,
+// W/(sr·m²), linear) and Z (distance in metres from the probe's position to
+// the surface seen through the texel centre, the mean over the texel's rays;
+// kMissDistance where rays escape the scene). Invalid probes' rows are 0.
+// probes.json: {"format": "lightfarm.probes", "version": 1, "image": "probes.exr",
+//   "m", "capture_resolution", "probes": [{"position": [x,y,z], "valid", "why",
+//   "backface_fraction", "sh9": [[r,g,b] x 9]}], "settings": {…}}.
+#pragma once
+
+#include <glm/glm.hpp>
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace lf {
+
+// Distance stored for a texel whose rays leave the scene: far enough that
+// its polygon subtends what the texel's solid angle does, from anywhere nearby.
+constexpr float kMissDistance = 1e6f;
+
+struct Probe {
+    glm::vec3 position{0.0f};
+    bool valid = true;
+    std::string why = "kept";        // or why it was dropped: "inside geometry", "far from every surface"
+    float backface_fraction = 0.0f;  // of the capture's rays that hit the back of a one-sided surface
+    std::vector<glm::vec3> radiance;  // 6·M·M, face-major, rows from the top
+    std::vector<float> distance;      // 6·M·M
+    std::array<glm::vec3, 9> sh9{};   // radiance at the reference point on SH bands 0..2 (index l(l+1)+m), unconvolved
+};
+
+struct ProbeSet {
+    int m = 0;                   // texels per face side after downsampling
+    int capture_resolution = 0;  // R: texels per face side when captured
+    std::vector<Probe> probes;
+    nlohmann::json settings = nlohmann::json::object();
+
+    size_t texel(int face, int i, int j) const { return (size_t(face) * m + size_t(j)) * m + size_t(i); }
+};
+
+// Unit direction through face coordinates (u, v) in [0, 1]² of a cube face (0..5).
+glm::vec3 cube_direction(int face, float u, float v);
+
+// Averages an R x R per-face capture down to M x M (R a multiple of M):
+// radiance and distance are means over each block of fine texels. Misses
+// (kMissDistance) average in as misses only when the whole block missed;
+// otherwise the block's distance is the mean over its hits, so a texel's
+// polygon corners stay on the surfaces it sees.
+void downsample_faces(int r, const std::vector<glm::vec3>& radiance, const std::vector<float>& distance, int m,
+                      std::vector<glm::vec3>& radiance_out, std::vector<float>& distance_out);
+
+// Writes probes.exr and probes.json into `dir` (atomically); returns their names.
+std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const ProbeSet& set,
+                                         const std::string& stem = "probes");
+// Reads probes.json and the image it names (beside it). Throws std::runtime_error naming the file.
+ProbeSet read_probe_set(const std::filesystem::path& probes_json);
+
+}  // namespace lf

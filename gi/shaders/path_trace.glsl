@@ -1,0 +1,36 @@
+// Paths through the scene for the brute-force estimates (the radiosity
+// map's path-tracing baseline, the probes' capture): next-event estimation
+// at every vertex (direct_light.glsl), Russian roulette after three bounces.
+// Needs trace.glsl, sampling.glsl, random.glsl, lightmap_lookup.glsl (the hit
+// surfaces) and direct_light.glsl included first.
+
+uniform vec3 background;  // radiance of rays that escape (W/(sr·m²))
+uniform float far;        // longer than any ray inside the scene
+
+// Radiance reflected towards the previous vertex by the path continuing from
+// `hit` (emission excluded: the first vertex counts it by MIS), E/pi units.
+vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint rays) {
+    vec3 result = vec3(0.0);
+    vec3 throughput = vec3(1.0);
+    for (int bounce = 0; bounce < 64; ++bounce) {
+        vec3 ny = normalize(hit.front ? hit.normal : -hit.normal);  // the side the path arrived on
+        vec3 y = offset_ray_origin(origin + hit.t * dir, ny);
+        throughput *= hit_albedo(hit);
+        float keep = max(throughput.r, max(throughput.g, throughput.b));
+        if (keep <= 0.0) break;
+        vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
+        rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
+        result += throughput * e * (1.0 / PI);
+        if (bounce >= 3) {
+            if (rng_next(rng) >= keep) break;
+            throughput /= keep;
+        }
+        origin = y;
+        dir = sample_cosine_hemisphere(ny, rng_next2(rng));
+        hit = trace_closest(origin, dir, far);
+        rays += 1u;
+        if (hit.triangle == LF_NO_HIT) { result += throughput * background; break; }
+        if (!(hit.front || hit_is_double_sided(hit))) break;
+    }
+    return result;
+}

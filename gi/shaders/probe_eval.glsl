@@ -1,0 +1,77 @@
+// Light-probe evaluation for renderers (issue 11; gi/probes/probe_eval.h is
+// the C++ twin, tested equal): the polygon-to-point form factor (Umenhoffer &
+// Szirmay-Kalos, eq. 1, each edge with its own pair of corners) and one
+// probe's polygon-to-point irradiance / π at (x, n).
+//
+// The probe texels live in an SSBO, as lf::pack_probe_buffer writes it: per
+// probe, 6·M·M vec4 texels (radiance RGB, distance), faces +X,-X,+Y,-Y,+Z,-Z,
+// rows from the top (texel (f, i, j) at (f·M + j)·M + i), then the 6·(M+1)²
+// corner distances (corner (f, a, b) at (f·(M+1) + b)·(M+1) + a) packed four
+// to a vec4. Probe k starts at vec4 k · lf_probe_stride(M). Define
+// LF_PROBE_BINDING before the #include to choose the binding (default 6).
+#ifndef LF_PROBE_EVAL_GLSL
+#define LF_PROBE_EVAL_GLSL
+
+#include "probe_cube.glsl"
+
+#ifndef LF_PROBE_BINDING
+#define LF_PROBE_BINDING 6
+#endif
+
+layout(std430, binding = LF_PROBE_BINDING) readonly buffer LfProbeTexels { vec4 lf_probe_texels[]; };
+
+const float LF_TWO_PI = 6.283185307179586;
+
+uint lf_probe_stride(int m) { return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u; }
+
+// One edge's term of Lambert's formula: angle(a, b) · n · unit(a × b).
+float lf_edge_term(vec3 a, vec3 b, vec3 n) {
+    vec3 c = cross(a, b);
+    float len = length(c);
+    if (!(len > 1e-7 * length(a) * length(b))) return 0.0;  // an edge through x
+    return atan(len, dot(a, b)) * dot(c, n) / len;
+}
+
+// Form factor from x (unit normal n) to the quad c0..c3, which winds
+// counter-clockwise about the direction from x towards it (the other winding
+// gives the negative). Exact for a planar quad above x's tangent plane; a quad
+// partly below gets the signed-cosine integral (the caller clamps it).
+float lf_polygon_to_point_form_factor(vec3 x, vec3 n, vec3 c0, vec3 c1, vec3 c2, vec3 c3) {
+    vec3 r0 = c0 - x, r1 = c1 - x, r2 = c2 - x, r3 = c3 - x;
+    float sum = lf_edge_term(r0, r1, n) + lf_edge_term(r1, r2, n) + lf_edge_term(r2, r3, n) + lf_edge_term(r3, r0, n);
+    return sum / LF_TWO_PI;
+}
+
+float lf_probe_corner_distance(uint base, int m, int face, int a, int b) {
+    uint c = uint((face * (m + 1) + b) * (m + 1) + a);
+    vec4 four = lf_probe_texels[base + uint(6 * m * m) + c / 4u];
+    return four[c % 4u];
+}
+
+// Irradiance / π at x (unit normal n) from probe `probe` (index into the
+// buffer, M texels per face side, reference point probe_position): every
+// texel a quad with corners at the corner distances, L_i · max(F_i, 0).
+vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, vec3 n) {
+    uint base = probe * lf_probe_stride(m);
+    float inv_m = 1.0 / float(m);
+    vec3 sum = vec3(0.0);
+    for (int face = 0; face < 6; ++face)
+        for (int j = 0; j < m; ++j)
+            for (int i = 0; i < m; ++i) {
+                vec3 radiance = lf_probe_texels[base + uint((face * m + j) * m + i)].rgb;
+                if (radiance == vec3(0.0)) continue;
+                // (i, j), (i, j+1), (i+1, j+1), (i+1, j): counter-clockwise about the outward direction.
+                vec3 c0 = probe_position + lf_probe_corner_distance(base, m, face, i, j) *
+                                               lf_cube_direction(face, vec2(i, j) * inv_m);
+                vec3 c1 = probe_position + lf_probe_corner_distance(base, m, face, i, j + 1) *
+                                               lf_cube_direction(face, vec2(i, j + 1) * inv_m);
+                vec3 c2 = probe_position + lf_probe_corner_distance(base, m, face, i + 1, j + 1) *
+                                               lf_cube_direction(face, vec2(i + 1, j + 1) * inv_m);
+                vec3 c3 = probe_position + lf_probe_corner_distance(base, m, face, i + 1, j) *
+                                               lf_cube_direction(face, vec2(i + 1, j) * inv_m);
+                sum += radiance * max(lf_polygon_to_point_form_factor(x, n, c0, c1, c2, c3), 0.0);
+            }
+    return sum;
+}
+
+#endif

@@ -1,0 +1,35 @@
+#version 450 core
+// Runs gi/shaders/probe_eval.glsl and probe_cube.glsl on inputs from the
+// tests (tests/test_probes.cpp), to compare with the C++ (probe_eval.h).
+//   mode 0: form factor; cases[6i..6i+5] = x, n, c0, c1, c2, c3 -> results[i].x
+//   mode 1: probe `probe` at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
+//   mode 2: cube direction; cases[i] = (face, u, v) -> results[i].xyz
+layout(local_size_x = 64) in;
+
+#define LF_PROBE_BINDING 0
+#include "probe_eval.glsl"
+
+layout(std430, binding = 1) readonly buffer Cases { vec4 cases[]; };
+layout(std430, binding = 2) writeonly buffer Results { vec4 results[]; };
+
+uniform uint item_count;
+uniform uint mode;
+uniform int m;
+uniform uint probe;
+uniform vec3 probe_position;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    if (i >= item_count) return;
+    if (mode == 0u) {
+        uint b = 6u * i;
+        float f = lf_polygon_to_point_form_factor(cases[b].xyz, cases[b + 1u].xyz, cases[b + 2u].xyz,
+                                                  cases[b + 3u].xyz, cases[b + 4u].xyz, cases[b + 5u].xyz);
+        results[i] = vec4(f, 0.0, 0.0, 0.0);
+    } else if (mode == 1u) {
+        results[i] = vec4(lf_probe_polygon_to_point(probe, m, probe_position, cases[2u * i].xyz, cases[2u * i + 1u].xyz), 0.0);
+    } else {
+        vec4 c = cases[i];
+        results[i] = vec4(lf_cube_direction(int(c.x), c.yz), 0.0);
+    }
+}

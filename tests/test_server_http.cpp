@@ -1,0 +1,457 @@
+// lightfarmd's HTTP layer against slow, idle, oversized and hostile clients
+// (issue #15), on loopback with the fake engine: slow header senders and open
+// event streams do not starve the API; requests are checked before their
+// bodies are read and bounded in memory; a POST without a body is a POST;
+// names are exactly what they say; a cache hit keeps tenants apart.
+// Every loop here is bounded in count and in time.
+#include "server_harness.h"
+
+#include <gtest/gtest.h>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <fstream>
+#include <thread>
+
+namespace lf::test {
+namespace {
+
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+
+const std::vector<std::string> kTokens = {"http-alpha-0123456789", "http-beta-0123456789", "http-gamma-0123456789",
+                                          "http-delta-0123456789"};
+const std::string& kAlice = kTokens[0];
+const std::string& kBob = kTokens[1];
+
+std::string glb(const std::string& tag) { return std::string("glTF\x02\x00\x00\x00", 8) + " " + tag; }
+
+double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+// A raw loopback connection, for what an HTTP client library will not send.
+class RawSocket {
+public:
+    explicit RawSocket(int port) {
+        fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+        sockaddr_in a{};
+        a.sin_family = AF_INET;
+        a.sin_port = htons(uint16_t(port));
+        a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+        connected_ = ::connect(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
+    }
+    ~RawSocket() { close(); }
+    RawSocket(const RawSocket&) = delete;
+    RawSocket& operator=(const RawSocket&) = delete;
+    bool connected() const { return connected_; }
+    void close() {
+        if (fd_ >= 0) ::close(fd_);
+        fd_ = -1;
+    }
+    // Sends all of `data` unless the peer stops it; returns the bytes sent.
+    size_t send(const std::string& data) {
+        size_t off = 0;
+        while (fd_ >= 0 && off < data.size()) {
+            pollfd p{fd_, POLLOUT, 0};
+            if (::poll(&p, 1, 2000) <= 0) break;
+            const ssize_t n = ::send(fd_, data.data() + off, data.size() - off, MSG_NOSIGNAL | MSG_DONTWAIT);
+            if (n < 0 && (errno == EAGAIN || errno == EINTR)) continue;
+            if (n <= 0) break;
+            off += size_t(n);
+        }
+        return off;
+    }
+    // Reads until `until` appears, the peer closes, or `timeout`.
+    std::string read(const std::string& until, std::chrono::milliseconds timeout = 3s) {
+        const auto deadline = Clock::now() + timeout;
+        while (fd_ >= 0 && (until.empty() || in_.find(until) == std::string::npos)) {
+            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()).count();
+            if (left <= 0) break;
+            pollfd p{fd_, POLLIN, 0};
+            if (::poll(&p, 1, int(left)) <= 0) break;
+            char buf[16384];
+            const ssize_t n = ::recv(fd_, buf, sizeof buf, 0);
+            if (n <= 0) break;
+            in_.append(buf, size_t(n));
+        }
+        return in_;
+    }
+    // The status code of the answer read so far (0 when none).
+    int status() {
+        read("\r\n\r\n");
+        if (in_.rfind("HTTP/1.1 ", 0) != 0 || in_.size() < 12) return 0;
+        return std::atoi(in_.c_str() + 9);
+    }
+    std::string received() const { return in_; }
+    bool peer_closed(std::chrono::milliseconds timeout) {
+        pollfd p{fd_, POLLIN, 0};
+        const auto deadline = Clock::now() + timeout;
+        while (Clock::now() < deadline) {
+            if (::poll(&p, 1, 50) > 0) {
+                char buf[4096];
+                const ssize_t n = ::recv(fd_, buf, sizeof buf, 0);
+                if (n <= 0) return true;
+                in_.append(buf, size_t(n));
+            }
+        }
+        return false;
+    }
+
+private:
+    int fd_ = -1;
+    bool connected_ = false;
+    std::string in_;
+};
+
+// kB from /proc/PID/status.
+long proc_status_kb(pid_t pid, const std::string& key) {
+    std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+    for (std::string line; std::getline(in, line);)
+        if (line.rfind(key + ":", 0) == 0) return std::atol(line.c_str() + key.size() + 1);
+    return -1;
+}
+
+class HttpTest : public ::testing::Test {
+protected:
+    TempDir tmp;
+    FakeEngine engine{tmp.path / "engine"};
+    std::unique_ptr<Lightfarmd> server;
+
+    void start(std::vector<std::string> extra = {}) {
+        std::string text;
+        for (const std::string& t : kTokens) text += t + "\n";
+        write_text(tmp.path / "tokens", text);
+        extra.insert(extra.end(), {"--workers", "1"});
+        server = std::make_unique<Lightfarmd>(tmp.path / "data", tmp.path / "tokens", engine.script, std::move(extra));
+        server->start();
+    }
+    void TearDown() override {
+        if (HasFailure() && server) std::cerr << "---- lightfarmd log ----\n" << server->log();
+    }
+    httplib::Client client(const std::string& token = kAlice) { return server->client(token); }
+    std::string upload(const std::string& token, const std::string& tag) {
+        auto r = client(token).Post("/v1/scenes", glb(tag), "model/gltf-binary");
+        EXPECT_TRUE(r && (r->status == 201 || r->status == 200)) << (r ? r->body : "no answer");
+        return r ? json::parse(r->body).value("id", "") : "";
+    }
+    httplib::Result post_job(const std::string& scene, int passes, int seed, const std::string& token = kAlice) {
+        const json spec = {{"scene", scene}, {"seed", seed}, {"outputs", {{"lightmap", {{"passes", passes}}}}}};
+        return client(token).Post("/v1/jobs", spec.dump(), "application/json");
+    }
+    std::string submit(const std::string& scene, int passes, int seed, const std::string& token = kAlice) {
+        auto r = post_job(scene, passes, seed, token);
+        EXPECT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+        return r ? json::parse(r->body).value("id", "") : "";
+    }
+    std::string request(const std::string& method, const std::string& path, const std::string& token,
+                        const std::string& more_headers = "") {
+        return method + " " + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\n" +
+               (token.empty() ? "" : "Authorization: Bearer " + token + "\r\n") + more_headers + "\r\n";
+    }
+    double metric(const std::string& name) {
+        auto r = client().Get("/metrics");
+        if (!r) return -1;
+        const size_t at = r->body.find("\n" + name + " ");
+        return at == std::string::npos ? -1 : std::atof(r->body.c_str() + at + name.size() + 2);
+    }
+};
+
+// The issue's first test: 100 clients trickling header lines and 100 event
+// streams (then vanishing) leave /healthz, GET /v1/jobs and a submission
+// answering within 1 s, and the streams that remain get their events.
+TEST_F(HttpTest, SlowClientsAndEventStreamsDoNotStarveTheApi) {
+    start({"--limit", "header_seconds=4", "--limit", "event_streams_per_token=8"});
+    engine.set("delay", "0.05");
+    const std::string scene = upload(kAlice, "busy");
+    const std::string job = submit(scene, 400, 1);  // ~20 s of progress events
+    ASSERT_FALSE(job.empty());
+
+    // 100 slow clients: a request line, then a header line now and then.
+    std::vector<std::unique_ptr<RawSocket>> slow;
+    for (int i = 0; i < 100; ++i) {
+        slow.push_back(std::make_unique<RawSocket>(server->port));
+        ASSERT_TRUE(slow.back()->connected());
+        slow.back()->send("GET /healthz HTTP/1.1\r\n");
+    }
+    std::atomic<bool> trickling{true};
+    std::thread trickle([&] {
+        for (int round = 0; round < 40 && trickling; ++round) {  // at most 40 x 250 ms
+            for (auto& s : slow) s->send("X-Slow: " + std::to_string(round) + "\r\n");
+            std::this_thread::sleep_for(250ms);
+        }
+    });
+
+    // 100 event streams of the job from four tokens, all of them the owner's
+    // (the job is Alice's: the others' are 404s, which must not count either).
+    std::vector<std::unique_ptr<RawSocket>> streams;
+    int accepted = 0, refused = 0;
+    for (int i = 0; i < 100; ++i) {
+        auto s = std::make_unique<RawSocket>(server->port);
+        ASSERT_TRUE(s->connected());
+        s->send(request("GET", "/v1/jobs/" + job + "/events", kAlice));
+        const int status = s->status();
+        if (status == 200) {
+            ++accepted;
+            streams.push_back(std::move(s));
+        } else {
+            ASSERT_EQ(status, 503) << s->received();
+            EXPECT_NE(s->received().find("Retry-After:"), std::string::npos);
+            ++refused;
+        }
+    }
+    // One token holds at most event_streams_per_token (8) streams.
+    EXPECT_EQ(accepted, 8);
+    EXPECT_EQ(refused, 92);
+
+    // The API answers within 1 s, while all of that is open.
+    auto c = client();
+    auto timed = [&](const std::string& what, const std::function<bool()>& call) {
+        const auto t0 = Clock::now();
+        EXPECT_TRUE(call()) << what;
+        const double took = seconds_since(t0);
+        std::cerr << what << " with 100 slow clients and " << accepted << " open streams: " << took * 1000 << " ms\n";
+        EXPECT_LT(took, 1.0) << what;
+    };
+    timed("healthz", [&] { auto r = c.Get("/healthz"); return r && r->status == 200; });
+    timed("list jobs", [&] { auto r = c.Get("/v1/jobs"); return r && r->status == 200; });
+    timed("submit", [&] { auto r = post_job(scene, 2, 99); return r && r->status == 201; });
+    // Other tokens still open their own streams.
+    {
+        RawSocket other(server->port);
+        other.send(request("GET", "/v1/jobs/" + job + "/events", kBob));
+        EXPECT_EQ(other.status(), 404);  // not Bob's job: and no stream slot taken
+    }
+
+    // Half the streams vanish; the others still get events, and the slots
+    // come back for new streams within a few seconds.
+    for (size_t i = 0; i < streams.size(); i += 2) streams[i]->close();
+    for (size_t i = 1; i < streams.size(); i += 2) {
+        const size_t before = streams[i]->received().size();
+        streams[i]->read("event: progress");
+        const std::string more = streams[i]->read("", 300ms);
+        EXPECT_GT(more.size(), before) << "stream " << i << " got no events";
+    }
+    const auto deadline = Clock::now() + 5s;
+    while (metric("lightfarm_event_streams") > 4 && Clock::now() < deadline) std::this_thread::sleep_for(50ms);
+    EXPECT_EQ(metric("lightfarm_event_streams"), 4);
+    RawSocket again(server->port);
+    again.send(request("GET", "/v1/jobs/" + job + "/events", kAlice));
+    EXPECT_EQ(again.status(), 200);
+
+    // A slow client is answered 408 at the header deadline (4 s here) and closed.
+    trickling = false;
+    trickle.join();
+    RawSocket late(server->port);
+    late.send("GET /healthz HTTP/1.1\r\nX-Slow: 1\r\n");
+    const auto t0 = Clock::now();
+    EXPECT_EQ(late.status(), 0);  // nothing yet
+    late.read("\r\n\r\n", 6s);
+    EXPECT_EQ(late.status(), 408);
+    EXPECT_LT(seconds_since(t0), 5.5);
+    EXPECT_TRUE(late.peer_closed(2s));
+
+    auto r = c.Post("/v1/jobs/" + job + "/cancel");
+    EXPECT_TRUE(r && r->status == 200);
+}
+
+// Connections over the per-address cap are refused with 503 and Retry-After,
+// and the API is back as soon as they close.
+TEST_F(HttpTest, ConnectionCapsAnswer503) {
+    start({"--limit", "connections_per_address=20"});
+    std::vector<std::unique_ptr<RawSocket>> idle;
+    for (int i = 0; i < 20; ++i) idle.push_back(std::make_unique<RawSocket>(server->port));
+    std::this_thread::sleep_for(200ms);
+    RawSocket over(server->port);
+    over.send(request("GET", "/healthz", ""));
+    EXPECT_EQ(over.status(), 503) << over.received();
+    EXPECT_NE(over.received().find("Retry-After: 1"), std::string::npos);
+    EXPECT_NE(over.received().find("connections_per_address"), std::string::npos);
+    idle.clear();
+    const auto deadline = Clock::now() + 3s;
+    int status = 0;
+    while (status != 200 && Clock::now() < deadline) {
+        auto r = client().Get("/healthz");
+        status = r ? r->status : 0;
+        if (status != 200) std::this_thread::sleep_for(50ms);
+    }
+    EXPECT_EQ(status, 200);
+}
+
+// Bodies and headers are checked before they are read: the server's peak
+// memory stays flat under an unauthenticated 256 MiB body, a chunked body, a
+// huge request line and huge headers.
+TEST_F(HttpTest, OversizedRequestsAreRefusedBeforeMemoryGrows) {
+    start({"--limit", "upload_bytes=1048576"});
+    const pid_t pid = server->pid();
+    ASSERT_GT(pid, 0);
+    const long hwm_before = proc_status_kb(pid, "VmHWM");
+    ASSERT_GT(hwm_before, 0);
+    const std::string mib(1 << 20, 'x');
+
+    {  // unauthenticated, 256 MiB announced: 401 before the body; at most 16 MiB sent
+        RawSocket s(server->port);
+        s.send(request("POST", "/v1/scenes", "", "Content-Type: model/gltf-binary\r\nContent-Length: 268435456\r\n"));
+        size_t sent = 0;
+        for (int i = 0; i < 16 && sent == size_t(i) << 20; ++i) sent += s.send(mib);
+        EXPECT_EQ(s.status(), 401) << s.received();
+    }
+    {  // unauthenticated chunked: 401 too
+        RawSocket s(server->port);
+        s.send(request("POST", "/v1/scenes", "", "Content-Type: model/gltf-binary\r\nTransfer-Encoding: chunked\r\n"));
+        for (int i = 0; i < 16; ++i)
+            if (s.send("100000\r\n" + mib + "\r\n") == 0) break;
+        EXPECT_EQ(s.status(), 401) << s.received();
+    }
+    {  // authenticated chunked: 411, never stored past the limit
+        RawSocket s(server->port);
+        s.send(request("POST", "/v1/scenes", kAlice, "Content-Type: model/gltf-binary\r\nTransfer-Encoding: chunked\r\n"));
+        for (int i = 0; i < 3; ++i)
+            if (s.send("100000\r\n" + mib + "\r\n") == 0) break;
+        EXPECT_EQ(s.status(), 411) << s.received();
+    }
+    {  // authenticated, over upload_bytes by its Content-Length: 413 before the body
+        RawSocket s(server->port);
+        s.send(request("POST", "/v1/scenes", kAlice, "Content-Type: model/gltf-binary\r\nContent-Length: 3145728\r\n"));
+        EXPECT_EQ(s.status(), 413) << s.received();
+        EXPECT_NE(s.received().find("upload_bytes"), std::string::npos);
+    }
+    {  // Expect: 100-continue without a token: the 401 comes instead of the 100
+        RawSocket s(server->port);
+        s.send(request("POST", "/v1/scenes", "", "Content-Length: 1000\r\nExpect: 100-continue\r\n"));
+        EXPECT_EQ(s.status(), 401) << s.received();
+    }
+    {  // a request line of up to 64 MiB: 414 after 8 KiB, and the sender is cut off
+        RawSocket s(server->port);
+        s.send("GET /");
+        size_t sent = 0;
+        for (int i = 0; i < 64; ++i) {
+            const size_t n = s.send(std::string(1 << 20, 'a'));
+            sent += n;
+            if (n < (1u << 20)) break;
+        }
+        EXPECT_EQ(s.status(), 414) << s.received().substr(0, 200);
+        EXPECT_LT(sent, size_t(48) << 20);
+    }
+    {  // headers past header_bytes (64 KiB): 431
+        RawSocket s(server->port);
+        std::string headers;
+        for (int i = 0; i < 200; ++i) headers += "X-Filler-" + std::to_string(i) + ": " + std::string(1000, 'h') + "\r\n";
+        s.send(request("GET", "/healthz", "", headers));
+        EXPECT_EQ(s.status(), 431) << s.received().substr(0, 200);
+    }
+    // An upload within the limit still works, and nothing over it was stored.
+    auto r = client().Post("/v1/scenes", glb("small"), "model/gltf-binary");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 201);
+
+    const long hwm_after = proc_status_kb(pid, "VmHWM");
+    std::cerr << "lightfarmd VmHWM: " << hwm_before << " kB before, " << hwm_after << " kB after\n";
+    EXPECT_LT(hwm_after - hwm_before, 16 * 1024) << "peak memory grew by " << (hwm_after - hwm_before) << " kB";
+}
+
+// `curl -X POST -H "$T" $S/v1/jobs/JOB/cancel`: no body, no Content-Length.
+TEST_F(HttpTest, CancelWithoutABody) {
+    start();
+    engine.set("delay", "0.2");
+    const std::string job = submit(upload(kAlice, "cancel"), 100, 1);
+    RawSocket s(server->port);
+    const auto t0 = Clock::now();
+    s.send(request("POST", "/v1/jobs/" + job + "/cancel", kAlice));
+    EXPECT_EQ(s.status(), 200) << s.received();
+    EXPECT_LT(seconds_since(t0), 1.0);
+    s.read("\n}\n", 1s);
+    EXPECT_NE(s.received().find("\"cancelled\""), std::string::npos) << s.received();
+    // The connection stays usable: the next request on it is answered.
+    s.send(request("GET", "/healthz", ""));
+    s.read("\"ok\"", 2s);
+    EXPECT_NE(s.received().find("\"ok\""), std::string::npos);
+    // A POST /v1/jobs without a body is a prompt 400, not a 5 s wait.
+    RawSocket j(server->port);
+    const auto t1 = Clock::now();
+    j.send(request("POST", "/v1/jobs", kAlice));
+    EXPECT_EQ(j.status(), 400) << j.received();
+    EXPECT_LT(seconds_since(t1), 1.0);
+}
+
+// Names with NUL, control characters or invalid UTF-8 are 400, never
+// truncated or guessed; no answer carries an exception header or a path.
+TEST_F(HttpTest, NamesAreExactlyWhatTheySay) {
+    start();
+    const std::string job = submit(upload(kAlice, "names"), 2, 1);
+    auto c = client();
+    const json done = wait_for_job(c, job, is_finished);
+    ASSERT_EQ(done.value("state", ""), "succeeded");
+
+    auto status_of = [&](const std::string& path) {
+        RawSocket s(server->port);
+        s.send(request("GET", path, kAlice));
+        const int status = s.status();
+        s.read("\n}\n", 1s);
+        EXPECT_EQ(s.received().find("EXCEPTION_WHAT"), std::string::npos) << path;
+        EXPECT_EQ(s.received().find(tmp.path.string()), std::string::npos) << path;
+        EXPECT_EQ(s.received().find("9223372036854775807"), std::string::npos) << path;
+        return status;
+    };
+    const std::string base = "/v1/jobs/" + job;
+    EXPECT_EQ(status_of(base + "/artifacts/%00"), 400);
+    EXPECT_EQ(status_of(base + "/artifacts/manifest.json%00.png"), 400);
+    EXPECT_EQ(status_of(base + "/artifacts/manifest%0d%0a.json"), 400);
+    EXPECT_EQ(status_of(base + "/artifacts/%C0%AF"), 400);  // an overlong '/'
+    EXPECT_EQ(status_of("/v1/jobs/%FF"), 400);
+    EXPECT_EQ(status_of("/v1/jobs/%01" + job), 400);
+    EXPECT_EQ(status_of("/v1/scenes/%ED%A0%80"), 400);  // a surrogate
+    EXPECT_EQ(status_of("/?token=a%00b"), 400);
+    // What is well formed is answered as before.
+    EXPECT_EQ(status_of(base + "/artifacts/manifest.json"), 200);
+    EXPECT_EQ(status_of(base + "/artifacts/nothing.png"), 404);
+    EXPECT_EQ(status_of(base + "/artifacts/%C3%A9t%C3%A9.exr"), 404);  // valid UTF-8, no such file
+    EXPECT_EQ(status_of("/v1/jobs/0123"), 404);
+
+    // An upload as curl sends it without -H 'Content-Type: …' is a 415 that
+    // says what to send, not a 413.
+    auto r = c.Post("/v1/scenes", std::string(187 * 1024, 'g'), "application/x-www-form-urlencoded");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 415);
+    EXPECT_NE(r->body.find("model/gltf-binary"), std::string::npos);
+    // A job spec sent that way is still read as the JSON it is.
+    r = c.Post("/v1/jobs", json{{"scene", "nope"}, {"outputs", {{"lightmap", json::object()}}}}.dump(),
+               "application/x-www-form-urlencoded");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404) << r->body;  // the scene does not exist: the spec was read
+}
+
+// A cache hit answers another token's job without naming it; the same
+// token's cache hit may.
+TEST_F(HttpTest, CacheHitDoesNotRevealAnotherTokensJob) {
+    start();
+    const std::string scene = upload(kAlice, "shared-bytes");
+    const std::string first = submit(scene, 2, 7);
+    auto c = client();
+    ASSERT_EQ(wait_for_job(c, first, is_finished).value("state", ""), "succeeded");
+
+    auto done_event = [&](const std::string& token, const std::string& id) {
+        for (const auto& e : read_events(server->host, server->port, token, id, -1, 0, 5s))
+            if (e.type == "done") return e.data;
+        return json();
+    };
+    ASSERT_EQ(upload(kBob, "shared-bytes"), scene);  // the same bytes: the same scene
+    const std::string bobs = submit(scene, 2, 7, kBob);
+    const json bob_done = done_event(kBob, bobs);
+    ASSERT_TRUE(bob_done.is_object());
+    EXPECT_EQ(bob_done.value("cached", false), true);
+    EXPECT_FALSE(bob_done.contains("cached_from")) << bob_done.dump();
+    EXPECT_EQ(bob_done.dump().find(first), std::string::npos) << bob_done.dump();
+    auto r = client(kBob).Get("/v1/jobs/" + bobs);
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->body.find(first), std::string::npos);
+
+    const std::string again = submit(scene, 2, 7, kAlice);
+    EXPECT_EQ(done_event(kAlice, again).value("cached_from", ""), first);
+}
+
+}  // namespace
+}  // namespace lf::test

@@ -1,0 +1,719 @@
+// The store never lies (issue #15): a write that cannot be stored throws
+// StoreError and stores nothing; the supervisor keeps a job's updates and its
+// end until the store takes them; progress events are coalesced without
+// breaking the event stream's resume; a lost store is refused at start; one
+// lightfarmd per data directory; data files 0600 and folders 0700; upload
+// checks bounded in number and memory.
+//
+// A full disk is staged with SqliteJobStore::simulate_full_disk_for_tests (a
+// VFS whose writes fail with SQLITE_FULL): chmod cannot stop root, and CI runs
+// as root.
+#include "server_harness.h"
+
+#include "events.h"
+#include "hash.h"
+#include "http_error.h"
+#include "metrics.h"
+#include "scene_store.h"
+#include "service.h"
+#include "sqlite_job_store.h"
+#include "subprocess.h"
+#include "supervisor.h"
+
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <map>
+#include <set>
+#include <sstream>
+#include <thread>
+
+extern char** environ;
+
+namespace lf::test {
+namespace {
+
+using nlohmann::json;
+using server::JobRecord;
+using server::JobState;
+using server::SqliteJobStore;
+using server::StoreError;
+
+const std::string kAlice = "alice-token-0123456789";
+
+// Every store of this test program goes through the test VFS: installed
+// before the first store opens, writes working until a test fails them.
+struct FullDisk {
+    FullDisk() { SqliteJobStore::simulate_full_disk_for_tests(true); }
+    ~FullDisk() { SqliteJobStore::simulate_full_disk_for_tests(false); }
+};
+const bool kVfsInstalled = [] {
+    SqliteJobStore::simulate_full_disk_for_tests(false);
+    return true;
+}();
+
+JobRecord queued_job(const std::string& id, const std::string& scene = "scene-1", int passes = 4) {
+    JobRecord job;
+    job.status.id = id;
+    job.status.scene = scene;
+    job.status.state = JobState::Queued;
+    job.status.spec = {{"scene", scene}, {"seed", 1}, {"outputs", {{"lightmap", {{"passes", passes}}}}}};
+    job.status.max_attempts = 3;
+    job.owner = server::sha256_hex(kAlice);
+    job.cache_key = "key-" + id;
+    job.max_seconds = 60;
+    return job;
+}
+
+json progress_data(int pass, const std::string& output = "lightmap") {
+    return {{"output", output}, {"pass", pass}, {"rays", pass * 1000}, {"seconds", pass}, {"error_estimate", 1.0 / pass}};
+}
+
+// ---------------------------------------------------------------- the store
+
+TEST(Store, AFailedWriteThrowsAndStoresNothing) {
+    ASSERT_TRUE(kVfsInstalled);
+    TempDir tmp;
+    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+    {
+        FullDisk full;
+        EXPECT_THROW(store.insert_job(queued_job("j1"), {{0, "done", {{"cached", true}}}}), StoreError);
+        EXPECT_THROW(store.add_scene({"scene-1", "scene.glb", {{"triangles", 12}}}), StoreError);
+        EXPECT_THROW(store.add_scene_owner("scene-1", "owner"), StoreError);
+        // Reads still work, and show that nothing was stored.
+        EXPECT_FALSE(store.job("j1"));
+        EXPECT_TRUE(store.events_after("j1", 0).empty());
+        EXPECT_FALSE(store.scene("scene-1"));
+        EXPECT_TRUE(store.empty());
+    }
+    // Once the disk has room again, the same store carries on.
+    store.insert_job(queued_job("j1"), {});
+    store.add_scene({"scene-1", "scene.glb", {{"triangles", 12}}});
+    EXPECT_TRUE(store.add_scene_owner("scene-1", "owner"));
+    ASSERT_TRUE(store.job("j1"));
+    EXPECT_EQ(store.job("j1")->status.state, JobState::Queued);
+    EXPECT_FALSE(store.empty());
+}
+
+TEST(Store, EveryTransactionFailsWholeOnAFullDisk) {
+    TempDir tmp;
+    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+    store.insert_job(queued_job("j1"), {});
+    {
+        FullDisk full;
+        EXPECT_THROW(store.claim_next(), StoreError);
+    }
+    EXPECT_EQ(store.job("j1")->status.state, JobState::Queued) << "a failed claim leaves the job queued";
+    EXPECT_EQ(store.job("j1")->status.attempts, 0);
+    ASSERT_TRUE(store.claim_next());
+    {
+        FullDisk full;
+        EXPECT_THROW(store.append_event("j1", {0, "started", {{"attempt", 1}}}), StoreError);
+        server::Progress p;
+        p.pass = 3;
+        EXPECT_THROW(store.set_progress("j1", p), StoreError);
+        EXPECT_THROW(store.set_latest("j1", "lightmap", {"lightmap.pass-0001.exr", 1, false}), StoreError);
+        EXPECT_THROW(store.requeue("j1", {0, "retrying", {{"attempt", 1}}}, false), StoreError);
+        EXPECT_THROW(store.finish("j1", JobState::Succeeded, "", "", {0, "done", json::object()}), StoreError);
+    }
+    EXPECT_EQ(store.job("j1")->status.state, JobState::Running);
+    EXPECT_EQ(store.job("j1")->status.progress.pass, 0);
+    EXPECT_TRUE(store.events_after("j1", 0).empty());
+    EXPECT_EQ(store.append_event("j1", {0, "started", {{"attempt", 1}}}), 1);
+    EXPECT_TRUE(store.finish("j1", JobState::Succeeded, "", "", {0, "done", json::object()}));
+    const auto events = store.events_after("j1", 0);
+    ASSERT_EQ(events.size(), 2u);
+    EXPECT_EQ(events[1].id, 2);
+    EXPECT_EQ(events[1].type, "done");
+}
+
+// A running job with `passes` progress events and a snapshot at each power of two.
+void run_progress(SqliteJobStore& store, const std::string& id, int passes, const std::string& output = "lightmap") {
+    for (int p = 1; p <= passes; ++p) {
+        ASSERT_GT(store.append_event(id, {0, "progress", progress_data(p, output)}), 0);
+        if ((p & (p - 1)) == 0) {
+            ASSERT_GT(store.append_event(id, {0, "snapshot", {{"output", output}, {"pass", p}}}), 0);
+        }
+    }
+}
+
+TEST(Store, ProgressEventsAreCoalescedSoTheStoreGrowsWithJobsNotPasses) {
+    TempDir tmp;
+    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+    store.insert_job(queued_job("j1"), {});
+    ASSERT_TRUE(store.claim_next());
+    store.append_event("j1", {0, "started", {{"attempt", 1}}});
+    run_progress(store, "j1", 5000);
+    const auto events = store.events_after("j1", 0);
+    // started, 13 snapshots, progress of passes 1..32, 64 .. 4096 (7) and the newest (5000).
+    std::vector<int> progress_passes;
+    int snapshots = 0;
+    for (const auto& e : events) {
+        if (e.type == "progress") progress_passes.push_back(e.data["pass"].get<int>());
+        if (e.type == "snapshot") ++snapshots;
+    }
+    EXPECT_EQ(snapshots, 13);
+    ASSERT_EQ(progress_passes.size(), 32u + 7u + 1u);
+    EXPECT_EQ(progress_passes.front(), 1);
+    EXPECT_EQ(progress_passes[31], 32);
+    EXPECT_EQ(progress_passes[32], 64);
+    EXPECT_EQ(progress_passes.back(), 5000) << "the newest progress is always there";
+    // Ids only grow, and the newest is the number of events appended: none reused.
+    for (size_t i = 1; i < events.size(); ++i) EXPECT_LT(events[i - 1].id, events[i].id);
+    EXPECT_EQ(events.back().id, 1 + 5000 + 13);
+}
+
+TEST(Store, ResumingAfterAnyEventGetsEveryLaterEventOnceAndNoReplacedProgress) {
+    TempDir tmp;
+    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+    store.insert_job(queued_job("j1"), {});
+    ASSERT_TRUE(store.claim_next());
+    // A reader that resumes (Last-Event-ID) after every few appends, as a
+    // client reconnecting does, sees every non-progress event exactly once,
+    // in order, and ids that only grow.
+    int64_t last = 0;
+    std::vector<std::string> seen_snapshots;
+    std::vector<std::string> appended_snapshots;
+    std::set<int64_t> seen_ids;
+    for (int p = 1; p <= 300; ++p) {
+        store.append_event("j1", {0, "progress", progress_data(p)});
+        if (p % 7 == 0) {
+            const std::string name = "snap-" + std::to_string(p);
+            store.append_event("j1", {0, "snapshot", {{"output", "lightmap"}, {"file", name}}});
+            appended_snapshots.push_back(name);
+        }
+        if (p % 5 == 0 || p % 13 == 0) {
+            for (const auto& e : store.events_after("j1", last)) {
+                EXPECT_GT(e.id, last);
+                EXPECT_TRUE(seen_ids.insert(e.id).second) << "event " << e.id << " twice";
+                last = e.id;
+                if (e.type == "snapshot") seen_snapshots.push_back(e.data["file"]);
+            }
+        }
+    }
+    EXPECT_TRUE(store.finish("j1", JobState::Succeeded, "", "", {0, "done", json::object()}));
+    const auto rest = store.events_after("j1", last);
+    ASSERT_FALSE(rest.empty());
+    for (const auto& e : rest)
+        if (e.type == "snapshot") seen_snapshots.push_back(e.data["file"]);
+    EXPECT_EQ(rest.back().type, "done");
+    EXPECT_EQ(seen_snapshots, appended_snapshots);
+    // A progress event replaced right after it was the newest: its id is not
+    // given again, so a reader that had it gets the next one.
+    const auto all = store.events_after("j1", 0);
+    EXPECT_EQ(all.back().id, 300 + 300 / 7 + 1);
+}
+
+TEST(Store, RetentionKeepsOnlyTheNewestProgressOfOldFinishedJobs) {
+    TempDir tmp;
+    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+    store.insert_job(queued_job("old"), {});
+    store.insert_job(queued_job("running"), {});
+    ASSERT_EQ(store.claim_next()->status.id, "old");
+    ASSERT_EQ(store.claim_next()->status.id, "running");
+    run_progress(store, "old", 100, "lightmap");
+    run_progress(store, "old", 40, "sh");
+    run_progress(store, "running", 100);
+    ASSERT_TRUE(store.finish("old", JobState::Succeeded, "", "", {0, "done", json::object()}));
+    const size_t before_old = store.events_after("old", 0).size();
+    const size_t before_running = store.events_after("running", 0).size();
+    const double now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+
+    EXPECT_EQ(store.compact_events(now - 3600), 0) << "a job finished just now keeps its events";
+    EXPECT_EQ(store.events_after("old", 0).size(), before_old);
+
+    EXPECT_GT(store.compact_events(now + 1), 0);
+    const auto old = store.events_after("old", 0);
+    std::map<std::string, int> progress;
+    int snapshots = 0;
+    for (const auto& e : old) {
+        if (e.type == "progress") progress[e.data["output"]] = e.data["pass"];
+        if (e.type == "snapshot") ++snapshots;
+    }
+    EXPECT_EQ(progress, (std::map<std::string, int>{{"lightmap", 100}, {"sh", 40}}));
+    EXPECT_EQ(snapshots, 7 + 6) << "every other event is kept";
+    EXPECT_EQ(old.back().type, "done");
+    EXPECT_EQ(store.events_after("running", 0).size(), before_running) << "a running job is not compacted";
+}
+
+// ----------------------------------------------------------- the supervisor
+
+struct SupervisorRig {
+    TempDir tmp;
+    FakeEngine engine{tmp.path / "engine"};
+    server::ServerConfig config;
+    std::unique_ptr<SqliteJobStore> store;
+    server::ChangeSignal changes;
+    server::Metrics metrics;
+    std::unique_ptr<server::Supervisor> supervisor;
+
+    SupervisorRig() {
+        config.data_dir = (tmp.path / "data").string();
+        config.engine = engine.script.string();
+        config.workers = 1;
+        fs::create_directories(tmp.path / "data" / "jobs");
+        fs::create_directories(tmp.path / "data" / "scenes" / "scene-1");
+        write_text(tmp.path / "data" / "scenes" / "scene-1" / "scene.glb", "glTF");
+        open();
+        store->add_scene({"scene-1", "scene.glb", {{"triangles", 12}, {"emissive_triangles", 2}}});
+    }
+    void open() { store = std::make_unique<SqliteJobStore>((tmp.path / "data" / "jobs.sqlite").string()); }
+    void start() {
+        supervisor = std::make_unique<server::Supervisor>(*store, config, changes, metrics);
+        supervisor->start();
+    }
+    JobRecord wait_for(const std::string& id, const std::function<bool(const JobRecord&)>& pred,
+                       std::chrono::milliseconds timeout = std::chrono::seconds(20)) {
+        const auto deadline = std::chrono::steady_clock::now() + timeout;
+        std::optional<JobRecord> job;
+        while (std::chrono::steady_clock::now() < deadline) {
+            try {
+                job = store->job(id);
+                if (job && pred(*job)) return *job;
+            } catch (const StoreError&) {
+            }
+            std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        }
+        ADD_FAILURE() << "job " << id << " did not get there; state "
+                      << (job ? protocol::to_string(job->status.state) : std::string("none"));
+        return job.value_or(JobRecord{});
+    }
+};
+
+void expect_well_formed(const std::vector<server::JobEvent>& events) {
+    ASSERT_FALSE(events.empty());
+    for (size_t i = 1; i < events.size(); ++i) EXPECT_LT(events[i - 1].id, events[i].id);
+    for (size_t i = 0; i + 1 < events.size(); ++i) EXPECT_FALSE(protocol::is_final_event(events[i].type)) << i;
+    EXPECT_TRUE(protocol::is_final_event(events.back().type));
+}
+
+// The disk fills while a worker bakes: its updates wait, the bake goes on,
+// and when the disk has room again the job ends succeeded with all its
+// events, the final one last. It is never left running without a worker.
+TEST(SupervisorOnAFullDisk, AJobBakesOnAndEndsOnceTheStoreTakesItsUpdates) {
+    SupervisorRig rig;
+    rig.engine.set("delay", "0.1");
+    rig.store->insert_job(queued_job("j1", "scene-1", 12), {});
+    rig.start();
+    rig.wait_for("j1", [](const JobRecord& j) { return j.status.progress.pass >= 2; });
+    {
+        FullDisk full;
+        // The worker finishes meanwhile (12 passes of 0.1 s); its end cannot be stored.
+        std::this_thread::sleep_for(std::chrono::milliseconds(2000));
+        EXPECT_EQ(rig.store->job("j1")->status.state, JobState::Running) << "no state the store did not take";
+    }
+    const JobRecord done = rig.wait_for("j1", [](const JobRecord& j) { return protocol::is_final(j.status.state); });
+    EXPECT_EQ(done.status.state, JobState::Succeeded);
+    EXPECT_EQ(done.status.attempts, 1) << "a full disk costs the job no attempt";
+    EXPECT_EQ(done.status.progress.pass, 12);
+    const auto events = rig.store->events_after("j1", 0);
+    expect_well_formed(events);
+    EXPECT_EQ(events.back().type, "done");
+    int snapshots = 0;
+    for (const auto& e : events) snapshots += e.type == "snapshot";
+    EXPECT_EQ(snapshots, 4) << "passes 1, 2, 4, 8: none lost";
+    rig.supervisor->stop();
+}
+
+// lightfarmd stops while its store cannot take a job's end: the job stays
+// running in the store, and the next start queues it again (one attempt
+// counted) and runs it to the end.
+TEST(SupervisorOnAFullDisk, AJobWhoseEndWasNotStoredRunsAgainAtTheNextStart) {
+    SupervisorRig rig;
+    rig.engine.set("delay", "0.3");
+    rig.store->insert_job(queued_job("j1", "scene-1", 4), {});
+    rig.start();
+    rig.wait_for("j1", [](const JobRecord& j) { return j.status.progress.pass >= 1; });
+    {
+        FullDisk full;
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));
+        rig.supervisor->stop();
+        EXPECT_EQ(rig.store->job("j1")->status.state, JobState::Running);
+    }
+    rig.supervisor.reset();
+    rig.open();  // as a new lightfarmd would
+    rig.engine.set("delay", "0");
+    rig.start();
+    const JobRecord done = rig.wait_for("j1", [](const JobRecord& j) { return protocol::is_final(j.status.state); });
+    EXPECT_EQ(done.status.state, JobState::Succeeded);
+    EXPECT_EQ(done.status.attempts, 2);
+    const auto events = rig.store->events_after("j1", 0);
+    expect_well_formed(events);
+    bool retried = false;
+    for (const auto& e : events) retried = retried || (e.type == "retrying" && e.data.value("cause", "").find("lightfarmd stopped") != std::string::npos);
+    EXPECT_TRUE(retried);
+    rig.supervisor->stop();
+}
+
+// While the disk is full no job is taken from the queue (a claim that
+// cannot be stored); once it has room the queue runs.
+TEST(SupervisorOnAFullDisk, NoJobIsTakenWhileTheClaimCannotBeStored) {
+    SupervisorRig rig;
+    {
+        FullDisk full;
+        EXPECT_THROW(rig.store->insert_job(queued_job("lost"), {}), StoreError);
+    }
+    rig.store->insert_job(queued_job("j1"), {});
+    {
+        FullDisk full;
+        rig.start();
+        std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+        EXPECT_EQ(rig.store->job("j1")->status.state, JobState::Queued);
+        EXPECT_EQ(rig.engine.runs(), 0);
+    }
+    EXPECT_EQ(rig.wait_for("j1", [](const JobRecord& j) { return protocol::is_final(j.status.state); }).status.state,
+              JobState::Succeeded);
+    EXPECT_EQ(rig.engine.runs(), 1);
+    EXPECT_FALSE(rig.store->job("lost"));
+    rig.supervisor->stop();
+}
+
+// ------------------------------------------------------ the HTTP routes (in process)
+
+// A full disk answers POST /v1/jobs with 503 (Retry-After), never 201 for a
+// job that is not stored; once it has room the same server carries on.
+// (Needs service.cpp to answer StoreError with 503.)
+TEST(ServiceOnAFullDisk, NoJobIsAnswered201UnlessItIsStored) {
+    TempDir tmp;
+    FakeEngine engine{tmp.path / "engine"};
+    server::ServerConfig config;
+    config.host = "127.0.0.1";
+    config.port = 0;
+    config.data_dir = (tmp.path / "data").string();
+    config.engine = engine.script.string();
+    config.workers = 1;
+    fs::create_directories(config.data_dir);
+    server::Service service(config, {kAlice});
+    const int port = service.bind();
+    std::thread runner([&] { service.run(); });
+    httplib::Client c("127.0.0.1", port);
+    c.set_connection_timeout(2);
+    c.set_read_timeout(10);
+    c.set_default_headers(bearer(kAlice));
+    auto up = c.Post("/v1/scenes", std::string("glTF\x02\x00\x00\x00 scene", 14), "model/gltf-binary");
+    ASSERT_TRUE(up && up->status == 201) << (up ? up->body : "no answer");
+    const std::string scene = json::parse(up->body)["id"];
+    const json spec = {{"scene", scene}, {"seed", 1}, {"outputs", {{"lightmap", {{"passes", 2}}}}}};
+    {
+        FullDisk full;
+        for (int i = 0; i < 5; ++i) {
+            json s = spec;
+            s["seed"] = 100 + i;
+            auto r = c.Post("/v1/jobs", s.dump(), "application/json");
+            ASSERT_TRUE(r);
+            EXPECT_NE(r->status, 201) << r->body;
+            EXPECT_EQ(r->status, 503) << r->body;
+            EXPECT_TRUE(r->has_header("Retry-After")) << r->body;
+            EXPECT_EQ(r->body.find(config.data_dir), std::string::npos) << "no server path: " << r->body;
+        }
+        auto again = c.Post("/v1/scenes", std::string("glTF\x02\x00\x00\x00 other", 14), "model/gltf-binary");
+        ASSERT_TRUE(again);
+        EXPECT_EQ(again->status, 503) << again->body;
+    }
+    auto list = c.Get("/v1/jobs");
+    ASSERT_TRUE(list && list->status == 200);
+    EXPECT_EQ(json::parse(list->body).size(), 0u) << list->body;
+    auto r = c.Post("/v1/jobs", spec.dump(), "application/json");
+    ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+    const std::string id = json::parse(r->body)["id"];
+    json status;
+    for (int i = 0; i < 400; ++i) {
+        auto g = c.Get("/v1/jobs/" + id);
+        if (g && g->status == 200 && is_finished(status = json::parse(g->body))) break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    }
+    EXPECT_EQ(status.value("state", ""), "succeeded") << status;
+    service.stop();
+    runner.join();
+}
+
+// ------------------------------------------------------------ upload checks
+
+// A checker that notes when each run starts and ends, its memory limit, and
+// takes 0.3 s.
+void write_slow_inspector(const fs::path& path) {
+    write_text(path, R"sh(#!/bin/sh
+state="$(dirname "$0")"
+if [ "$1" = devices ]; then echo '{"gpus": 0}'; exit 0; fi
+echo start >> "$state/log"
+ulimit -v > "$state/ulimit"
+sleep 0.3
+echo end >> "$state/log"
+echo '{"source": "x", "triangles": 12, "textures": [], "emissive_triangles": 2, "punctual_light_count": 0, "max_texture_size": 0, "has_lightmap_uvs": true, "min_atlas_res": 0}'
+)sh");
+    fs::permissions(path, fs::perms::owner_all);
+}
+
+int most_at_once(const std::string& log) {
+    int now = 0, most = 0;
+    std::istringstream in(log);
+    for (std::string line; std::getline(in, line);) {
+        now += line == "start" ? 1 : -1;
+        most = std::max(most, now);
+    }
+    return most;
+}
+
+TEST(UploadChecks, RunAtMostMaxInspectsAtOnceUnderAMemoryLimit) {
+    TempDir tmp;
+    write_slow_inspector(tmp.path / "engine" / "lightfarm");
+    server::ServerConfig config;
+    config.data_dir = (tmp.path / "data").string();
+    config.engine = (tmp.path / "engine" / "lightfarm").string();
+    config.max_inspects = 2;
+    config.inspect_memory_bytes = 512ull << 20;
+    fs::create_directories(tmp.path / "data");
+    SqliteJobStore store((tmp.path / "data" / "jobs.sqlite").string());
+    server::SceneStore scenes(config, store);
+    std::atomic<int> ok{0}, busy{0};
+    std::vector<std::thread> uploads;
+    for (int i = 0; i < 6; ++i)
+        uploads.emplace_back([&, i] {
+            try {
+                scenes.upload({{"scene.glb", "glTF upload " + std::to_string(i)}}, "owner");
+                ++ok;
+            } catch (const server::HttpError& e) {
+                if (e.status() == 503) ++busy;
+            }
+        });
+    for (auto& t : uploads) t.join();
+    EXPECT_EQ(ok, 6) << "6 uploads fit 2 running + 8 waiting";
+    EXPECT_EQ(most_at_once(read_text(tmp.path / "engine" / "log")), 2);
+    EXPECT_EQ(read_text(tmp.path / "engine" / "ulimit"), std::to_string((512ull << 20) / 1024) + "\n");
+}
+
+TEST(UploadChecks, BeyondTheWaitingRoomAnUploadIs503WithRetryAfter) {
+    TempDir tmp;
+    write_slow_inspector(tmp.path / "engine" / "lightfarm");
+    server::ServerConfig config;
+    config.data_dir = (tmp.path / "data").string();
+    config.engine = (tmp.path / "engine" / "lightfarm").string();
+    config.max_inspects = 1;  // 1 running, 4 waiting
+    fs::create_directories(tmp.path / "data");
+    SqliteJobStore store((tmp.path / "data" / "jobs.sqlite").string());
+    server::SceneStore scenes(config, store);
+    std::atomic<int> ok{0}, busy{0};
+    std::vector<std::thread> uploads;
+    for (int i = 0; i < 10; ++i)
+        uploads.emplace_back([&, i] {
+            try {
+                scenes.upload({{"scene.glb", "glTF upload " + std::to_string(i)}}, "owner");
+                ++ok;
+            } catch (const server::HttpError& e) {
+                if (e.status() == 503 && e.body().value("retry_after", 0) > 0) ++busy;
+            }
+        });
+    for (auto& t : uploads) t.join();
+    EXPECT_EQ(ok + busy, 10);
+    EXPECT_GE(busy, 1);
+    EXPECT_GE(ok, 5);
+    EXPECT_EQ(most_at_once(read_text(tmp.path / "engine" / "log")), 1);
+}
+
+TEST(UploadChecks, AChildOverItsMemoryLimitFailsNotTheServer) {
+    server::SpawnLimits limits;
+    limits.address_space_bytes = 256ull << 20;
+    const auto r = server::run_command({"sh", "-c", "ulimit -v; head -c 400000000 /dev/zero | sort > /dev/null"},
+                                       std::chrono::seconds(20), 1 << 20, limits);
+    EXPECT_EQ(r.out, std::to_string((256ull << 20) / 1024) + "\n");
+    EXPECT_FALSE(r.status.success()) << "sort of 400 MB in 256 MiB of address space";
+    // Without a limit the same spawn path is posix_spawn, unchanged.
+    const auto plain = server::run_command({"sh", "-c", "echo fine"}, std::chrono::seconds(5));
+    EXPECT_EQ(plain.out, "fine\n");
+    EXPECT_THROW(server::run_command({"/nonexistent/lightfarm"}, std::chrono::seconds(5), 1 << 20, limits),
+                 std::runtime_error);
+}
+
+// ---------------------------------------------------- lightfarmd, the process
+
+class DataDirTest : public ::testing::Test {
+protected:
+    TempDir tmp;
+    FakeEngine engine{tmp.path / "engine"};
+    std::unique_ptr<Lightfarmd> server;
+
+    void SetUp() override { write_text(tmp.path / "tokens", kAlice + "\n"); }
+    std::unique_ptr<Lightfarmd> make(std::vector<std::string> extra = {}) {
+        return std::make_unique<Lightfarmd>(tmp.path / "data", tmp.path / "tokens", engine.script, std::move(extra));
+    }
+    void TearDown() override {
+        if (HasFailure() && server) std::cerr << "---- lightfarmd log ----\n" << server->log();
+    }
+    std::string upload_and_bake(int passes = 2) {
+        auto c = server->client(kAlice);
+        auto up = c.Post("/v1/scenes", std::string("glTF\x02\x00\x00\x00 scene", 14), "model/gltf-binary");
+        EXPECT_TRUE(up && (up->status == 201 || up->status == 200)) << (up ? up->body : "no answer");
+        const std::string scene = up ? json::parse(up->body).value("id", "") : "";
+        auto r = c.Post("/v1/jobs", json({{"scene", scene}, {"seed", 1}, {"outputs", {{"lightmap", {{"passes", passes}}}}}}).dump(),
+                        "application/json");
+        EXPECT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+        const std::string id = r ? json::parse(r->body).value("id", "") : "";
+        EXPECT_EQ(wait_for_job(c, id, is_finished)["state"], "succeeded");
+        return id;
+    }
+};
+
+TEST_F(DataDirTest, ASecondServerOnTheSameDataDirectoryRefusesToStart) {
+    server = make();
+    server->start();
+    auto second = make();
+    try {
+        second->start();
+        ADD_FAILURE() << "the second lightfarmd started";
+    } catch (const std::runtime_error& e) {
+        const std::string what = e.what();
+        EXPECT_NE(what.find("another lightfarmd (pid "), std::string::npos) << what;
+        EXPECT_NE(what.find("is using the data directory"), std::string::npos) << what;
+        EXPECT_NE(what.find("--data"), std::string::npos) << what;
+    }
+    EXPECT_FALSE(second->running());
+    // The first one serves on, and its jobs run.
+    upload_and_bake();
+    // Once it is gone (even by kill -9), the directory is free again.
+    server->kill9();
+    server = make();
+    server->start();
+}
+
+TEST_F(DataDirTest, AStoreThatLostItsWalAfterKill9IsRefusedAtStart) {
+    server = make();
+    server->start();
+    const std::string id = upload_and_bake();
+    server->kill9();
+    const fs::path data = tmp.path / "data";
+    ASSERT_TRUE(fs::exists(data / "jobs.sqlite-wal")) << "the jobs are in the WAL after kill -9";
+    fs::remove(data / "jobs.sqlite-wal");
+    server = make();
+    try {
+        server->start();
+        ADD_FAILURE() << "lightfarmd started on an empty store beside its jobs' directories";
+    } catch (const std::runtime_error& e) {
+        const std::string what = e.what();
+        EXPECT_NE(what.find("is empty, but 2 job and scene directories"), std::string::npos) << what;
+        EXPECT_NE(what.find("--accept-empty-store"), std::string::npos) << what;
+    }
+    EXPECT_TRUE(fs::exists(data / "jobs" / id)) << "nothing is touched when it refuses";
+    // The way out it names: start empty, the orphans kept aside.
+    server = make({"--accept-empty-store"});
+    server->start();
+    auto c = server->client(kAlice);
+    auto list = c.Get("/v1/jobs");
+    ASSERT_TRUE(list && list->status == 200);
+    EXPECT_EQ(list->body, "[]");
+    bool kept = false;
+    for (const auto& entry : fs::directory_iterator(data))
+        if (entry.path().filename().string().rfind("orphaned-", 0) == 0) kept = fs::exists(entry.path() / "jobs" / id);
+    EXPECT_TRUE(kept) << "the orphaned job directory is moved aside, not deleted";
+    EXPECT_FALSE(fs::exists(data / "jobs" / id));
+    // And it works as a new service, restarting without complaint.
+    upload_and_bake();
+    server->stop();
+    server = make();
+    server->start();
+}
+
+TEST_F(DataDirTest, DataFilesAre0600AndFolders0700) {
+    server = make();
+    server->start();
+    upload_and_bake();
+    server->stop();
+    int files = 0;
+    for (auto it = fs::recursive_directory_iterator(tmp.path / "data"); it != fs::recursive_directory_iterator(); ++it) {
+        struct stat st{};
+        ASSERT_EQ(::lstat(it->path().c_str(), &st), 0);
+        EXPECT_EQ(st.st_mode & 0077, 0u) << it->path() << " is " << std::oct << (st.st_mode & 0777);
+        ++files;
+    }
+    struct stat st{};
+    ASSERT_EQ(::stat((tmp.path / "data").c_str(), &st), 0);
+    EXPECT_EQ(st.st_mode & 0777, 0700u);
+    EXPECT_GT(files, 8);
+}
+
+// Progress events coalesced by the store: a client following the stream live
+// and clients resuming after any event id get every non-progress event once,
+// in order, with ids that only grow.
+TEST_F(DataDirTest, CoalescedProgressKeepsTheEventStreamsResumeExact) {
+    server = make();
+    server->start();
+    engine.set("delay", "0.01");
+    auto c = server->client(kAlice);
+    auto up = c.Post("/v1/scenes", std::string("glTF\x02\x00\x00\x00 scene", 14), "model/gltf-binary");
+    ASSERT_TRUE(up && up->status == 201);
+    auto r = c.Post("/v1/jobs", json({{"scene", json::parse(up->body)["id"]}, {"seed", 1},
+                                      {"outputs", {{"lightmap", {{"passes", 120}}}}}}).dump(),
+                    "application/json");
+    ASSERT_TRUE(r && r->status == 201) << r->body;
+    const std::string id = json::parse(r->body)["id"];
+    const auto live = read_events(server->host, server->port, kAlice, id);
+    const auto all = read_events(server->host, server->port, kAlice, id);
+    auto non_progress = [](const std::vector<protocol::JobEvent>& events) {
+        std::vector<std::pair<int64_t, std::string>> out;
+        for (const auto& e : events)
+            if (e.type != "progress") out.emplace_back(e.id, e.type);
+        return out;
+    };
+    ASSERT_FALSE(all.empty());
+    EXPECT_EQ(all.back().type, "done");
+    EXPECT_EQ(non_progress(live), non_progress(all));
+    size_t progress = 0;
+    for (const auto& e : all) progress += e.type == "progress";
+    EXPECT_EQ(progress, 32u + 1u + 1u) << "passes 1..32, 64 and the newest (120)";
+    for (size_t k = 0; k < all.size(); k += 3) {
+        const auto resumed = read_events(server->host, server->port, kAlice, id, all[k].id);
+        const std::vector<protocol::JobEvent> expected(all.begin() + long(k) + 1, all.end());
+        ASSERT_EQ(resumed.size(), expected.size()) << "after " << all[k].id;
+        for (size_t i = 0; i < resumed.size(); ++i) EXPECT_EQ(resumed[i].id, expected[i].id);
+    }
+}
+
+// Without --data, the data goes to $XDG_DATA_HOME/lightfarm (never the
+// current directory, which may be a checkout).
+TEST(DefaultDataDir, IsTheUsersDataHomeNotTheCurrentDirectory) {
+    TempDir tmp;
+    FakeEngine engine{tmp.path / "engine"};
+    const fs::path cwd = tmp.path / "checkout";
+    fs::create_directories(cwd);
+    const fs::path xdg = tmp.path / "xdg";
+    std::vector<std::string> args = {LIGHTFARMD, "--listen", "127.0.0.1:0", "--engine", engine.script.string()};
+    std::vector<char*> argv;
+    for (std::string& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    std::vector<std::string> env = {"XDG_DATA_HOME=" + xdg.string(), "HOME=" + (tmp.path / "home").string(),
+                                    "PATH=/usr/bin:/bin"};
+    std::vector<char*> envp;
+    for (std::string& e : env) envp.push_back(e.data());
+    envp.push_back(nullptr);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addchdir_np(&actions, cwd.c_str());
+    const std::string log = (tmp.path / "log").string();
+    posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_adddup2(&actions, 1, 2);
+    pid_t pid = -1;
+    ASSERT_EQ(posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data()), 0);
+    posix_spawn_file_actions_destroy(&actions);
+    const fs::path data = xdg / "lightfarm";
+    bool up = false;
+    for (int i = 0; i < 500 && !up; ++i) {
+        up = !read_text(data / "lightfarmd.url").empty();
+        if (!up) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    ::kill(pid, SIGTERM);
+    int status = 0;
+    waitpid(pid, &status, 0);
+    EXPECT_TRUE(up) << read_text(log);
+    EXPECT_TRUE(fs::exists(data / "tokens"));
+    EXPECT_TRUE(fs::exists(data / "jobs.sqlite"));
+    EXPECT_TRUE(fs::is_empty(cwd)) << "nothing in the current directory";
+    EXPECT_NE(read_text(log).find((data / "tokens").string()), std::string::npos) << read_text(log);
+}
+
+}  // namespace
+}  // namespace lf::test
