@@ -582,6 +582,26 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     EXPECT_EQ(summary["punctual_lights"]["point"], 1);
 }
 
+// Coordinates near float's limit are finite, so the accessor checks pass
+// them, but no derived size survives them (fuzzing found two overflows in
+// the atlas): a scene farther than LoadLimits::max_coordinate from the
+// origin is refused, naming the distance.
+TEST(GeneratedScenes, ASceneBeyondTheCoordinateLimitIsRefused) {
+    TempDir dir;
+    GltfWriter w;
+    const int mesh = w.mesh(primitive(w.vec3({{0, 0, 0}, {1e30f, 0, 0}, {0, 0, 1e30f}})));
+    w.add("nodes", {{"mesh", mesh}});
+    try {
+        load_scene(w.write(dir.path(), "far.gltf"));
+        FAIL() << "loaded";
+    } catch (const SceneError& e) {
+        EXPECT_NE(std::string(e.what()).find("far.gltf: the scene reaches 1e+30 m"), std::string::npos) << e.what();
+    }
+    LoadLimits wide;
+    wide.max_coordinate = 2e30f;
+    EXPECT_NO_THROW(load_scene(w.write(dir.path(), "far.gltf"), wide));
+}
+
 // The upload check (`inspect`) reads image headers only: sizes and the texel
 // budget are checked, no pixel is decoded, so a small file claiming a huge
 // image costs nothing to look at. The same file still refuses an image over

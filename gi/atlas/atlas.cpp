@@ -148,8 +148,16 @@ private:
     glm::i64vec4 cell_range(const Tri2& tri) const {
         glm::dvec2 lo = glm::min(glm::min(tri[0], tri[1]), tri[2]);
         glm::dvec2 hi = glm::max(glm::max(tri[0], tri[1]), tri[2]);
-        return {int64_t(std::floor(lo.x / cell_)), int64_t(std::floor(lo.y / cell_)),
-                int64_t(std::floor(hi.x / cell_)), int64_t(std::floor(hi.y / cell_))};
+        // Clamped before the conversion (a hostile scene's coordinates
+        // overflowed int64 here: found by fuzzing); the loader also refuses
+        // scenes beyond LoadLimits::max_coordinate.
+        auto cell = [&](double v) {
+            double c = std::floor(v / cell_);
+            if (!(c > -1e15)) c = -1e15;  // NaN too
+            if (!(c < 1e15)) c = 1e15;
+            return int64_t(c);
+        };
+        return {cell(lo.x), cell(lo.y), cell(hi.x), cell(hi.y)};
     }
     int64_t cell_span(const Tri2& tri) const {
         auto r = cell_range(tri);

@@ -12,6 +12,8 @@
 #include <tiny_gltf.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <limits>
 
 namespace lf {
@@ -53,6 +55,19 @@ tinygltf::Model parse_with_tinygltf(const Document& doc, SceneFiles& files, Imag
     return model;
 }
 
+// The world-space bounds within LoadLimits::max_coordinate of the origin.
+void check_extent(const Bounds& b, const LoadLimits& limits, const Errors& errors) {
+    if (b.empty()) return;
+    float reach = 0.0f;
+    for (int a = 0; a < 3; ++a) reach = std::max({reach, std::abs(b.lo[a]), std::abs(b.hi[a])});
+    if (reach > limits.max_coordinate) {
+        char text[160];
+        std::snprintf(text, sizeof text, "the scene reaches %.3g m from the origin, beyond the limit of %.3g m (are its units metres?)",
+                      double(reach), double(limits.max_coordinate));
+        errors.fail(text);
+    }
+}
+
 void add_scene_warnings(Scene& scene) {
     if (scene.emissive_triangle_count() == 0 && scene.lights.empty())
         scene.warnings.push_back("no light source: no emissive material on any triangle and no punctual light");
@@ -92,6 +107,7 @@ Scene load_scene(const std::filesystem::path& file, const LoadLimits& limits) {
     add_materials(model, errors, images, reader, scene, &scene.warnings);
     add_geometry(model, placement.meshes, reader, limits, errors, scene, &scene.warnings);
     add_lights(model, placement.lights, errors, scene, &scene.warnings);
+    check_extent(scene.bounds, limits, errors);
     add_scene_warnings(scene);
     return scene;
 }

@@ -32,6 +32,11 @@ struct LoadLimits {
     // and not decoded; Texture::texels stay empty. What an upload check
     // needs: a 200 KB PNG of 8192² zeros would otherwise cost 1.3 GB.
     bool decode_images = true;
+    // Largest |coordinate| of a world-space vertex, in metres. float32 has
+    // about a metre of precision at 1e7 m, far past any scene a lightmap can
+    // serve, and coordinates near float's limit overflow every derived size
+    // (chart grids, atlas texels: found by fuzzing).
+    float max_coordinate = 1e7f;
 };
 
 // A file lightfarm cannot or will not load. what() is one line:
