@@ -156,7 +156,7 @@ public:
             nlohmann::json buffer = {{"byteLength", bin_.size()}};
             if (!glb)
                 buffer["uri"] = bin_uri.empty() ? "data:application/octet-stream;base64," + base64(bin_) : bin_uri;
-            d["buffers"] = {buffer};
+            d["buffers"] = nlohmann::json::array({buffer});  // not {buffer}: clang reads that as a copy
             d["bufferViews"] = views_;
             d["accessors"] = accessors_;
         }
