@@ -109,6 +109,18 @@ protected:
         EXPECT_TRUE(r && (r->status == 201 || r->status == 200)) << (r ? r->body : "no answer");
         return r ? json::parse(r->body).value("id", "") : "";
     }
+    // Uploads a scene folder (the .gltf, its buffers and textures) as one multipart request.
+    json upload_folder(const fs::path& dir) {
+        httplib::MultipartFormDataItems files;
+        for (const fs::directory_entry& e : fs::recursive_directory_iterator(dir)) {
+            if (!e.is_regular_file() || e.path().extension() == ".md") continue;
+            const std::string name = fs::relative(e.path(), dir).string();
+            files.push_back({"file", read_text(e.path()), name, "application/octet-stream"});
+        }
+        auto r = client().Post("/v1/scenes", files);
+        EXPECT_TRUE(r && (r->status == 201 || r->status == 200)) << (r ? r->body : "no answer");
+        return r ? json::parse(r->body) : json::object();
+    }
     std::string submit(const json& spec) {
         auto r = client().Post("/v1/jobs", spec.dump(), "application/json");
         EXPECT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
@@ -224,6 +236,44 @@ TEST_F(EndToEnd, EveryBadSceneIsAClear4xxAndTheServerStaysHealthy) {
     ASSERT_TRUE(r);
     EXPECT_EQ(r->status, 201) << r->body;
     EXPECT_GT(json::parse(r->body).value("triangles", 0), 0) << r->body;
+}
+
+// What can be known at submit is refused at submit, from the engine's own
+// summary of the upload: a lightmap of a scene with no light (the breakfast
+// room, lit only through its windows) is a 400 naming `env` and the fix; an
+// atlas smaller than the staircase's 9,121 charts need is a 400 naming
+// `atlas.res` and the smallest that fits. No job is created, no worker runs;
+// the same jobs with the fix are accepted.
+TEST_F(EndToEnd, WhatIsKnownAtSubmitIsRefusedAtSubmit) {
+    const json room = upload_folder(scenes_dir() / "real" / "breakfast_room");
+    EXPECT_EQ(room.value("source", ""), "breakfast_room.gltf") << "the uploaded name, never a server path";
+    json spec = {{"scene", room.value("id", "")}, {"outputs", {{"lightmap", json::object()}}}};
+    auto r = client().Post("/v1/jobs", spec.dump(), "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400) << r->body;
+    EXPECT_EQ(json::parse(r->body).value("field", ""), "env");
+    EXPECT_NE(r->body.find("breakfast_room.gltf"), std::string::npos) << r->body;
+
+    const json stairs = upload_folder(scenes_dir() / "real" / "wooden_staircase");
+    const int smallest = stairs.value("min_atlas_res", 0);
+    EXPECT_GT(smallest, 256);
+    spec = {{"scene", stairs.value("id", "")}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 256}}}};
+    r = client().Post("/v1/jobs", spec.dump(), "application/json");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 400) << r->body;
+    EXPECT_EQ(json::parse(r->body).value("field", ""), "atlas.res");
+    EXPECT_NE(r->body.find(std::to_string(smallest)), std::string::npos) << r->body;
+    auto jobs = client().Get("/v1/jobs");
+    ASSERT_TRUE(jobs);
+    EXPECT_TRUE(json::parse(jobs->body)["jobs"].empty()) << "a refused spec creates no job";
+
+    for (const json& fixed : {json{{"scene", room.value("id", "")}, {"outputs", {{"lightmap", {{"passes", 1}}}}}, {"env", {1, 1, 1}}},
+                              json{{"scene", stairs.value("id", "")}, {"outputs", {{"lightmap", {{"passes", 1}}}}},
+                                   {"atlas", {{"res", smallest}}}}}) {
+        const std::string id = submit(fixed);
+        ASSERT_FALSE(id.empty());
+        client().Post("/v1/jobs/" + id + "/cancel", "", "application/json");
+    }
 }
 
 TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
