@@ -53,7 +53,11 @@ public:
         const std::string& text = values_.at(key);
         size_t used = 0;
         double v = 0.0;
-        try { v = std::stod(text, &used); } catch (const std::exception&) { used = 0; }
+        try {
+            v = std::stod(text, &used);
+        } catch (const std::exception&) {
+            used = 0;
+        }
         if (used != text.size() || text.empty()) throw UsageError(key + ": '" + text + "' is not a number");
         return v;
     }

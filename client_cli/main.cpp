@@ -48,8 +48,7 @@ commands:
 )";
 
 std::string one_scene(const Args& args, const char* command) {
-    if (args.positional().size() != 1)
-        throw UsageError(std::string(command) + " takes exactly one SCENE argument");
+    if (args.positional().size() != 1) throw UsageError(std::string(command) + " takes exactly one SCENE argument");
     return args.positional()[0];
 }
 
@@ -66,8 +65,7 @@ int inspect(int argc, char** argv) {
         // atlas a generated one fits in.
         if (!summary.has_lightmap_uvs) summary.min_atlas_res = lf::smallest_atlas_resolution(scene);
         std::cout << lf::protocol::to_json(summary).dump(2) << "\n";
-    }
-    else std::cout << lf::format_summary(scene);
+    } else std::cout << lf::format_summary(scene);
     return 0;
 }
 
@@ -124,7 +122,8 @@ int compare_sh_transfer(const std::string& bake_path, const std::string& referen
         vertices += a.size();
     }
     std::cout << nlohmann::json{{"relative_rmse", sum_ref_sq > 0.0 ? std::sqrt(sum_sq / sum_ref_sq) : 0.0},
-                                {"vertices", vertices}, {"coefficients", coefficients}}
+                                {"vertices", vertices},
+                                {"coefficients", coefficients}}
                      .dump()
               << "\n";
     return 0;
@@ -132,7 +131,8 @@ int compare_sh_transfer(const std::string& bake_path, const std::string& referen
 
 int compare(int argc, char** argv) {
     Args args(argc, argv, 2, {"--mask"}, {});
-    if (args.positional().size() != 2) throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
+    if (args.positional().size() != 2)
+        throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
     const auto is_bin = [](const std::string& f) { return f.size() > 4 && f.substr(f.size() - 4) == ".bin"; };
     if (is_bin(args.positional()[0])) return compare_sh_transfer(args.positional()[0], args.positional()[1]);
     const lf::FloatImage bake = lf::read_exr(args.positional()[0]);
@@ -143,8 +143,11 @@ int compare(int argc, char** argv) {
         mask = m.size() > 4 && m.substr(m.size() - 4) == ".pfm" ? lf::read_pfm(m) : lf::read_exr(m);
     }
     const lf::ReferenceError e = lf::compare_to_reference(bake, reference, args.has("--mask") ? &mask : nullptr);
-    nlohmann::json out = {{"relative_rmse", e.relative_rmse}, {"rmse", e.rmse}, {"bias", e.bias},
-                          {"reference_mean", e.reference_mean}, {"texels", e.texels}};
+    nlohmann::json out = {{"relative_rmse", e.relative_rmse},
+                          {"rmse", e.rmse},
+                          {"bias", e.bias},
+                          {"reference_mean", e.reference_mean},
+                          {"texels", e.texels}};
     for (const char* key : {"lightfarm.pass", "lightfarm.rays", "lightfarm.seconds", "lightfarm.errorEstimate"}) {
         auto it = bake.number_attributes.find(key);
         if (it != bake.number_attributes.end()) out[std::string(key).substr(10)] = it->second;
@@ -183,9 +186,11 @@ public:
             std::cerr << "baking";
             for (auto it = start->outputs.begin(); it != start->outputs.end(); ++it)
                 std::cerr << " " << it.key() << " ("
-                          << (it.value().contains("texels")     ? std::to_string(it.value()["texels"].get<uint64_t>()) + " texels)"
-                              : it.value().contains("probes") ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
-                                                              : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
+                          << (it.value().contains("texels")
+                                  ? std::to_string(it.value()["texels"].get<uint64_t>()) + " texels)"
+                              : it.value().contains("probes")
+                                  ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
+                                  : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
             std::cerr << " on " << start->renderer << ", prepared in " << start->prepare_seconds << " s\n";
         } else if (const auto* progress = std::get_if<p::ProgressEvent>(&e); progress && terminal_) {
             if (progress->output != drawing_ && !drawing_.empty()) std::cerr << "\n";
@@ -236,14 +241,16 @@ lf::protocol::BakeSettings bake_settings(const Args& args, const std::string& sc
 
 // `lightfarm bake --help`: the catalog's settings, as the README's table has them.
 std::string bake_help() {
-    std::string text = "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh]\n"
-                       "                      [--device auto|gpu|gpu:N|cpu] [--json] [settings]\n\nsettings:\n";
+    std::string text =
+        "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh]\n"
+        "                      [--device auto|gpu|gpu:N|cpu] [--json] [settings]\n\nsettings:\n";
     for (const lf::protocol::Setting& s : lf::protocol::setting_catalog()) {
         std::string flag = s.flag() + (s.value_syntax().empty() ? "" : " " + s.value_syntax());
         flag.resize(std::max<size_t>(flag.size(), 34), ' ');
         text += "  " + flag + " " + s.help;
         if (!s.default_value.is_null() && s.type != lf::protocol::SettingType::Flag)
-            text += " [" + (s.default_value.is_string() ? s.default_value.get<std::string>() : s.default_value.dump()) + "]";
+            text += " [" + (s.default_value.is_string() ? s.default_value.get<std::string>() : s.default_value.dump()) +
+                    "]";
         text += "\n";
     }
     return text;
@@ -287,7 +294,6 @@ int sh_shade(int argc, char** argv) {
     return 0;
 }
 
-
 // Irradiance / pi at points (POINTS: [{"position": [x,y,z], "normal": [x,y,z]}, ...])
 // from a baked probe set, by the four estimators of gi/probes/probe_eval.h.
 int probe_eval(int argc, char** argv) {
@@ -323,8 +329,10 @@ int probe_eval(int argc, char** argv) {
         const auto rgb = [](glm::vec3 c) { return nlohmann::json{c.r, c.g, c.b}; };
         for (const auto& [position, normal] : points) {
             const lf::ProbeEvaluation e = evaluator.evaluate(position, normal);
-            out["points"].push_back({{"sh9", rgb(e.sh9)}, {"point_to_point", rgb(e.point_to_point)},
-                                     {"polygon_to_point", rgb(e.polygon_to_point)}, {"ddgi", rgb(e.ddgi)}});
+            out["points"].push_back({{"sh9", rgb(e.sh9)},
+                                     {"point_to_point", rgb(e.point_to_point)},
+                                     {"polygon_to_point", rgb(e.polygon_to_point)},
+                                     {"ddgi", rgb(e.ddgi)}});
         }
     } catch (const std::exception& e) {  // an unreadable or malformed input file
         std::cerr << "lightfarm probe-eval: error: " << e.what() << "\n";

@@ -47,8 +47,7 @@ struct RemoteError : std::runtime_error {
 
 class Remote {
 public:
-    explicit Remote(const Args& args)
-        : server_(args.get("--server", "http://127.0.0.1:8750")), client_(server_) {
+    explicit Remote(const Args& args) : server_(args.get("--server", "http://127.0.0.1:8750")), client_(server_) {
         std::string token = args.get("--token");
         if (token.empty()) {
             const char* env = std::getenv("LIGHTFARM_TOKEN");
@@ -72,7 +71,8 @@ public:
         if (!r) throw RemoteError("cannot reach " + server_ + " (" + httplib::to_string(r.error()) + ") to " + what);
         if (r->status >= 200 && r->status < 300) return;
         const json body = json::parse(r->body, nullptr, false);
-        const std::string message = body.is_object() && body.contains("error") ? body["error"].get<std::string>() : r->body;
+        const std::string message =
+            body.is_object() && body.contains("error") ? body["error"].get<std::string>() : r->body;
         throw RemoteError(message + " (HTTP " + std::to_string(r->status) + ")");
     }
     httplib::Client& http() { return client_; }
@@ -109,7 +109,8 @@ std::string upload_scene(Remote& remote, const fs::path& scene) {
     std::string ext = scene.extension().string();
     for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
     if (ext == ".glb") {
-        return remote.call(remote.http().Post("/v1/scenes", bytes, "model/gltf-binary"), "upload " + scene.string())["id"];
+        return remote.call(remote.http().Post("/v1/scenes", bytes, "model/gltf-binary"),
+                           "upload " + scene.string())["id"];
     }
     if (ext == ".gltf") {
         const json doc = json::parse(bytes, nullptr, false);
@@ -188,8 +189,9 @@ protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_line
             });
         if (status != 0 && status != 200) {
             const json body = json::parse(error_body, nullptr, false);
-            throw RemoteError((body.is_object() && body.contains("error") ? body["error"].get<std::string>() : error_body) +
-                              " (HTTP " + std::to_string(status) + ")");
+            throw RemoteError(
+                (body.is_object() && body.contains("error") ? body["error"].get<std::string>() : error_body) +
+                " (HTTP " + std::to_string(status) + ")");
         }
         if (final_event.type.empty()) std::this_thread::sleep_for(std::chrono::seconds(1));
     }
@@ -233,7 +235,8 @@ void fetch(Remote& remote, const std::string& job, const fs::path& dir, bool lat
 int finish_with(const protocol::JobEvent& e, const std::string& job) {
     if (e.type == "done") return 0;
     if (e.type == "failed")
-        std::cerr << "lightfarm: job " << job << " failed: " << e.data.value("error", "") << ": " << e.data.value("cause", "") << "\n";
+        std::cerr << "lightfarm: job " << job << " failed: " << e.data.value("error", "") << ": "
+                  << e.data.value("cause", "") << "\n";
     else std::cerr << "lightfarm: job " << job << " was cancelled\n";
     return 1;
 }

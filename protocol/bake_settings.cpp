@@ -14,7 +14,8 @@ namespace {
 
 constexpr double kMaxPasses = 1 << 24;
 
-Setting integer(std::string group, std::string name, json def, double min, double max, std::string limit, std::string help) {
+Setting integer(std::string group, std::string name, json def, double min, double max, std::string limit,
+                std::string help) {
     Setting s;
     s.group = std::move(group);
     s.name = std::move(name);
@@ -68,7 +69,8 @@ std::vector<Setting> build_catalog() {
         integer("lightmap", "passes", 256, 1, kMaxPasses, "passes", "stop after this many passes"),
         number("lightmap", "target_error", 0, 0, false, 1e3, "",
                "stop when the relative standard error falls below this (0: no target)"),
-        number("lightmap", "time_limit", 0, 0, false, 1e7, "time_limit", "stop after this many seconds of passes (0: none)"),
+        number("lightmap", "time_limit", 0, 0, false, 1e7, "time_limit",
+               "stop after this many seconds of passes (0: none)"),
         choice("lightmap", "scheme", {"epochs", "thesis", "pathtrace"},
                "indirect light: doubling epochs, the thesis's running average, or brute-force path tracing"),
         integer("lightmap", "light_samples", 1, 1, 1024, "", "emitter samples per texel per pass"),
@@ -82,10 +84,12 @@ std::vector<Setting> build_catalog() {
         integer("sh", "sh_passes", 256, 1, kMaxPasses, "passes", "stop after this many passes of 64 rays per vertex"),
         number("sh", "sh_target_error", 0, 0, false, 1e3, "",
                "stop when the transfer's relative standard error falls below this (0: no target)"),
-        number("sh", "sh_time_limit", 0, 0, false, 1e7, "time_limit", "stop after this many seconds of passes (0: none)"),
+        number("sh", "sh_time_limit", 0, 0, false, 1e7, "time_limit",
+               "stop after this many seconds of passes (0: none)"),
         typed("sh", "sh_occluders", T::MeshList, json::array(), "glTF meshes that cast shadows (empty: all)"),
         typed("sh", "sh_receivers", T::MeshList, json::array(), "glTF meshes that get transfer (empty: all)"),
-        typed("sh", "sh_per_texel", T::Flag, false, "transfer per lightmap texel too (sh_transfer.exr, the atlas below)"),
+        typed("sh", "sh_per_texel", T::Flag, false,
+              "transfer per lightmap texel too (sh_transfer.exr, the atlas below)"),
 
         typed("probes", "probe_positions", T::Positions, json::array(),
               "probe reference points [{\"position\": [x, y, z]}, …] (CLI: a JSON file); empty: a grid"),
@@ -93,15 +97,18 @@ std::vector<Setting> build_catalog() {
                          "grid spacing in metres (auto: a quarter of the scene's largest extent)")),
         integer("probes", "probe_res", 32, 16, 256, "", "capture texels per cube face side (R)"),
         integer("probes", "probe_m", 4, 1, 16, "", "texels per face side after downsampling (M, divides R)"),
-        integer("probes", "probe_passes", 64, 1, kMaxPasses, "passes", "stop after this many passes of one path per texel"),
+        integer("probes", "probe_passes", 64, 1, kMaxPasses, "passes",
+                "stop after this many passes of one path per texel"),
         number("probes", "probe_target_error", 0, 0, false, 1e3, "",
                "stop when the radiance's relative standard error falls below this (0: no target)"),
-        number("probes", "probe_time_limit", 0, 0, false, 1e7, "time_limit", "stop after this many seconds of passes (0: none)"),
+        number("probes", "probe_time_limit", 0, 0, false, 1e7, "time_limit",
+               "stop after this many seconds of passes (0: none)"),
 
-        with_auto(integer("atlas", "res", 0, 1, 16384, "res",
-                          "atlas width and height in texels (auto: the file's TEXCOORD_1 at 256, or from texel_density)")),
-        with_auto(number("atlas", "texel_density", 0, 0, true, 1e4, "",
-                         "texels per metre of surface (auto: from res)")),
+        with_auto(
+            integer("atlas", "res", 0, 1, 16384, "res",
+                    "atlas width and height in texels (auto: the file's TEXCOORD_1 at 256, or from texel_density)")),
+        with_auto(
+            number("atlas", "texel_density", 0, 0, true, 1e4, "", "texels per metre of surface (auto: from res)")),
         integer("atlas", "subsamples", 2, 1, 8, "", "sample points per texel along each axis"),
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
@@ -143,13 +150,15 @@ json check_range(const Setting& s, const json& v, const SpecLimits& limits, cons
     if (x > s.max) throw SpecError(field, number_text(x) + " exceeds the maximum " + number_text(s.max));
     if (!s.limit.empty() && x > limits.cap(s.limit))
         throw SpecError(field, number_text(x) + " exceeds this server's limit " + number_text(limits.cap(s.limit)));
-    if (s.type == SettingType::Integer) return v.is_number_unsigned() ? json(v.get<uint64_t>()) : json(v.get<int64_t>());
+    if (s.type == SettingType::Integer)
+        return v.is_number_unsigned() ? json(v.get<uint64_t>()) : json(v.get<int64_t>());
     return json(x);
 }
 
 json check_environment(const json& v, const SpecLimits& limits, const std::string& field) {
     if (v.is_array()) {
-        if (v.size() != 3) throw SpecError(field, "a uniform sky is [R, G, B], not " + std::to_string(v.size()) + " values");
+        if (v.size() != 3)
+            throw SpecError(field, "a uniform sky is [R, G, B], not " + std::to_string(v.size()) + " values");
         json out = json::array();
         for (const json& c : v) {
             // Stored as float32: a value that overflows it would come back as
@@ -164,7 +173,8 @@ json check_environment(const json& v, const SpecLimits& limits, const std::strin
         const std::string file = v.get<std::string>();
         if (file.empty()) throw SpecError(field, "must not be empty");
         if (!limits.allow_local_files)
-            throw SpecError(field, "an environment map file cannot be given to the service; give a uniform sky [R, G, B]");
+            throw SpecError(field,
+                            "an environment map file cannot be given to the service; give a uniform sky [R, G, B]");
         return file;
     }
     throw SpecError(field, "must be [R, G, B] or an environment map file, not " + type_name(v));
@@ -210,16 +220,15 @@ json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
         if (!v.is_array()) throw SpecError(field, "must be an array of glTF mesh indices, not " + type_name(v));
         json out = json::array();
         for (const json& m : v) {
-            if (!(m.is_number_integer() || m.is_number_unsigned()) || m.get<int64_t>() < 0 || m.get<int64_t>() > 1 << 30)
+            if (!(m.is_number_integer() || m.is_number_unsigned()) || m.get<int64_t>() < 0 ||
+                m.get<int64_t>() > 1 << 30)
                 throw SpecError(field, "mesh indices are integers >= 0, not " + m.dump());
             out.push_back(m.get<int64_t>());
         }
         return out;
     }
-    case SettingType::Environment:
-        return check_environment(v, limits, field);
-    case SettingType::Positions:
-        return check_positions(v, field);
+    case SettingType::Environment: return check_environment(v, limits, field);
+    case SettingType::Positions: return check_positions(v, field);
     }
     return v;
 }
@@ -267,7 +276,9 @@ void check_combination(const BakeSettings& b) {
         throw SpecError("probes.probe_m", std::to_string(b.probes->m) + " does not divide probe_res " +
                                               std::to_string(b.probes->res) + " (M must divide R)");
     if ((b.lightmap || b.probes) && !b.env.map_file.empty())
-        throw SpecError("env", "a lightmap's or probes' environment is a uniform sky R,G,B; environment maps work with the sh output only");
+        throw SpecError("env",
+                        "a lightmap's or probes' environment is a uniform sky R,G,B; environment maps work with the sh "
+                        "output only");
 }
 
 }  // namespace
@@ -329,11 +340,13 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     if (!j.contains("outputs")) throw SpecError("outputs", "is required");
     const json& outputs = j["outputs"];
     require_object(outputs, "outputs");
-    if (outputs.empty()) throw SpecError("outputs", "must ask for at least one output (" + joined(output_names(), ", ") + ")");
+    if (outputs.empty())
+        throw SpecError("outputs", "must ask for at least one output (" + joined(output_names(), ", ") + ")");
     for (auto it = outputs.begin(); it != outputs.end(); ++it) {
         bool known = false;
         for (const std::string& o : output_names()) known = known || o == it.key();
-        if (!known) throw SpecError("outputs." + it.key(), "unknown output (known: " + joined(output_names(), ", ") + ")");
+        if (!known)
+            throw SpecError("outputs." + it.key(), "unknown output (known: " + joined(output_names(), ", ") + ")");
         require_object(it.value(), "outputs." + it.key());
         reject_unknown(it.value(), it.key(), it.key() + ".");
     }
@@ -355,7 +368,8 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     b.atlas.subsamples = atlas["subsamples"].get<int>();
     if (outputs.contains("lightmap")) {
         const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
-        b.lightmap = LightmapSettings{stop_from(l, ""), l["scheme"], l["light_samples"], l["light_sampling"], l["stitch"]};
+        b.lightmap =
+            LightmapSettings{stop_from(l, ""), l["scheme"], l["light_samples"], l["light_sampling"], l["stitch"]};
     }
     if (outputs.contains("sh")) {
         const json s = settings_of_group("sh", outputs["sh"], limits);
@@ -388,26 +402,36 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
 json to_json(const BakeSettings& b) {
     auto or_auto = [](const auto& v) { return v ? json(*v) : json("auto"); };
     json j = {{"outputs", json::object()}, {"seed", b.seed}};
-    j["atlas"] = {{"res", or_auto(b.atlas.res)}, {"texel_density", or_auto(b.atlas.texel_density)},
+    j["atlas"] = {{"res", or_auto(b.atlas.res)},
+                  {"texel_density", or_auto(b.atlas.texel_density)},
                   {"subsamples", b.atlas.subsamples}};
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
     if (const auto& l = b.lightmap)
-        j["outputs"]["lightmap"] = {{"passes", l->stop.passes}, {"target_error", l->stop.target_error},
-                                    {"time_limit", l->stop.time_limit}, {"scheme", l->scheme},
-                                    {"light_samples", l->light_samples}, {"light_sampling", l->light_sampling},
-                                    {"stitch", l->stitch}};
+        j["outputs"]["lightmap"] = {
+            {"passes", l->stop.passes}, {"target_error", l->stop.target_error}, {"time_limit", l->stop.time_limit},
+            {"scheme", l->scheme},      {"light_samples", l->light_samples},    {"light_sampling", l->light_sampling},
+            {"stitch", l->stitch}};
     if (const auto& s = b.sh)
-        j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)}, {"sh_bounces", s->bounces}, {"sh_window", s->window},
-                              {"sh_passes", s->stop.passes}, {"sh_target_error", s->stop.target_error},
-                              {"sh_time_limit", s->stop.time_limit}, {"sh_occluders", s->occluders},
-                              {"sh_receivers", s->receivers}, {"sh_per_texel", s->per_texel}};
+        j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)},
+                              {"sh_bounces", s->bounces},
+                              {"sh_window", s->window},
+                              {"sh_passes", s->stop.passes},
+                              {"sh_target_error", s->stop.target_error},
+                              {"sh_time_limit", s->stop.time_limit},
+                              {"sh_occluders", s->occluders},
+                              {"sh_receivers", s->receivers},
+                              {"sh_per_texel", s->per_texel}};
     if (const auto& p = b.probes) {
         json positions = json::array();
         for (const auto& q : p->positions) positions.push_back({{"position", {q[0], q[1], q[2]}}});
-        j["outputs"]["probes"] = {{"probe_positions", positions}, {"probe_spacing", or_auto(p->spacing)},
-                                  {"probe_res", p->res}, {"probe_m", p->m}, {"probe_passes", p->stop.passes},
-                                  {"probe_target_error", p->stop.target_error}, {"probe_time_limit", p->stop.time_limit}};
+        j["outputs"]["probes"] = {{"probe_positions", positions},
+                                  {"probe_spacing", or_auto(p->spacing)},
+                                  {"probe_res", p->res},
+                                  {"probe_m", p->m},
+                                  {"probe_passes", p->stop.passes},
+                                  {"probe_target_error", p->stop.target_error},
+                                  {"probe_time_limit", p->stop.time_limit}};
     }
     return j;
 }

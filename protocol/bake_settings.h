@@ -70,13 +70,13 @@ struct Setting {
     nlohmann::json default_value;  // "auto" where the engine chooses; null: none
     double min = 0, max = 0;       // Integer / Number: the range (min exclusive if min_exclusive)
     bool min_exclusive = false;
-    bool accepts_auto = false;     // the string "auto" is a value of its own
+    bool accepts_auto = false;  // the string "auto" is a value of its own
     std::vector<std::string> choices;
     std::string limit;  // SpecLimits key that caps it, or ""
     std::string help;
 
-    std::string flag() const;   // "--texel-density"; a flag defaulting to true: "--no-stitch"
-    std::string field() const;  // "lightmap.passes", "atlas.res", "seed"
+    std::string flag() const;          // "--texel-density"; a flag defaulting to true: "--no-stitch"
+    std::string field() const;         // "lightmap.passes", "atlas.res", "seed"
     std::string value_syntax() const;  // "N", "1..4|auto", "epochs|thesis|pathtrace", … (for usage text)
 };
 
@@ -95,9 +95,9 @@ struct StopSettings {
 };
 
 struct AtlasSettings {
-    std::optional<int> res;              // empty: auto (the file's TEXCOORD_1 size, or the engine's default)
-    std::optional<double> texel_density; // texels per metre; empty: from res
-    int subsamples = 2;                  // sample points per texel = this squared
+    std::optional<int> res;               // empty: auto (the file's TEXCOORD_1 size, or the engine's default)
+    std::optional<double> texel_density;  // texels per metre; empty: from res
+    int subsamples = 2;                   // sample points per texel = this squared
 };
 
 struct LightmapSettings {

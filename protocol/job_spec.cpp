@@ -26,10 +26,13 @@ std::string number_text(double v) {
 double check_limit(const json& v, bool integer, const SpecLimits& limits, const std::string& key) {
     const std::string field = "limits." + key;
     if (!v.is_number() || (integer && !(v.is_number_integer() || v.is_number_unsigned())))
-        throw SpecError(field, std::string("must be ") + (integer ? "an integer" : "a number") + ", not " + type_name(v));
+        throw SpecError(field,
+                        std::string("must be ") + (integer ? "an integer" : "a number") + ", not " + type_name(v));
     const double x = v.get<double>();
-    if (!(integer ? x >= 1.0 : x > 0.0)) throw SpecError(field, std::string("must be ") + (integer ? "at least 1" : "positive"));
-    if (x > limits.cap(key)) throw SpecError(field, number_text(x) + " exceeds this server's limit " + number_text(limits.cap(key)));
+    if (!(integer ? x >= 1.0 : x > 0.0))
+        throw SpecError(field, std::string("must be ") + (integer ? "at least 1" : "positive"));
+    if (x > limits.cap(key))
+        throw SpecError(field, number_text(x) + " exceeds this server's limit " + number_text(limits.cap(key)));
     if (integer && x > 1e6) throw SpecError(field, number_text(x) + " exceeds the maximum 1000000");
     return x;
 }
@@ -58,8 +61,10 @@ JobSpec parse_job_spec(const json& j, const SpecLimits& limits) {
         for (auto it = l.begin(); it != l.end(); ++it)
             if (it.key() != "max_seconds" && it.key() != "max_attempts")
                 throw SpecError("limits." + it.key(), "unknown field (known: max_seconds, max_attempts)");
-        if (l.contains("max_seconds")) spec.limits.max_seconds = check_limit(l["max_seconds"], false, limits, "max_seconds");
-        if (l.contains("max_attempts")) spec.limits.max_attempts = int(check_limit(l["max_attempts"], true, limits, "max_attempts"));
+        if (l.contains("max_seconds"))
+            spec.limits.max_seconds = check_limit(l["max_seconds"], false, limits, "max_seconds");
+        if (l.contains("max_attempts"))
+            spec.limits.max_attempts = int(check_limit(l["max_attempts"], true, limits, "max_attempts"));
     }
     return spec;
 }
@@ -77,8 +82,10 @@ json to_json(const JobSpec& spec) {
 void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scene) {
     const std::string name = scene.source.empty() ? "the scene" : scene.source;
     if ((bake.lightmap || bake.probes) && !scene.has_light() && !bake.env.given())
-        throw SpecError("env", name + " has no emissive surface and no punctual light, so its lightmap and probes would be black; "
-                               "give a sky with \"env\": [R, G, B] (--env R,G,B)");
+        throw SpecError(
+            "env", name +
+                       " has no emissive surface and no punctual light, so its lightmap and probes would be black; "
+                       "give a sky with \"env\": [R, G, B] (--env R,G,B)");
     const bool per_texel = bake.lightmap || (bake.sh && bake.sh->per_texel);
     if (per_texel && !scene.has_lightmap_uvs && scene.min_atlas_res > 0 && bake.atlas.res &&
         *bake.atlas.res < scene.min_atlas_res)

@@ -9,24 +9,23 @@ using nlohmann::json;
 
 std::string to_string(JobState s) {
     switch (s) {
-        case JobState::Queued: return "queued";
-        case JobState::Running: return "running";
-        case JobState::Succeeded: return "succeeded";
-        case JobState::Failed: return "failed";
-        case JobState::Cancelled: return "cancelled";
+    case JobState::Queued: return "queued";
+    case JobState::Running: return "running";
+    case JobState::Succeeded: return "succeeded";
+    case JobState::Failed: return "failed";
+    case JobState::Cancelled: return "cancelled";
     }
     return "unknown";
 }
 
 std::optional<JobState> parse_job_state(const std::string& s) {
-    for (JobState st : {JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled})
+    for (JobState st :
+         {JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled})
         if (to_string(st) == s) return st;
     return std::nullopt;
 }
 
-bool is_final(JobState s) {
-    return s == JobState::Succeeded || s == JobState::Failed || s == JobState::Cancelled;
-}
+bool is_final(JobState s) { return s == JobState::Succeeded || s == JobState::Failed || s == JobState::Cancelled; }
 
 std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p) {
     if (p.pass <= 0 || p.seconds <= 0.0) return std::nullopt;
@@ -46,9 +45,7 @@ std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p) 
     return eta;
 }
 
-json to_json(const LatestFile& f) {
-    return {{"file", f.file}, {"pass", f.pass}, {"final", f.final_file}};
-}
+json to_json(const LatestFile& f) { return {{"file", f.file}, {"pass", f.pass}, {"final", f.final_file}}; }
 
 json to_json(const std::map<std::string, LatestFile>& latest) {
     json j = json::object();
@@ -109,9 +106,7 @@ JobStatus status_from_json(const json& j) {
     return s;
 }
 
-bool is_final_event(const std::string& type) {
-    return type == "done" || type == "failed" || type == "cancelled";
-}
+bool is_final_event(const std::string& type) { return type == "done" || type == "failed" || type == "cancelled"; }
 
 std::string format_sse(const JobEvent& e) {
     // dump() never emits a raw newline, so the data fits on one line.

@@ -32,8 +32,8 @@ std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p);
 // event names it. Never found by sorting file names (pass-16384 sorts before
 // pass-2048).
 struct LatestFile {
-    std::string file;    // a plain file name among the job's artifacts
-    int pass = 0;        // the pass it holds (0: unknown)
+    std::string file;         // a plain file name among the job's artifacts
+    int pass = 0;             // the pass it holds (0: unknown)
     bool final_file = false;  // the output's final file (the done event's "final")
 };
 nlohmann::json to_json(const LatestFile& f);
@@ -47,12 +47,12 @@ struct JobStatus {
     JobState state = JobState::Queued;
     nlohmann::json spec;  // the validated job spec (to_json(JobSpec))
     Progress progress;
-    int attempts = 0;     // worker runs started so far
+    int attempts = 0;  // worker runs started so far
     int max_attempts = 0;
     std::string error;    // when failed: what went wrong, for a person
     std::string cause;    // when failed: the last attempt's cause (exit status, stderr line, timeout)
     bool cached = false;  // artifacts reused from an identical earlier bake
-    std::map<std::string, LatestFile> latest;  // output name -> its newest file so far
+    std::map<std::string, LatestFile> latest;                // output name -> its newest file so far
     double created_at = 0, started_at = 0, finished_at = 0;  // Unix seconds, 0 = not yet
 };
 nlohmann::json to_json(const JobStatus& s);

@@ -27,7 +27,8 @@ Progress progress_from_json(const json& j) {
     else if (j.contains("rays") && j["rays"].is_number_integer() && j["rays"].get<int64_t>() >= 0)
         p.rays = uint64_t(j["rays"].get<int64_t>());
     if (j.contains("seconds") && j["seconds"].is_number()) p.seconds = j["seconds"].get<double>();
-    if (j.contains("error_estimate") && j["error_estimate"].is_number()) p.error_estimate = j["error_estimate"].get<double>();
+    if (j.contains("error_estimate") && j["error_estimate"].is_number())
+        p.error_estimate = j["error_estimate"].get<double>();
     if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
     return p;
 }
@@ -66,8 +67,12 @@ uint64_t count_field(const json& j, const char* key) {
 
 json to_json(const WorkerEvent& e) {
     if (const auto* s = std::get_if<StartEvent>(&e))
-        return {{"event", "start"}, {"vendor", s->vendor}, {"renderer", s->renderer}, {"triangles", s->triangles},
-                {"prepare_seconds", s->prepare_seconds}, {"outputs", s->outputs}};
+        return {{"event", "start"},
+                {"vendor", s->vendor},
+                {"renderer", s->renderer},
+                {"triangles", s->triangles},
+                {"prepare_seconds", s->prepare_seconds},
+                {"outputs", s->outputs}};
     if (const auto* p = std::get_if<ProgressEvent>(&e)) {
         json j = progress_fields(p->progress);
         j["event"] = "progress";
@@ -99,7 +104,8 @@ WorkerEvent parse_worker_event(const json& j) {
     if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j)};
     if (kind == "snapshot") {
         const Progress at = progress_from_json(j);
-        if (!j.contains("pass") || at.pass != j["pass"]) throw std::invalid_argument("snapshot event without a valid pass");
+        if (!j.contains("pass") || at.pass != j["pass"])
+            throw std::invalid_argument("snapshot event without a valid pass");
         return SnapshotEvent{optional_string(j, "output"), string_field(j, "file"), at.pass};
     }
     if (kind == "done") {

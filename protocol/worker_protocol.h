@@ -34,9 +34,9 @@ inline bool is_input_error_exit(int code) { return code == kExitUsage || code ==
 // Where a progressive bake stands: totals after the latest pass. The engine's
 // pass statistics and the server's progress are this one type.
 struct Progress {
-    int pass = 0;          // passes done so far
-    uint64_t rays = 0;     // rays traced so far
-    double seconds = 0.0;  // time in passes so far
+    int pass = 0;                          // passes done so far
+    uint64_t rays = 0;                     // rays traced so far
+    double seconds = 0.0;                  // time in passes so far
     std::optional<double> error_estimate;  // relative standard error, once known
     std::optional<double> eta_seconds;     // the server's estimate of what is left
 };
@@ -46,7 +46,7 @@ Progress progress_from_json(const nlohmann::json& j);
 struct StartEvent {
     std::string vendor, renderer;
     uint64_t triangles = 0;
-    double prepare_seconds = 0.0;  // load, atlas, BVH, methods: once for the whole job
+    double prepare_seconds = 0.0;                       // load, atlas, BVH, methods: once for the whole job
     nlohmann::json outputs = nlohmann::json::object();  // output name -> what it bakes (texels, vertices, settings)
 };
 struct ProgressEvent {
@@ -59,8 +59,8 @@ struct SnapshotEvent {
     int pass = 0;
 };
 struct DoneEvent {
-    Progress progress;               // of the output baked last
-    std::vector<std::string> files;  // every file written, final and intermediate
+    Progress progress;                               // of the output baked last
+    std::vector<std::string> files;                  // every file written, final and intermediate
     std::map<std::string, std::string> final_files;  // output name -> its main file
 };
 using WorkerEvent = std::variant<StartEvent, ProgressEvent, SnapshotEvent, DoneEvent>;

@@ -79,7 +79,9 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
             c.accept_empty_store = true;
             continue;
         }
-        if (i + 1 >= args.size()) throw std::invalid_argument(a.rfind("--", 0) == 0 ? a + " needs a value" : "unexpected argument '" + a + "'");
+        if (i + 1 >= args.size())
+            throw std::invalid_argument(a.rfind("--", 0) == 0 ? a + " needs a value"
+                                                              : "unexpected argument '" + a + "'");
         const std::string& v = args[++i];
         if (a == "--listen") {
             const size_t colon = v.rfind(':');
@@ -109,7 +111,8 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
     if (c.event_retention_days < 0) throw std::invalid_argument("--event-retention-days must be at least 0");
     const ServerLimits& l = c.limits;
     if (!(l.header_seconds > 0) || !(l.request_seconds >= l.header_seconds) || !(l.keep_alive_seconds > 0))
-        throw std::invalid_argument("--limit: header_seconds and keep_alive_seconds must be positive, request_seconds at least header_seconds");
+        throw std::invalid_argument(
+            "--limit: header_seconds and keep_alive_seconds must be positive, request_seconds at least header_seconds");
     if (l.header_bytes < 8192 || l.header_bytes > (16 << 20))
         throw std::invalid_argument("--limit header_bytes: between 8192 and 16777216");
     // cpp-httplib (built without poll) answers 500 on a socket numbered
@@ -127,8 +130,8 @@ std::string find_engine(const std::string& configured) {
     std::error_code ec;
     const fs::path self = fs::read_symlink("/proc/self/exe", ec);
     if (!ec) {
-        for (const fs::path& candidate : {self.parent_path() / ".." / "client_cli" / "lightfarm",
-                                          self.parent_path() / "lightfarm"}) {
+        for (const fs::path& candidate :
+             {self.parent_path() / ".." / "client_cli" / "lightfarm", self.parent_path() / "lightfarm"}) {
             if (access(candidate.c_str(), X_OK) == 0) return fs::weakly_canonical(candidate).string();
         }
     }

@@ -24,31 +24,34 @@ struct ServerLimits {
     // the whole request, body included, within request_seconds.
     double header_seconds = 10;
     double request_seconds = 300;
-    double keep_alive_seconds = 5;         // an idle kept-alive connection is closed after this
-    int64_t header_bytes = 64 << 10;       // request line + headers (the request line alone: 8192)
-    int connections = 512;                 // open connections, in total
-    int connections_per_address = 256;     // open connections from one client address
-    int event_streams = 0;                 // open event streams, in total; 0: half of --http-threads (the most allowed)
-    int event_streams_per_token = 16;      // open event streams of one token
+    double keep_alive_seconds = 5;      // an idle kept-alive connection is closed after this
+    int64_t header_bytes = 64 << 10;    // request line + headers (the request line alone: 8192)
+    int connections = 512;              // open connections, in total
+    int connections_per_address = 256;  // open connections from one client address
+    int event_streams = 0;              // open event streams, in total; 0: half of --http-threads (the most allowed)
+    int event_streams_per_token = 16;   // open event streams of one token
 };
 
 struct ServerConfig {
     std::string host = "127.0.0.1";
-    int port = 8750;                  // 0: any free port (the chosen one is logged and written to DATA/lightfarmd.url)
-    std::string data_dir;             // empty: $XDG_DATA_HOME/lightfarm, else $HOME/.local/share/lightfarm
-    std::string tokens_file;          // empty: DATA/tokens, created with a random token if missing
-    std::string engine;               // empty: found beside lightfarmd, else in PATH
-    int workers = 0;  // 0: one per GPU (the engine's `devices`), one without a GPU
-    int http_threads = 64;            // SSE readers hold a thread each
+    int port = 8750;          // 0: any free port (the chosen one is logged and written to DATA/lightfarmd.url)
+    std::string data_dir;     // empty: $XDG_DATA_HOME/lightfarm, else $HOME/.local/share/lightfarm
+    std::string tokens_file;  // empty: DATA/tokens, created with a random token if missing
+    std::string engine;       // empty: found beside lightfarmd, else in PATH
+    int workers = 0;          // 0: one per GPU (the engine's `devices`), one without a GPU
+    int http_threads = 64;    // SSE readers hold a thread each
     int default_attempts = 3;
     double default_max_seconds = 4 * 3600;  // one attempt's wall-clock deadline
-    double stall_seconds = 300;       // no worker output for this long = hung
-    double inspect_seconds = 60;      // deadline of `lightfarm inspect` on an upload
+    double stall_seconds = 300;             // no worker output for this long = hung
+    double inspect_seconds = 60;            // deadline of `lightfarm inspect` on an upload
     ServerLimits limits;
-    bool accept_empty_store = false;              // --accept-empty-store: start on an empty store, moving orphaned job/scene dirs aside
-    int max_inspects = 2;                         // --max-inspects N: concurrent upload checks; more wait, then 503
-    uint64_t inspect_memory_bytes = 2ull << 30;   // --inspect-memory-mb M: address-space limit (RLIMIT_AS) of an upload check
-    double event_retention_days = 7;              // --event-retention-days D: a finished job's progress events compacted after D days
+    bool accept_empty_store =
+        false;             // --accept-empty-store: start on an empty store, moving orphaned job/scene dirs aside
+    int max_inspects = 2;  // --max-inspects N: concurrent upload checks; more wait, then 503
+    uint64_t inspect_memory_bytes =
+        2ull << 30;  // --inspect-memory-mb M: address-space limit (RLIMIT_AS) of an upload check
+    double event_retention_days =
+        7;  // --event-retention-days D: a finished job's progress events compacted after D days
 };
 
 // Parses argv (after the program name). Throws std::invalid_argument with a

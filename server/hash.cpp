@@ -32,9 +32,7 @@ Sha256::Sha256() : state_(std::make_unique<State>()) {
 
 Sha256::~Sha256() { EVP_MD_CTX_free(state_->ctx); }
 
-void Sha256::update(std::string_view bytes) {
-    EVP_DigestUpdate(state_->ctx, bytes.data(), bytes.size());
-}
+void Sha256::update(std::string_view bytes) { EVP_DigestUpdate(state_->ctx, bytes.data(), bytes.size()); }
 
 std::string Sha256::hex() {
     unsigned char digest[EVP_MAX_MD_SIZE];

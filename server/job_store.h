@@ -37,16 +37,16 @@ using protocol::LatestFile;
 using protocol::Progress;
 
 struct SceneRecord {
-    std::string id;         // content hash
-    std::string main_file;  // the .glb or .gltf inside the scene's directory
-    nlohmann::json summary; // `lightfarm inspect --json` of it
+    std::string id;          // content hash
+    std::string main_file;   // the .glb or .gltf inside the scene's directory
+    nlohmann::json summary;  // `lightfarm inspect --json` of it
 };
 
 struct JobRecord {
     JobStatus status;
-    std::string owner;      // hash of the token that created it
-    std::string cache_key;  // equal keys = equal bakes (scene bytes, outputs, seed)
-    double max_seconds = 0; // deadline of one attempt
+    std::string owner;       // hash of the token that created it
+    std::string cache_key;   // equal keys = equal bakes (scene bytes, outputs, seed)
+    double max_seconds = 0;  // deadline of one attempt
 };
 
 class JobStore {
@@ -83,8 +83,8 @@ public:
     virtual bool requeue(const std::string& id, const JobEvent& event, bool refund_attempt) = 0;
     // Queued/running -> a final state, with its final event, atomically: the
     // final event is always the job's last. False if it was already final.
-    virtual bool finish(const std::string& id, JobState state, const std::string& error,
-                        const std::string& cause, const JobEvent& event) = 0;
+    virtual bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
+                        const JobEvent& event) = 0;
     // Jobs left running by a previous lightfarmd (it stopped or was killed).
     virtual std::vector<JobRecord> running_jobs() = 0;
     // True when the store holds no job and no scene (a new store, or one that

@@ -14,7 +14,9 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <ctime>
 #include <filesystem>
@@ -30,7 +32,8 @@ namespace {
 // Where the data lives without --data: the user's data directory (XDG), never
 // the current directory (a checkout would commit the tokens).
 std::string default_data_dir() {
-    if (const char* xdg = std::getenv("XDG_DATA_HOME"); xdg && xdg[0] == '/') return (fs::path(xdg) / "lightfarm").string();
+    if (const char* xdg = std::getenv("XDG_DATA_HOME"); xdg && xdg[0] == '/')
+        return (fs::path(xdg) / "lightfarm").string();
     if (const char* home = std::getenv("HOME"); home && home[0] == '/')
         return (fs::path(home) / ".local" / "share" / "lightfarm").string();
     throw std::runtime_error("neither XDG_DATA_HOME nor HOME is set: say where the data goes with --data DIR");
@@ -135,7 +138,8 @@ std::vector<std::string> load_tokens(ServerConfig& config, bool& created) {
         }
     }
     std::vector<std::string> tokens = read_tokens(config.tokens_file);
-    if (tokens.empty()) throw std::runtime_error("no token in " + config.tokens_file + ": nobody could use the service");
+    if (tokens.empty())
+        throw std::runtime_error("no token in " + config.tokens_file + ": nobody could use the service");
     return tokens;
 }
 
@@ -200,21 +204,31 @@ int main(int argc, char** argv) {
         if (created) {
             log_line("no --tokens file given: created " + config.tokens_file + " with a new token");
             std::cout << "lightfarmd: token: " << tokens.front() << "\n"
-                      << "  submit a bake:  LIGHTFARM_TOKEN=" << tokens.front() << " lightfarm submit scene.glb --server " << url << " --wait\n"
-                      << "  with curl:      curl -H 'Authorization: Bearer " << tokens.front() << "' -H 'Content-Type: model/gltf-binary' --data-binary @scene.glb " << url << "/v1/scenes\n"
+                      << "  submit a bake:  LIGHTFARM_TOKEN=" << tokens.front()
+                      << " lightfarm submit scene.glb --server " << url << " --wait\n"
+                      << "  with curl:      curl -H 'Authorization: Bearer " << tokens.front()
+                      << "' -H 'Content-Type: model/gltf-binary' --data-binary @scene.glb " << url << "/v1/scenes\n"
                       << "  status page:    " << url << "/?token=" << tokens.front() << "\n"
                       << std::flush;
         } else {
             log_line("tokens from " + config.tokens_file + " (" + std::to_string(tokens.size()) + ")");
         }
 
-        std::thread signal_thread([&service, stop_signals] {
+        std::atomic<bool> ran{false};
+        std::thread signal_thread([&service, &ran, stop_signals] {
             int sig = 0;
             sigwait(&stop_signals, &sig);
+            if (ran) return;
             log_line(std::string("stopping (") + strsignal(sig) + ")");
-            service.stop();
+            // Until run() has returned: a signal that came while run() was
+            // still starting (before it listened) must not be lost.
+            while (!ran) {
+                service.stop();
+                std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            }
         });
         service.run();
+        ran = true;
         // run() also returns when the listener fails; wake the signal thread
         // (the signal stays pending if it already got one) so it can be joined
         // before `service` goes away.

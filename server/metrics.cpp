@@ -38,14 +38,17 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     using protocol::JobState;
     std::ostringstream m;
     m << "# HELP lightfarm_jobs Jobs in the store by state.\n# TYPE lightfarm_jobs gauge\n";
-    for (JobState s : {JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled}) {
+    for (JobState s :
+         {JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled}) {
         auto it = jobs_by_state.find(s);
-        m << "lightfarm_jobs{state=\"" << protocol::to_string(s) << "\"} " << (it == jobs_by_state.end() ? 0 : it->second) << "\n";
+        m << "lightfarm_jobs{state=\"" << protocol::to_string(s) << "\"} "
+          << (it == jobs_by_state.end() ? 0 : it->second) << "\n";
     }
     auto queued = jobs_by_state.find(JobState::Queued);
     m << "# HELP lightfarm_queue_depth Jobs waiting for a worker.\n# TYPE lightfarm_queue_depth gauge\n";
     m << "lightfarm_queue_depth " << (queued == jobs_by_state.end() ? 0 : queued->second) << "\n";
-    m << "# HELP lightfarm_worker_starts_total Worker processes started.\n# TYPE lightfarm_worker_starts_total counter\n";
+    m << "# HELP lightfarm_worker_starts_total Worker processes started.\n# TYPE lightfarm_worker_starts_total "
+         "counter\n";
     m << "lightfarm_worker_starts_total " << worker_starts.load() << "\n";
     m << "# HELP lightfarm_worker_failures_total Worker attempts that crashed, hung or ran out of time.\n";
     m << "# TYPE lightfarm_worker_failures_total counter\n";
@@ -56,14 +59,16 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     m << "# HELP lightfarm_http_connections Open HTTP connections.\n# TYPE lightfarm_http_connections gauge\n";
     m << "lightfarm_http_connections " << http_connections.load() << "\n";
     m << "# HELP lightfarm_http_reading_headers Connections whose request line and headers are still arriving.\n";
-    m << "# TYPE lightfarm_http_reading_headers gauge\nlightfarm_http_reading_headers " << http_reading_headers.load() << "\n";
+    m << "# TYPE lightfarm_http_reading_headers gauge\nlightfarm_http_reading_headers " << http_reading_headers.load()
+      << "\n";
     m << "# HELP lightfarm_event_streams Open event streams.\n# TYPE lightfarm_event_streams gauge\n";
     m << "lightfarm_event_streams " << event_streams.load() << "\n";
 
     std::lock_guard lock(mutex_);
     m << "# HELP lightfarm_http_refused_total Connections and requests refused or ended by the HTTP limits.\n";
     m << "# TYPE lightfarm_http_refused_total counter\n";
-    for (const auto& [reason, n] : refusals_) m << "lightfarm_http_refused_total{reason=\"" << reason << "\"} " << n << "\n";
+    for (const auto& [reason, n] : refusals_)
+        m << "lightfarm_http_refused_total{reason=\"" << reason << "\"} " << n << "\n";
     double rate = 0;
     for (const auto& [job, r] : job_rates_) rate += r;
     m << "# HELP lightfarm_rays_per_second Current ray throughput of all running bakes.\n";
@@ -71,12 +76,14 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     m << "# HELP lightfarm_http_requests_total Requests answered, by route and status.\n";
     m << "# TYPE lightfarm_http_requests_total counter\n";
     for (const auto& [key, n] : requests_)
-        m << "lightfarm_http_requests_total{route=\"" << key.first << "\",status=\"" << key.second << "\"} " << n << "\n";
+        m << "lightfarm_http_requests_total{route=\"" << key.first << "\",status=\"" << key.second << "\"} " << n
+          << "\n";
     m << "# HELP lightfarm_http_request_seconds Request latency (event streams excluded).\n";
     m << "# TYPE lightfarm_http_request_seconds histogram\n";
     for (const auto& [route, h] : latency_) {
         for (size_t i = 0; i < kBuckets.size(); ++i)
-            m << "lightfarm_http_request_seconds_bucket{route=\"" << route << "\",le=\"" << kBuckets[i] << "\"} " << h.buckets[i] << "\n";
+            m << "lightfarm_http_request_seconds_bucket{route=\"" << route << "\",le=\"" << kBuckets[i] << "\"} "
+              << h.buckets[i] << "\n";
         m << "lightfarm_http_request_seconds_bucket{route=\"" << route << "\",le=\"+Inf\"} " << h.count << "\n";
         m << "lightfarm_http_request_seconds_sum{route=\"" << route << "\"} " << h.sum << "\n";
         m << "lightfarm_http_request_seconds_count{route=\"" << route << "\"} " << h.count << "\n";

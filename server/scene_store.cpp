@@ -63,7 +63,8 @@ std::string percent_decode(const std::string& s) {
 // loader checks this too; the server refuses before a file ever reaches it.
 void check_gltf_uris(const std::string& gltf_name, const std::string& text, const std::set<std::string>& names) {
     const json doc = json::parse(text, nullptr, false);
-    if (doc.is_discarded() || !doc.is_object()) throw HttpError(400, gltf_name + " is not JSON", {{"field", gltf_name}});
+    if (doc.is_discarded() || !doc.is_object())
+        throw HttpError(400, gltf_name + " is not JSON", {{"field", gltf_name}});
     const fs::path base = fs::path(gltf_name).parent_path();
     for (const char* array : {"buffers", "images"}) {
         if (!doc.contains(array) || !doc[array].is_array()) continue;
@@ -159,11 +160,13 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
         const std::string why = unsafe_path_reason(f.name);
         if (!why.empty()) throw HttpError(400, "file name '" + f.name + "' " + why, {{"field", f.name}});
         const std::string name = fs::path(f.name).lexically_normal().string();
-        if (!names.insert(name).second) throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
+        if (!names.insert(name).second)
+            throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
         if (ends_with(name, ".gltf") || ends_with(name, ".glb")) mains.push_back(&f);
     }
     if (mains.size() != 1)
-        throw HttpError(400, "an upload holds exactly one .gltf or .glb file, this one holds " + std::to_string(mains.size()));
+        throw HttpError(
+            400, "an upload holds exactly one .gltf or .glb file, this one holds " + std::to_string(mains.size()));
     const UploadFile& main = *mains.front();
     if (ends_with(main.name, ".glb") && main.bytes.compare(0, 4, "glTF") != 0)
         throw HttpError(400, main.name + " is not a binary glTF (no 'glTF' magic)", {{"field", main.name}});
@@ -215,7 +218,8 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
                         std::chrono::milliseconds(int64_t(config_.inspect_seconds * 1000)), 16 << 20, limits);
     }
     if (r.timed_out)
-        throw HttpError(400, "scene rejected: the loader took longer than " + std::to_string(int(config_.inspect_seconds)) + " s");
+        throw HttpError(
+            400, "scene rejected: the loader took longer than " + std::to_string(int(config_.inspect_seconds)) + " s");
     if (!r.status.exited)
         throw HttpError(400, "scene rejected: the loader crashed on it (" + r.status.describe() + ")");
     if (r.status.code != 0) {
@@ -228,12 +232,17 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
         throw HttpError(500, "the scene loader gave no summary");
     }
 
-    const int64_t triangles = summary.contains("triangles") && summary["triangles"].is_number() ? summary["triangles"].get<int64_t>() : 0;
+    const int64_t triangles =
+        summary.contains("triangles") && summary["triangles"].is_number() ? summary["triangles"].get<int64_t>() : 0;
     if (triangles > config_.limits.triangles)
-        throw HttpError(413, "triangles: " + std::to_string(triangles) + " exceeds the limit " + std::to_string(config_.limits.triangles),
+        throw HttpError(413,
+                        "triangles: " + std::to_string(triangles) + " exceeds the limit " +
+                            std::to_string(config_.limits.triangles),
                         {{"field", "triangles"}, {"limit", config_.limits.triangles}});
     if (const int64_t side = largest_texture(summary); side > config_.limits.texture_size)
-        throw HttpError(413, "textures: a texture of " + std::to_string(side) + " pixels exceeds the limit " + std::to_string(config_.limits.texture_size),
+        throw HttpError(413,
+                        "textures: a texture of " + std::to_string(side) + " pixels exceeds the limit " +
+                            std::to_string(config_.limits.texture_size),
                         {{"field", "textures"}, {"limit", config_.limits.texture_size}});
 
     const fs::path final_dir = fs::path(config_.data_dir) / "scenes" / id;

@@ -14,7 +14,7 @@
 namespace lf::server {
 
 struct UploadFile {
-    std::string name;   // relative path inside the upload ("scene.gltf", "textures/a.png")
+    std::string name;  // relative path inside the upload ("scene.gltf", "textures/a.png")
     std::string bytes;
 };
 

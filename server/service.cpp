@@ -244,12 +244,12 @@ private:
         int fd = -1;
         std::string ip, local_ip;
         int port = 0, local_port = 0;
-        std::string buf;               // read, not yet consumed
-        Clock::time_point started;     // the request began (accept, or its first byte)
-        Clock::time_point deadline;    // headers (or, draining, the linger) end by then
+        std::string buf;             // read, not yet consumed
+        Clock::time_point started;   // the request began (accept, or its first byte)
+        Clock::time_point deadline;  // headers (or, draining, the linger) end by then
         bool got_bytes = false;
-        bool draining = false;         // answered and shut down: reading only to close cleanly
-        bool counted = false;          // holds a place in the connection caps
+        bool draining = false;  // answered and shut down: reading only to close cleanly
+        bool counted = false;   // holds a place in the connection caps
         int served = 0;
         size_t drained = 0;
     };
@@ -290,12 +290,17 @@ private:
             return failed_ ? -1 : ssize_t(size);
         }
         void get_remote_ip_and_port(std::string& ip, int& port) const override { ip = c_.ip, port = c_.port; }
-        void get_local_ip_and_port(std::string& ip, int& port) const override { ip = c_.local_ip, port = c_.local_port; }
+        void get_local_ip_and_port(std::string& ip, int& port) const override {
+            ip = c_.local_ip, port = c_.local_port;
+        }
         socket_t socket() const override { return c_.fd; }
 
         bool failed() const { return failed_; }
         // What was read past this request: the start of the next one.
-        void keep_leftover() { c_.buf.erase(0, pos_); pos_ = 0; }
+        void keep_leftover() {
+            c_.buf.erase(0, pos_);
+            pos_ = 0;
+        }
 
     private:
         int remaining_ms() const {
@@ -353,7 +358,8 @@ private:
         socklen_t len = sizeof sa;
         if (::getpeername(c->fd, reinterpret_cast<sockaddr*>(&sa), &len) == 0) address_of(sa, c->ip, c->port);
         len = sizeof sa;
-        if (::getsockname(c->fd, reinterpret_cast<sockaddr*>(&sa), &len) == 0) address_of(sa, c->local_ip, c->local_port);
+        if (::getsockname(c->fd, reinterpret_cast<sockaddr*>(&sa), &len) == 0)
+            address_of(sa, c->local_ip, c->local_port);
         ::fcntl(c->fd, F_SETFL, ::fcntl(c->fd, F_GETFL) | O_NONBLOCK);
 
         std::lock_guard lock(mutex_);
@@ -369,11 +375,13 @@ private:
         if (reason) {
             if (by_address_[c->ip] == 0) by_address_.erase(c->ip);
             metrics_.count_refusal(reason);
-            send_best_effort(c->fd, canned_response(503, "Service Unavailable",
-                                                    {{"error", std::string(reason) + ": too many open connections (the limit is " +
-                                                                   std::to_string(limit) + "); retry later"},
-                                                     {"field", reason}, {"limit", limit}},
-                                                    "Retry-After: 1\r\n"));
+            send_best_effort(
+                c->fd, canned_response(503, "Service Unavailable",
+                                       {{"error", std::string(reason) + ": too many open connections (the limit is " +
+                                                      std::to_string(limit) + "); retry later"},
+                                        {"field", reason},
+                                        {"limit", limit}},
+                                       "Retry-After: 1\r\n"));
             if (uncounted_lingering_ >= kMaxUncountedLingering) {
                 ::close(c->fd);
                 return true;
@@ -460,15 +468,16 @@ private:
     void check_headers_locked(Conn& c) {
         const size_t line_end = c.buf.find('\n');
         if ((line_end == std::string::npos ? c.buf.size() : line_end) > kRequestLineMax) {
-            refuse_locked(c, 414, "URI Too Long", "the request line exceeds " + std::to_string(kRequestLineMax) + " bytes",
-                          "request_line");
+            refuse_locked(c, 414, "URI Too Long",
+                          "the request line exceeds " + std::to_string(kRequestLineMax) + " bytes", "request_line");
             return;
         }
         const size_t end = c.buf.find("\r\n\r\n");
         const size_t header_bytes = size_t(limits_.header_bytes);
         if (end == std::string::npos ? c.buf.size() > header_bytes : end + 4 > header_bytes) {
             refuse_locked(c, 431, "Request Header Fields Too Large",
-                          "the request line and headers exceed " + std::to_string(header_bytes) + " bytes", "header_bytes");
+                          "the request line and headers exceed " + std::to_string(header_bytes) + " bytes",
+                          "header_bytes");
             return;
         }
         if (end == std::string::npos) return;
@@ -485,8 +494,10 @@ private:
     void on_readable_locked(Conn& c) {
         char tmp[16 * 1024];
         for (;;) {
-            const size_t room = c.draining ? sizeof tmp
-                                           : std::min(sizeof tmp, size_t(limits_.header_bytes) + 1 - std::min(c.buf.size(), size_t(limits_.header_bytes) + 1));
+            const size_t room =
+                c.draining ? sizeof tmp
+                           : std::min(sizeof tmp, size_t(limits_.header_bytes) + 1 -
+                                                      std::min(c.buf.size(), size_t(limits_.header_bytes) + 1));
             if (room == 0) break;
             const ssize_t n = ::recv(c.fd, tmp, room, 0);
             if (n > 0) {
@@ -640,7 +651,8 @@ std::string describe_failure(const std::exception& e, const std::string& data_di
         return std::string("a file operation failed: ") + fe->code().message();
     std::string m = e.what();
     if (!data_dir.empty())
-        for (size_t at = m.find(data_dir); at != std::string::npos; at = m.find(data_dir, at + 6)) m.replace(at, data_dir.size(), "<data>");
+        for (size_t at = m.find(data_dir); at != std::string::npos; at = m.find(data_dir, at + 6))
+            m.replace(at, data_dir.size(), "<data>");
     static const std::regex absolute_path(R"((^|[\s'"(=:\[])/[^\s'"()\],;]*)");
     return std::regex_replace(m, absolute_path, "$1<path>");
 }
@@ -672,8 +684,7 @@ std::vector<Service::RouteInfo> Service::route_table() {
     return info;
 }
 
-Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
-    : config_(std::move(config)) {
+Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : config_(std::move(config)) {
     if (config_.limits.event_streams <= 0) config_.limits.event_streams = std::max(1, config_.http_threads / 2);
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
     fs::create_directories(fs::path(config_.data_dir) / "jobs");
@@ -702,7 +713,8 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
                     // page's fetches and <img> send it), drop it from the URL.
                     const std::string token = req.get_param_value("token");
                     if (owners_.count(owner_of(token))) {
-                        res.set_header("Set-Cookie", "lightfarm_token=" + token + "; Path=/; HttpOnly; SameSite=Strict");
+                        res.set_header("Set-Cookie",
+                                       "lightfarm_token=" + token + "; Path=/; HttpOnly; SameSite=Strict");
                         res.set_redirect("/", 303);
                         return;
                     }
@@ -721,13 +733,24 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
                 }
                 (this->*route.handler)(req, res, caller);
             } catch (const HttpError& e) {
+                if (e.status() == 503 && e.body().contains("retry_after") && !res.has_header("Retry-After"))
+                    res.set_header("Retry-After", std::to_string(e.body()["retry_after"].get<int>()));
                 send_json(res, e.status(), e.body());
+            } catch (const StoreError& e) {
+                // Nothing of the request was stored: say so, never 201.
+                log_line(std::string(route.method) + " " + route.path + ": " + e.what());
+                res.set_header("Retry-After", "5");
+                send_json(res, 503,
+                          {{"error", std::string("the job store cannot take this now (") + e.what() +
+                                         "); nothing was stored, retry later"},
+                           {"retry_after", 5}});
             } catch (const std::exception& e) {
                 // The log has the whole message; the client learns what
                 // failed, without the server's paths.
                 log_line(std::string(route.method) + " " + route.path + ": " + e.what());
-                send_json(res, 500, {{"error", std::string(route.method) + " " + route.path + " failed: " +
-                                                   describe_failure(e, config_.data_dir)}});
+                send_json(res, 500,
+                          {{"error", std::string(route.method) + " " + route.path +
+                                         " failed: " + describe_failure(e, config_.data_dir)}});
             }
         };
         if (std::string(route.method) == "GET") http_->Get(route_regex(route.path), handler);
@@ -739,11 +762,16 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
     http_->set_error_handler([this](const httplib::Request&, httplib::Response& res) {
         if (!res.body.empty()) return;
         if (tl_request && tl_request->timed_out)
-            send_json(res, 408, {{"error", "the request did not arrive whole within " + json(config_.limits.request_seconds).dump() + " s"},
-                                 {"field", "request_seconds"}});
+            send_json(res, 408,
+                      {{"error", "the request did not arrive whole within " +
+                                     json(config_.limits.request_seconds).dump() + " s"},
+                       {"field", "request_seconds"}});
         else if (res.status == 413 || (tl_request && tl_request->over_budget))
-            send_json(res, 413, {{"error", "request body exceeds the limit of " + std::to_string(config_.limits.upload_bytes) + " bytes"},
-                                 {"field", "upload_bytes"}, {"limit", config_.limits.upload_bytes}});
+            send_json(res, 413,
+                      {{"error",
+                        "request body exceeds the limit of " + std::to_string(config_.limits.upload_bytes) + " bytes"},
+                       {"field", "upload_bytes"},
+                       {"limit", config_.limits.upload_bytes}});
         else if (res.status == 404) send_json(res, 404, {{"error", "no such route"}});
         else send_json(res, res.status, {{"error", "HTTP " + std::to_string(res.status)}});
     });
@@ -774,7 +802,8 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens)
     http_->set_logger([this](const httplib::Request&, const httplib::Response& res) {
         // An event stream lasts as long as its job; it is not a latency.
         if (current_route.find("/events") != std::string::npos) return;
-        const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - request_started).count();
+        const double seconds =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - request_started).count();
         metrics_.observe_request(current_route, res.status, seconds);
     });
 }
@@ -806,10 +835,12 @@ bool Service::check_before_body(const httplib::Request& req, httplib::Response& 
     const Route* route = nullptr;
     current_route = "unmatched";
     if (!is_clean_text(req.path))
-        return answer(400, {{"error", "the path holds a NUL byte, a control character or invalid UTF-8"}, {"field", "path"}});
+        return answer(
+            400, {{"error", "the path holds a NUL byte, a control character or invalid UTF-8"}, {"field", "path"}});
     for (const auto& [key, value] : req.params)
         if (!is_clean_text(key) || !is_clean_text(value))
-            return answer(400, {{"error", "a query parameter holds a NUL byte, a control character or invalid UTF-8"}, {"field", "query"}});
+            return answer(400, {{"error", "a query parameter holds a NUL byte, a control character or invalid UTF-8"},
+                                {"field", "query"}});
     route = match_route(req.method, req.path);
     if (!route) return answer(404, {{"error", "no such route"}});
     current_route = route->path;
@@ -828,8 +859,9 @@ bool Service::check_before_body(const httplib::Request& req, httplib::Response& 
         return false;
     }
     if (has_encoding)
-        return answer(411, {{"error", "send the body with a Content-Length: Transfer-Encoding (chunked) is not accepted"},
-                            {"field", "Content-Length"}});
+        return answer(411,
+                      {{"error", "send the body with a Content-Length: Transfer-Encoding (chunked) is not accepted"},
+                       {"field", "Content-Length"}});
     if (!has_length) {
         // A POST without a body and without Content-Length (curl -X POST)
         // has an empty body (RFC 9112 6.3), not one that lasts until the
@@ -838,24 +870,29 @@ bool Service::check_before_body(const httplib::Request& req, httplib::Response& 
     } else {
         const std::string text = req.get_header_value("Content-Length");
         uint64_t length = 0;
-        const bool digits = !text.empty() && text.size() <= 19 && text.find_first_not_of("0123456789") == std::string::npos;
+        const bool digits =
+            !text.empty() && text.size() <= 19 && text.find_first_not_of("0123456789") == std::string::npos;
         if (!digits || req.get_header_value_count("Content-Length") != 1)
-            return answer(400, {{"error", "Content-Length: '" + text + "' is not a length"}, {"field", "Content-Length"}});
+            return answer(400,
+                          {{"error", "Content-Length: '" + text + "' is not a length"}, {"field", "Content-Length"}});
         length = std::stoull(text);
         if (length > config_.limits.upload_bytes)
             return answer(413, {{"error", "request body of " + text + " bytes exceeds the limit of " +
                                               std::to_string(config_.limits.upload_bytes) + " bytes"},
-                                {"field", "upload_bytes"}, {"limit", config_.limits.upload_bytes}});
+                                {"field", "upload_bytes"},
+                                {"limit", config_.limits.upload_bytes}});
     }
     const std::string type = req.get_header_value("Content-Type");
     if (type.rfind("application/x-www-form-urlencoded", 0) == 0) {
         // What curl sends when told nothing: not a scene, and httplib would
         // parse it as a form (and refuse one over 8 KiB as a 413).
         if (std::string(route->path) == "/v1/scenes")
-            return answer(415, {{"error", "Content-Type: send a .glb as model/gltf-binary, a .gltf as model/gltf+json, "
-                                          "or a .gltf with its files as multipart/form-data (curl sends "
-                                          "application/x-www-form-urlencoded unless told: add -H 'Content-Type: model/gltf-binary')"},
-                                {"field", "Content-Type"}});
+            return answer(415,
+                          {{"error",
+                            "Content-Type: send a .glb as model/gltf-binary, a .gltf as model/gltf+json, "
+                            "or a .gltf with its files as multipart/form-data (curl sends "
+                            "application/x-www-form-urlencoded unless told: add -H 'Content-Type: model/gltf-binary')"},
+                           {"field", "Content-Type"}});
         mutable_req.headers.erase("Content-Type");
         mutable_req.set_header("Content-Type", "application/json");
     }
@@ -926,7 +963,10 @@ JobRecord Service::owned_job(const httplib::Request& req, const Caller& caller) 
 json Service::status_json(const JobRecord& job) const {
     json j = protocol::to_json(job.status);
     const std::string base = "/v1/jobs/" + job.status.id;
-    j["links"] = {{"self", base}, {"events", base + "/events"}, {"artifacts", base + "/artifacts"}, {"preview", base + "/preview.png"}};
+    j["links"] = {{"self", base},
+                  {"events", base + "/events"},
+                  {"artifacts", base + "/artifacts"},
+                  {"preview", base + "/preview.png"}};
     return j;
 }
 
@@ -983,7 +1023,8 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
         throw HttpError(400, e.what(), {{"field", e.field()}});
     }
     if (!store_->scene_owned_by(spec.scene, caller.owner))
-        throw HttpError(404, "scene: no scene " + spec.scene + " (upload it with POST /v1/scenes first)", {{"field", "scene"}});
+        throw HttpError(404, "scene: no scene " + spec.scene + " (upload it with POST /v1/scenes first)",
+                        {{"field", "scene"}});
     // What the scene makes impossible is known now, from its upload's
     // summary: a 400 naming the field and the fix, not three failed workers.
     if (const std::optional<SceneRecord> scene = store_->scene(spec.scene)) {
@@ -995,8 +1036,9 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
     }
     const int queued = store_->queued_count(caller.owner);
     if (queued >= config_.limits.queued_jobs)
-        throw HttpError(429, "queued_jobs: " + std::to_string(queued) + " jobs already queued, the limit is " +
-                                 std::to_string(config_.limits.queued_jobs),
+        throw HttpError(429,
+                        "queued_jobs: " + std::to_string(queued) + " jobs already queued, the limit is " +
+                            std::to_string(config_.limits.queued_jobs),
                         {{"field", "queued_jobs"}, {"limit", config_.limits.queued_jobs}});
 
     JobRecord job;
@@ -1086,9 +1128,9 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
     {
         std::lock_guard lock(streams_mutex_);
         const int total = config_.limits.event_streams, per_token = config_.limits.event_streams_per_token;
-        const char* field = streams_open_ >= total ? "event_streams"
+        const char* field = streams_open_ >= total                         ? "event_streams"
                             : streams_by_owner_[caller.owner] >= per_token ? "event_streams_per_token"
-                                                                         : nullptr;
+                                                                           : nullptr;
         if (field) {
             if (streams_by_owner_[caller.owner] == 0) streams_by_owner_.erase(caller.owner);
             const int limit = std::string(field) == "event_streams" ? total : per_token;
@@ -1114,50 +1156,63 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
     auto last = std::make_shared<int64_t>(after);
     auto last_write = std::make_shared<std::chrono::steady_clock::time_point>(std::chrono::steady_clock::now());
     res.set_header("Cache-Control", "no-cache");
-    res.set_chunked_content_provider("text/event-stream", [this, id, last, last_write](size_t, httplib::DataSink& sink) {
-        // On every wake-up: is the client still there? (Progress of any job
-        // wakes every stream; a stream whose client left ends here, whether
-        // or not its own job has news.)
-        if (!sink.is_writable()) return false;
-        const uint64_t seen = changes_.generation();
-        // The state first, then the events: finish() stores a final state and
-        // the final event in one transaction, so when the state read here is
-        // final, the events read next hold the final event. (Read the other
-        // way round, a job finishing between the two reads ended the stream
-        // without its final event.)
-        const std::optional<JobRecord> now = store_->job(id);
-        const bool ended = !now || protocol::is_final(now->status.state);
-        const std::vector<protocol::JobEvent> events = store_->events_after(id, *last);
-        for (const protocol::JobEvent& e : events) {
-            const std::string text = protocol::format_sse(e);
-            if (!sink.write(text.data(), text.size())) return false;
-            *last = e.id;
-            *last_write = std::chrono::steady_clock::now();
-            if (protocol::is_final_event(e.type)) {
+    res.set_chunked_content_provider(
+        "text/event-stream",
+        [this, id, last, last_write](size_t, httplib::DataSink& sink) {
+            // On every wake-up: is the client still there? (Progress of any job
+            // wakes every stream; a stream whose client left ends here, whether
+            // or not its own job has news.)
+            if (!sink.is_writable()) return false;
+            const uint64_t seen = changes_.generation();
+            // The state first, then the events: finish() stores a final state and
+            // the final event in one transaction, so when the state read here is
+            // final, the events read next hold the final event. (Read the other
+            // way round, a job finishing between the two reads ended the stream
+            // without its final event.)
+            std::optional<JobRecord> now;
+            std::vector<protocol::JobEvent> events;
+            try {
+                now = store_->job(id);
+                events = store_->events_after(id, *last);
+            } catch (const StoreError& e) {
+                // The store cannot be read now: end the stream; the client
+                // resumes from Last-Event-ID, losing nothing.
+                log_line("job " + id + ": event stream ended: " + e.what());
+                return false;
+            }
+            const bool ended = !now || protocol::is_final(now->status.state);
+            for (const protocol::JobEvent& e : events) {
+                const std::string text = protocol::format_sse(e);
+                if (!sink.write(text.data(), text.size())) return false;
+                *last = e.id;
+                *last_write = std::chrono::steady_clock::now();
+                if (protocol::is_final_event(e.type)) {
+                    sink.done();
+                    return true;
+                }
+            }
+            if (!events.empty()) return true;
+            // Nothing new. A finished job's stream ends here (the client had
+            // everything); otherwise wait for a change, with a comment when
+            // nothing was written for 15 s so that proxies and clients see the
+            // connection is alive, and a look at the client every 2 s at most.
+            if (ended || changes_.stopping()) {
                 sink.done();
                 return true;
             }
-        }
-        if (!events.empty()) return true;
-        // Nothing new. A finished job's stream ends here (the client had
-        // everything); otherwise wait for a change, with a comment when
-        // nothing was written for 15 s so that proxies and clients see the
-        // connection is alive, and a look at the client every 2 s at most.
-        if (ended || changes_.stopping()) {
-            sink.done();
+            using namespace std::chrono;
+            const auto since = duration_cast<milliseconds>(steady_clock::now() - *last_write);
+            changes_.wait(seen, std::clamp(milliseconds(15000) - since, milliseconds(1), milliseconds(2000)));
+            if (!sink.is_writable()) return false;
+            if (changes_.generation() == seen && !changes_.stopping() &&
+                steady_clock::now() - *last_write >= seconds(15)) {
+                static const std::string keep_alive = ": keep-alive\n\n";
+                *last_write = steady_clock::now();
+                return sink.write(keep_alive.data(), keep_alive.size());
+            }
             return true;
-        }
-        using namespace std::chrono;
-        const auto since = duration_cast<milliseconds>(steady_clock::now() - *last_write);
-        changes_.wait(seen, std::clamp(milliseconds(15000) - since, milliseconds(1), milliseconds(2000)));
-        if (!sink.is_writable()) return false;
-        if (changes_.generation() == seen && !changes_.stopping() && steady_clock::now() - *last_write >= seconds(15)) {
-            static const std::string keep_alive = ": keep-alive\n\n";
-            *last_write = steady_clock::now();
-            return sink.write(keep_alive.data(), keep_alive.size());
-        }
-        return true;
-    }, release);
+        },
+        release);
 }
 
 void Service::list_artifacts(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
@@ -1175,28 +1230,33 @@ void Service::get_artifact(const httplib::Request& req, httplib::Response& res, 
     const JobRecord job = owned_job(req, caller);
     const std::string name = req.matches[2].str();
     if (!is_artifact_name(name) || name == "..")
-        throw HttpError(404, "job " + job.status.id + " has no artifact " + name, {{"id", job.status.id}, {"name", name}});
+        throw HttpError(404, "job " + job.status.id + " has no artifact " + name,
+                        {{"id", job.status.id}, {"name", name}});
     // Open once: a worker may replace the file (rename) meanwhile, and this
     // download then keeps the version it started with, whole.
     const fs::path path = supervisor_->job_dir(job.status.id) / name;
     std::error_code ec;
     auto file = std::make_shared<std::ifstream>(path, std::ios::binary);
     if (!fs::is_regular_file(path, ec) || !*file)
-        throw HttpError(404, "job " + job.status.id + " has no artifact " + name, {{"id", job.status.id}, {"name", name}});
+        throw HttpError(404, "job " + job.status.id + " has no artifact " + name,
+                        {{"id", job.status.id}, {"name", name}});
     file->seekg(0, std::ios::end);
     const std::streamoff end = file->tellg();
-    if (end < 0) throw HttpError(404, "job " + job.status.id + " has no artifact " + name, {{"id", job.status.id}, {"name", name}});
+    if (end < 0)
+        throw HttpError(404, "job " + job.status.id + " has no artifact " + name,
+                        {{"id", job.status.id}, {"name", name}});
     const size_t size = size_t(end);
     file->seekg(0);
-    res.set_content_provider(size, content_type_of(name), [file](size_t offset, size_t length, httplib::DataSink& sink) {
-        char buf[64 * 1024];
-        file->seekg(std::streamoff(offset));
-        const size_t n = std::min(length, sizeof buf);
-        file->read(buf, std::streamsize(n));
-        const std::streamsize got = file->gcount();
-        if (got <= 0) return false;
-        return sink.write(buf, size_t(got));
-    });
+    res.set_content_provider(size, content_type_of(name),
+                             [file](size_t offset, size_t length, httplib::DataSink& sink) {
+                                 char buf[64 * 1024];
+                                 file->seekg(std::streamoff(offset));
+                                 const size_t n = std::min(length, sizeof buf);
+                                 file->read(buf, std::streamsize(n));
+                                 const std::streamsize got = file->gcount();
+                                 if (got <= 0) return false;
+                                 return sink.write(buf, size_t(got));
+                             });
 }
 
 void Service::preview(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
@@ -1238,7 +1298,8 @@ void Service::cancel_job(const httplib::Request& req, httplib::Response& res, co
     const JobRecord job = owned_job(req, caller);
     const std::string& id = job.status.id;
     const std::string was = protocol::to_string(job.status.state);
-    if (!store_->finish(id, JobState::Cancelled, "cancelled by request", "", {0, "cancelled", {{"previous_state", was}}})) {
+    if (!store_->finish(id, JobState::Cancelled, "cancelled by request", "",
+                        {0, "cancelled", {{"previous_state", was}}})) {
         const std::string state = protocol::to_string(store_->job(id)->status.state);
         throw HttpError(409, "job " + id + " already " + state, {{"id", id}, {"state", state}});
     }

@@ -45,9 +45,8 @@ CREATE TABLE IF NOT EXISTS events(
 constexpr int kKeepProgressUpTo = 32;
 
 bool permanent_progress(const nlohmann::json& data) {
-    const int64_t pass = data.is_object() && data.contains("pass") && data["pass"].is_number_integer()
-                             ? data["pass"].get<int64_t>()
-                             : 0;
+    const int64_t pass =
+        data.is_object() && data.contains("pass") && data["pass"].is_number_integer() ? data["pass"].get<int64_t>() : 0;
     return pass <= kKeepProgressUpTo || (pass & (pass - 1)) == 0;
 }
 
@@ -68,7 +67,9 @@ struct FaultFile {
 sqlite3_file* real_of(sqlite3_file* f) { return reinterpret_cast<FaultFile*>(f)->real; }
 
 int fault_close(sqlite3_file* f) { return real_of(f)->pMethods->xClose(real_of(f)); }
-int fault_read(sqlite3_file* f, void* b, int n, sqlite3_int64 o) { return real_of(f)->pMethods->xRead(real_of(f), b, n, o); }
+int fault_read(sqlite3_file* f, void* b, int n, sqlite3_int64 o) {
+    return real_of(f)->pMethods->xRead(real_of(f), b, n, o);
+}
 int fault_write(sqlite3_file* f, const void* b, int n, sqlite3_int64 o) {
     if (g_full_disk) return SQLITE_FULL;
     return real_of(f)->pMethods->xWrite(real_of(f), b, n, o);
@@ -85,11 +86,17 @@ int fault_characteristics(sqlite3_file* f) { return real_of(f)->pMethods->xDevic
 int fault_shm_map(sqlite3_file* f, int pg, int sz, int ext, void volatile** p) {
     return real_of(f)->pMethods->xShmMap(real_of(f), pg, sz, ext, p);
 }
-int fault_shm_lock(sqlite3_file* f, int off, int n, int flags) { return real_of(f)->pMethods->xShmLock(real_of(f), off, n, flags); }
+int fault_shm_lock(sqlite3_file* f, int off, int n, int flags) {
+    return real_of(f)->pMethods->xShmLock(real_of(f), off, n, flags);
+}
 void fault_shm_barrier(sqlite3_file* f) { real_of(f)->pMethods->xShmBarrier(real_of(f)); }
 int fault_shm_unmap(sqlite3_file* f, int del) { return real_of(f)->pMethods->xShmUnmap(real_of(f), del); }
-int fault_fetch(sqlite3_file* f, sqlite3_int64 o, int n, void** p) { return real_of(f)->pMethods->xFetch(real_of(f), o, n, p); }
-int fault_unfetch(sqlite3_file* f, sqlite3_int64 o, void* p) { return real_of(f)->pMethods->xUnfetch(real_of(f), o, p); }
+int fault_fetch(sqlite3_file* f, sqlite3_int64 o, int n, void** p) {
+    return real_of(f)->pMethods->xFetch(real_of(f), o, n, p);
+}
+int fault_unfetch(sqlite3_file* f, sqlite3_int64 o, void* p) {
+    return real_of(f)->pMethods->xUnfetch(real_of(f), o, p);
+}
 
 int fault_open(sqlite3_vfs*, sqlite3_filename name, sqlite3_file* f, int flags, int* out_flags) {
     auto* ff = reinterpret_cast<FaultFile*>(f);
@@ -100,8 +107,12 @@ int fault_open(sqlite3_vfs*, sqlite3_filename name, sqlite3_file* f, int flags, 
     return rc;
 }
 int fault_delete(sqlite3_vfs*, const char* n, int sync) { return g_real_vfs->xDelete(g_real_vfs, n, sync); }
-int fault_access(sqlite3_vfs*, const char* n, int flags, int* out) { return g_real_vfs->xAccess(g_real_vfs, n, flags, out); }
-int fault_full_path(sqlite3_vfs*, const char* n, int size, char* out) { return g_real_vfs->xFullPathname(g_real_vfs, n, size, out); }
+int fault_access(sqlite3_vfs*, const char* n, int flags, int* out) {
+    return g_real_vfs->xAccess(g_real_vfs, n, flags, out);
+}
+int fault_full_path(sqlite3_vfs*, const char* n, int size, char* out) {
+    return g_real_vfs->xFullPathname(g_real_vfs, n, size, out);
+}
 void* fault_dlopen(sqlite3_vfs*, const char* n) { return g_real_vfs->xDlOpen(g_real_vfs, n); }
 void fault_dlerror(sqlite3_vfs*, int n, char* out) { g_real_vfs->xDlError(g_real_vfs, n, out); }
 void (*fault_dlsym(sqlite3_vfs*, void* h, const char* s))(void) { return g_real_vfs->xDlSym(g_real_vfs, h, s); }
@@ -273,12 +284,14 @@ SqliteJobStore::SqliteJobStore(const std::string& path) : path_(path) {
     if (!has_coalesce) {
         exec("ALTER TABLE events ADD COLUMN coalesce_key TEXT");
         exec("ALTER TABLE events ADD COLUMN permanent INTEGER NOT NULL DEFAULT 1");
-        if (sqlite3_exec(db_, "UPDATE events SET coalesce_key = COALESCE(json_extract(data, '$.output'), '') "
-                              "WHERE type = 'progress'", nullptr, nullptr, nullptr) != SQLITE_OK)
+        if (sqlite3_exec(db_,
+                         "UPDATE events SET coalesce_key = COALESCE(json_extract(data, '$.output'), '') "
+                         "WHERE type = 'progress'",
+                         nullptr, nullptr, nullptr) != SQLITE_OK)
             exec("UPDATE events SET coalesce_key = '' WHERE type = 'progress'");
     }
     // Readable by lightfarmd's user only (-wal and -shm take the same mode).
-    struct stat st{};
+    struct stat st {};
     if (::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode) && (st.st_mode & 0077)) ::chmod(path.c_str(), 0600);
 }
 
@@ -426,7 +439,8 @@ std::map<JobState, int> SqliteJobStore::count_by_state() {
 
 std::optional<JobRecord> SqliteJobStore::succeeded_with_key(const std::string& cache_key) {
     std::lock_guard lock(mutex_);
-    auto jobs = select_jobs("WHERE cache_key = ? AND state = 'succeeded' AND cached = 0 ORDER BY seq LIMIT 1", {cache_key});
+    auto jobs =
+        select_jobs("WHERE cache_key = ? AND state = 'succeeded' AND cached = 0 ORDER BY seq LIMIT 1", {cache_key});
     if (jobs.empty()) return std::nullopt;
     return jobs.front();
 }
@@ -483,12 +497,13 @@ bool SqliteJobStore::requeue(const std::string& id, const JobEvent& event, bool 
     return true;
 }
 
-bool SqliteJobStore::finish(const std::string& id, JobState state, const std::string& error,
-                            const std::string& cause, const JobEvent& event) {
+bool SqliteJobStore::finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
+                            const JobEvent& event) {
     std::lock_guard lock(mutex_);
     Transaction t(db_);
-    Statement q(db_, "UPDATE jobs SET state = ?, error = ?, cause = ?, finished_at = ? "
-                     "WHERE id = ? AND state IN ('queued', 'running')");
+    Statement q(db_,
+                "UPDATE jobs SET state = ?, error = ?, cause = ?, finished_at = ? "
+                "WHERE id = ? AND state IN ('queued', 'running')");
     q.bind(1, to_string(state)).bind(2, error).bind(3, cause).bind(4, now_seconds()).bind(5, id);
     q.step();
     if (q.changes() == 0) return false;
@@ -518,9 +533,11 @@ bool SqliteJobStore::has_job(const std::string& id) {
 
 int64_t SqliteJobStore::compact_events(double finished_before) {
     std::lock_guard lock(mutex_);
-    Statement q(db_, "DELETE FROM events WHERE coalesce_key IS NOT NULL AND job IN "
-                     "(SELECT id FROM jobs WHERE state IN ('succeeded', 'failed', 'cancelled') AND finished_at < ?) "
-                     "AND id < (SELECT MAX(e.id) FROM events e WHERE e.job = events.job AND e.coalesce_key = events.coalesce_key)");
+    Statement q(
+        db_,
+        "DELETE FROM events WHERE coalesce_key IS NOT NULL AND job IN "
+        "(SELECT id FROM jobs WHERE state IN ('succeeded', 'failed', 'cancelled') AND finished_at < ?) "
+        "AND id < (SELECT MAX(e.id) FROM events e WHERE e.job = events.job AND e.coalesce_key = events.coalesce_key)");
     q.bind(1, finished_before);
     q.step();
     return q.changes();

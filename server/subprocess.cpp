@@ -61,7 +61,7 @@ pid_t spawn_limited(const std::vector<std::string>& argv, int out_fd, int err_fd
     }
     if (pid == 0) {
         setpgid(0, 0);  // its own group: kill() reaches its children too
-        struct sigaction dfl{};
+        struct sigaction dfl {};
         dfl.sa_handler = SIG_DFL;
         for (int sig : {SIGPIPE, SIGTERM, SIGINT}) sigaction(sig, &dfl, nullptr);
         sigset_t none;
@@ -91,11 +91,13 @@ pid_t spawn_limited(const std::vector<std::string>& argv, int out_fd, int err_fd
     ::close(report[1]);
     int child_errno = 0;
     ssize_t got;
-    while ((got = ::read(report[0], &child_errno, sizeof child_errno)) < 0 && errno == EINTR) {}
+    while ((got = ::read(report[0], &child_errno, sizeof child_errno)) < 0 && errno == EINTR) {
+    }
     ::close(report[0]);
     if (got == ssize_t(sizeof child_errno)) {
         int st = 0;
-        while (waitpid(pid, &st, 0) < 0 && errno == EINTR) {}
+        while (waitpid(pid, &st, 0) < 0 && errno == EINTR) {
+        }
         throw std::runtime_error("cannot start " + argv[0] + ": " + strerror(child_errno));
     }
     return pid;
@@ -202,7 +204,8 @@ Subprocess::Read Subprocess::read_line(std::string& line, std::chrono::milliseco
             out_buffer_.clear();
             return Read::Line;
         }
-        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+        const auto left =
+            std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
         if (left.count() <= 0) return Read::Timeout;
         pollfd fds[2] = {{out_fd_, POLLIN, 0}, {err_fd_, POLLIN, 0}};
         const int n = ::poll(fds, err_fd_ >= 0 ? 2 : 1, int(left.count()));
@@ -243,7 +246,8 @@ ExitStatus Subprocess::wait() {
         drain_stderr();
     }
     int st = 0;
-    while (waitpid(pid_, &st, 0) < 0 && errno == EINTR) {}
+    while (waitpid(pid_, &st, 0) < 0 && errno == EINTR) {
+    }
     reaped_ = true;
     status_.exited = WIFEXITED(st);
     status_.code = WIFEXITED(st) ? WEXITSTATUS(st) : 0;
@@ -270,7 +274,8 @@ RunResult run_command(const std::vector<std::string>& argv, std::chrono::millise
     const auto deadline = std::chrono::steady_clock::now() + timeout;
     std::string line;
     for (;;) {
-        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+        const auto left =
+            std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
         if (left.count() <= 0) {
             result.timed_out = true;
             child.kill();

@@ -56,14 +56,17 @@ fs::path Supervisor::scene_path(const SceneRecord& scene) const {
 }
 
 void Supervisor::start() {
+    std::lock_guard lock(lifecycle_mutex_);
+    if (stopping_) return;  // stopped before it started
     compact_events();
     for (const JobRecord& job : store_.running_jobs()) {
         const std::string& id = job.status.id;
         kill_leftover_worker(job_dir(id));
         const std::string cause = "lightfarmd stopped during attempt " + std::to_string(job.status.attempts);
         if (job.status.attempts >= job.status.max_attempts) {
-            store_.finish(id, JobState::Failed, "bake failed after " + std::to_string(job.status.attempts) + " attempts",
-                          cause, {0, "failed", {{"error", "bake failed"}, {"cause", cause}, {"attempts", job.status.attempts}}});
+            store_.finish(
+                id, JobState::Failed, "bake failed after " + std::to_string(job.status.attempts) + " attempts", cause,
+                {0, "failed", {{"error", "bake failed"}, {"cause", cause}, {"attempts", job.status.attempts}}});
         } else {
             store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", cause}}}, false);
         }
@@ -98,7 +101,10 @@ int Supervisor::count_gpus() const {
 }
 
 void Supervisor::stop() {
-    if (stopping_.exchange(true)) return;
+    // Idempotent, and safe before, during or after start(): every thread
+    // started is joined (start() after stop() starts none).
+    std::lock_guard lock(lifecycle_mutex_);
+    stopping_ = true;
     changes_.notify();
     for (std::thread& t : threads_) t.join();
     threads_.clear();
@@ -116,7 +122,8 @@ void Supervisor::store_trouble(const std::string& message) {
         ++unlogged_trouble_;
         return;
     }
-    log_line(message + (unlogged_trouble_ ? " (and " + std::to_string(unlogged_trouble_) + " more store failures)" : ""));
+    log_line(message +
+             (unlogged_trouble_ ? " (and " + std::to_string(unlogged_trouble_) + " more store failures)" : ""));
     unlogged_trouble_ = 0;
     last_trouble_log_ = now;
 }
@@ -128,12 +135,15 @@ bool Supervisor::persist(const std::string& what, const std::function<void()>& w
         try {
             write();
             if (tries > 1)
-                log_line(what + ": stored after " + std::to_string(tries) + " tries (" +
-                         std::to_string(std::chrono::duration_cast<std::chrono::seconds>(Clock::now() - first).count()) + " s)");
+                log_line(
+                    what + ": stored after " + std::to_string(tries) + " tries (" +
+                    std::to_string(std::chrono::duration_cast<std::chrono::seconds>(Clock::now() - first).count()) +
+                    " s)");
             return true;
         } catch (const StoreError& e) {
             if (stopping_) {
-                log_line(what + ": " + e.what() + "; lightfarmd is stopping: the job stays running in the store "
+                log_line(what + ": " + e.what() +
+                         "; lightfarmd is stopping: the job stays running in the store "
                          "and its next start queues it again");
                 return false;
             }
@@ -205,7 +215,8 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
             store_.requeue(id, {0, "retrying", {{"attempt", attempts}, {"cause", cause}}}, false);
         });
     } else {
-        const std::string error = "bake failed after " + std::to_string(attempts) + " attempt" + (attempts == 1 ? "" : "s");
+        const std::string error =
+            "bake failed after " + std::to_string(attempts) + " attempt" + (attempts == 1 ? "" : "s");
         log_line("job " + id + ": " + error + ": " + cause);
         persist("job " + id + ": failed state", [&] {
             store_.finish(id, JobState::Failed, error, cause,
@@ -276,8 +287,10 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
             return u;
         }
         u.latest[output] = LatestFile{snapshot->file, snapshot->pass, false};
-        u.event = JobEvent{0, "snapshot", {{"output", output}, {"file", snapshot->file}, {"pass", snapshot->pass},
-                                           {"url", base + snapshot->file}}};
+        u.event = JobEvent{
+            0,
+            "snapshot",
+            {{"output", output}, {"file", snapshot->file}, {"pass", snapshot->pass}, {"url", base + snapshot->file}}};
     } else {
         const auto& done = std::get<protocol::DoneEvent>(event);
         Progress p = done.progress;
@@ -342,7 +355,7 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
         out.close();
         fs::rename(tmp, spec_file);
     }
-    std::vector<std::string> argv = {engine_, "bake", scene_path(scene).string(), "--out", dir.string(),
+    std::vector<std::string> argv = {engine_,  "bake",   scene_path(scene).string(), "--out", dir.string(),
                                      "--json", "--spec", spec_file.string()};
     if (!device.empty()) {
         argv.push_back("--device");
@@ -423,7 +436,8 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     }
 
     const auto started = Clock::now();
-    const auto deadline = started + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(job.max_seconds));
+    const auto deadline =
+        started + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(job.max_seconds));
     auto last_output = started;
     AttemptState state;
     std::string cause;  // set when we end the worker ourselves
@@ -442,9 +456,11 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
             child->wait();
             try {
                 flush_updates(id, unsaved);
-                store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}}, true);
+                store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}},
+                               true);
             } catch (const StoreError& e) {
-                log_line("job " + id + ": " + e.what() + "; it stays running in the store and the next start queues it again");
+                log_line("job " + id + ": " + e.what() +
+                         "; it stays running in the store and the next start queues it again");
             }
             return;
         }
@@ -459,9 +475,9 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
             child->kill();
             break;
         }
-        const auto wait = std::clamp(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - now) +
-                                         std::chrono::milliseconds(1),
-                                     std::chrono::milliseconds(1), std::chrono::milliseconds(200));
+        const auto wait = std::clamp(
+            std::chrono::duration_cast<std::chrono::milliseconds>(deadline - now) + std::chrono::milliseconds(1),
+            std::chrono::milliseconds(1), std::chrono::milliseconds(200));
         const Subprocess::Read r = child->read_line(line, wait);
         if (r == Subprocess::Read::End) break;
         if (r == Subprocess::Read::Timeout) continue;
@@ -485,8 +501,7 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         if (!unsaved.empty() && progress_only(update) && progress_only(unsaved.back()) &&
             unsaved.back().event->data.value("output", "") == update.event->data.value("output", ""))
             unsaved.back() = update;
-        else
-            unsaved.push_back(update);
+        else unsaved.push_back(update);
         flush_updates(id, unsaved);
         changes_.notify();
     }
@@ -510,13 +525,17 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     if (status.success() && state.done) {
         json done = *state.done;
         done["cached"] = false;
-        persist("job " + id + ": succeeded state", [&] { store_.finish(id, JobState::Succeeded, "", "", {0, "done", done}); });
+        persist("job " + id + ": succeeded state", [&] {
+            store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
+        });
         log_line("job " + id + ": succeeded");
         return;
     }
-    const std::string scene_name = scene->main_file.empty() ? scene->summary.value("source", "the scene") : scene->main_file;
-    const std::string last = user_facing(child->stderr_last_line(), scene_path(*scene), scene_name,
-                                         fs::path(config_.data_dir) / "scenes" / scene->id, job_dir(id), config_.data_dir);
+    const std::string scene_name =
+        scene->main_file.empty() ? scene->summary.value("source", "the scene") : scene->main_file;
+    const std::string last =
+        user_facing(child->stderr_last_line(), scene_path(*scene), scene_name,
+                    fs::path(config_.data_dir) / "scenes" / scene->id, job_dir(id), config_.data_dir);
     if (status.exited && protocol::is_input_error_exit(status.code)) {
         // The scene or the settings cannot be baked: another run cannot help.
         ++metrics_.worker_failures;

@@ -34,21 +34,21 @@ namespace lf::server {
 
 // What one attempt has seen of its worker so far.
 struct AttemptState {
-    std::map<std::string, uint64_t> rays;         // output -> rays its progress reported last
-    std::map<std::string, int> passes;            // output -> pass its progress reported last
-    std::optional<nlohmann::json> done;           // the "done" event's data, once the worker reported done
+    std::map<std::string, uint64_t> rays;  // output -> rays its progress reported last
+    std::map<std::string, int> passes;     // output -> pass its progress reported last
+    std::optional<nlohmann::json> done;    // the "done" event's data, once the worker reported done
 };
 
 // What applying one worker event asks the supervisor to store. Empty parts
 // change nothing.
 struct AttemptUpdate {
-    AttemptState state;                           // the attempt's state after the event
-    std::optional<Progress> progress;             // the job's progress
-    std::optional<JobEvent> event;                // a non-final event for the job's stream
-    std::map<std::string, LatestFile> latest;     // output -> its newest file
-    uint64_t new_rays = 0;                        // rays traced since the previous event
-    std::optional<double> rays_per_second;        // this worker's rate
-    std::string ignored;                          // why the event was ignored ("" = it was not)
+    AttemptState state;                        // the attempt's state after the event
+    std::optional<Progress> progress;          // the job's progress
+    std::optional<JobEvent> event;             // a non-final event for the job's stream
+    std::map<std::string, LatestFile> latest;  // output -> its newest file
+    uint64_t new_rays = 0;                     // rays traced since the previous event
+    std::optional<double> rays_per_second;     // this worker's rate
+    std::string ignored;                       // why the event was ignored ("" = it was not)
 };
 
 // The pure heart of supervision: one decoded worker event of attempt
@@ -127,6 +127,7 @@ private:
     Metrics& metrics_;
     std::string engine_;
     std::atomic<bool> stopping_{false};
+    std::mutex lifecycle_mutex_;  // start() and stop()
     std::vector<std::thread> threads_;
     std::mutex cancel_mutex_;
     std::set<std::string> cancelled_;  // running here, to be killed

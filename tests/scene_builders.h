@@ -67,12 +67,12 @@ inline void add_quad(Scene& s, glm::vec3 corner, glm::vec3 u, glm::vec3 v, uint3
 // triangles), outward-facing.
 inline void add_icosphere(Scene& s, glm::vec3 centre, float radius, int subdivisions, uint32_t material) {
     const float t = (1.0f + std::sqrt(5.0f)) / 2.0f;
-    std::vector<glm::vec3> v = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                                {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+    std::vector<glm::vec3> v = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                                {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
     for (auto& p : v) p = glm::normalize(p);
-    std::vector<glm::uvec3> f = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
-                                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
-                                 {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+    std::vector<glm::uvec3> f = {{0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+                                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+                                 {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
     for (int level = 0; level < subdivisions; ++level) {
         std::map<std::pair<uint32_t, uint32_t>, uint32_t> mid;
         auto midpoint = [&](uint32_t a, uint32_t b) {
@@ -93,7 +93,6 @@ inline void add_icosphere(Scene& s, glm::vec3 centre, float radius, int subdivis
     add_mesh(s, v, f, material);
 }
 
-
 // An axis-aligned box [lo, hi] as one mesh of 8 shared vertices and 12
 // outward-facing triangles (every edge shared by two triangles).
 inline void add_box(Scene& s, glm::vec3 lo, glm::vec3 hi, uint32_t material) {
@@ -105,7 +104,10 @@ inline void add_box(Scene& s, glm::vec3 lo, glm::vec3 hi, uint32_t material) {
     for (const auto& f : faces) {
         glm::uvec3 a(f[0], f[1], f[2]), b(f[0], f[2], f[3]);
         const glm::vec3 n = glm::cross(v[a.y] - v[a.x], v[a.z] - v[a.x]);
-        if (glm::dot(n, v[a.x] - centre) < 0.0f) { std::swap(a.y, a.z); std::swap(b.y, b.z); }
+        if (glm::dot(n, v[a.x] - centre) < 0.0f) {
+            std::swap(a.y, a.z);
+            std::swap(b.y, b.z);
+        }
         tris.push_back(a);
         tris.push_back(b);
     }

@@ -163,8 +163,8 @@ void Lightfarmd::start() {
     fs::create_directories(data_);
     std::error_code ec;
     fs::remove(data_ / "lightfarmd.url", ec);
-    std::vector<std::string> args = {LIGHTFARMD, "--listen", "127.0.0.1:0", "--data", data_.string(),
-                                     "--tokens", tokens_.string(), "--engine", engine_.string()};
+    std::vector<std::string> args = {LIGHTFARMD, "--listen",       "127.0.0.1:0", "--data",        data_.string(),
+                                     "--tokens", tokens_.string(), "--engine",    engine_.string()};
     args.insert(args.end(), extra_.begin(), extra_.end());
     std::vector<char*> argv;
     for (std::string& a : args) argv.push_back(a.data());
@@ -223,7 +223,8 @@ void Lightfarmd::kill9() {
 
 std::string Lightfarmd::log() const {
     std::string all;
-    for (int i = 1; i <= starts_; ++i) all += read_text(data_.parent_path() / ("lightfarmd-" + std::to_string(i) + ".log"));
+    for (int i = 1; i <= starts_; ++i)
+        all += read_text(data_.parent_path() / ("lightfarmd-" + std::to_string(i) + ".log"));
     return all;
 }
 

@@ -94,8 +94,7 @@ inline bool is_finished(const nlohmann::json& s) {
 // Reads the event stream of a job (optionally from Last-Event-ID) until its
 // final event or `timeout`; `stop_after` > 0 stops after that many events.
 std::vector<protocol::JobEvent> read_events(const std::string& host, int port, const std::string& token,
-                                            const std::string& id, int64_t last_event_id = -1,
-                                            size_t stop_after = 0,
+                                            const std::string& id, int64_t last_event_id = -1, size_t stop_after = 0,
                                             std::chrono::milliseconds timeout = std::chrono::seconds(20));
 
 }  // namespace lf::test

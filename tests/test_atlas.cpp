@@ -31,12 +31,12 @@ const fs::path kScenes = LIGHTFARM_SHARED_SCENES;
 Scene mixed_scene() {
     Scene s;
     const uint32_t white = test::add_material(s, glm::vec3(0.8f));
-    test::add_grid(s, {-2, 0, -2}, {4, 0, 0}, {0, 0, 4}, 8, 8, white);          // floor, one chart
-    test::add_box(s, {-0.5f, 0, -0.5f}, {0.5f, 1, 0.5f}, white);                // 6 charts, touches the floor
-    test::add_icosphere(s, {1.2f, 0.5f, 1.2f}, 0.4f, 2, white);                 // curved
-    test::add_quad(s, {-1.8f, 0.5f, 1.5f}, {1.5f, 0, 0}, {0, 0.7f, 0}, white);  // wall
-    test::add_mesh(s, {{0, 2, 0}, {1.5f, 2, 0}, {1.5f, 2.002f, 0}}, {{0, 1, 2}}, white);             // sliver
-    test::add_mesh(s, {{1, 2, 1}, {1.001f, 2, 1}, {1, 2, 1.001f}}, {{0, 2, 1}}, white);               // tiny
+    test::add_grid(s, {-2, 0, -2}, {4, 0, 0}, {0, 0, 4}, 8, 8, white);                    // floor, one chart
+    test::add_box(s, {-0.5f, 0, -0.5f}, {0.5f, 1, 0.5f}, white);                          // 6 charts, touches the floor
+    test::add_icosphere(s, {1.2f, 0.5f, 1.2f}, 0.4f, 2, white);                           // curved
+    test::add_quad(s, {-1.8f, 0.5f, 1.5f}, {1.5f, 0, 0}, {0, 0.7f, 0}, white);            // wall
+    test::add_mesh(s, {{0, 2, 0}, {1.5f, 2, 0}, {1.5f, 2.002f, 0}}, {{0, 1, 2}}, white);  // sliver
+    test::add_mesh(s, {{1, 2, 1}, {1.001f, 2, 1}, {1, 2, 1.001f}}, {{0, 2, 1}}, white);   // tiny
     return s;
 }
 
@@ -162,7 +162,8 @@ TEST(Atlas, SmallestResolutionIsTheSmallestThatPacks) {
     EXPECT_THROW(generate_lightmap_uvs(too_small, {.resolution = smallest - 1}), std::runtime_error);
 
     Scene huge;
-    test::add_mesh(huge, {{0, 0, 0}, {1e30f, 0, 0}, {0, 0, 1e30f}}, {{0, 1, 2}}, test::add_material(huge, glm::vec3(0.5f)));
+    test::add_mesh(huge, {{0, 0, 0}, {1e30f, 0, 0}, {0, 0, 1e30f}}, {{0, 1, 2}},
+                   test::add_material(huge, glm::vec3(0.5f)));
     EXPECT_EQ(smallest_atlas_resolution(huge, {.max_resolution = 512}), 0);
     EXPECT_THROW(generate_lightmap_uvs(huge, {.resolution = 256}), std::runtime_error);
 }
@@ -198,7 +199,8 @@ TEST(TexelSamples, SamplesLieOnTheirTriangleAndInsideTheirTexel) {
         const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height, n);
         ASSERT_EQ(texels.first_sample.size(), texels.covered_count() + 1);
         for (size_t i = 0; i < texels.covered_count(); ++i) {
-            const int x = int(texels.texels[i] % uint32_t(texels.width)), y = int(texels.texels[i] / uint32_t(texels.width));
+            const int x = int(texels.texels[i] % uint32_t(texels.width)),
+                      y = int(texels.texels[i] / uint32_t(texels.width));
             ASSERT_GT(texels.sample_count(i), 0u);
             EXPECT_GT(texels.texel_world_size[i], 0.0f);
             for (uint32_t k = texels.first_sample[i]; k < texels.first_sample[i + 1]; ++k) {
@@ -319,8 +321,12 @@ void add_cut_plane(Scene& s, uint32_t material, bool as_two_meshes) {
         }
     }
     if (as_two_meshes) {
-        auto sub = [&](size_t from) { return std::vector<glm::vec3>(p.begin() + long(from), p.begin() + long(from) + 6); };
-        auto sub_uv = [&](size_t from) { return std::vector<glm::vec2>(uv.begin() + long(from), uv.begin() + long(from) + 6); };
+        auto sub = [&](size_t from) {
+            return std::vector<glm::vec3>(p.begin() + long(from), p.begin() + long(from) + 6);
+        };
+        auto sub_uv = [&](size_t from) {
+            return std::vector<glm::vec2>(uv.begin() + long(from), uv.begin() + long(from) + 6);
+        };
         std::vector<glm::uvec3> right_local;
         for (auto t : right) right_local.push_back(t - glm::uvec3(6));
         test::add_mesh(s, sub(0), left, material, sub_uv(0));
@@ -406,7 +412,8 @@ AtlasFigures measure(Scene s, bool baseline, int resolution) {
     f.seams = find_seams(s).size();
     std::vector<double> density;
     for (size_t t = 0; t < s.triangles.size(); ++t)
-        if (s.triangle_area(t) > 0.0f) density.push_back(std::sqrt(uv_pixel_area(s, t, resolution, resolution) / s.triangle_area(t)));
+        if (s.triangle_area(t) > 0.0f)
+            density.push_back(std::sqrt(uv_pixel_area(s, t, resolution, resolution) / s.triangle_area(t)));
     std::sort(density.begin(), density.end());
     f.density_spread = density[density.size() * 9 / 10] / density[density.size() / 10];
     return f;
@@ -420,13 +427,14 @@ TEST(AtlasVsTrianglePairs, FewerSeamsOnTheSharedScenes) {
         for (int resolution : {256, 1024}) {
             const AtlasFigures charts = measure(scene, false, resolution);
             const AtlasFigures pairs = measure(scene, true, resolution);
-            std::printf("%-17s %4d² %5zu tris | charts: %4zu charts, %5zu seam edges, utilisation %5.1f%%, "
-                        "%6.1f texels/m, density p90/p10 %.2f | triangle pairs: %4zu pairs, %5zu seam edges, "
-                        "utilisation %5.1f%%, %6.1f texels/m, density p90/p10 %.2f\n",
-                        name, resolution, scene.triangles.size(), charts.report.charts, charts.seams,
-                        100.0 * charts.report.utilisation, charts.report.texel_density, charts.density_spread,
-                        pairs.report.charts, pairs.seams, 100.0 * pairs.report.utilisation,
-                        pairs.report.texel_density, pairs.density_spread);
+            std::printf(
+                "%-17s %4d² %5zu tris | charts: %4zu charts, %5zu seam edges, utilisation %5.1f%%, "
+                "%6.1f texels/m, density p90/p10 %.2f | triangle pairs: %4zu pairs, %5zu seam edges, "
+                "utilisation %5.1f%%, %6.1f texels/m, density p90/p10 %.2f\n",
+                name, resolution, scene.triangles.size(), charts.report.charts, charts.seams,
+                100.0 * charts.report.utilisation, charts.report.texel_density, charts.density_spread,
+                pairs.report.charts, pairs.seams, 100.0 * pairs.report.utilisation, pairs.report.texel_density,
+                pairs.density_spread);
             EXPECT_LT(charts.seams, pairs.seams) << name;
             EXPECT_LT(charts.report.charts, pairs.report.charts) << name;
         }
@@ -469,7 +477,8 @@ void expect_round_trip(const fs::path& file, const fs::path& out) {
     size_t position_mismatches = 0, uv_mismatches = 0;
     for (size_t t = 0; t < back.triangles.size(); ++t)
         for (int k = 0; k < 3; ++k) {
-            if (back.positions[back.triangles[t][k]] != original.positions[original.triangles[t][k]]) ++position_mismatches;
+            if (back.positions[back.triangles[t][k]] != original.positions[original.triangles[t][k]])
+                ++position_mismatches;
             if (back.uv1[back.triangles[t][k]] != atlas.uv1[atlas.triangles[t][k]]) ++uv_mismatches;
         }
     EXPECT_EQ(position_mismatches, 0u) << file;
@@ -568,7 +577,8 @@ TEST(LightmappedGlb, InstancedAndMirroredMeshesGetTheirOwnUVs) {
         const PrimitiveInstance& inst = original.instances[t < original.instances[1].first_triangle ? 0 : 1];
         const glm::vec3 centre(inst.node == 0 ? -1.0f : 1.0f, 0.0f, 0.0f);
         const glm::uvec3& tri = original.triangles[t];
-        const glm::vec3 mid = (original.positions[tri.x] + original.positions[tri.y] + original.positions[tri.z]) / 3.0f;
+        const glm::vec3 mid =
+            (original.positions[tri.x] + original.positions[tri.y] + original.positions[tri.z]) / 3.0f;
         EXPECT_GT(glm::dot(original.geometric_normal(t), mid - centre), 0.0f) << t;
     }
     expect_round_trip(dir / "boxes.gltf", dir / "boxes.lightmapped.glb");
@@ -599,11 +609,12 @@ TEST(AtlasSpeed, BigScenesAt1024) {
         const size_t seams = find_seams(scene).size();
         const auto t3 = clock::now();
         auto seconds = [](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
-        std::printf("%s: %zu triangles, %zu charts, %.1f texels/m, utilisation %.1f%%, %zu covered texels, "
-                    "%zu samples, %zu seam edges | atlas %.2f s, texel samples %.2f s, seams %.2f s\n",
-                    file.filename().c_str(), scene.triangles.size(), report.charts, report.texel_density,
-                    100.0 * report.utilisation, texels.covered_count(), texels.samples.size(), seams, seconds(t0, t1),
-                    seconds(t1, t2), seconds(t2, t3));
+        std::printf(
+            "%s: %zu triangles, %zu charts, %.1f texels/m, utilisation %.1f%%, %zu covered texels, "
+            "%zu samples, %zu seam edges | atlas %.2f s, texel samples %.2f s, seams %.2f s\n",
+            file.filename().c_str(), scene.triangles.size(), report.charts, report.texel_density,
+            100.0 * report.utilisation, texels.covered_count(), texels.samples.size(), seams, seconds(t0, t1),
+            seconds(t1, t2), seconds(t2, t3));
         for (size_t t = 0; t < scene.triangles.size(); ++t) ASSERT_NE(report.triangle_chart[t], UINT32_MAX);
         EXPECT_LT(seconds(t0, t2), 60.0);
     }

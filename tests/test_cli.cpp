@@ -62,7 +62,7 @@ std::vector<nlohmann::json> json_lines(const std::string& text) {
 TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
     const fs::path out = fresh_dir("cornell");
     const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
-                                " --res 64 --passes 9 --json --seed 3");
+                                   " --res 64 --passes 9 --json --seed 3");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto lines = json_lines(r.out);
     ASSERT_GE(lines.size(), 3u);
@@ -92,7 +92,8 @@ TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
 
     const FloatImage image = read_exr(out / "lightmap.exr");
     EXPECT_EQ(image.width, 64);
-    for (const char* c : {"R", "G", "B", "direct.R", "indirect.B", "samples", "error"}) EXPECT_NO_THROW(image.at(c)) << c;
+    for (const char* c : {"R", "G", "B", "direct.R", "indirect.B", "samples", "error"})
+        EXPECT_NO_THROW(image.at(c)) << c;
     EXPECT_EQ(image.number_attributes.at("lightfarm.pass"), 9.0);
     EXPECT_EQ(image.number_attributes.at("lightfarm.rays"), double(done["rays"].get<uint64_t>()));
     EXPECT_FALSE(image.string_attributes.at("lightfarm.renderer").empty());
@@ -104,8 +105,8 @@ TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
 
 TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
     const fs::path out = fresh_dir("monkey");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
-                                " --res 128 --passes 2");
+    const CliRun r =
+        run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() + " --res 128 --passes 2");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     EXPECT_TRUE(fs::exists(out / "scene.lightmapped.glb"));
     const CliRun inspect = run_lightfarm("inspect --json " + (out / "scene.lightmapped.glb").string());
@@ -117,7 +118,7 @@ TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
 TEST(CliBake, StopsAtTheTargetError) {
     const fs::path out = fresh_dir("target");
     const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
-                                " --res 32 --passes 10000 --target-error 0.05 --json");
+                                   " --res 32 --passes 10000 --target-error 0.05 --json");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto done = json_lines(r.out).back();
     EXPECT_LE(done["error_estimate"].get<double>(), 0.05);
@@ -128,7 +129,7 @@ TEST(CliBake, StopsAtTheTargetError) {
 TEST(CliBake, StopsAtTheTimeLimit) {
     const fs::path out = fresh_dir("time");
     const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
-                                " --res 64 --passes 1000000 --time-limit 1 --json");
+                                   " --res 64 --passes 1000000 --time-limit 1 --json");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto done = json_lines(r.out).back();
     EXPECT_GE(done["seconds"].get<double>(), 1.0);
@@ -176,8 +177,10 @@ TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
 // (the service fails such a job at once instead of retrying it).
 TEST(CliBake, FailuresAreOneClearLine) {
     constexpr int kUsage = 2, kInput = 3;
-    expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "--env R,G,B", kInput);
-    expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf", kInput);
+    expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "--env R,G,B",
+                         kInput);
+    expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf",
+                         kInput);
     expect_clean_failure("bake /no/such/file.glb", "file.glb", kInput);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", kUsage);
@@ -185,10 +188,13 @@ TEST(CliBake, FailuresAreOneClearLine) {
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "R,G,B", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --sh-bands 0", "--sh-bands", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --seed 4294967296", "--seed", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 64 --texel-density 10", "res", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 64 --texel-density 10", "res",
+                         kUsage);
     expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-occluders 99", "mesh 99", kInput);
-    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --spec /no/such/spec.json", "spec.json", kUsage);
+    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices",
+                         kUsage);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --spec /no/such/spec.json", "spec.json",
+                         kUsage);
 }
 
 // 9,121 charts cannot fit 64² even at one texel each: the message says which
@@ -216,7 +222,8 @@ TEST(CliBake, AnAtlasThatCannotFitNamesTheSmallestThatDoes) {
 TEST(CliBake, ABakeThatCannotFitInMemoryIsRefusedUpFront) {
     const fs::path out = fresh_dir("huge");
     const auto start = std::chrono::steady_clock::now();
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --res 16384 --out " + out.string());
+    const CliRun r =
+        run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --res 16384 --out " + out.string());
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     EXPECT_EQ(r.exit_code, 3) << r.err;
     EXPECT_NE(r.err.find("needs about 139.7 GB"), std::string::npos) << r.err;
@@ -245,10 +252,12 @@ TEST(CliBake, SpecFileBakesExactlyWhatFlagsBake) {
     const fs::path spec = by_spec.string() + ".json";
     std::ofstream(spec) << R"({"scene": "ignored", "outputs": {"lightmap": {"passes": 99, "scheme": "thesis",
                               "light_samples": 2}}, "atlas": {"res": 32}, "seed": 7, "limits": {"max_attempts": 1}})";
-    const CliRun b = run_lightfarm("bake " + scene + " --out " + by_spec.string() + " --spec " + spec.string() + " --passes 5");
+    const CliRun b =
+        run_lightfarm("bake " + scene + " --out " + by_spec.string() + " --spec " + spec.string() + " --passes 5");
     ASSERT_EQ(b.exit_code, 0) << b.err;
     EXPECT_EQ(pixels(by_flags / "lightmap.exr", "R"), pixels(by_spec / "lightmap.exr", "R"));
-    EXPECT_EQ(read_exr(by_spec / "lightmap.exr").number_attributes.at("lightfarm.pass"), 5.0) << "--passes overrides the spec";
+    EXPECT_EQ(read_exr(by_spec / "lightmap.exr").number_attributes.at("lightfarm.pass"), 5.0)
+        << "--passes overrides the spec";
 
     std::ifstream manifest_in(by_flags / "manifest.json");
     const nlohmann::json manifest = nlohmann::json::parse(manifest_in);

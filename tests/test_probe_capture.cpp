@@ -54,7 +54,8 @@ ProbeSet capture(const Scene& scene, const std::vector<glm::vec3>& points, int r
     ProbesMethod method(prepared, settings);
     PassStats stats;
     for (int p = 0; p < passes; ++p) stats = method.step();
-    const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("lf-probes-" + std::to_string(getpid()));
+    const std::filesystem::path dir =
+        std::filesystem::temp_directory_path() / ("lf-probes-" + std::to_string(getpid()));
     std::filesystem::create_directories(dir);
     method.finish(dir, stats);
     ProbeSet set = read_probe_set(dir / "probes.json");
@@ -87,7 +88,8 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
                     // The mean distance over the texel's rays against the
                     // distance through its centre: they differ by the box's
                     // curvature in angle across a texel, a few percent at M = 4.
-                    const float d = box_distance(p.position, cube_direction(face, (i + 0.5f) / set.m, (j + 0.5f) / set.m));
+                    const float d =
+                        box_distance(p.position, cube_direction(face, (i + 0.5f) / set.m, (j + 0.5f) / set.m));
                     worst_distance = std::max(worst_distance, std::abs(double(p.distance[t]) / d - 1.0));
                 }
         mean /= 6.0 * set.m * set.m;
@@ -103,8 +105,10 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
     // polygon-to-point estimate holds it from the probe out to 5 cm from a
     // wall facing it, where texels are large in the point's hemisphere.
     const ProbeEvaluator eval(set);
-    for (const auto& [x, n] : std::vector<std::pair<glm::vec3, glm::vec3>>{
-             {centre, {0, 1, 0}}, {{0.3f, -0.4f, 0.2f}, {1, 0, 0}}, {{0.95f, 0.0f, 0.0f}, {1, 0, 0}}, {{0, -0.9f, 0}, {0, -1, 0}}}) {
+    for (const auto& [x, n] : std::vector<std::pair<glm::vec3, glm::vec3>>{{centre, {0, 1, 0}},
+                                                                           {{0.3f, -0.4f, 0.2f}, {1, 0, 0}},
+                                                                           {{0.95f, 0.0f, 0.0f}, {1, 0, 0}},
+                                                                           {{0, -0.9f, 0}, {0, -1, 0}}}) {
         const ProbeEvaluation e = eval.evaluate(x, n);
         EXPECT_NEAR(e.polygon_to_point.g, expected, 0.05 * expected) << x.x << "," << x.y << "," << x.z;
     }
@@ -137,10 +141,11 @@ TEST(ProbeCapture, AProbeInsideGeometryIsDropped) {
 TEST(ProbeCapture, CornellBoxPolygonToPointHoldsNearAWall) {
     const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
     const glm::vec3 centre = scene.bounds.centre() + glm::vec3(0.0f, 0.08f, 0.0f);  // above the blocks
-    const glm::vec3 wall_normal(-1.0f, 0.0f, 0.0f);  // the red wall at x = bounds.lo.x
+    const glm::vec3 wall_normal(-1.0f, 0.0f, 0.0f);                                 // the red wall at x = bounds.lo.x
     const float to_wall = centre.x - scene.bounds.lo.x;
     std::vector<glm::vec3> points;
-    for (float gap : {1.0f, 0.5f, 0.2f, 0.08f, 0.03f}) points.push_back(centre + wall_normal * (to_wall * (1.0f - gap)));
+    for (float gap : {1.0f, 0.5f, 0.2f, 0.08f, 0.03f})
+        points.push_back(centre + wall_normal * (to_wall * (1.0f - gap)));
     const int r = 32, passes = 24;
     const ProbeSet reference = capture(scene, {centre}, r, 8, passes);
     const ProbeSet truth = capture(scene, points, r, r, passes);

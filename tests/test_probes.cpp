@@ -72,10 +72,12 @@ TEST(FormFactor, ParallelRectangleOnItsAxis) {
         const double expected = 4.0 * parallel_corner(a / 2, b / 2, c);
         EXPECT_NEAR(polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, q.data(), 4), expected, 2e-6 + 1e-5 * expected)
             << "height " << c;
-        EXPECT_NEAR(clipped_polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, q.data(), 4), expected, 2e-6 + 1e-5 * expected);
+        EXPECT_NEAR(clipped_polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, q.data(), 4), expected,
+                    2e-6 + 1e-5 * expected);
         // The other winding is the negative.
         const std::array<glm::vec3, 4> reversed = {q[0], q[3], q[2], q[1]};
-        EXPECT_NEAR(polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, reversed.data(), 4), -expected, 2e-6 + 1e-5 * expected);
+        EXPECT_NEAR(polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, reversed.data(), 4), -expected,
+                    2e-6 + 1e-5 * expected);
     }
     // Almost on the plane, under the middle: the rectangle fills the hemisphere.
     const auto q = rect({-0.5f, 1e-4f, -0.3f}, {1, 0, 0}, {0, 0, 0.6f}, {0, 1, 0});
@@ -85,7 +87,8 @@ TEST(FormFactor, ParallelRectangleOnItsAxis) {
 TEST(FormFactor, ParallelRectangleOffAxisByCornerFormula) {
     // The corner formula itself, then a rectangle beside the point (superposition).
     const auto corner = rect({0, 0.7f, 0}, {2, 0, 0}, {0, 0, 1.5f}, {0, 1, 0});
-    EXPECT_NEAR(polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, corner.data(), 4), parallel_corner(2, 1.5, 0.7), 1e-6);
+    EXPECT_NEAR(polygon_to_point_form_factor({0, 0, 0}, {0, 1, 0}, corner.data(), 4), parallel_corner(2, 1.5, 0.7),
+                1e-6);
     for (const double c : {2.0, 0.5, 0.05, 1e-3, 1e-5}) {
         const auto q = rect({1, float(c), 0.5f}, {2, 0, 0}, {0, 0, 1.5f}, {0, 1, 0});
         const double expected = parallel_rect(1, 3, 0.5, 2, c);
@@ -132,7 +135,8 @@ TEST(CubeMap, TexelSolidAnglesCoverTheSphereAndSh9ProjectsTheBasis) {
         for (int f = 0; f < 6; ++f)
             for (int j = 0; j < r; ++j)
                 for (int i = 0; i < r; ++i)
-                    cube[(size_t(f) * r + j) * r + i] = glm::vec3(sh_evaluate(cube_direction(f, (i + 0.5f) / r, (j + 0.5f) / r))[c]);
+                    cube[(size_t(f) * r + j) * r + i] =
+                        glm::vec3(sh_evaluate(cube_direction(f, (i + 0.5f) / r, (j + 0.5f) / r))[c]);
         const auto sh = project_cube_to_sh9(r, cube);
         for (int k = 0; k < 9; ++k) EXPECT_NEAR(sh[k].r, k == c ? 1.0 : 0.0, 2e-3) << "<y_" << k << ", y_" << c << ">";
     }
@@ -151,12 +155,15 @@ TEST(CubeMap, CornerDistancesPutCornersOnTheWallsOfABoxAroundTheProbe) {
     std::vector<float> distance(stretch.size());
     for (size_t k = 0; k < distance.size(); ++k) distance[k] = 1.5f * stretch[k];
     const std::vector<float> c = cube_corner_distances(m, distance);
-    const auto at = [&](const std::vector<float>& v, int f, int a, int b) { return v[(size_t(f) * (m + 1) + b) * (m + 1) + a]; };
+    const auto at = [&](const std::vector<float>& v, int f, int a, int b) {
+        return v[(size_t(f) * (m + 1) + b) * (m + 1) + a];
+    };
     for (int f = 0; f < 6; ++f)
         for (int b = 0; b <= m; ++b)
             for (int a = 0; a <= m; ++a) {
                 const glm::vec3 p = at(c, f, a, b) * cube_direction(f, float(a) / m, float(b) / m);
-                EXPECT_NEAR(std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)}), 1.5f, 1e-5f) << f << " " << a << " " << b;
+                EXPECT_NEAR(std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)}), 1.5f, 1e-5f)
+                    << f << " " << a << " " << b;
             }
     // Which texels share a corner: face +X's texel (0, 0) deeper by 3; its
     // corner (0, 0) is a cube corner (3 texels), (1, 0) on a face edge (2 + 2),
@@ -230,7 +237,8 @@ Probe capture(const std::vector<Patch>& scene, glm::vec3 position, int r, int m)
                 double sum = 0.0;
                 int hits = 0;
                 for (int s = 0; s < 4; ++s) {
-                    const glm::vec3 d = cube_direction(f, (i + 0.25f + 0.5f * (s % 2)) / r, (j + 0.25f + 0.5f * (s / 2)) / r);
+                    const glm::vec3 d =
+                        cube_direction(f, (i + 0.25f + 0.5f * (s % 2)) / r, (j + 0.25f + 0.5f * (s / 2)) / r);
                     const Hit h = cast(scene, position, d);
                     l += h.radiance * 0.25f;
                     if (h.t > 0.0f) {
@@ -302,7 +310,8 @@ TEST(ProbeEstimators, FurnaceBoxUniformRadiance) {
     for (int i = 0; i < 200; ++i)
         points.push_back({lo + 0.1f + (hi - lo - 0.2f) * glm::vec3(u(rng), u(rng), u(rng)), random_direction(rng)});
     std::printf("  furnace box, %zu points >= 0.1 m from the walls: max | mean relative error\n", points.size());
-    std::printf("  %3s %18s %18s %18s %18s %18s\n", "M", "sh9", "point_to_point", "polygon_to_point", "(clipped)", "ddgi");
+    std::printf("  %3s %18s %18s %18s %18s %18s\n", "M", "sh9", "point_to_point", "polygon_to_point", "(clipped)",
+                "ddgi");
     float worst[4][5] = {}, mean_of[4][5] = {};
     for (int mi = 0; mi < 4; ++mi) {
         const int m = 1 << mi;
@@ -370,7 +379,8 @@ TEST(ProbeEstimators, ApproachingAWallPolygonToPointStaysPointToPointBlowsUp) {
         const glm::vec3 x(1.0f - gap, light.y, light.z);
         const ProbeEvaluation e = evaluate(set, x, {1, 0, 0});
         std::printf("  %8.3f", gap);
-        for (int k = 0; k < 4; ++k) std::printf(" %*.4f", k == 0 ? 10 : k == 1 ? 15 : k == 2 ? 17 : 10, relative_error(pick(e, k), L));
+        for (int k = 0; k < 4; ++k)
+            std::printf(" %*.4f", k == 0 ? 10 : k == 1 ? 15 : k == 2 ? 17 : 10, relative_error(pick(e, k), L));
         std::printf("\n");
         if (gap == 0.9f) p2p_far = relative_error(e.point_to_point, L);
         if (gap == 0.005f) p2p_near = relative_error(e.point_to_point, L);
@@ -387,8 +397,9 @@ TEST(ProbeEstimators, ApproachingAWallPolygonToPointStaysPointToPointBlowsUp) {
 // moves away from it; polygon-to-point follows.
 TEST(ProbeEstimators, ColouredBoxSh9DriftsWithDistanceFromTheProbe) {
     const glm::vec3 lo(-1.0f), hi(1.0f);
-    const std::vector<Patch> scene = box(lo, hi, {glm::vec3(2, 0.1f, 0.1f), glm::vec3(0.1f, 2, 0.1f), glm::vec3(1.5f),
-                                                  glm::vec3(0.2f), glm::vec3(0.1f, 0.1f, 1.5f), glm::vec3(0.5f)});
+    const std::vector<Patch> scene = box(lo, hi,
+                                         {glm::vec3(2, 0.1f, 0.1f), glm::vec3(0.1f, 2, 0.1f), glm::vec3(1.5f),
+                                          glm::vec3(0.2f), glm::vec3(0.1f, 0.1f, 1.5f), glm::vec3(0.5f)});
     const int m = 4;
     const ProbeSet set = one_probe_set(capture(scene, glm::vec3(0.0f), 64, m), 64, m);
     const ProbeEvaluator eval(set);
@@ -423,14 +434,16 @@ TEST(ProbeEstimators, EmitterOverFloorMatchesTheRectangleFormFactor) {
     const glm::vec3 L(3.0f);
     const float h = 1.0f;
     const std::vector<Patch> scene = {
-        {{-10, 0, -10}, {0, 0, 20}, {20, 0, 0}, glm::vec3(0.0f)},          // floor, black
-        {{-0.5f, h, -0.75f}, {1, 0, 0}, {0, 0, 1.5f}, L, true},            // emitter, facing down (cross = -y)
+        {{-10, 0, -10}, {0, 0, 20}, {20, 0, 0}, glm::vec3(0.0f)},  // floor, black
+        {{-0.5f, h, -0.75f}, {1, 0, 0}, {0, 0, 1.5f}, L, true},    // emitter, facing down (cross = -y)
     };
     std::vector<glm::vec3> points;
     for (const float px : {0.0f, 0.2f, 0.4f})
         for (const float pz : {0.0f, 0.3f, 0.6f}) points.push_back({px, 0.0f, pz});
-    std::printf("  emitter 1 x 1.5 m at 1 m over a black floor, probe at 0.5 m: %zu points on the floor, "
-                "max | mean relative error\n", points.size());
+    std::printf(
+        "  emitter 1 x 1.5 m at 1 m over a black floor, probe at 0.5 m: %zu points on the floor, "
+        "max | mean relative error\n",
+        points.size());
     std::printf("  %3s %18s %18s %18s %18s\n", "M", "sh9", "point_to_point", "polygon_to_point", "ddgi");
     float poly[4] = {};
     for (int mi = 0; mi < 4; ++mi) {
@@ -573,7 +586,8 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
             const glm::vec3 x(u(rng), u(rng), u(rng)), n = random_direction(rng);
             const glm::vec3 o = x + 2.0f * glm::vec3(u(rng), u(rng), u(rng));
             const glm::vec3 e1 = glm::vec3(u(rng), u(rng), u(rng)), e2 = glm::vec3(u(rng), u(rng), u(rng));
-            for (glm::vec3 v : {x, n, o, o + e1, o + e1 + e2 + 0.1f * glm::vec3(u(rng)), o + e2}) cases.push_back(glm::vec4(v, 0));
+            for (glm::vec3 v : {x, n, o, o + e1, o + e1 + e2 + 0.1f * glm::vec3(u(rng)), o + e2})
+                cases.push_back(glm::vec4(v, 0));
         }
         GpuBuffer dummy(std::vector<glm::vec4>(1));
         dummy.bind(0);
@@ -615,7 +629,8 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
             const glm::vec3 want = probe_polygon_to_point(p, glm::vec3(cases[2 * i]), glm::vec3(cases[2 * i + 1]));
             worst = std::max(worst, double(relative_error(glm::vec3(got[i]), want)));
         }
-        std::printf("  GLSL probe polygon-to-point vs C++: max relative difference %.2e over %zu points\n", worst, count);
+        std::printf("  GLSL probe polygon-to-point vs C++: max relative difference %.2e over %zu points\n", worst,
+                    count);
         EXPECT_LT(worst, 1e-4);
     }
 }
@@ -631,8 +646,8 @@ fs::path fresh_dir(const std::string& name) {
 
 ProbeSet small_set() {
     const glm::vec3 L(0.8f, 0.5f, 0.3f);
-    const std::vector<Patch> scene = box(glm::vec3(-1.0f), glm::vec3(1.0f),
-                                         {L, 0.5f * L, 2.0f * L, L, glm::vec3(0.1f), glm::vec3(1.0f)});
+    const std::vector<Patch> scene =
+        box(glm::vec3(-1.0f), glm::vec3(1.0f), {L, 0.5f * L, 2.0f * L, L, glm::vec3(0.1f), glm::vec3(1.0f)});
     ProbeSet set;
     set.m = 2;
     set.capture_resolution = 16;
@@ -701,7 +716,8 @@ TEST(ProbeCli, ProbeEvalPrintsTheFourEstimatorsInInputOrder) {
     nlohmann::json doc = nlohmann::json::array();
     for (const auto& [p, n] : points) doc.push_back({{"position", {p.x, p.y, p.z}}, {"normal", {n.x, n.y, n.z}}});
     std::ofstream(dir / "points.json") << doc.dump();
-    const CliRun r = run_lightfarm("probe-eval " + (dir / "probes.json").string() + " " + (dir / "points.json").string());
+    const CliRun r =
+        run_lightfarm("probe-eval " + (dir / "probes.json").string() + " " + (dir / "points.json").string());
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const nlohmann::json out = nlohmann::json::parse(r.out);
     ASSERT_EQ(out["points"].size(), points.size());
@@ -716,16 +732,20 @@ TEST(ProbeCli, ProbeEvalPrintsTheFourEstimatorsInInputOrder) {
     }
     // Bad input: usage 2, unreadable or malformed files 3, with one line.
     EXPECT_EQ(run_lightfarm("probe-eval " + (dir / "probes.json").string()).exit_code, 2);
-    const CliRun missing = run_lightfarm("probe-eval " + (dir / "nope.json").string() + " " + (dir / "points.json").string());
+    const CliRun missing =
+        run_lightfarm("probe-eval " + (dir / "nope.json").string() + " " + (dir / "points.json").string());
     EXPECT_EQ(missing.exit_code, 3);
     EXPECT_NE(missing.err.find("nope.json"), std::string::npos) << missing.err;
     std::ofstream(dir / "bad_points.json") << R"([{"position": [0, 0], "normal": [0, 1, 0]}])";
-    const CliRun bad = run_lightfarm("probe-eval " + (dir / "probes.json").string() + " " + (dir / "bad_points.json").string());
+    const CliRun bad =
+        run_lightfarm("probe-eval " + (dir / "probes.json").string() + " " + (dir / "bad_points.json").string());
     EXPECT_EQ(bad.exit_code, 3);
     EXPECT_NE(bad.err.find("point 0: position"), std::string::npos) << bad.err;
     EXPECT_EQ(std::count(bad.err.begin(), bad.err.end(), '\n'), 1) << bad.err;
     std::ofstream(dir / "garbage.json") << "{not json";
-    EXPECT_EQ(run_lightfarm("probe-eval " + (dir / "garbage.json").string() + " " + (dir / "points.json").string()).exit_code, 3);
+    EXPECT_EQ(
+        run_lightfarm("probe-eval " + (dir / "garbage.json").string() + " " + (dir / "points.json").string()).exit_code,
+        3);
     fs::remove_all(dir);
 }
 

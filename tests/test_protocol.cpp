@@ -141,8 +141,8 @@ TEST(JobSpec, ParsesAValidSpec) {
 }
 
 TEST(JobSpec, DefaultsComeFromTheCatalog) {
-    const BakeSettings b =
-        parse_bake_settings({{"outputs", {{"lightmap", json::object()}, {"sh", json::object()}, {"probes", json::object()}}}});
+    const BakeSettings b = parse_bake_settings(
+        {{"outputs", {{"lightmap", json::object()}, {"sh", json::object()}, {"probes", json::object()}}}});
     const json j = to_json(b);
     // Every setting of every chosen output, the atlas and the job, with the catalog's default.
     for (const Setting& s : setting_catalog()) {
@@ -278,7 +278,8 @@ TEST(JobSpec, WrongTypesAndRangesNameTheField) {
     };
     EXPECT_EQ(atlas_with("res", 0), "atlas.res: 0 is below the minimum 1");
     EXPECT_EQ(atlas_with("res", 256.5), "atlas.res: must be an integer, not 256.5");
-    EXPECT_TRUE(starts_with(atlas_with("res", "256"), "atlas.res: must be a number or \"auto\"")) << atlas_with("res", "256");
+    EXPECT_TRUE(starts_with(atlas_with("res", "256"), "atlas.res: must be a number or \"auto\""))
+        << atlas_with("res", "256");
     EXPECT_EQ(atlas_with("res", 100000), "atlas.res: 100000 exceeds the maximum 16384");
     EXPECT_EQ(atlas_with("res", 10000), "atlas.res: 10000 exceeds this server's limit 8192");
     EXPECT_EQ(atlas_with("texel_density", 0), "atlas.texel_density: 0 is below the minimum (exclusive) 0");
@@ -429,7 +430,8 @@ TEST(Flags, ErrorsNameTheFlag) {
     EXPECT_EQ(flag_error_of({{"--sh-bounces", "7"}}), "--sh-bounces: 7 exceeds the maximum 4");
     EXPECT_EQ(flag_error_of({{"--seed", "4294967296"}}), "--seed: 4294967296 exceeds the maximum 4294967295");
     EXPECT_EQ(flag_error_of({{"--seed", "4294967295"}}), "");
-    EXPECT_TRUE(starts_with(flag_error_of({{"--scheme", "fast"}}), "--scheme: must be one of")) << flag_error_of({{"--scheme", "fast"}});
+    EXPECT_TRUE(starts_with(flag_error_of({{"--scheme", "fast"}}), "--scheme: must be one of"))
+        << flag_error_of({{"--scheme", "fast"}});
     EXPECT_TRUE(starts_with(flag_error_of({{"--texel-density", "dense"}}), "--texel-density: 'dense' is not a number"));
     EXPECT_TRUE(starts_with(flag_error_of({{"--sh-occluders", "0,,3"}}), "--sh-occluders:"));
     EXPECT_TRUE(starts_with(flag_error_of({{"--env", "1,2"}}), "--env:"));
@@ -484,13 +486,13 @@ TEST(Flags, BecomeTheSameSettingsAsJson) {
     ASSERT_TRUE(b.env.sky);
     EXPECT_FLOAT_EQ((*b.env.sky)[1], 0.25f);
     EXPECT_EQ(b.seed, 9u);
-    const BakeSettings same = parse_bake_settings(
-        {{"outputs",
-          {{"lightmap", {{"target_error", 0.02}, {"stitch", false}, {"scheme", "thesis"}}},
-           {"sh", {{"sh_per_texel", true}, {"sh_bands", "auto"}, {"sh_occluders", {0, 3}}}}}},
-         {"atlas", {{"res", 128}}},
-         {"env", {0.5, 0.25, 1}},
-         {"seed", 9}});
+    const BakeSettings same =
+        parse_bake_settings({{"outputs",
+                              {{"lightmap", {{"target_error", 0.02}, {"stitch", false}, {"scheme", "thesis"}}},
+                               {"sh", {{"sh_per_texel", true}, {"sh_bands", "auto"}, {"sh_occluders", {0, 3}}}}}},
+                             {"atlas", {{"res", 128}}},
+                             {"env", {0.5, 0.25, 1}},
+                             {"seed", 9}});
     EXPECT_EQ(to_json(b), to_json(same));
 }
 
@@ -665,9 +667,9 @@ TEST(WorkerEvents, GarbageIsRefused) {
         json::object(),
         {{"event", 3}},
         {{"event", "finished"}},
-        {{"event", "snapshot"}, {"output", "lightmap"}, {"pass", 4}},                // no file
-        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", "a.exr"}},           // no pass
-        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", 7}, {"pass", 4}},    // file not a string
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"pass", 4}},               // no file
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", "a.exr"}},         // no pass
+        {{"event", "snapshot"}, {"output", "lightmap"}, {"file", 7}, {"pass", 4}},  // file not a string
         {{"event", "snapshot"}, {"output", "lightmap"}, {"file", "a.exr"}, {"pass", "4"}},
     };
     for (const json& g : garbage) EXPECT_THROW(parse_worker_event(g), std::invalid_argument) << g.dump();
@@ -853,12 +855,8 @@ json schema_of(const Setting& s) {
         range[s.min_exclusive ? "exclusiveMinimum" : "minimum"] = s.min;
         range["maximum"] = s.max;
         break;
-    case SettingType::Choice:
-        range = {{"type", "string"}, {"enum", s.choices}};
-        break;
-    case SettingType::Flag:
-        range = {{"type", "boolean"}};
-        break;
+    case SettingType::Choice: range = {{"type", "string"}, {"enum", s.choices}}; break;
+    case SettingType::Flag: range = {{"type", "boolean"}}; break;
     case SettingType::MeshList:
         range = {{"type", "array"}, {"items", {{"type", "integer"}, {"minimum", 0}, {"maximum", 1 << 30}}}};
         break;
@@ -868,10 +866,12 @@ json schema_of(const Setting& s) {
     case SettingType::Positions: {
         const double f = std::numeric_limits<float>::max();
         const json coordinate = {{"type", "number"}, {"minimum", -f}, {"maximum", f}};
-        const json point = {{"type", "object"},
-                            {"required", {"position"}},
-                            {"additionalProperties", false},
-                            {"properties", {{"position", {{"type", "array"}, {"items", coordinate}, {"minItems", 3}, {"maxItems", 3}}}}}};
+        const json point = {
+            {"type", "object"},
+            {"required", {"position"}},
+            {"additionalProperties", false},
+            {"properties",
+             {{"position", {{"type", "array"}, {"items", coordinate}, {"minItems", 3}, {"maxItems", 3}}}}}};
         range = {{"type", "array"}, {"items", point}, {"maxItems", 4096}};
         break;
     }
@@ -949,10 +949,9 @@ TEST(OpenApi, JobSpecSchemaIsTheCatalog) {
         for (const Setting& s : setting_catalog()) {
             if (s.group != group || !object["properties"].contains(s.name)) continue;
             const json& documented = object["properties"][s.name];
-            EXPECT_TRUE(same_schema(documented, schema_of(s)))
-                << s.field() << " is documented as\n"
-                << documented.dump(2) << "\nbut the catalog says\n"
-                << schema_of(s).dump(2);
+            EXPECT_TRUE(same_schema(documented, schema_of(s))) << s.field() << " is documented as\n"
+                                                               << documented.dump(2) << "\nbut the catalog says\n"
+                                                               << schema_of(s).dump(2);
         }
     }
 
@@ -978,13 +977,13 @@ bool valid_against(const json& doc, const json& schema_ref, const json& v) {
         return false;
     if (schema.contains("type")) {
         const std::string t = schema["type"];
-        const bool ok = t == "integer"  ? (v.is_number_integer() || v.is_number_unsigned())
-                        : t == "number" ? v.is_number()
-                        : t == "string" ? v.is_string()
+        const bool ok = t == "integer"   ? (v.is_number_integer() || v.is_number_unsigned())
+                        : t == "number"  ? v.is_number()
+                        : t == "string"  ? v.is_string()
                         : t == "boolean" ? v.is_boolean()
-                        : t == "array"  ? v.is_array()
-                        : t == "object" ? v.is_object()
-                                        : false;
+                        : t == "array"   ? v.is_array()
+                        : t == "object"  ? v.is_object()
+                                         : false;
         if (!ok) return false;
     }
     if (v.is_number()) {
@@ -994,7 +993,8 @@ bool valid_against(const json& doc, const json& schema_ref, const json& v) {
         if (schema.contains("exclusiveMinimum") && x <= schema["exclusiveMinimum"].get<double>()) return false;
         if (schema.contains("maximum") && x > schema["maximum"].get<double>()) return false;
     }
-    if (v.is_string() && schema.contains("minLength") && v.get<std::string>().size() < schema["minLength"].get<size_t>())
+    if (v.is_string() && schema.contains("minLength") &&
+        v.get<std::string>().size() < schema["minLength"].get<size_t>())
         return false;
     if (v.is_array()) {
         if (schema.contains("minItems") && v.size() < schema["minItems"].get<size_t>()) return false;
@@ -1059,9 +1059,9 @@ TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
             ++checked;
         }
     }
-    for (const json& limits : {json{{"max_seconds", 0}}, json{{"max_seconds", 0.5}}, json{{"max_seconds", "1"}},
-                               json{{"max_attempts", 0}}, json{{"max_attempts", 1}}, json{{"max_attempts", 1.5}},
-                               json{{"gpu", 1}}, json(3)}) {
+    for (const json& limits :
+         {json{{"max_seconds", 0}}, json{{"max_seconds", 0.5}}, json{{"max_seconds", "1"}}, json{{"max_attempts", 0}},
+          json{{"max_attempts", 1}}, json{{"max_attempts", 1.5}}, json{{"gpu", 1}}, json(3)}) {
         json spec = base;
         spec["limits"] = limits;
         EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec)) << limits.dump();
@@ -1090,9 +1090,7 @@ std::string cell_number(double v) {
 std::string values_cell(const Setting& s) {
     std::string v;
     switch (s.type) {
-    case SettingType::Integer:
-        v = "integer " + cell_number(s.min) + "–" + cell_number(s.max);
-        break;
+    case SettingType::Integer: v = "integer " + cell_number(s.min) + "–" + cell_number(s.max); break;
     case SettingType::Number:
         v = s.min_exclusive ? "number > " + cell_number(s.min) + ", ≤ " + cell_number(s.max)
                             : "number " + cell_number(s.min) + "–" + cell_number(s.max);
@@ -1100,18 +1098,10 @@ std::string values_cell(const Setting& s) {
     case SettingType::Choice:
         for (const std::string& c : s.choices) v += (v.empty() ? "" : ", ") + ("`" + c + "`");
         break;
-    case SettingType::Flag:
-        v = std::string("flag: sets `") + (s.default_value == true ? "false" : "true") + "`";
-        break;
-    case SettingType::MeshList:
-        v = "glTF mesh indices: `0,3` (JSON `[0, 3]`)";
-        break;
-    case SettingType::Environment:
-        v = "`R,G,B` (JSON `[R, G, B]`), or a map file (CLI)";
-        break;
-    case SettingType::Positions:
-        v = "a JSON file of `[{\"position\": [x, y, z]}, …]` (JSON: that array)";
-        break;
+    case SettingType::Flag: v = std::string("flag: sets `") + (s.default_value == true ? "false" : "true") + "`"; break;
+    case SettingType::MeshList: v = "glTF mesh indices: `0,3` (JSON `[0, 3]`)"; break;
+    case SettingType::Environment: v = "`R,G,B` (JSON `[R, G, B]`), or a map file (CLI)"; break;
+    case SettingType::Positions: v = "a JSON file of `[{\"position\": [x, y, z]}, …]` (JSON: that array)"; break;
     }
     if (s.accepts_auto) v += ", or `auto`";
     return v;
@@ -1158,7 +1148,8 @@ TEST(Readme, BakeOptionTableIsTheCatalog) {
     EXPECT_EQ(table, expected) << "README.md's bake option table is not the catalog's; replace it with:\n\n"
                                << begin << expected << end << "\n";
     // Every setting's flag has its row.
-    for (const Setting& s : setting_catalog()) EXPECT_NE(table.find("`" + s.flag() + "`"), std::string::npos) << s.flag();
+    for (const Setting& s : setting_catalog())
+        EXPECT_NE(table.find("`" + s.flag() + "`"), std::string::npos) << s.flag();
 }
 
 }  // namespace
@@ -1170,9 +1161,11 @@ namespace {
 // Found by fuzzing: a sky component that overflows float32 was accepted, then
 // stored as inf, written as null and refused when the worker read the spec.
 TEST(FuzzFindings, ASkyBeyondFloatIsRefusedAtSubmit) {
-    const nlohmann::json spec = {{"scene", "s"}, {"outputs", {{"lightmap", nlohmann::json::object()}}}, {"env", {1e39, 0, 0}}};
+    const nlohmann::json spec = {
+        {"scene", "s"}, {"outputs", {{"lightmap", nlohmann::json::object()}}}, {"env", {1e39, 0, 0}}};
     EXPECT_THROW(parse_job_spec(spec), SpecError);
-    const JobSpec ok = parse_job_spec({{"scene", "s"}, {"outputs", {{"lightmap", nlohmann::json::object()}}}, {"env", {3e38, 0, 0}}});
+    const JobSpec ok =
+        parse_job_spec({{"scene", "s"}, {"outputs", {{"lightmap", nlohmann::json::object()}}}, {"env", {3e38, 0, 0}}});
     EXPECT_NO_THROW(parse_job_spec(to_json(ok)));
 }
 

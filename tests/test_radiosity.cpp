@@ -64,7 +64,9 @@ double corner_form_factor(double a, double b, double c) {
 // Any point under a rectangle [x0,x1]x[z0,z1] at height h, by splitting it at the point.
 double rectangle_form_factor(double px, double pz, double x0, double x1, double z0, double z1, double h) {
     // Signed rectangles from the point to each corner: F = F(x1,z1) - F(x0,z1) - F(x1,z0) + F(x0,z0).
-    auto part = [&](double a, double b) { return (a == 0.0 || b == 0.0) ? 0.0 : corner_form_factor(std::abs(a), std::abs(b), h); };
+    auto part = [&](double a, double b) {
+        return (a == 0.0 || b == 0.0) ? 0.0 : corner_form_factor(std::abs(a), std::abs(b), h);
+    };
     auto sgn = [](double v) { return v < 0 ? -1.0 : 1.0; };
     double f = 0.0;
     for (double xe : {x0, x1})
@@ -144,7 +146,8 @@ Scene furnace(float rho, float le, int res);
 // angle beats sampling them by area: measured here, with MIS next to both.
 TEST(RadiosityMap, LightSamplingStrategiesAreUnbiasedAndMeasured) {
     const int passes = 256;
-    std::printf("direct light under a 1x1 m emitter at 1 m, 64² floor, %d passes (relative RMSE vs form factor):\n", passes);
+    std::printf("direct light under a 1x1 m emitter at 1 m, 64² floor, %d passes (relative RMSE vs form factor):\n",
+                passes);
     double errors[3];
     for (LightSampling m : {LightSampling::Mis, LightSampling::Area, LightSampling::SolidAngle}) {
         double seconds = 0.0;
@@ -167,7 +170,9 @@ TEST(RadiosityMap, LightSamplingStrategiesAreUnbiasedAndMeasured) {
         for (uint32_t t : r.texels.texels) sum_sq += std::pow(r.image.at("R")[t] - 5.0, 2);
         const double rel = std::sqrt(sum_sq / double(r.texels.covered_count())) / 5.0;
         std::printf("  furnace, %-12s relative RMSE %.4f after 128 passes\n", to_string(m), rel);
-        if (m == LightSampling::Area) errors[1] = rel; else if (m == LightSampling::Mis) errors[0] = rel; else errors[2] = rel;
+        if (m == LightSampling::Area) errors[1] = rel;
+        else if (m == LightSampling::Mis) errors[0] = rel;
+        else errors[2] = rel;
     }
     EXPECT_LT(errors[0], errors[1]) << "MIS should beat area sampling next to large emitters";
 }
@@ -179,12 +184,12 @@ Scene furnace(float rho, float le, int res) {
     const uint32_t m = test::add_material(s, glm::vec3(rho), glm::vec3(le));
     const glm::vec3 o(-1.0f), X(2, 0, 0), Y(0, 2, 0), Z(0, 0, 2);
     // Six inward-facing walls.
-    test::add_quad(s, o, Z, X, m, grid_cell(0, 3, res));           // floor y=-1, normal +y
-    test::add_quad(s, o + Y, X, Z, m, grid_cell(1, 3, res));       // ceiling, normal -y
-    test::add_quad(s, o, X, Y, m, grid_cell(2, 3, res));           // z=-1, normal +z
-    test::add_quad(s, o + Z, Y, X, m, grid_cell(3, 3, res));       // z=+1, normal -z
-    test::add_quad(s, o, Y, Z, m, grid_cell(4, 3, res));           // x=-1, normal +x
-    test::add_quad(s, o + X, Z, Y, m, grid_cell(5, 3, res));       // x=+1, normal -x
+    test::add_quad(s, o, Z, X, m, grid_cell(0, 3, res));      // floor y=-1, normal +y
+    test::add_quad(s, o + Y, X, Z, m, grid_cell(1, 3, res));  // ceiling, normal -y
+    test::add_quad(s, o, X, Y, m, grid_cell(2, 3, res));      // z=-1, normal +z
+    test::add_quad(s, o + Z, Y, X, m, grid_cell(3, 3, res));  // z=+1, normal -z
+    test::add_quad(s, o, Y, Z, m, grid_cell(4, 3, res));      // x=-1, normal +x
+    test::add_quad(s, o + X, Z, Y, m, grid_cell(5, 3, res));  // x=+1, normal -x
     return s;
 }
 
@@ -263,17 +268,19 @@ TEST(RadiosityMap, ThinWallNeitherLeaksNorBlackensItsFoot) {
     const uint32_t light = test::add_material(s, glm::vec3(0.0f), glm::vec3(20.0f));
     const float w = 0.02f;  // half the wall's thickness
     int cell = 0;
-    auto quad = [&](glm::vec3 c, glm::vec3 u, glm::vec3 v, uint32_t m) { test::add_quad(s, c, u, v, m, grid_cell(cell++, 4, res)); };
+    auto quad = [&](glm::vec3 c, glm::vec3 u, glm::vec3 v, uint32_t m) {
+        test::add_quad(s, c, u, v, m, grid_cell(cell++, 4, res));
+    };
     // The enclosing room, x in [-2, 2], y in [0, 2], z in [-1, 1], faces inward.
-    quad({-2, 0, -1}, {0, 0, 2}, {4, 0, 0}, grey);   // floor, +y, spans under the wall
-    quad({-2, 2, -1}, {4, 0, 0}, {0, 0, 2}, grey);   // ceiling, -y
-    quad({-2, 0, -1}, {4, 0, 0}, {0, 2, 0}, grey);   // back z=-1, +z
-    quad({-2, 0, 1}, {0, 2, 0}, {4, 0, 0}, grey);    // front z=+1, -z
-    quad({-2, 0, -1}, {0, 2, 0}, {0, 0, 2}, grey);   // x=-2, +x
-    quad({2, 0, -1}, {0, 0, 2}, {0, 2, 0}, grey);    // x=+2, -x
+    quad({-2, 0, -1}, {0, 0, 2}, {4, 0, 0}, grey);  // floor, +y, spans under the wall
+    quad({-2, 2, -1}, {4, 0, 0}, {0, 0, 2}, grey);  // ceiling, -y
+    quad({-2, 0, -1}, {4, 0, 0}, {0, 2, 0}, grey);  // back z=-1, +z
+    quad({-2, 0, 1}, {0, 2, 0}, {4, 0, 0}, grey);   // front z=+1, -z
+    quad({-2, 0, -1}, {0, 2, 0}, {0, 0, 2}, grey);  // x=-2, +x
+    quad({2, 0, -1}, {0, 0, 2}, {0, 2, 0}, grey);   // x=+2, -x
     // The wall: a closed box x in [-w, w], faces outward.
-    quad({-w, 0, -1}, {0, 0, 2}, {0, 2, 0}, grey);   // facing -x (room A)
-    quad({w, 0, -1}, {0, 2, 0}, {0, 0, 2}, grey);    // facing +x (room B)
+    quad({-w, 0, -1}, {0, 0, 2}, {0, 2, 0}, grey);      // facing -x (room A)
+    quad({w, 0, -1}, {0, 2, 0}, {0, 0, 2}, grey);       // facing +x (room B)
     quad({-w, 2, -1}, {0, 0, 2}, {2 * w, 0, 0}, grey);  // top, +y (against the ceiling)
     quad({-w, 0, -1}, {2 * w, 0, 0}, {0, 0, 2}, grey);  // bottom, -y (on the floor)
     // The light, in room A under the ceiling, facing down.
@@ -287,15 +294,20 @@ TEST(RadiosityMap, ThinWallNeitherLeaksNorBlackensItsFoot) {
     for (size_t i = 0; i < r.texels.covered_count(); ++i) {
         const glm::vec3 p = r.texels.samples[r.texels.first_sample[i]].position;
         const float v = R[r.texels.texels[i]];
-        if (p.x < -w - 2 * floor_texel) { a_sum += v; ++a_n; }
+        if (p.x < -w - 2 * floor_texel) {
+            a_sum += v;
+            ++a_n;
+        }
         if (p.x > w + 2 * floor_texel) b_max = std::max(b_max, double(v));
-        if (std::abs(p.y) < 1e-4f && p.x < -w && p.x > -w - 3 * floor_texel && std::abs(p.z) < 0.5f) foot.push_back({p.x, v});
+        if (std::abs(p.y) < 1e-4f && p.x < -w && p.x > -w - 3 * floor_texel && std::abs(p.z) < 0.5f)
+            foot.push_back({p.x, v});
     }
     const double a_mean = a_sum / a_n;
     ASSERT_GT(a_mean, 0.1);
     EXPECT_LT(b_max, 0.01 * a_mean) << "light leaked under or through the wall into room B";
     ASSERT_FALSE(foot.empty());
-    for (const auto& [x, v] : foot) EXPECT_GT(v, 0.25 * a_mean) << "floor texel at x = " << x << " went dark at the wall's foot";
+    for (const auto& [x, v] : foot)
+        EXPECT_GT(v, 0.25 * a_mean) << "floor texel at x = " << x << " went dark at the wall's foot";
 }
 
 // Converged texels stop costing rays; the answer stays right.
@@ -367,8 +379,8 @@ TEST(RadiosityMap, CornellBoxAgreesWithCyclesReference) {
     const int passes = 256;
     const BakeResult r = bake(scene, 256, passes);
     const ReferenceError e = compare_to_reference(r.image, reference, &mask);
-    std::printf("cornell 256², %d passes, %.3g rays, %.2f s: relative RMSE %.4f, bias %+.4f over %zu texels\n",
-                passes, double(r.stats.rays), r.stats.seconds, e.relative_rmse, e.bias, e.texels);
+    std::printf("cornell 256², %d passes, %.3g rays, %.2f s: relative RMSE %.4f, bias %+.4f over %zu texels\n", passes,
+                double(r.stats.rays), r.stats.seconds, e.relative_rmse, e.bias, e.texels);
     EXPECT_EQ(e.texels, 33016u);
     EXPECT_LT(std::abs(e.bias), 0.02);
     EXPECT_LT(e.relative_rmse, kCornellRelativeRmseBound256);

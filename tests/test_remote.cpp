@@ -58,8 +58,8 @@ protected:
 
 TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
     const fs::path out = tmp.path / "out";
-    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "3", "--seed", "9", "--wait",
-                                   "--out", out.string()}));
+    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "3", "--seed", "9",
+                                      "--wait", "--out", out.string()}));
     ASSERT_EQ(r.status, 0) << r.err;
     const std::string id = r.out.substr(0, r.out.find('\n'));
     EXPECT_EQ(id.size(), 24u) << r.out;
@@ -126,9 +126,26 @@ TEST_F(RemoteTest, CancelAndErrorsAreOneLine) {
 
 // `submit` takes every output and option of `bake`, flags as flags.
 TEST_F(RemoteTest, SubmitTakesEveryBakeOption) {
-    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--lightmap", "--sh", "--sh-bands",
-                                      "auto", "--sh-bounces", "2", "--sh-per-texel", "--no-stitch", "--res", "128",
-                                      "--scheme", "thesis", "--env", "0.5,0.5,1", "--seed", "5", "--wait", "--out",
+    const CliRun r = run(with_common({"submit",
+                                      (tmp.path / "scene.glb").string(),
+                                      "--lightmap",
+                                      "--sh",
+                                      "--sh-bands",
+                                      "auto",
+                                      "--sh-bounces",
+                                      "2",
+                                      "--sh-per-texel",
+                                      "--no-stitch",
+                                      "--res",
+                                      "128",
+                                      "--scheme",
+                                      "thesis",
+                                      "--env",
+                                      "0.5,0.5,1",
+                                      "--seed",
+                                      "5",
+                                      "--wait",
+                                      "--out",
                                       (tmp.path / "out").string()}));
     ASSERT_EQ(r.status, 0) << r.err;
     const json spec = json::parse(read_text(engine.dir / "last_spec.json"));
@@ -153,7 +170,8 @@ TEST_F(RemoteTest, SubmitTakesEveryBakeOption) {
     const CliRun bad = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh-bands", "9"}));
     EXPECT_EQ(bad.status, 2);
     EXPECT_NE(bad.err.find("--sh-bands"), std::string::npos) << bad.err;
-    EXPECT_EQ(run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh=1"})).status, 2) << "a flag takes no value";
+    EXPECT_EQ(run(with_common({"submit", (tmp.path / "scene.glb").string(), "--sh=1"})).status, 2)
+        << "a flag takes no value";
 }
 
 // `fetch --latest` takes each output's newest file from the job's status (the

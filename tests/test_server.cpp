@@ -113,9 +113,9 @@ TEST_F(ServerTest, ATokenSeesOnlyItsOwnScenesAndJobs) {
     const std::string job = submit(scene);
     wait_finished(job);
     auto bob = client(kBob);
-    for (const std::string& path : {"/v1/jobs/" + job, "/v1/jobs/" + job + "/events", "/v1/jobs/" + job + "/artifacts",
-                                    "/v1/jobs/" + job + "/artifacts/lightmap.exr", "/v1/jobs/" + job + "/preview.png",
-                                    "/v1/scenes/" + scene}) {
+    for (const std::string& path :
+         {"/v1/jobs/" + job, "/v1/jobs/" + job + "/events", "/v1/jobs/" + job + "/artifacts",
+          "/v1/jobs/" + job + "/artifacts/lightmap.exr", "/v1/jobs/" + job + "/preview.png", "/v1/scenes/" + scene}) {
         auto r = bob.Get(path);
         ASSERT_TRUE(r) << path;
         EXPECT_EQ(r->status, 404) << path;
@@ -187,7 +187,7 @@ TEST_F(ServerTest, MultipartGltfMustNotReachOutsideTheUpload) {
     };
     auto c = client();
     for (const std::string uri : {"../secret.bin", "/etc/passwd", "$(touch pwned).bin", "sub/../../x.bin",
-                                   "file:///etc/passwd", "missing.bin", "%2e%2e/secret.bin"}) {
+                                  "file:///etc/passwd", "missing.bin", "%2e%2e/secret.bin"}) {
         httplib::MultipartFormDataItems items = {{"scene", gltf(uri), "scene.gltf", "model/gltf+json"},
                                                  {"bin", "abcd", "data.bin", "application/octet-stream"}};
         auto r = c.Post("/v1/scenes", items);
@@ -277,7 +277,7 @@ TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
     const std::string id = submit(scene, {{"passes", 4}, {"res", 64}}, 42);
     const auto all = events(id);
     EXPECT_EQ(types_of(all), (std::vector<std::string>{"started", "progress", "snapshot", "progress", "snapshot",
-                                                           "progress", "progress", "snapshot", "done"}));
+                                                       "progress", "progress", "snapshot", "done"}));
     for (size_t i = 0; i < all.size(); ++i) EXPECT_EQ(all[i].id, int64_t(i + 1));
     ASSERT_GE(all.size(), 3u);
     EXPECT_EQ(all[2].data["file"], "lightmap.pass-0001.exr");
@@ -539,8 +539,8 @@ TEST_F(ServerTest, MetricsAndTheStatusPage) {
     auto c = client();
     const std::string metrics = c.Get("/metrics")->body;
     for (const char* name : {"lightfarm_jobs{state=\"succeeded\"} 1", "lightfarm_queue_depth 0",
-                             "lightfarm_worker_starts_total 1", "lightfarm_rays_total 4000", "lightfarm_rays_per_second",
-                             "lightfarm_http_request_seconds_bucket{route=\"/v1/jobs\""})
+                             "lightfarm_worker_starts_total 1", "lightfarm_rays_total 4000",
+                             "lightfarm_rays_per_second", "lightfarm_http_request_seconds_bucket{route=\"/v1/jobs\""})
         EXPECT_NE(metrics.find(name), std::string::npos) << name << "\n" << metrics;
 
     auto page = c.Get("/");
@@ -606,12 +606,13 @@ TEST_F(ServerTest, ASceneWithoutLightNeedsAnEnvironment) {
     const json body = json::parse(r->body);
     EXPECT_EQ(body["field"], "env");
     const std::string error = body["error"];
-    EXPECT_NE(error.find("scene.glb"), std::string::npos) << error;  // the file as uploaded
+    EXPECT_NE(error.find("scene.glb"), std::string::npos) << error;           // the file as uploaded
     EXPECT_NE(error.find("\"env\": [R, G, B]"), std::string::npos) << error;  // and the fix
     EXPECT_EQ(error.find(tmp.path.string()), std::string::npos) << error;
     EXPECT_EQ(engine.runs(), 0);
     // With a sky it bakes; SH transfer needs no light at all.
-    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"env", {1, 1, 1}}})->status, 201);
+    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"env", {1, 1, 1}}})->status,
+              201);
     EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"sh", json::object()}}}})->status, 201);
 }
 
@@ -627,8 +628,11 @@ TEST_F(ServerTest, AnAtlasThatCannotFitIsRefusedWithTheSmallestThatDoes) {
     EXPECT_EQ(body["field"], "atlas.res");
     EXPECT_NE(body["error"].get<std::string>().find("300"), std::string::npos) << r->body;
     EXPECT_EQ(engine.runs(), 0);
-    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 300}}}})->status, 201);
-    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"seed", 2}})->status, 201);  // res auto
+    EXPECT_EQ(
+        post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"res", 300}}}})->status,
+        201);
+    EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"seed", 2}})->status,
+              201);  // res auto
 }
 
 // ---- Supervision: input errors, deadlines, stored specs, the newest snapshot.
@@ -696,14 +700,16 @@ TEST_F(ServerTest, TheNewestSnapshotComesFromTheEventsNotFromNames) {
     engine.set("mode", "no_done");
     start();
     const std::string scene = upload();
-    json spec = {{"scene", scene}, {"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}},
+    json spec = {{"scene", scene},
+                 {"outputs", {{"lightmap", json::object()}, {"sh", json::object()}}},
                  {"limits", {{"max_attempts", 1}}}};
     auto r = post_job(spec);
     ASSERT_EQ(r->status, 201) << r->body;
     const std::string id = json::parse(r->body)["id"];
     json status = wait_finished(id);
     EXPECT_EQ(status["state"], "failed");  // no done: the snapshots are all there is
-    EXPECT_EQ(status["latest"]["lightmap"], json({{"file", "lightmap.pass-16384.exr"}, {"pass", 16384}, {"final", false}}));
+    EXPECT_EQ(status["latest"]["lightmap"],
+              json({{"file", "lightmap.pass-16384.exr"}, {"pass", 16384}, {"final", false}}));
     EXPECT_EQ(status["latest"]["sh"]["file"], "sh_transfer.pass-0001.bin");
     auto png = client().Get("/v1/jobs/" + id + "/preview.png");
     ASSERT_EQ(png->status, 200) << png->body;
@@ -795,8 +801,8 @@ TEST(ApplyWorkerEvent, ProgressGetsTheEtaOfItsOwnOutputAndCountsRaysPerOutput) {
 
 TEST(ApplyWorkerEvent, SnapshotsAreTheNewestFileOfTheirOutput) {
     const protocol::BakeSettings bake = lightmap_and_sh();
-    server::AttemptUpdate u =
-        server::apply_worker_event({}, protocol::SnapshotEvent{"lightmap", "lightmap.pass-16384.exr", 16384}, bake, "j", 1);
+    server::AttemptUpdate u = server::apply_worker_event(
+        {}, protocol::SnapshotEvent{"lightmap", "lightmap.pass-16384.exr", 16384}, bake, "j", 1);
     ASSERT_EQ(u.latest.size(), 1u);
     EXPECT_EQ(u.latest.at("lightmap").file, "lightmap.pass-16384.exr");
     EXPECT_EQ(u.latest.at("lightmap").pass, 16384);
@@ -813,7 +819,8 @@ TEST(ApplyWorkerEvent, SnapshotsAreTheNewestFileOfTheirOutput) {
         EXPECT_FALSE(u.event) << bad;
     }
     // Without an output name, the job's only output; with two, nothing to guess.
-    const protocol::BakeSettings only_lightmap = protocol::parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}});
+    const protocol::BakeSettings only_lightmap =
+        protocol::parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}});
     u = server::apply_worker_event({}, protocol::SnapshotEvent{"", "lightmap.pass-0001.exr", 1}, only_lightmap, "j", 1);
     EXPECT_EQ(u.latest.count("lightmap"), 1u);
     u = server::apply_worker_event({}, protocol::SnapshotEvent{"", "x.pass-0001.exr", 1}, bake, "j", 1);
@@ -854,9 +861,9 @@ TEST(UserFacing, TheServersPathsBecomeTheUploadedName) {
     EXPECT_EQ(server::user_facing("cannot read " + (scene_dir / "textures/wall.png").string(), scene,
                                   "breakfast_room.gltf", scene_dir, job, data),
               "cannot read textures/wall.png");
-    const std::string other = server::user_facing("cannot write " + (job / "lightmap.exr").string() + " in " +
-                                                      (data / "tmp").string(),
-                                                  scene, "breakfast_room.gltf", scene_dir, job, data);
+    const std::string other =
+        server::user_facing("cannot write " + (job / "lightmap.exr").string() + " in " + (data / "tmp").string(), scene,
+                            "breakfast_room.gltf", scene_dir, job, data);
     EXPECT_EQ(other.find(data.string()), std::string::npos) << other;
     EXPECT_NE(other.find("lightmap.exr"), std::string::npos) << other;
 }
@@ -888,8 +895,10 @@ TEST(OpenApi, DocumentsExactlyTheRoutesTheServerServes) {
             EXPECT_EQ((needs_token[{r.method, r.path}]), r.needs_token) << r.method << " " << r.path;
         }
     }
-    for (const auto& d : documented) EXPECT_TRUE(served.count(d)) << "documented but not served: " << d.first << " " << d.second;
-    for (const auto& s : served) EXPECT_TRUE(documented.count(s)) << "served but not documented: " << s.first << " " << s.second;
+    for (const auto& d : documented)
+        EXPECT_TRUE(served.count(d)) << "documented but not served: " << d.first << " " << d.second;
+    for (const auto& s : served)
+        EXPECT_TRUE(documented.count(s)) << "served but not documented: " << s.first << " " << s.second;
 }
 
 }  // namespace

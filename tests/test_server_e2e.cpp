@@ -44,8 +44,8 @@ using lf::read_exr;
 ::testing::AssertionResult same_pixels(const fs::path& a_path, const fs::path& b_path) {
     const ExrImage a = read_exr(a_path), b = read_exr(b_path);
     if (a.width != b.width || a.height != b.height)
-        return ::testing::AssertionFailure() << "sizes differ: " << a.width << "x" << a.height << " vs " << b.width
-                                             << "x" << b.height;
+        return ::testing::AssertionFailure()
+               << "sizes differ: " << a.width << "x" << a.height << " vs " << b.width << "x" << b.height;
     std::string names_a, names_b;
     for (const auto& [name, _] : a.channels) names_a += name + " ";
     for (const auto& [name, _] : b.channels) names_b += name + " ";
@@ -70,7 +70,10 @@ struct Bake {
     int passes = 16;
     int seed = 3;
     json spec(const std::string& scene) const {
-        return {{"scene", scene}, {"outputs", {{"lightmap", {{"passes", passes}}}}}, {"atlas", {{"res", res}}}, {"seed", seed}};
+        return {{"scene", scene},
+                {"outputs", {{"lightmap", {{"passes", passes}}}}},
+                {"atlas", {{"res", res}}},
+                {"seed", seed}};
     }
 };
 
@@ -157,8 +160,7 @@ protected:
     json wait_running_past(const std::string& id, int pass) {
         auto c = client();
         return wait_for_job(
-            c, id,
-            [&](const json& s) { return s["state"] == "running" && s["progress"].value("pass", 0) >= pass; },
+            c, id, [&](const json& s) { return s["state"] == "running" && s["progress"].value("pass", 0) >= pass; },
             std::chrono::seconds(60));
     }
     json wait_finished(const std::string& id) {
@@ -220,9 +222,10 @@ TEST_F(EndToEnd, EveryBadSceneIsAClear4xxAndTheServerStaysHealthy) {
     for (const fs::directory_entry& e : fs::directory_iterator(scenes_dir() / "bad")) {
         const std::string name = e.path().filename().string();
         const std::string bytes = read_text(e.path());
-        httplib::Result r = e.path().extension() == ".glb"
-                                ? c.Post("/v1/scenes", bytes, "model/gltf-binary")
-                                : c.Post("/v1/scenes", httplib::MultipartFormDataItems{{"scene", bytes, name, "model/gltf+json"}});
+        httplib::Result r =
+            e.path().extension() == ".glb"
+                ? c.Post("/v1/scenes", bytes, "model/gltf-binary")
+                : c.Post("/v1/scenes", httplib::MultipartFormDataItems{{"scene", bytes, name, "model/gltf+json"}});
         ASSERT_TRUE(r) << name;
         EXPECT_TRUE(r->status >= 400 && r->status < 500) << name << ": " << r->status << " " << r->body;
         const json body = json::parse(r->body, nullptr, false);
@@ -267,9 +270,11 @@ TEST_F(EndToEnd, WhatIsKnownAtSubmitIsRefusedAtSubmit) {
     ASSERT_TRUE(jobs);
     EXPECT_TRUE(json::parse(jobs->body)["jobs"].empty()) << "a refused spec creates no job";
 
-    for (const json& fixed : {json{{"scene", room.value("id", "")}, {"outputs", {{"lightmap", {{"passes", 1}}}}}, {"env", {1, 1, 1}}},
-                              json{{"scene", stairs.value("id", "")}, {"outputs", {{"lightmap", {{"passes", 1}}}}},
-                                   {"atlas", {{"res", smallest}}}}}) {
+    for (const json& fixed :
+         {json{{"scene", room.value("id", "")}, {"outputs", {{"lightmap", {{"passes", 1}}}}}, {"env", {1, 1, 1}}},
+          json{{"scene", stairs.value("id", "")},
+               {"outputs", {{"lightmap", {{"passes", 1}}}}},
+               {"atlas", {{"res", smallest}}}}}) {
         const std::string id = submit(fixed);
         ASSERT_FALSE(id.empty());
         client().Post("/v1/jobs/" + id + "/cancel", "", "application/json");

@@ -216,9 +216,18 @@ TEST_F(HttpTest, SlowClientsAndEventStreamsDoNotStarveTheApi) {
         std::cerr << what << " with 100 slow clients and " << accepted << " open streams: " << took * 1000 << " ms\n";
         EXPECT_LT(took, 1.0) << what;
     };
-    timed("healthz", [&] { auto r = c.Get("/healthz"); return r && r->status == 200; });
-    timed("list jobs", [&] { auto r = c.Get("/v1/jobs"); return r && r->status == 200; });
-    timed("submit", [&] { auto r = post_job(scene, 2, 99); return r && r->status == 201; });
+    timed("healthz", [&] {
+        auto r = c.Get("/healthz");
+        return r && r->status == 200;
+    });
+    timed("list jobs", [&] {
+        auto r = c.Get("/v1/jobs");
+        return r && r->status == 200;
+    });
+    timed("submit", [&] {
+        auto r = post_job(scene, 2, 99);
+        return r && r->status == 201;
+    });
     // Other tokens still open their own streams.
     {
         RawSocket other(server->port);
@@ -309,7 +318,8 @@ TEST_F(HttpTest, OversizedRequestsAreRefusedBeforeMemoryGrows) {
     }
     {  // authenticated chunked: 411, never stored past the limit
         RawSocket s(server->port);
-        s.send(request("POST", "/v1/scenes", kAlice, "Content-Type: model/gltf-binary\r\nTransfer-Encoding: chunked\r\n"));
+        s.send(
+            request("POST", "/v1/scenes", kAlice, "Content-Type: model/gltf-binary\r\nTransfer-Encoding: chunked\r\n"));
         for (int i = 0; i < 3; ++i)
             if (s.send("100000\r\n" + mib + "\r\n") == 0) break;
         EXPECT_EQ(s.status(), 411) << s.received();
@@ -341,7 +351,8 @@ TEST_F(HttpTest, OversizedRequestsAreRefusedBeforeMemoryGrows) {
     {  // headers past header_bytes (64 KiB): 431
         RawSocket s(server->port);
         std::string headers;
-        for (int i = 0; i < 200; ++i) headers += "X-Filler-" + std::to_string(i) + ": " + std::string(1000, 'h') + "\r\n";
+        for (int i = 0; i < 200; ++i)
+            headers += "X-Filler-" + std::to_string(i) + ": " + std::string(1000, 'h') + "\r\n";
         s.send(request("GET", "/healthz", "", headers));
         EXPECT_EQ(s.status(), 431) << s.received().substr(0, 200);
     }

@@ -71,7 +71,8 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     bool real = !engine_choice.empty();
     if (real) {
 #ifdef LIGHTFARM_ENGINE
-        engine_path = engine_choice == "real" || engine_choice == "1" ? fs::path(LIGHTFARM_ENGINE) : fs::path(engine_choice);
+        engine_path =
+            engine_choice == "real" || engine_choice == "1" ? fs::path(LIGHTFARM_ENGINE) : fs::path(engine_choice);
 #else
         engine_path = engine_choice;
 #endif
@@ -80,7 +81,8 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
         fake = std::make_unique<FakeEngine>(tmp.path / "engine");
         engine_path = fake->script;
     }
-    const int workers = env("LIGHTFARM_LOAD_WORKERS").empty() ? (real ? 1 : 4) : std::stoi(env("LIGHTFARM_LOAD_WORKERS"));
+    const int workers =
+        env("LIGHTFARM_LOAD_WORKERS").empty() ? (real ? 1 : 4) : std::stoi(env("LIGHTFARM_LOAD_WORKERS"));
     const auto job_deadline = real ? std::chrono::seconds(600) : std::chrono::seconds(45);
 
     std::string tokens;
@@ -95,13 +97,14 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     // (equal bytes, so one stored scene owned by every token), a distinct
     // tiny .glb per client for the fake one.
     const char* scenes_env = std::getenv("LIGHTFARM_SCENES");
-    const fs::path cornell = fs::path(scenes_env && *scenes_env ? scenes_env : LIGHTFARM_SHARED_SCENES) / "cornell_box.gltf";
+    const fs::path cornell =
+        fs::path(scenes_env && *scenes_env ? scenes_env : LIGHTFARM_SHARED_SCENES) / "cornell_box.gltf";
     const std::string real_scene = real ? read_text(cornell) : "";
 
     std::mutex mutex;
-    std::vector<Submitted> submitted;          // in submission order
+    std::vector<Submitted> submitted;  // in submission order
     std::vector<double> submit_ms;
-    std::vector<std::string> errors;           // anything that went wrong, for the report
+    std::vector<std::string> errors;  // anything that went wrong, for the report
     std::atomic<bool> all_done{false};
     const auto give_up = Clock::now() + job_deadline;
     auto note_error = [&](const std::string& e) {
@@ -126,7 +129,8 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
         clients.emplace_back([&, c] {
             auto http = server.client(token_of(c));
             http.set_read_timeout(60);
-            const std::string body = real ? real_scene : std::string("glTF\x02\x00\x00\x00", 8) + " load scene " + std::to_string(c);
+            const std::string body =
+                real ? real_scene : std::string("glTF\x02\x00\x00\x00", 8) + " load scene " + std::to_string(c);
             auto up = http.Post("/v1/scenes", body, real ? "model/gltf+json" : "model/gltf-binary");
             if (!up || (up->status != 201 && up->status != 200)) {
                 note_error("client " + std::to_string(c) + ": upload: " + (up ? up->body : "no answer"));
@@ -167,7 +171,8 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
                 const double took = ms(Clock::now() - t0);
                 if (!res || res->status != 200) {
                     ++status_errors;
-                    note_error("status " + job->id + ": " + (res ? std::to_string(res->status) : httplib::to_string(res.error())));
+                    note_error("status " + job->id + ": " +
+                               (res ? std::to_string(res->status) : httplib::to_string(res.error())));
                 } else {
                     status_ms[size_t(r)].push_back(took);
                 }
@@ -194,8 +199,9 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
                 finals += protocol::is_final_event(events[i].type);
             }
             if (!events.empty() && in_order && finals == 1 && events.back().type == "done") ++streams_whole;
-            else note_error("events of " + job->id + ": " + std::to_string(events.size()) + " events, " +
-                            std::to_string(finals) + " final, " + (in_order ? "in order" : "ids out of order"));
+            else
+                note_error("events of " + job->id + ": " + std::to_string(events.size()) + " events, " +
+                           std::to_string(finals) + " final, " + (in_order ? "in order" : "ids out of order"));
         });
     }
 
@@ -266,7 +272,8 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     EXPECT_NE(metrics->body.find("lightfarm_worker_starts_total " + std::to_string(kJobs) + "\n"), std::string::npos)
         << "one worker run per job";
     EXPECT_NE(metrics->body.find("lightfarm_worker_failures_total 0\n"), std::string::npos);
-    EXPECT_NE(metrics->body.find("lightfarm_jobs{state=\"succeeded\"} " + std::to_string(kJobs) + "\n"), std::string::npos);
+    EXPECT_NE(metrics->body.find("lightfarm_jobs{state=\"succeeded\"} " + std::to_string(kJobs) + "\n"),
+              std::string::npos);
     EXPECT_EQ(server.client(token_of(0)).Get("/healthz")->status, 200);
 
     EXPECT_EQ(streams_whole.load(), kEventReaders) << (errors.empty() ? "" : errors.front());
@@ -282,15 +289,15 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     report << "load: " << kJobs << " jobs from " << kClients << " clients, " << kStatusReaders << " status + "
            << kEventReaders << " event readers, " << workers << " worker(s), engine "
            << (real ? engine_path.filename().string() + " (real)" : std::string("fake")) << "\n"
-           << "  jobs: " << final_status.size() << " finished in " << wall << " s (first created .. last finished) = "
-           << double(kJobs) / wall << " jobs/s; submitting took " << ms(t_submitted - t_start) << " ms, waiting "
-           << ms(t_finished - t_submitted) << " ms\n";
+           << "  jobs: " << final_status.size() << " finished in " << wall
+           << " s (first created .. last finished) = " << double(kJobs) / wall << " jobs/s; submitting took "
+           << ms(t_submitted - t_start) << " ms, waiting " << ms(t_finished - t_submitted) << " ms\n";
     report.precision(2);
     report << "  status (GET /v1/jobs/{id}): " << all_status.size() << " requests, p50 " << percentile(all_status, 0.5)
            << " ms, p99 " << percentile(all_status, 0.99) << " ms, max " << percentile(all_status, 1.0) << " ms, "
            << status_errors.load() << " errors\n"
-           << "  submit (POST /v1/jobs): p50 " << percentile(submit_ms, 0.5) << " ms, p99 " << percentile(submit_ms, 0.99)
-           << " ms\n"
+           << "  submit (POST /v1/jobs): p50 " << percentile(submit_ms, 0.5) << " ms, p99 "
+           << percentile(submit_ms, 0.99) << " ms\n"
            << "  events: " << streams_whole.load() << "/" << kEventReaders << " streams whole, " << events_seen.load()
            << " events delivered\n";
     std::cout << report.str();
@@ -303,10 +310,10 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
         std::ofstream out(file, std::ios::app);
         out.setf(std::ios::fixed);
         out.precision(2);
-        out << "| " << (real ? "real (llvmpipe or GPU)" : "fake") << " | " << workers << " | " << kJobs << " | "
-            << wall << " s | " << double(kJobs) / wall << " | " << all_status.size() << " | "
-            << percentile(all_status, 0.5) << " ms | " << percentile(all_status, 0.99) << " ms | "
-            << percentile(all_status, 1.0) << " ms | " << streams_whole.load() << "/" << kEventReaders << " |\n";
+        out << "| " << (real ? "real (llvmpipe or GPU)" : "fake") << " | " << workers << " | " << kJobs << " | " << wall
+            << " s | " << double(kJobs) / wall << " | " << all_status.size() << " | " << percentile(all_status, 0.5)
+            << " ms | " << percentile(all_status, 0.99) << " ms | " << percentile(all_status, 1.0) << " ms | "
+            << streams_whole.load() << "/" << kEventReaders << " |\n";
     }
     if (HasFailure()) std::cerr << "---- lightfarmd log ----\n" << server.log();
 }

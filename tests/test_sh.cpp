@@ -95,8 +95,8 @@ TEST(ShBasis, RotatedEnvironmentHasRotatedCoefficients) {
     const glm::mat3 r = rotation_about({1.0f, 2.0f, 3.0f}, 1.1f);
     const EnvironmentSh original = project_environment(environment_from_function(1024, 512, radiance, "f"));
     // f(R^-1 ω): the environment turned by R.
-    const EnvironmentSh turned = project_environment(
-        environment_from_function(1024, 512, [&](glm::vec3 d) { return radiance(glm::transpose(r) * d); }, "f∘R⁻¹"));
+    const EnvironmentSh turned = project_environment(environment_from_function(
+        1024, 512, [&](glm::vec3 d) { return radiance(glm::transpose(r) * d); }, "f∘R⁻¹"));
     const EnvironmentSh rotated = rotate(original, r);
     for (int i = 0; i < kShMaxCoefficients; ++i)
         for (int c = 0; c < 3; ++c)
@@ -165,7 +165,8 @@ double rectangle_form_factor(double px, double pz, double x0, double x1, double 
         for (double ze : {z0, z1}) {
             const double a = xe - px, b = ze - pz;
             if (a == 0.0 || b == 0.0) continue;
-            const double sign = (a < 0 ? -1.0 : 1.0) * (b < 0 ? -1.0 : 1.0) * (xe == x0 ? -1.0 : 1.0) * (ze == z0 ? -1.0 : 1.0);
+            const double sign =
+                (a < 0 ? -1.0 : 1.0) * (b < 0 ? -1.0 : 1.0) * (xe == x0 ? -1.0 : 1.0) * (ze == z0 ? -1.0 : 1.0);
             f += sign * corner_form_factor(std::abs(a), std::abs(b), h);
         }
     return f;
@@ -188,8 +189,8 @@ TEST(ShTransfer, FloorUnderParallelRectangleMatchesFormFactor) {
         const double expected = kSqrtPiOver2 * (1.0 - f);
         // Each ray is blocked with probability F: binomial noise, 4 sigma.
         const double sigma = kSqrtPiOver2 * std::sqrt(f * (1.0 - f) / n);
-        EXPECT_NEAR(t.coefficients[v][0], expected, 4.0 * sigma + 2e-3) << "floor vertex at " << p.x << ", " << p.z
-                                                                        << " (F = " << f << ")";
+        EXPECT_NEAR(t.coefficients[v][0], expected, 4.0 * sigma + 2e-3)
+            << "floor vertex at " << p.x << ", " << p.z << " (F = " << f << ")";
         ++checked;
     }
     EXPECT_EQ(checked, 81);
@@ -201,7 +202,8 @@ TEST(ShTransfer, FinelyTessellatedPlaneDoesNotShadowItself) {
     Scene s;
     const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
     test::add_grid(s, {1000.0f, 3.7f, -2000.0f}, {0, 0, 10}, {10, 0, 0}, 120, 120, grey);
-    const glm::vec3 u = glm::normalize(glm::vec3(1.0f, 0.35f, 0.1f)), w = glm::normalize(glm::cross(u, {0.2f, 0.1f, 1.0f}));
+    const glm::vec3 u = glm::normalize(glm::vec3(1.0f, 0.35f, 0.1f)),
+                    w = glm::normalize(glm::cross(u, {0.2f, 0.1f, 1.0f}));
     test::add_grid(s, {-3.0f, 7.0f, 5.0f}, 6.0f * glm::normalize(glm::cross(w, u)), 6.0f * u, 120, 120, grey);
     const int passes = 4, per_pass = 64, n = passes * per_pass;
     const ShVertexTransfer t = bake_transfer(s, passes, settings(per_pass));
@@ -224,11 +226,11 @@ TEST(ShTransfer, FarEndOfLongTunnelStillOccludes) {
     Scene s;
     const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
     const glm::vec3 along(0, 0, 100);
-    test::add_grid(s, {-0.5f, 0, 0}, along, {1, 0, 0}, 100, 2, grey);     // floor, facing up
-    test::add_grid(s, {-0.5f, 1, 0}, {1, 0, 0}, along, 2, 100, grey);     // ceiling, facing down
-    test::add_grid(s, {-0.5f, 0, 0}, {0, 1, 0}, along, 1, 100, grey);     // walls
+    test::add_grid(s, {-0.5f, 0, 0}, along, {1, 0, 0}, 100, 2, grey);  // floor, facing up
+    test::add_grid(s, {-0.5f, 1, 0}, {1, 0, 0}, along, 2, 100, grey);  // ceiling, facing down
+    test::add_grid(s, {-0.5f, 0, 0}, {0, 1, 0}, along, 1, 100, grey);  // walls
     test::add_grid(s, {0.5f, 0, 0}, along, {0, 1, 0}, 100, 1, grey);
-    test::add_grid(s, {-0.5f, 0, 0}, {1, 0, 0}, {0, 1, 0}, 2, 1, grey);   // end caps
+    test::add_grid(s, {-0.5f, 0, 0}, {1, 0, 0}, {0, 1, 0}, 2, 1, grey);  // end caps
     test::add_grid(s, {-0.5f, 0, 100}, {0, 1, 0}, {1, 0, 0}, 1, 2, grey);
     size_t middle = s.positions.size();
     for (size_t v = 0; v < s.positions.size(); ++v)
@@ -248,9 +250,9 @@ TEST(ShTransfer, FarEndOfLongTunnelStillOccludes) {
 TEST(ShTransfer, ReceiverAndOccluderSets) {
     Scene s;
     const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
-    test::add_grid(s, {-2, 0, 2}, {4, 0, 0}, {0, 0, -4}, 4, 4, grey);                  // mesh 0: floor
-    test::add_quad(s, {-1, 1, -1}, {0, 0, 2}, {2, 0, 0}, grey);                       // mesh 1: roof
-    const size_t centre = 12;  // floor vertex (0, 0, 0)
+    test::add_grid(s, {-2, 0, 2}, {4, 0, 0}, {0, 0, -4}, 4, 4, grey);  // mesh 0: floor
+    test::add_quad(s, {-1, 1, -1}, {0, 0, 2}, {2, 0, 0}, grey);        // mesh 1: roof
+    const size_t centre = 12;                                          // floor vertex (0, 0, 0)
     ASSERT_EQ(s.positions[centre], glm::vec3(0.0f));
     const ShVertexTransfer all = bake_transfer(s, 4);
     EXPECT_LT(all.coefficients[centre][0], 0.7 * kSqrtPiOver2);
@@ -298,7 +300,8 @@ TEST(ShTransfer, BounceOffAnOpenRectangleMatchesClosedForm) {
     const uint32_t wall = test::add_material(s, glm::vec3(rho));
     test::add_quad(s, {-0.005f, 0, 0.005f}, {0.01f, 0, 0}, {0, 0, -0.01f}, grey);  // patch, facing up
     const double x0 = -0.5, x1 = 0.5, z0 = -0.25, z1 = 1.25, h = 1.0;
-    test::add_quad(s, {float(x0), float(h), float(z0)}, {float(x1 - x0), 0, 0}, {0, 0, float(z1 - z0)}, wall);  // facing down
+    test::add_quad(s, {float(x0), float(h), float(z0)}, {float(x1 - x0), 0, 0}, {0, 0, float(z1 - z0)},
+                   wall);  // facing down
     ASSERT_LT(s.normals[4].y, -0.99f);
     const int passes = 32, per_pass = 64;
     const ShVertexTransfer shadowed = bake_transfer(s, passes, settings(per_pass));
@@ -311,12 +314,14 @@ TEST(ShTransfer, BounceOffAnOpenRectangleMatchesClosedForm) {
         const double n = double(passes - 1) * per_pass;
         const double sigma = kSqrtPiOver2 * std::sqrt(f * (1.0 - f) / n);
         EXPECT_NEAR(shadowed.coefficients[v][0], kSqrtPiOver2 * (1.0 - f), 4.0 * sigma + 2e-3) << "vertex " << v;
-        EXPECT_NEAR(bounced.coefficients[v][0], kSqrtPiOver2 * (1.0 - (1.0 - rho) * f), 4.0 * (1.0 + rho) * sigma + 2e-3)
+        EXPECT_NEAR(bounced.coefficients[v][0], kSqrtPiOver2 * (1.0 - (1.0 - rho) * f),
+                    4.0 * (1.0 + rho) * sigma + 2e-3)
             << "vertex " << v << " (F = " << f << ")";
         if (v == 0)
-            std::printf("  open rectangle: F = %.4f, T_0 %.4f shadowed (exact %.4f), %.4f with 2 bounces (exact %.4f)\n", f,
-                        shadowed.coefficients[v][0], kSqrtPiOver2 * (1.0 - f), bounced.coefficients[v][0],
-                        kSqrtPiOver2 * (1.0 - (1.0 - rho) * f));
+            std::printf(
+                "  open rectangle: F = %.4f, T_0 %.4f shadowed (exact %.4f), %.4f with 2 bounces (exact %.4f)\n", f,
+                shadowed.coefficients[v][0], kSqrtPiOver2 * (1.0 - f), bounced.coefficients[v][0],
+                kSqrtPiOver2 * (1.0 - (1.0 - rho) * f));
     }
     // The rectangle's own vertices: an open sky below, so unoccluded (exact for T_0).
     for (size_t v = 4; v < 8; ++v) EXPECT_NEAR(bounced.coefficients[v][0], kSqrtPiOver2, 1e-3);
@@ -365,7 +370,8 @@ TEST(ShPerTexel, UnoccludedPlaneTexelsAreUnoccluded) {
         const ShCoefficients expected = unoccluded_transfer({0, 1, 0});
         for (size_t k = 0; k < b.transfer.point_coefficients.size(); ++k)
             for (int i = 0; i < kShMaxCoefficients; ++i)
-                EXPECT_NEAR(b.transfer.point_coefficients[k][i], expected[i], 5.0 * b.transfer.point_standard_error[k][i] + 1e-4)
+                EXPECT_NEAR(b.transfer.point_coefficients[k][i], expected[i],
+                            5.0 * b.transfer.point_standard_error[k][i] + 1e-4)
                     << "point " << k << " coefficient " << i << " bounces " << bounces;
         const std::vector<float>& t0 = b.image.at("sh.0");
         const std::vector<float>& coverage = b.image.at("coverage");
@@ -439,9 +445,13 @@ TEST(ShShading, SmoothEnvironmentErrorFallsWithBands) {
     test::add_box(s, {-0.5f, 0.0f, -0.5f}, {0.5f, 1.0f, 0.5f}, grey);
     test::add_icosphere(s, {1.2f, 0.5f, 1.0f}, 0.4f, 1, grey);
     const glm::vec3 sun = glm::normalize(glm::vec3(0.5f, 1.0f, 0.3f));
-    const Environment env = environment_from_function(256, 128, [&](glm::vec3 d) {
-        return glm::vec3(0.3f, 0.4f, 0.6f) + glm::vec3(2.0f, 1.6f, 1.2f) * std::exp(3.0f * (glm::dot(d, sun) - 1.0f));
-    }, "smooth sky");
+    const Environment env = environment_from_function(
+        256, 128,
+        [&](glm::vec3 d) {
+            return glm::vec3(0.3f, 0.4f, 0.6f) +
+                   glm::vec3(2.0f, 1.6f, 1.2f) * std::exp(3.0f * (glm::dot(d, sun) - 1.0f));
+        },
+        "smooth sky");
     gpu();
     const Tracer tracer(s);
     ShTransferBaker baker(s, tracer, settings(128));
@@ -471,15 +481,14 @@ TEST(ShShading, SmallBrightEnvironmentRingingWithAndWithoutWindowing) {
     test::add_icosphere(s, {0, 0, 0}, 1.0f, 2, test::add_material(s, glm::vec3(0.5f)));
     const glm::vec3 sun = glm::normalize(glm::vec3(-0.3f, 0.8f, 0.5f));
     const float cos_radius = std::cos(glm::radians(5.0f));
-    const Environment env = environment_from_function(1024, 512, [&](glm::vec3 d) {
-        return glm::vec3(glm::dot(d, sun) > cos_radius ? 500.0f : 0.05f);
-    }, "small sun");
+    const Environment env = environment_from_function(
+        1024, 512, [&](glm::vec3 d) { return glm::vec3(glm::dot(d, sun) > cos_radius ? 500.0f : 0.05f); }, "small sun");
     const ShVertexTransfer t = bake_transfer(s, 16, settings(64));
     // Brute force for a convex shape: nothing occludes, so E = Σ_texels L max(0, n·d) dΩ.
     std::vector<glm::vec3> reference(s.positions.size(), glm::vec3(0.0f));
     for (int y = 0; y < env.height; ++y) {
-        const double d_omega = 2.0 * M_PI / env.width *
-                               (std::cos(M_PI * y / env.height) - std::cos(M_PI * (y + 1) / env.height));
+        const double d_omega =
+            2.0 * M_PI / env.width * (std::cos(M_PI * y / env.height) - std::cos(M_PI * (y + 1) / env.height));
         for (int x = 0; x < env.width; ++x) {
             const glm::vec3 d = equirect_direction((x + 0.5f) / env.width, (y + 0.5f) / env.height);
             const glm::vec3 l = env.texels[size_t(y) * env.width + x];
@@ -503,10 +512,11 @@ TEST(ShShading, SmallBrightEnvironmentRingingWithAndWithoutWindowing) {
             worst = std::max(worst, double(std::abs(e.r - reference[v].r)));
             negative += e.r < 0.0f;
         }
-        std::printf("  small sun, window %-7s: %3d of %zu vertices negative, lowest %+.3f of peak, overshoot %+.3f, "
-                    "max error %.3f of peak, relative RMS %.3f\n",
-                    to_string(window), negative, s.positions.size(), lowest / peak, highest / peak - 1.0, worst / peak,
-                    relative_rms(shaded, reference));
+        std::printf(
+            "  small sun, window %-7s: %3d of %zu vertices negative, lowest %+.3f of peak, overshoot %+.3f, "
+            "max error %.3f of peak, relative RMS %.3f\n",
+            to_string(window), negative, s.positions.size(), lowest / peak, highest / peak - 1.0, worst / peak,
+            relative_rms(shaded, reference));
         if (window == ShWindow::None) {
             lowest_unwindowed = lowest;
             EXPECT_LT(worst / peak, 0.15);  // 3 bands of the clamped cosine: Ramamoorthi & Hanrahan's ~10%
@@ -516,7 +526,6 @@ TEST(ShShading, SmallBrightEnvironmentRingingWithAndWithoutWindowing) {
     EXPECT_LT(lowest_unwindowed, 0.0) << "a 4-band small light should ring below zero";
     EXPECT_GT(lowest_hanning, lowest_unwindowed) << "windowing should reduce the ringing";
 }
-
 
 // ---------------------------------------------------------------- files ----
 
@@ -561,14 +570,15 @@ TEST(ShFiles, TransferFileRoundTripsAndHalfFloatsStayClose) {
     EXPECT_THROW(decode_sh_transfer(wrong, "magic"), std::runtime_error);
     EXPECT_EQ(half_to_float(float_to_half(1.0f)), 1.0f);
     EXPECT_EQ(half_to_float(float_to_half(-0.000061035156f)), -0.000061035156f);  // smallest normal
-    EXPECT_EQ(half_to_float(float_to_half(5.9604645e-8f)), 5.9604645e-8f);      // smallest subnormal
+    EXPECT_EQ(half_to_float(float_to_half(5.9604645e-8f)), 5.9604645e-8f);        // smallest subnormal
 }
 
 // The whole bake on a real file: every output written, scene.sh.glb reloads
 // with the same positions and carries the transfer of sh_transfer.bin, and
 // sh-shade turns it into vertex colours.
 TEST(ShBake, WritesFilesThatReloadAndShade) {
-    const std::filesystem::path out = std::filesystem::temp_directory_path() / ("lightfarm_sh_" + std::to_string(::getpid()));
+    const std::filesystem::path out =
+        std::filesystem::temp_directory_path() / ("lightfarm_sh_" + std::to_string(::getpid()));
     std::filesystem::remove_all(out);
     gpu();
     BakeJob job;
@@ -607,13 +617,15 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
             ASSERT_EQ(from_bin.primitives[i].vertices[v], from_glb[inst.first_vertex + v]);
     }
 
-    const nlohmann::json shaded = shade_sh_glb(out / "scene.sh.glb", (out / "env_sh.json").string(), out / "shaded.glb");
+    const nlohmann::json shaded =
+        shade_sh_glb(out / "scene.sh.glb", (out / "env_sh.json").string(), out / "shaded.glb");
     EXPECT_GT(shaded["max_e_over_pi"].get<double>(), 0.0);
     const Scene shaded_scene = load_scene(out / "shaded.glb");
     EXPECT_EQ(shaded_scene.positions, original.positions);
     ShShadeOptions from_bin_options;
     from_bin_options.scene = job.scene;
-    const nlohmann::json shaded_bin = shade_sh_glb(out / "sh_transfer.bin", "1,1,1", out / "shaded_bin.glb", from_bin_options);
+    const nlohmann::json shaded_bin =
+        shade_sh_glb(out / "sh_transfer.bin", "1,1,1", out / "shaded_bin.glb", from_bin_options);
     // Under a white sky E/pi is the unoccluded fraction: at most 1.
     EXPECT_LE(shaded_bin["max_e_over_pi"].get<double>(), 1.0 + 1e-3);
     std::filesystem::remove_all(out);
@@ -631,11 +643,13 @@ TEST(ShBake, PerTexelWritesTheTransferExr) {
     BakeJob job;
     job.scene = test::shared_scene("monkey.glb");
     job.out = out;
-    job.settings = protocol::parse_bake_settings({{"outputs", {{"sh", {{"sh_bands", 2}, {"sh_per_texel", true}, {"sh_passes", 2}}}}},
-                                                  {"atlas", {{"res", 128}, {"subsamples", 1}}}});
+    job.settings = protocol::parse_bake_settings(
+        {{"outputs", {{"sh", {{"sh_bands", 2}, {"sh_per_texel", true}, {"sh_passes", 2}}}}},
+         {"atlas", {{"res", 128}, {"subsamples", 1}}}});
     const protocol::DoneEvent done = run_bake_job(job, [](const protocol::WorkerEvent&) {});
     const std::vector<std::string>& files = done.files;
-    for (const char* f : {"sh_transfer.exr", "sh_transfer.pass-0001.exr", "sh_transfer.pass-0002.exr", "sh_transfer.bin"})
+    for (const char* f :
+         {"sh_transfer.exr", "sh_transfer.pass-0001.exr", "sh_transfer.pass-0002.exr", "sh_transfer.bin"})
         EXPECT_NE(std::find(files.begin(), files.end(), f), files.end()) << f;
     const FloatImage image = read_exr(out / "sh_transfer.exr");
     EXPECT_EQ(image.width, 128);
@@ -694,12 +708,14 @@ TEST(ShBench, DISABLED_VerticesAndRaysPerSecond) {
         const ShVertexTransfer t = baker.snapshot();
         const auto t3 = std::chrono::steady_clock::now();
         auto sec = [](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
-        std::printf("  %s: %zu triangles, %zu vertices (%zu unique); load %.2f s, BVH+setup %.2f s; %d x %d samples: "
-                    "%.2f s tracing: %.3g vertices/s at %d samples, %.3g rays/s; "
-                    "error estimate %.3g; snapshot %.2f s\n",
-                    name.c_str(), scene.triangle_count(), scene.positions.size(), baker.unique_vertices(), sec(t0, t1),
-                    sec(t1, t2), passes, per_pass, stats.seconds, double(baker.unique_vertices()) / stats.seconds, passes * per_pass, double(stats.rays) / stats.seconds,
-                    stats.error_estimate.value_or(0.0), sec(t2, t3) - stats.seconds);
+        std::printf(
+            "  %s: %zu triangles, %zu vertices (%zu unique); load %.2f s, BVH+setup %.2f s; %d x %d samples: "
+            "%.2f s tracing: %.3g vertices/s at %d samples, %.3g rays/s; "
+            "error estimate %.3g; snapshot %.2f s\n",
+            name.c_str(), scene.triangle_count(), scene.positions.size(), baker.unique_vertices(), sec(t0, t1),
+            sec(t1, t2), passes, per_pass, stats.seconds, double(baker.unique_vertices()) / stats.seconds,
+            passes * per_pass, double(stats.rays) / stats.seconds, stats.error_estimate.value_or(0.0),
+            sec(t2, t3) - stats.seconds);
         EXPECT_EQ(t.coefficients.size(), scene.positions.size());
     }
 }

@@ -23,7 +23,8 @@ using test::gpu;
 glm::vec3 random_direction(std::mt19937& rng) {
     std::normal_distribution<float> g;
     glm::vec3 d;
-    do d = glm::vec3(g(rng), g(rng), g(rng)); while (glm::length(d) < 1e-3f);
+    do d = glm::vec3(g(rng), g(rng), g(rng));
+    while (glm::length(d) < 1e-3f);
     return glm::normalize(d);
 }
 
@@ -43,7 +44,8 @@ std::vector<Ray> random_rays(const Scene& scene, size_t count, uint32_t seed) {
             while (scene.triangle_area(t) <= 0.0f) t = pick(rng);
             const glm::uvec3 tri = scene.triangles[t];
             const float a = u(rng), b = u(rng) * (1.0f - a);
-            const glm::vec3 p = (1 - a - b) * scene.positions[tri.x] + a * scene.positions[tri.y] + b * scene.positions[tri.z];
+            const glm::vec3 p =
+                (1 - a - b) * scene.positions[tri.x] + a * scene.positions[tri.y] + b * scene.positions[tri.z];
             const glm::vec3 n = scene.geometric_normal(t);
             r.origin = offset_ray_origin(p, n);
             r.direction = random_direction(rng);

@@ -28,7 +28,7 @@ constexpr uint32_t kNone = UINT32_MAX;
 // Adjacency: triangles that share an edge (by welded position).
 
 struct TriangleAdjacency {
-    std::vector<uint32_t> start;       // neighbours of t: neighbours[start[t] .. start[t+1])
+    std::vector<uint32_t> start;  // neighbours of t: neighbours[start[t] .. start[t+1])
     std::vector<uint32_t> neighbours;
 };
 
@@ -50,7 +50,10 @@ TriangleAdjacency triangle_adjacency(size_t triangle_count, const SharedEdges& s
     };
     TriangleAdjacency adj;
     adj.start.assign(triangle_count + 1, 0);
-    for_each_link([&](uint32_t a, uint32_t b) { ++adj.start[a + 1]; ++adj.start[b + 1]; });
+    for_each_link([&](uint32_t a, uint32_t b) {
+        ++adj.start[a + 1];
+        ++adj.start[b + 1];
+    });
     std::partial_sum(adj.start.begin(), adj.start.end(), adj.start.begin());
     adj.neighbours.resize(adj.start.back());
     std::vector<uint32_t> fill(adj.start.begin(), adj.start.end() - 1);
@@ -131,7 +134,10 @@ public:
             auto it = cells_.find(key);
             if (it == cells_.end()) return;
             for (uint32_t i : it->second)
-                if (interiors_overlap(tri, triangles_[i])) { hit = true; return; }
+                if (interiors_overlap(tri, triangles_[i])) {
+                    hit = true;
+                    return;
+                }
         });
         return hit;
     }
@@ -140,7 +146,10 @@ public:
         triangles_.push_back(tri);
         // A long sliver would fill thousands of cells; such triangles are few
         // and are tested against every candidate instead.
-        if (cell_span(tri) > 1024) { wide_.push_back(id); return; }
+        if (cell_span(tri) > 1024) {
+            wide_.push_back(id);
+            return;
+        }
         for_cells(tri, [&](uint64_t key) { cells_[key].push_back(id); });
     }
 
@@ -218,7 +227,8 @@ std::vector<Chart> segment_charts(const Scene& scene, const TriangleAdjacency& a
         if (triangle_chart[seed] != kNone) continue;
         const auto chart_id = uint32_t(charts.size());
         const glm::vec3 seed_normal = glm::length(normal[seed]) > 0.0f ? normal[seed] : glm::vec3(0, 0, 1);
-        charts.push_back({{}, PlaneBasis(glm::dvec3(scene.positions[scene.triangles[seed].x]), glm::dvec3(seed_normal))});
+        charts.push_back(
+            {{}, PlaneBasis(glm::dvec3(scene.positions[scene.triangles[seed].x]), glm::dvec3(seed_normal))});
         Chart& chart = charts.back();
         // Every triangle still unassigned is no larger than the seed, so cells
         // the seed's size hold a few triangles each.
@@ -298,7 +308,10 @@ glm::dvec2 min_area_rect_direction(const std::vector<glm::dvec2>& hull) {
             hi_p = std::max(hi_p, glm::dot(q, p));
         }
         const double a = (hi_d - lo_d) * (hi_p - lo_p);
-        if (a < best_area) { best_area = a; best = d; }
+        if (a < best_area) {
+            best_area = a;
+            best = d;
+        }
     }
     return best;
 }
@@ -376,7 +389,10 @@ public:
                 y = std::max(y, skyline_[j].y);
                 covered += size_t(skyline_[j].x + skyline_[j].width - std::max(skyline_[j].x, x));
             }
-            if (y + h <= limit_.y && y < best_y) { best_y = y; best_i = i; }
+            if (y + h <= limit_.y && y < best_y) {
+                best_y = y;
+                best_i = i;
+            }
         }
         if (best_y == INT32_MAX) return std::nullopt;
         const glm::ivec2 at(skyline_[best_i].x, best_y);
@@ -385,13 +401,18 @@ public:
     }
 
 private:
-    struct Segment { int x, y, width; };
+    struct Segment {
+        int x, y, width;
+    };
     void raise(size_t i, int x, int w, int top) {
         skyline_.insert(skyline_.begin() + std::ptrdiff_t(i), {x, top, w});
         for (size_t k = i + 1; k < skyline_.size();) {
             const int overlap = x + w - skyline_[k].x;
             if (overlap <= 0) break;
-            if (skyline_[k].width <= overlap) { skyline_.erase(skyline_.begin() + std::ptrdiff_t(k)); continue; }
+            if (skyline_[k].width <= overlap) {
+                skyline_.erase(skyline_.begin() + std::ptrdiff_t(k));
+                continue;
+            }
             skyline_[k].x += overlap;
             skyline_[k].width -= overlap;
             break;
@@ -476,7 +497,11 @@ std::optional<Packing> pack_at_resolution(const std::vector<ChartShape>& shapes,
         if (density_cap > 0.0 && guess >= density_cap) return Packing{size, lo, std::move(*best)};
         hi = density_cap > 0.0 ? density_cap : guess * 1.25;
         if (density_cap <= 0.0)
-            while (auto more = attempt(hi)) { best = std::move(more); lo = hi; hi *= 1.25; }
+            while (auto more = attempt(hi)) {
+                best = std::move(more);
+                lo = hi;
+                hi *= 1.25;
+            }
         else if (auto at_cap = attempt(hi)) return Packing{size, hi, std::move(*at_cap)};
     } else {
         hi = guess;
@@ -492,8 +517,10 @@ std::optional<Packing> pack_at_resolution(const std::vector<ChartShape>& shapes,
     }
     for (int i = 0; i < 10 && hi > lo * 1.005; ++i) {
         const double mid = 0.5 * (lo + hi);
-        if (auto at = attempt(mid)) { best = std::move(at); lo = mid; }
-        else hi = mid;
+        if (auto at = attempt(mid)) {
+            best = std::move(at);
+            lo = mid;
+        } else hi = mid;
     }
     return Packing{size, lo, std::move(*best)};
 }
@@ -564,7 +591,8 @@ void write_corner_uvs(Scene& scene, const std::vector<uint32_t>& triangle_chart,
                 if (first_chart[local] == kNone) {
                     first_chart[local] = chart;
                 } else if (first_chart[local] != chart) {
-                    auto [it, inserted] = copies.try_emplace((uint64_t(local) << 32) | chart, uint32_t(positions.size()));
+                    auto [it, inserted] =
+                        copies.try_emplace((uint64_t(local) << 32) | chart, uint32_t(positions.size()));
                     if (inserted) copy_vertex(tri[k], source_of(scene, inst, tri[k]));
                     out = it->second;
                 }
@@ -630,7 +658,8 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     AtlasReport report;
     report.generated = true;
     const TriangleAdjacency adjacency = scene_adjacency(scene);
-    std::vector<Chart> charts = segment_charts(scene, adjacency, options.max_chart_angle_degrees, report.triangle_chart);
+    std::vector<Chart> charts =
+        segment_charts(scene, adjacency, options.max_chart_angle_degrees, report.triangle_chart);
 
     std::vector<Tri2> corners(scene.triangles.size());
     std::vector<ChartShape> shapes(charts.size());
@@ -776,7 +805,8 @@ AtlasReport generate_triangle_pair_uvs(Scene& scene, const AtlasOptions& options
     int size = kDefaultResolution;
     if (options.resolution > 0) size = options.resolution;
     else if (options.texel_density > 0.0f)
-        size = int(std::clamp(std::ceil(double(options.texel_density) * std::sqrt(world)), 1.0, double(options.max_resolution)));
+        size = int(std::clamp(std::ceil(double(options.texel_density) * std::sqrt(world)), 1.0,
+                              double(options.max_resolution)));
 
     const auto weld = atlas_detail::weld_positions(scene.positions, atlas_detail::weld_tolerance(scene));
     const TriangleAdjacency adjacency =
@@ -793,7 +823,10 @@ AtlasReport generate_triangle_pair_uvs(Scene& scene, const AtlasOptions& options
     // Algorithm C.2, with an explicit stack: split [begin, end) where
     // K x (left triangle share) + (left area share) first reaches the right's.
     constexpr double K = 1.5;
-    struct Task { size_t begin, end; glm::dvec4 cell; };
+    struct Task {
+        size_t begin, end;
+        glm::dvec4 cell;
+    };
     std::vector<Task> stack{{0, pairs.size(), glm::dvec4(0, 0, size, size)}};
     CornerUVs corner_uv(scene.triangles.size());
     report.triangle_chart.assign(scene.triangles.size(), kNone);

@@ -31,21 +31,21 @@ namespace lf {
 constexpr int kDefaultAtlasResolution = 256;
 
 struct AtlasOptions {
-    int resolution = 0;         // square atlas side in texels; 0 = derive from texel_density
-    float texel_density = 0.0f; // texels per metre; 0 = derive from resolution
-                                // (both 0: kDefaultAtlasResolution; both set: density shrinks if it does not fit)
-    int padding = 2;            // empty texels between any two charts
+    int resolution = 0;          // square atlas side in texels; 0 = derive from texel_density
+    float texel_density = 0.0f;  // texels per metre; 0 = derive from resolution
+                                 // (both 0: kDefaultAtlasResolution; both set: density shrinks if it does not fit)
+    int padding = 2;             // empty texels between any two charts
     float max_chart_angle_degrees = 40.0f;  // how far a chart's normals may turn from its first triangle's
-    int max_resolution = 8192;  // a density-derived atlas is never larger; the density shrinks instead
+    int max_resolution = 8192;              // a density-derived atlas is never larger; the density shrinks instead
 };
 
 struct AtlasReport {
     int width = 0;
     int height = 0;
-    float texel_density = 0.0f;  // texels per metre (for existing or baseline UVs: the average)
-    size_t charts = 0;           // charts (existing UVs: islands of triangles sharing vertices)
-    double utilisation = 0.0;    // texels touched by some triangle / all texels
-    bool generated = false;      // this call wrote Scene::uv1
+    float texel_density = 0.0f;            // texels per metre (for existing or baseline UVs: the average)
+    size_t charts = 0;                     // charts (existing UVs: islands of triangles sharing vertices)
+    double utilisation = 0.0;              // texels touched by some triangle / all texels
+    bool generated = false;                // this call wrote Scene::uv1
     std::vector<uint32_t> triangle_chart;  // chart of every triangle (generated atlases only)
 };
 

@@ -39,8 +39,8 @@ struct LoadedModel {
 
 void load_model(const std::filesystem::path& source, LoadedModel& loaded) {
     tinygltf::TinyGLTF gltf;
-    tinygltf::FsCallbacks fs{&tinygltf::FileExists, &verbatim_path, &tinygltf::ReadWholeFile,
-                             &tinygltf::WriteWholeFile, nullptr};
+    tinygltf::FsCallbacks fs{&tinygltf::FileExists, &verbatim_path, &tinygltf::ReadWholeFile, &tinygltf::WriteWholeFile,
+                             nullptr};
     gltf.SetFsCallbacks(fs);
     gltf.SetImageLoader(&keep_image_bytes, &loaded.image_bytes);
 
@@ -91,7 +91,8 @@ int append_view(tinygltf::Model& model, const std::vector<unsigned char>& bytes,
 
 std::string mime_type_of(const std::vector<unsigned char>& bytes, const std::string& declared) {
     if (!declared.empty()) return declared;
-    if (bytes.size() >= 4 && bytes[0] == 0x89 && bytes[1] == 'P' && bytes[2] == 'N' && bytes[3] == 'G') return "image/png";
+    if (bytes.size() >= 4 && bytes[0] == 0x89 && bytes[1] == 'P' && bytes[2] == 'N' && bytes[3] == 'G')
+        return "image/png";
     return "image/jpeg";
 }
 
@@ -137,8 +138,11 @@ std::vector<unsigned char> accessor_bytes(const tinygltf::Model& model, const ti
                 throw std::runtime_error("sparse accessor outside its buffer");
             uint32_t index = 0;
             if (isize == 1) index = idata[ia];
-            else if (isize == 2) { uint16_t v; std::memcpy(&v, &idata[ia], 2); index = v; }
-            else std::memcpy(&index, &idata[ia], 4);
+            else if (isize == 2) {
+                uint16_t v;
+                std::memcpy(&v, &idata[ia], 2);
+                index = v;
+            } else std::memcpy(&index, &idata[ia], 4);
             if (index >= accessor.count) throw std::runtime_error("sparse index out of range");
             std::memcpy(&out[size_t(index) * element_size], &vdata[va], element_size);
         }

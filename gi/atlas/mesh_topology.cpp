@@ -22,7 +22,9 @@ std::vector<uint32_t> weld_positions(const std::vector<glm::vec3>& positions, fl
     // Cells 16x the tolerance: most points lie further than the tolerance from
     // every cell face and need to look only in their own cell.
     const double cell = 16.0 * double(tolerance);
-    auto cell_of = [&](const glm::vec3& p, int axis) { return int64_t(std::floor((double(p[axis]) - b.lo[axis]) / cell)); };
+    auto cell_of = [&](const glm::vec3& p, int axis) {
+        return int64_t(std::floor((double(p[axis]) - b.lo[axis]) / cell));
+    };
     auto key = [](int64_t x, int64_t y, int64_t z) {
         return (uint64_t(x) & 0x1FFFFF) | ((uint64_t(y) & 0x1FFFFF) << 21) | ((uint64_t(z) & 0x1FFFFF) << 42);
     };
@@ -51,7 +53,10 @@ std::vector<uint32_t> weld_positions(const std::vector<glm::vec3>& positions, fl
                     if (it == cell_head.end()) continue;
                     for (uint32_t r = it->second; r != UINT32_MAX; r = next_rep[r]) {
                         const glm::vec3 d = positions[r] - p;
-                        if (glm::dot(d, d) <= tolerance2) { found = r; break; }
+                        if (glm::dot(d, d) <= tolerance2) {
+                            found = r;
+                            break;
+                        }
                     }
                 }
         if (found != UINT32_MAX) {

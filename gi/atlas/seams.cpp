@@ -91,8 +91,10 @@ double seam_metric(const std::vector<SeamEdge>& seams, const std::vector<glm::ve
     double sum = 0.0;
     for (const SeamEdge& seam : seams)
         for (int k = 0; k < samples_per_edge; ++k) {
-            const glm::vec4 a = sample_bilinear(image, width, height, seam_point(seam.a0, seam.a1, k, samples_per_edge));
-            const glm::vec4 b = sample_bilinear(image, width, height, seam_point(seam.b0, seam.b1, k, samples_per_edge));
+            const glm::vec4 a =
+                sample_bilinear(image, width, height, seam_point(seam.a0, seam.a1, k, samples_per_edge));
+            const glm::vec4 b =
+                sample_bilinear(image, width, height, seam_point(seam.b0, seam.b1, k, samples_per_edge));
             const glm::vec3 d = glm::abs(glm::vec3(a) - glm::vec3(b));
             sum += (double(d.x) + d.y + d.z) / 3.0;
         }
@@ -108,7 +110,10 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
     // row: +bilinear weights on side A, -bilinear weights on side B.
     std::unordered_map<uint32_t, uint32_t> unknown_of_pixel;
     std::vector<uint32_t> pixel_of_unknown;
-    struct RowTap { uint32_t unknown; float weight; };
+    struct RowTap {
+        uint32_t unknown;
+        float weight;
+    };
     std::vector<std::array<RowTap, 8>> rows;
     rows.reserve(seams.size() * size_t(samples_per_edge));
     auto unknown = [&](uint32_t pixel) {

@@ -18,7 +18,7 @@ constexpr double kTouchDepth = 1e-3;
 // A triangle's UV1 in pixel units, counter-clockwise after `orientation`.
 struct PixelTriangle {
     std::array<glm::dvec2, 3> p;
-    double area2 = 0.0;     // signed, twice the area
+    double area2 = 0.0;  // signed, twice the area
     double orientation = 1.0;
 
     PixelTriangle(const Scene& scene, size_t t, int width, int height) {
@@ -49,7 +49,8 @@ struct PixelTriangle {
         for (int k = 0; k < 3; ++k) {
             const double len = glm::length(p[size_t((k + 1) % 3)] - p[size_t(k)]);
             double reach = -1e300;
-            for (glm::dvec2 corner : {glm::dvec2(x, y), glm::dvec2(x + 1, y), glm::dvec2(x, y + 1), glm::dvec2(x + 1, y + 1)})
+            for (glm::dvec2 corner :
+                 {glm::dvec2(x, y), glm::dvec2(x + 1, y), glm::dvec2(x, y + 1), glm::dvec2(x + 1, y + 1)})
                 reach = std::max(reach, edge(k, corner));
             if (reach <= kTouchDepth * len) return false;
         }
@@ -63,7 +64,11 @@ struct PixelTriangle {
         double b2 = cross2(p[1] - p[0], q - p[0]) / area2;
         b1 = std::clamp(b1, 0.0, 1.0);
         b2 = std::clamp(b2, 0.0, 1.0);
-        if (b1 + b2 > 1.0) { const double s = b1 + b2; b1 /= s; b2 /= s; }
+        if (b1 + b2 > 1.0) {
+            const double s = b1 + b2;
+            b1 /= s;
+            b2 /= s;
+        }
         return glm::vec2(float(b1), float(b2));
     }
 };
@@ -112,7 +117,10 @@ void rasterize_triangle(const Scene& scene, size_t t, int width, int height, int
         if (c.x < 0.0 || c.y < 0.0 || c.x >= width || c.y >= height) return;
         emit(int(c.x), int(c.y), c);
     };
-    if (tri.degenerate()) { emit_centroid(); return; }
+    if (tri.degenerate()) {
+        emit_centroid();
+        return;
+    }
 
     const glm::dvec2 lo = glm::min(glm::min(tri.p[0], tri.p[1]), tri.p[2]);
     const glm::dvec2 hi = glm::max(glm::max(tri.p[0], tri.p[1]), tri.p[2]);
@@ -125,9 +133,15 @@ void rasterize_triangle(const Scene& scene, size_t t, int width, int height, int
             for (int j = 0; j < n; ++j)
                 for (int i = 0; i < n; ++i) {
                     const glm::dvec2 q(x + (i + 0.5) / n, y + (j + 0.5) / n);
-                    if (tri.contains(q)) { emit(x, y, q); covered = true; }
+                    if (tri.contains(q)) {
+                        emit(x, y, q);
+                        covered = true;
+                    }
                 }
-            if (!covered && tri.touches_texel(x, y)) { emit(x, y, centroid_inside_texel(tri, x, y)); covered = true; }
+            if (!covered && tri.touches_texel(x, y)) {
+                emit(x, y, centroid_inside_texel(tri, x, y));
+                covered = true;
+            }
             any = any || covered;
         }
     if (!any) emit_centroid();  // smaller than kTouchDepth everywhere: still owns its texel
@@ -143,7 +157,7 @@ void check_size(int width, int height, int subsamples) {
 // at least `padding` texels apart, so the nearest texel of a ring within
 // padding/2 of a chart is that chart's own.
 std::vector<std::pair<uint32_t, uint32_t>> dilation_map(const std::vector<uint32_t>& count, int width, int height,
-                                                       int radius) {
+                                                        int radius) {
     std::vector<std::pair<uint32_t, uint32_t>> map;
     if (radius <= 0) return map;
     for (int y = 0; y < height; ++y)
@@ -158,7 +172,10 @@ std::vector<std::pair<uint32_t, uint32_t>> dilation_map(const std::vector<uint32
                     const int xx = x + dx, d2 = dx * dx + dy * dy;
                     if (xx < 0 || xx >= width || d2 >= best || d2 > radius * radius) continue;
                     const uint32_t pixel = uint32_t(yy) * uint32_t(width) + uint32_t(xx);
-                    if (count[pixel] != 0) { best = d2; best_pixel = pixel; }
+                    if (count[pixel] != 0) {
+                        best = d2;
+                        best_pixel = pixel;
+                    }
                 }
             }
             if (best != INT32_MAX) map.emplace_back(uint32_t(y) * uint32_t(width) + uint32_t(x), best_pixel);
@@ -218,7 +235,8 @@ TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, 
     for (size_t t = 0; t < scene.triangles.size(); ++t) {
         const PixelTriangle tri(scene, t, width, height);
         rasterize_triangle(scene, t, width, height, n, [&](int x, int y, glm::dvec2 q) {
-            out.samples[cursor[size_t(y) * size_t(width) + size_t(x)]++] = make_sample(scene, uint32_t(t), tri.barycentrics(q));
+            out.samples[cursor[size_t(y) * size_t(width) + size_t(x)]++] =
+                make_sample(scene, uint32_t(t), tri.barycentrics(q));
         });
     }
 

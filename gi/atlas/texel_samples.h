@@ -29,7 +29,7 @@ struct TexelSample {
     glm::vec3 normal;            // shading normal, interpolated and normalized
     glm::vec3 geometric_normal;  // unit (zero for a degenerate triangle)
     uint32_t triangle;
-    glm::vec2 bary;              // (b1, b2) as for Scene::albedo_at
+    glm::vec2 bary;  // (b1, b2) as for Scene::albedo_at
 };
 
 struct TexelSamples {

@@ -68,9 +68,9 @@ void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
         p.atlas = prepare_lightmap_atlas(*p.atlas_scene, options);
     } catch (const std::runtime_error& e) {  // the charts do not fit: say what would
         const int smallest = smallest_atlas_resolution(p.scene, options);
-        throw BakeInputError(name + ": " + e.what() +
-                             (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")"
-                                           : ""));
+        throw BakeInputError(
+            name + ": " + e.what() +
+            (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")" : ""));
     }
     check_bake_memory(name, p.atlas.width, p.atlas.height);
     p.texels = rasterize_texel_samples(*p.atlas_scene, p.atlas.width, p.atlas.height, settings.subsamples);
@@ -144,21 +144,24 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         {"device", {{"vendor", started.vendor}, {"renderer", started.renderer}}},
         {"settings", protocol::to_json(job.settings)},
         // One load, one atlas, one context, one BVH for every output.
-        {"prepared", {{"seconds", prepared->prepare_seconds}, {"outputs", nlohmann::json::array()},
-                      {"triangles", started.triangles}, {"atlas_generated", prepared->atlas.generated}}},
+        {"prepared",
+         {{"seconds", prepared->prepare_seconds},
+          {"outputs", nlohmann::json::array()},
+          {"triangles", started.triangles},
+          {"atlas_generated", prepared->atlas.generated}}},
     };
     for (const auto& m : methods) {
         const std::string output = m->output();
         manifest["prepared"]["outputs"].push_back(output);
-        const PassStats last = run_progressive([&] { return m->step(); }, m->stop_rule(),
-                                               [&](const PassStats& stats, bool snapshot_due) {
+        auto on_pass = [&](const PassStats& stats, bool snapshot_due) {
             emit(protocol::ProgressEvent{output, stats});
             if (!snapshot_due) return;
             for (const std::string& file : m->snapshot(job.out, stats)) {
                 done.files.push_back(file);
                 emit(protocol::SnapshotEvent{output, file, stats.pass});
             }
-        });
+        };
+        const PassStats last = run_progressive([&] { return m->step(); }, m->stop_rule(), on_pass);
         MethodResult result = m->finish(job.out, last);
         done.final_files[output] = result.files.front();
         done.files.insert(done.files.end(), result.files.begin(), result.files.end());

@@ -15,7 +15,8 @@ uint64_t capture_texels(size_t probes, int r) { return uint64_t(probes) * 6u * u
 
 }  // namespace
 
-std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::ProbesSettings& settings, float* spacing) {
+std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::ProbesSettings& settings,
+                                           float* spacing) {
     *spacing = 0.0f;
     std::vector<glm::vec3> points;
     if (!settings.positions.empty()) {
@@ -38,8 +39,7 @@ std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::P
     const glm::vec3 lo = scene.bounds.centre() - 0.5f * glm::vec3(counts) * step;
     for (int z = 0; z < counts.z; ++z)
         for (int y = 0; y < counts.y; ++y)
-            for (int x = 0; x < counts.x; ++x)
-                points.push_back(lo + (glm::vec3(x, y, z) + 0.5f) * step);
+            for (int x = 0; x < counts.x; ++x) points.push_back(lo + (glm::vec3(x, y, z) + 0.5f) * step);
     return points;
 }
 
@@ -49,9 +49,11 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
       stop_(stop_rule_from(settings.probes->stop)),
       seed_(settings.seed),
       shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene) {
-    if (settings.env.sky) background_ = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
+    if (settings.env.sky)
+        background_ = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     positions_ = place(prepared.scene, settings_, &spacing_);
-    if (positions_.empty()) throw BakeInputError(prepared.file.filename().string() + ": probes: no point to place a probe at");
+    if (positions_.empty())
+        throw BakeInputError(prepared.file.filename().string() + ": probes: no point to place a probe at");
     const uint64_t texels = capture_texels(positions_.size(), settings_.res);
     if (texels > kMaxCaptureTexels)
         throw BakeInputError("probes: " + std::to_string(positions_.size()) + " probes at --probe-res " +
@@ -68,11 +70,17 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
 
 nlohmann::json ProbesMethod::description() const {
     return {{"probes", positions_.size()},
-            {"settings", {{"method", "robust_probes"}, {"placement", settings_.positions.empty() ? "grid" : "explicit"},
-                          {"spacing", spacing_}, {"capture_resolution", settings_.res}, {"m", settings_.m},
-                          {"radiance", "emission + reflected light traced as paths from the hit point"},
-                          {"max_passes", stop_.max_passes}, {"target_error", stop_.target_error},
-                          {"time_limit", stop_.time_limit}, {"seed", seed_}}}};
+            {"settings",
+             {{"method", "robust_probes"},
+              {"placement", settings_.positions.empty() ? "grid" : "explicit"},
+              {"spacing", spacing_},
+              {"capture_resolution", settings_.res},
+              {"m", settings_.m},
+              {"radiance", "emission + reflected light traced as paths from the hit point"},
+              {"max_passes", stop_.max_passes},
+              {"target_error", stop_.target_error},
+              {"time_limit", stop_.time_limit},
+              {"seed", seed_}}}};
 }
 
 PassStats ProbesMethod::step() {
@@ -110,7 +118,8 @@ PassStats ProbesMethod::step() {
     stats_.rays += rays_.read<uint32_t>()[0];  // this pass's rays (a 32-bit counter, reset every pass)
     rays_.clear_zero();
     stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    if (stats_.pass >= 2 && level > 0.0) stats_.error_estimate = std::sqrt(variance / double(texels)) / (level / double(texels));
+    if (stats_.pass >= 2 && level > 0.0)
+        stats_.error_estimate = std::sqrt(variance / double(texels)) / (level / double(texels));
     return stats_;
 }
 
@@ -171,10 +180,12 @@ MethodResult ProbesMethod::finish(const std::filesystem::path& dir, const PassSt
         {"result", protocol::to_json(stats)},
         {"probes", set.probes.size()},
         {"kept", kept},
-        {"files", {{"probes.json", "probe positions, validity and why, SH9 per probe, settings (gi/probes/probe_set.h)"},
-                   {"probes.exr", "every probe's M x M cube faces: R,G,B radiance and Z distance (layout in probes.json's header)"},
-                   {"probes.pass-NNNN.json", "intermediate probe set"},
-                   {"probes.pass-NNNN.exr", "intermediate probe images"}}},
+        {"files",
+         {{"probes.json", "probe positions, validity and why, SH9 per probe, settings (gi/probes/probe_set.h)"},
+          {"probes.exr",
+           "every probe's M x M cube faces: R,G,B radiance and Z distance (layout in probes.json's header)"},
+          {"probes.pass-NNNN.json", "intermediate probe set"},
+          {"probes.pass-NNNN.exr", "intermediate probe images"}}},
     };
     return result;
 }

@@ -104,7 +104,8 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     // Two vec4 per work group of the resolve pass, however it is dispatched.
     error_partials_ = GpuBuffer(2 * std::max<size_t>(1, resolve_.groups_1d(covered_count_)) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
-    rays_per_texel_ = uint64_t(1 + shading_.punctual_count() + (shading_.emitter_count() ? settings_.light_samples : 0));
+    rays_per_texel_ =
+        uint64_t(1 + shading_.punctual_count() + (shading_.emitter_count() ? settings_.light_samples : 0));
     relocate_samples_inside_geometry(texels.samples.size());
 }
 
@@ -214,7 +215,8 @@ FloatImage RadiosityMapBaker::snapshot() const {
     image.width = width_;
     image.height = height_;
     std::vector<float>* rgb[3] = {&image.channel("R"), &image.channel("G"), &image.channel("B")};
-    std::vector<float>* direct[3] = {&image.channel("direct.R"), &image.channel("direct.G"), &image.channel("direct.B")};
+    std::vector<float>* direct[3] = {&image.channel("direct.R"), &image.channel("direct.G"),
+                                     &image.channel("direct.B")};
     std::vector<float>* indirect[3] = {&image.channel("indirect.R"), &image.channel("indirect.G"),
                                        &image.channel("indirect.B")};
     std::vector<float>& samples = image.channel("samples");

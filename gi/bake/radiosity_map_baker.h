@@ -53,10 +53,10 @@ RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "epochs" | 
 
 struct RadiosityMapSettings {
     RadiosityScheme scheme = RadiosityScheme::DoublingEpochs;
-    int light_samples = 1;          // emitter samples per texel per pass
+    int light_samples = 1;  // emitter samples per texel per pass
     LightSampling light_sampling = LightSampling::Mis;
     uint32_t seed = 1;
-    glm::vec3 background{0.0f};     // radiance of escaping rays (W/(sr·m²))
+    glm::vec3 background{0.0f};  // radiance of escaping rays (W/(sr·m²))
     // > 0: a texel whose own relative standard error falls below this stops
     // tracing (adaptive sampling); set from the bake's target error.
     double converged_texel_error = 0.0;

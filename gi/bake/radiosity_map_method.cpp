@@ -41,7 +41,8 @@ RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) 
     r.light_samples = l.light_samples;
     r.light_sampling = parse_light_sampling(l.light_sampling);
     r.seed = settings.seed;
-    if (settings.env.sky) r.background = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
+    if (settings.env.sky)
+        r.background = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     // Adaptive sampling: a texel well below the target stops tracing.
     if (l.stop.target_error > 0.0) r.converged_texel_error = 0.5 * l.stop.target_error;
     return r;
@@ -58,8 +59,13 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
     settings_json_ = {
         {"method", "radiosity_map"},
         {"scheme", to_string(r.scheme)},
-        {"atlas", {{"width", atlas.width}, {"height", atlas.height}, {"texel_density", atlas.texel_density},
-                   {"generated", atlas.generated}, {"charts", atlas.charts}, {"utilisation", atlas.utilisation}}},
+        {"atlas",
+         {{"width", atlas.width},
+          {"height", atlas.height},
+          {"texel_density", atlas.texel_density},
+          {"generated", atlas.generated},
+          {"charts", atlas.charts},
+          {"utilisation", atlas.utilisation}}},
         {"light_samples", r.light_samples},
         {"light_sampling", to_string(r.light_sampling)},
         {"subsamples_per_texel", settings.atlas.subsamples * settings.atlas.subsamples},
@@ -105,9 +111,12 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
     result.manifest = {
         {"settings", settings_json_},
         {"result", protocol::to_json(stats)},
-        {"seams", {{"edges", seams_.size()}, {"metric", seam_metric(seams_, image_layer(image, ""), image.width, image.height)}}},
-        {"files", {{"lightmap.exr", "final lightmap: RGB = irradiance/pi, layers direct, indirect, samples, error"},
-                   {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
+        {"seams",
+         {{"edges", seams_.size()},
+          {"metric", seam_metric(seams_, image_layer(image, ""), image.width, image.height)}}},
+        {"files",
+         {{"lightmap.exr", "final lightmap: RGB = irradiance/pi, layers direct, indirect, samples, error"},
+          {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
     };
     return result;
 }

@@ -32,9 +32,9 @@ private:
     StopRule stop_;
     nlohmann::json settings_json_;
     RadiosityMapBaker baker_;
-    std::vector<SeamEdge> seams_;   // smooth seams only (measured even when not stitched)
+    std::vector<SeamEdge> seams_;  // smooth seams only (measured even when not stitched)
     bool stitch_ = true;
-    FloatImage last_snapshot_;      // the final image when the bake stops on a snapshot pass
+    FloatImage last_snapshot_;  // the final image when the bake stops on a snapshot pass
     int last_snapshot_pass_ = 0;
 };
 

@@ -66,7 +66,9 @@ SceneShading::SceneShading(const Scene& scene) {
 
     std::vector<glm::vec4> lights;
     for (const PunctualLight& l : scene.lights) {
-        const float type = l.type == PunctualLight::Type::Point ? 0.0f : l.type == PunctualLight::Type::Spot ? 1.0f : 2.0f;
+        const float type = l.type == PunctualLight::Type::Point  ? 0.0f
+                           : l.type == PunctualLight::Type::Spot ? 1.0f
+                                                                 : 2.0f;
         lights.push_back(glm::vec4(l.position, type));
         lights.push_back(glm::vec4(glm::normalize(l.direction), l.range));
         lights.push_back(glm::vec4(l.intensity, std::cos(l.inner_cone)));

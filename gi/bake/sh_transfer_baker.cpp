@@ -56,8 +56,9 @@ ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const
       resolve_("sh_resolve.comp", {{"LF_SH_BOUNCES", std::to_string(settings.bounces)}}) {
     if (settings_.samples_per_pass < 1) throw std::invalid_argument("SH transfer: samples per pass must be >= 1");
     if (settings_.bounces < 0 || settings_.bounces > ShTransferSettings::kMaxBounces)
-        throw std::invalid_argument("SH transfer: bounces must be 0.." + std::to_string(ShTransferSettings::kMaxBounces) +
-                                    ", not " + std::to_string(settings_.bounces));
+        throw std::invalid_argument("SH transfer: bounces must be 0.." +
+                                    std::to_string(ShTransferSettings::kMaxBounces) + ", not " +
+                                    std::to_string(settings_.bounces));
     if (settings_.near < 0.0f || settings_.far < 0.0f || (settings_.far > 0.0f && settings_.far <= settings_.near))
         throw std::invalid_argument("SH transfer: need 0 <= near < far (far 0 = unlimited)");
     build_receivers(scene, points);
@@ -227,7 +228,8 @@ ShVertexTransfer ShTransferBaker::snapshot() const {
     for (size_t u = 0; u < unique_count_; ++u) {
         ShCoefficients t{}, e{};
         for (size_t k = 0; k < blocks; ++k)
-            for (int i = 0; i < kShMaxCoefficients; ++i) t[i] += resolved[(u * blocks + k) * kShMaxCoefficients + size_t(i)];
+            for (int i = 0; i < kShMaxCoefficients; ++i)
+                t[i] += resolved[(u * blocks + k) * kShMaxCoefficients + size_t(i)];
         if (u < receiver_count_ && n > 1.0) {
             const size_t squares = (u * (blocks + 1) + blocks) * kShMaxCoefficients;
             for (int i = 0; i < kShMaxCoefficients; ++i) {

@@ -80,13 +80,14 @@ FloatImage sh_texel_image(const TexelSamples& texels, const ShTexelReceivers& re
         for (uint32_t k = first; k < first + count; ++k) {
             const int64_t p = receivers.point_of_sample[k];
             const ShCoefficients t = p >= 0 ? point_transfer[size_t(p)]
-                                   : glm::dot(texels.samples[k].normal, texels.samples[k].normal) > 0.0f
-                                       ? unoccluded_transfer(glm::normalize(texels.samples[k].normal))
-                                       : ShCoefficients{};
+                                     : glm::dot(texels.samples[k].normal, texels.samples[k].normal) > 0.0f
+                                         ? unoccluded_transfer(glm::normalize(texels.samples[k].normal))
+                                         : ShCoefficients{};
             for (int c = 0; c < kShMaxCoefficients; ++c) mean[c] += t[c] / float(count);
         }
         const uint32_t pixel = texels.texels[i];
-        for (int g = 0; g < 4; ++g) groups[size_t(g)][pixel] = glm::vec4(mean[4 * g], mean[4 * g + 1], mean[4 * g + 2], mean[4 * g + 3]);
+        for (int g = 0; g < 4; ++g)
+            groups[size_t(g)][pixel] = glm::vec4(mean[4 * g], mean[4 * g + 1], mean[4 * g + 2], mean[4 * g + 3]);
         coverage[pixel] = glm::vec4(1.0f);
     }
     for (auto& g : groups) dilate(texels, g);
@@ -132,7 +133,8 @@ std::optional<Environment> sh_environment(const protocol::EnvironmentSetting& en
 void check_mesh_sets(const PreparedScene& prepared, const protocol::ShSettings& sh) {
     std::set<int> meshes;
     for (const PrimitiveInstance& i : prepared.scene.instances) meshes.insert(i.mesh);
-    for (const auto& [field, list] : {std::pair{"sh.sh_occluders", &sh.occluders}, std::pair{"sh.sh_receivers", &sh.receivers}})
+    for (const auto& [field, list] :
+         {std::pair{"sh.sh_occluders", &sh.occluders}, std::pair{"sh.sh_receivers", &sh.receivers}})
         for (int m : *list)
             if (!meshes.count(m))
                 throw BakeInputError(std::string(field) + ": mesh " + std::to_string(m) + " is not drawn by " +
@@ -141,7 +143,7 @@ void check_mesh_sets(const PreparedScene& prepared, const protocol::ShSettings& 
 }
 
 nlohmann::json atlas_json(const AtlasReport& atlas) {
-    return {{"width", atlas.width}, {"height", atlas.height}, {"texel_density", atlas.texel_density},
+    return {{"width", atlas.width},         {"height", atlas.height}, {"texel_density", atlas.texel_density},
             {"generated", atlas.generated}, {"charts", atlas.charts}, {"utilisation", atlas.utilisation}};
 }
 
@@ -189,8 +191,10 @@ ShTransferMethod::~ShTransferMethod() = default;
 PassStats ShTransferMethod::step() { return baker_->step(); }
 
 nlohmann::json ShTransferMethod::description() const {
-    nlohmann::json d = {{"vertices", prepared_.scene.positions.size()}, {"unique_vertices", baker_->unique_vertices()},
-                        {"receiver_vertices", baker_->receiver_vertices()}, {"settings", settings_json_}};
+    nlohmann::json d = {{"vertices", prepared_.scene.positions.size()},
+                        {"unique_vertices", baker_->unique_vertices()},
+                        {"receiver_vertices", baker_->receiver_vertices()},
+                        {"settings", settings_json_}};
     if (settings_.per_texel) {
         d["texels"] = prepared_.texels.covered_count();
         d["texel_points"] = texel_receivers_.points.size();
@@ -232,7 +236,8 @@ MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stat
     nlohmann::json band_errors = nlohmann::json::object();
     for (int b = 1; b <= kShMaxBands; ++b)
         band_errors[std::to_string(b)] = band_truncation_error(transfer.coefficients, band_light, b);
-    const int bands = settings_.bands ? *settings_.bands : choose_band_count(transfer.coefficients, band_light, kAutoBandsError);
+    const int bands =
+        settings_.bands ? *settings_.bands : choose_band_count(transfer.coefficients, band_light, kAutoBandsError);
 
     MethodResult result;
     nlohmann::json files = nlohmann::json::object();
@@ -252,16 +257,20 @@ MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stat
     if (settings_.per_texel) {
         write_exr(dir / "sh_transfer.exr", texel_image(transfer, bands, stats));
         result.files.push_back("sh_transfer.exr");
-        files["sh_transfer.exr"] = "per-texel SH transfer in the lightmap atlas: channels sh.0 … sh.{bands²-1} "
-                                   "(coefficient l(l+1)+m), coverage; dilated past chart borders";
+        files["sh_transfer.exr"] =
+            "per-texel SH transfer in the lightmap atlas: channels sh.0 … sh.{bands²-1} "
+            "(coefficient l(l+1)+m), coverage; dilated past chart borders";
         files["sh_transfer.pass-NNNN.exr"] = "intermediate per-texel SH transfer snapshots";
         nlohmann::json channels = nlohmann::json::array();
         for (int c = 0; c < bands * bands; ++c) channels.push_back("sh." + std::to_string(c));
         channels.push_back("coverage");
-        per_texel = {{"file", "sh_transfer.exr"}, {"atlas", atlas_json(prepared_.atlas)},
+        per_texel = {{"file", "sh_transfer.exr"},
+                     {"atlas", atlas_json(prepared_.atlas)},
                      {"subsamples_per_texel", subsamples_ * subsamples_},
-                     {"covered_texels", prepared_.texels.covered_count()}, {"sample_points", prepared_.texels.samples.size()},
-                     {"traced_points", texel_receivers_.points.size()}, {"channels", channels}};
+                     {"covered_texels", prepared_.texels.covered_count()},
+                     {"sample_points", prepared_.texels.samples.size()},
+                     {"traced_points", texel_receivers_.points.size()},
+                     {"channels", channels}};
     }
     if (environment_) {
         const EnvironmentSh sh = project_environment(*environment_, window_, bands);
@@ -279,9 +288,12 @@ MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stat
         {"unique_vertices", baker_->unique_vertices()},
         {"receiver_vertices", baker_->receiver_vertices()},
         {"per_texel", per_texel},
-        {"compact", {{"file", "sh_transfer.half.bin"}, {"encoding", "float16"}, {"bytes", half_bytes.size()},
-                     {"float32_bytes", exact_bytes.size()},
-                     {"error", compact_error(file, decode_sh_transfer(half_bytes, "sh_transfer.half.bin"))}}},
+        {"compact",
+         {{"file", "sh_transfer.half.bin"},
+          {"encoding", "float16"},
+          {"bytes", half_bytes.size()},
+          {"float32_bytes", exact_bytes.size()},
+          {"error", compact_error(file, decode_sh_transfer(half_bytes, "sh_transfer.half.bin"))}}},
         {"files", files},
     };
     return result;

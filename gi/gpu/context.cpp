@@ -37,8 +37,7 @@ bool has_extension(const char* list, const char* name) {
 // device (NVIDIA's, a Mesa DRM device) is hardware.
 std::vector<Candidate> enumerate_devices() {
     const char* client_ext = eglQueryString(EGL_NO_DISPLAY, EGL_EXTENSIONS);
-    if (!has_extension(client_ext, "EGL_EXT_device_enumeration") &&
-        !has_extension(client_ext, "EGL_EXT_device_base"))
+    if (!has_extension(client_ext, "EGL_EXT_device_enumeration") && !has_extension(client_ext, "EGL_EXT_device_base"))
         throw GpuError("EGL: this EGL implementation cannot enumerate devices (no EGL_EXT_device_enumeration)");
     EGLint count = 0;
     if (!eglQueryDevicesEXT(0, nullptr, &count) || count <= 0)
@@ -98,8 +97,8 @@ GpuContext::GpuContext(DeviceChoice choice) {
         }
         eglBindAPI(EGL_OPENGL_API);
         const EGLint context_attribs[] = {
-            EGL_CONTEXT_MAJOR_VERSION, 4, EGL_CONTEXT_MINOR_VERSION, 5,
-            EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
+            EGL_CONTEXT_MAJOR_VERSION,           4,       EGL_CONTEXT_MINOR_VERSION, 5, EGL_CONTEXT_OPENGL_PROFILE_MASK,
+            EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
         // Surfaceless: compute only, no config needed (EGL_KHR_no_config_context).
         EGLContext context = eglCreateContext(display, EGL_NO_CONFIG_KHR, EGL_NO_CONTEXT, context_attribs);
         if (context == EGL_NO_CONTEXT || !eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, context)) {

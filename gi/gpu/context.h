@@ -27,9 +27,9 @@ public:
 };
 
 struct DeviceInfo {
-    std::string vendor;    // GL_VENDOR
-    std::string renderer;  // GL_RENDERER
-    std::string version;   // GL_VERSION
+    std::string vendor;        // GL_VENDOR
+    std::string renderer;      // GL_RENDERER
+    std::string version;       // GL_VERSION
     bool is_software = false;  // Mesa llvmpipe/softpipe
 };
 

@@ -79,8 +79,7 @@ std::pair<std::string, std::vector<std::string>> assemble_shader_source(
     return {out, files};
 }
 
-ComputeProgram::ComputeProgram(const std::string& name,
-                               const std::vector<std::pair<std::string, std::string>>& defines)
+ComputeProgram::ComputeProgram(const std::string& name, const std::vector<std::pair<std::string, std::string>>& defines)
     : name_(name) {
     auto [source, files] = assemble_shader_source(name, defines);
     GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
@@ -143,8 +142,7 @@ void ComputeProgram::dispatch_1d(size_t n) const {
 GpuBuffer::GpuBuffer(size_t bytes, const void* data) : bytes_(bytes) {
     glCreateBuffers(1, &id_);
     // Zero-sized SSBOs are not allowed; keep a 16-byte minimum so empty inputs still bind.
-    glNamedBufferStorage(id_, GLsizeiptr(std::max<size_t>(bytes, 16)), bytes ? data : nullptr,
-                         GL_DYNAMIC_STORAGE_BIT);
+    glNamedBufferStorage(id_, GLsizeiptr(std::max<size_t>(bytes, 16)), bytes ? data : nullptr, GL_DYNAMIC_STORAGE_BIT);
     check_gl("allocating a GPU buffer");
 }
 
@@ -170,8 +168,6 @@ void GpuBuffer::download(void* data, size_t bytes, size_t offset) const {
     glGetNamedBufferSubData(id_, GLintptr(offset), GLsizeiptr(bytes), data);
 }
 
-void GpuBuffer::clear_zero() {
-    glClearNamedBufferData(id_, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, nullptr);
-}
+void GpuBuffer::clear_zero() { glClearNamedBufferData(id_, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, nullptr); }
 
 }  // namespace lf

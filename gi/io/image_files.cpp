@@ -53,17 +53,15 @@ void write_exr(const fs::path& path, const FloatImage& image) {
     try {
         Imf::Header header(image.width, image.height);
         header.compression() = Imf::ZIP_COMPRESSION;
-        for (const auto& [name, value] : image.string_attributes)
-            header.insert(name, Imf::StringAttribute(value));
-        for (const auto& [name, value] : image.number_attributes)
-            header.insert(name, Imf::DoubleAttribute(value));
+        for (const auto& [name, value] : image.string_attributes) header.insert(name, Imf::StringAttribute(value));
+        for (const auto& [name, value] : image.number_attributes) header.insert(name, Imf::DoubleAttribute(value));
         Imf::FrameBuffer frame;
         for (const auto& [name, data] : image.channels) {
             if (data.size() != size_t(image.width) * size_t(image.height))
                 throw std::runtime_error("channel " + name + " has the wrong size");
             header.channels().insert(name, Imf::Channel(Imf::FLOAT));
-            frame.insert(name, Imf::Slice(Imf::FLOAT, (char*)data.data(), sizeof(float),
-                                          sizeof(float) * size_t(image.width)));
+            frame.insert(
+                name, Imf::Slice(Imf::FLOAT, (char*)data.data(), sizeof(float), sizeof(float) * size_t(image.width)));
         }
         Imf::OutputFile file(tmp.c_str(), header);
         file.setFrameBuffer(frame);

@@ -15,8 +15,8 @@ namespace lf {
 struct FloatImage {
     int width = 0;
     int height = 0;
-    std::map<std::string, std::vector<float>> channels;        // each width*height
-    std::map<std::string, std::string> string_attributes;      // header attributes
+    std::map<std::string, std::vector<float>> channels;    // each width*height
+    std::map<std::string, std::string> string_attributes;  // header attributes
     std::map<std::string, double> number_attributes;
 
     std::vector<float>& channel(const std::string& name) {

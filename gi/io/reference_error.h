@@ -11,9 +11,9 @@ namespace lf {
 struct ReferenceError {
     double rmse = 0.0;
     double relative_rmse = 0.0;
-    double bias = 0.0;          // mean / reference mean - 1
+    double bias = 0.0;  // mean / reference mean - 1
     double reference_mean = 0.0;
-    size_t texels = 0;          // texels compared
+    size_t texels = 0;  // texels compared
 };
 
 // `mask`: texels with a first channel > 0.5 are compared; no mask means every

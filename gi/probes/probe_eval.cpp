@@ -51,12 +51,30 @@ double clipped_sum(const dvec3* r, int count, dvec3 n) {
 glm::dvec2 cube_face_uv(int face, dvec3 p) {
     double s, t;
     switch (face) {
-    case 0: s = -p.z / p.x; t = -p.y / p.x; break;
-    case 1: s = p.z / -p.x; t = -p.y / -p.x; break;
-    case 2: s = p.x / p.y; t = p.z / p.y; break;
-    case 3: s = p.x / -p.y; t = -p.z / -p.y; break;
-    case 4: s = p.x / p.z; t = -p.y / p.z; break;
-    default: s = -p.x / -p.z; t = -p.y / -p.z; break;
+    case 0:
+        s = -p.z / p.x;
+        t = -p.y / p.x;
+        break;
+    case 1:
+        s = p.z / -p.x;
+        t = -p.y / -p.x;
+        break;
+    case 2:
+        s = p.x / p.y;
+        t = p.z / p.y;
+        break;
+    case 3:
+        s = p.x / -p.y;
+        t = -p.z / -p.y;
+        break;
+    case 4:
+        s = p.x / p.z;
+        t = -p.y / p.z;
+        break;
+    default:
+        s = -p.x / -p.z;
+        t = -p.y / -p.z;
+        break;
     }
     return {(s + 1.0) / 2.0, (t + 1.0) / 2.0};
 }
@@ -147,7 +165,8 @@ std::vector<float> cube_texel_depths(int m, const std::vector<float>& distance) 
         for (int j = 0; j < m; ++j)
             for (int i = 0; i < m; ++i) {
                 const size_t k = (size_t(face) * m + j) * m + i;
-                depth[k] = distance[k] < kMissDistance ? float(distance[k] / stretch[size_t(j) * m + i]) : kMissDistance;
+                depth[k] =
+                    distance[k] < kMissDistance ? float(distance[k] / stretch[size_t(j) * m + i]) : kMissDistance;
             }
     return depth;
 }
@@ -206,8 +225,8 @@ PreparedProbe prepare_probe(const Probe& probe, int m) {
                 t.direction = cube_direction(face, (i + 0.5f) / m, (j + 0.5f) / m);
                 // The virtual light: on the texel's plane (depth) along its centre direction.
                 const float s = 2.0f * (i + 0.5f) / m - 1.0f, tc = 2.0f * (j + 0.5f) / m - 1.0f;
-                const float centre_distance = depth[k] < kMissDistance ? depth[k] * std::sqrt(1.0f + s * s + tc * tc)
-                                                                       : kMissDistance;
+                const float centre_distance =
+                    depth[k] < kMissDistance ? depth[k] * std::sqrt(1.0f + s * s + tc * tc) : kMissDistance;
                 t.centre = p.position + centre_distance * t.direction;
                 t.solid_angle = float(cube_texel_solid_angle(m, i, j));
                 // Counter-clockwise about the outward direction: cube_direction's

@@ -125,13 +125,13 @@ struct ProbeEvalOptions {
 struct PreparedProbe {
     struct Texel {
         glm::vec3 radiance{0.0f};
-        glm::vec3 direction{0.0f};   // unit, through the texel centre
-        glm::vec3 centre{0.0f};      // the virtual light: probe + depth·|q_centre| · direction
-        glm::vec3 normal{0.0f};      // of the polygon (cross of its diagonals), towards the probe
-        float distance = 0.0f;       // as stored: the mean over the texel's rays
-        float solid_angle = 0.0f;    // exact, from the probe
-        float area = 0.0f;           // solid_angle · |centre − probe|² / max(cos(normal, −direction), 0.02)
-        std::array<glm::vec3, 4> corners{};  // world space, wound as polygon_to_point_form_factor wants
+        glm::vec3 direction{0.0f};  // unit, through the texel centre
+        glm::vec3 centre{0.0f};     // the virtual light: probe + depth·|q_centre| · direction
+        glm::vec3 normal{0.0f};     // of the polygon (cross of its diagonals), towards the probe
+        float distance = 0.0f;      // as stored: the mean over the texel's rays
+        float solid_angle = 0.0f;   // exact, from the probe
+        float area = 0.0f;          // solid_angle · |centre − probe|² / max(cos(normal, −direction), 0.02)
+        std::array<glm::vec3, 4> corners{};            // world space, wound as polygon_to_point_form_factor wants
         std::array<glm::vec3, 4> corner_directions{};  // unit
     };
     glm::vec3 position{0.0f};

@@ -13,12 +13,12 @@ glm::vec3 cube_direction(int face, float u, float v) {
     const float s = 2.0f * u - 1.0f, t = 2.0f * v - 1.0f;
     glm::vec3 d;
     switch (face) {
-    case 0: d = {1.0f, -t, -s}; break;   // +X
-    case 1: d = {-1.0f, -t, s}; break;   // -X
-    case 2: d = {s, 1.0f, t}; break;     // +Y
-    case 3: d = {s, -1.0f, -t}; break;   // -Y
-    case 4: d = {s, -t, 1.0f}; break;    // +Z
-    default: d = {-s, -t, -1.0f}; break; // -Z
+    case 0: d = {1.0f, -t, -s}; break;    // +X
+    case 1: d = {-1.0f, -t, s}; break;    // -X
+    case 2: d = {s, 1.0f, t}; break;      // +Y
+    case 3: d = {s, -1.0f, -t}; break;    // -Y
+    case 4: d = {s, -t, 1.0f}; break;     // +Z
+    default: d = {-s, -t, -1.0f}; break;  // -Z
     }
     return glm::normalize(d);
 }
@@ -62,7 +62,8 @@ glm::vec3 json_vec3(const nlohmann::json& j, const std::string& what) {
 
 }  // namespace
 
-std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const ProbeSet& set, const std::string& stem) {
+std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const ProbeSet& set,
+                                         const std::string& stem) {
     const int m = set.m, n = int(set.probes.size());
     FloatImage image;
     image.width = 6 * m;
@@ -74,8 +75,11 @@ std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const
         const Probe& p = set.probes[size_t(k)];
         nlohmann::json sh9 = nlohmann::json::array();
         for (const glm::vec3& c : p.sh9) sh9.push_back(vec3_json(c));
-        probes.push_back({{"position", vec3_json(p.position)}, {"valid", p.valid}, {"why", p.why},
-                          {"backface_fraction", p.backface_fraction}, {"sh9", sh9}});
+        probes.push_back({{"position", vec3_json(p.position)},
+                          {"valid", p.valid},
+                          {"why", p.why},
+                          {"backface_fraction", p.backface_fraction},
+                          {"sh9", sh9}});
         if (!p.valid || p.radiance.size() != size_t(6) * m * m) continue;
         for (int face = 0; face < 6; ++face)
             for (int j = 0; j < m; ++j)
@@ -88,11 +92,16 @@ std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const
     }
     image.number_attributes["lightfarm.probeM"] = m;
     image.string_attributes["lightfarm.layout"] =
-        "faces +X,-X,+Y,-Y,+Z,-Z side by side (M columns each), probe k in rows [k*M, (k+1)*M); R,G,B radiance, Z distance (m)";
+        "faces +X,-X,+Y,-Y,+Z,-Z side by side (M columns each), probe k in rows [k*M, (k+1)*M); R,G,B radiance, Z "
+        "distance (m)";
     const std::string exr = stem + ".exr", json = stem + ".json";
     write_exr(dir / exr, image);
-    const nlohmann::json doc = {{"format", "lightfarm.probes"}, {"version", 1}, {"image", exr}, {"m", m},
-                                {"capture_resolution", set.capture_resolution}, {"probes", probes},
+    const nlohmann::json doc = {{"format", "lightfarm.probes"},
+                                {"version", 1},
+                                {"image", exr},
+                                {"m", m},
+                                {"capture_resolution", set.capture_resolution},
+                                {"probes", probes},
                                 {"settings", set.settings}};
     write_file_atomic(dir / json, doc.dump(2) + "\n");
     return {json, exr};

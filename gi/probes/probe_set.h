@@ -37,8 +37,8 @@ constexpr float kMissDistance = 1e6f;
 struct Probe {
     glm::vec3 position{0.0f};
     bool valid = true;
-    std::string why = "kept";        // or why it was dropped: "inside geometry", "far from every surface"
-    float backface_fraction = 0.0f;  // of the capture's rays that hit the back of a one-sided surface
+    std::string why = "kept";         // or why it was dropped: "inside geometry", "far from every surface"
+    float backface_fraction = 0.0f;   // of the capture's rays that hit the back of a one-sided surface
     std::vector<glm::vec3> radiance;  // 6·M·M, face-major, rows from the top
     std::vector<float> distance;      // 6·M·M
     std::array<glm::vec3, 9> sh9{};   // radiance at the reference point on SH bands 0..2 (index l(l+1)+m), unconvolved

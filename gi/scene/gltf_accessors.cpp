@@ -11,26 +11,26 @@ constexpr uint64_t kMaxCountWithoutView = uint64_t(1) << 20;
 
 int component_size(int component_type) {
     switch (component_type) {
-        case TINYGLTF_COMPONENT_TYPE_BYTE:
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return 1;
-        case TINYGLTF_COMPONENT_TYPE_SHORT:
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: return 2;
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT:
-        case TINYGLTF_COMPONENT_TYPE_FLOAT: return 4;
-        default: return 0;  // INT and DOUBLE are not glTF 2.0 component types
+    case TINYGLTF_COMPONENT_TYPE_BYTE:
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return 1;
+    case TINYGLTF_COMPONENT_TYPE_SHORT:
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: return 2;
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT:
+    case TINYGLTF_COMPONENT_TYPE_FLOAT: return 4;
+    default: return 0;  // INT and DOUBLE are not glTF 2.0 component types
     }
 }
 
 int component_count(int type) {
     switch (type) {
-        case TINYGLTF_TYPE_SCALAR: return 1;
-        case TINYGLTF_TYPE_VEC2: return 2;
-        case TINYGLTF_TYPE_VEC3: return 3;
-        case TINYGLTF_TYPE_VEC4: return 4;
-        case TINYGLTF_TYPE_MAT2: return 4;
-        case TINYGLTF_TYPE_MAT3: return 9;
-        case TINYGLTF_TYPE_MAT4: return 16;
-        default: return 0;
+    case TINYGLTF_TYPE_SCALAR: return 1;
+    case TINYGLTF_TYPE_VEC2: return 2;
+    case TINYGLTF_TYPE_VEC3: return 3;
+    case TINYGLTF_TYPE_VEC4: return 4;
+    case TINYGLTF_TYPE_MAT2: return 4;
+    case TINYGLTF_TYPE_MAT3: return 9;
+    case TINYGLTF_TYPE_MAT4: return 16;
+    default: return 0;
     }
 }
 
@@ -49,27 +49,27 @@ T load(const unsigned char* p) {
 
 std::string component_type_name(int component_type) {
     switch (component_type) {
-        case TINYGLTF_COMPONENT_TYPE_BYTE: return "BYTE";
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return "UNSIGNED_BYTE";
-        case TINYGLTF_COMPONENT_TYPE_SHORT: return "SHORT";
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: return "UNSIGNED_SHORT";
-        case TINYGLTF_COMPONENT_TYPE_INT: return "INT";
-        case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: return "UNSIGNED_INT";
-        case TINYGLTF_COMPONENT_TYPE_FLOAT: return "FLOAT";
-        default: return "component type " + std::to_string(component_type);
+    case TINYGLTF_COMPONENT_TYPE_BYTE: return "BYTE";
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return "UNSIGNED_BYTE";
+    case TINYGLTF_COMPONENT_TYPE_SHORT: return "SHORT";
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: return "UNSIGNED_SHORT";
+    case TINYGLTF_COMPONENT_TYPE_INT: return "INT";
+    case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: return "UNSIGNED_INT";
+    case TINYGLTF_COMPONENT_TYPE_FLOAT: return "FLOAT";
+    default: return "component type " + std::to_string(component_type);
     }
 }
 
 std::string accessor_type_name(int type) {
     switch (type) {
-        case TINYGLTF_TYPE_SCALAR: return "SCALAR";
-        case TINYGLTF_TYPE_VEC2: return "VEC2";
-        case TINYGLTF_TYPE_VEC3: return "VEC3";
-        case TINYGLTF_TYPE_VEC4: return "VEC4";
-        case TINYGLTF_TYPE_MAT2: return "MAT2";
-        case TINYGLTF_TYPE_MAT3: return "MAT3";
-        case TINYGLTF_TYPE_MAT4: return "MAT4";
-        default: return "type " + std::to_string(type);
+    case TINYGLTF_TYPE_SCALAR: return "SCALAR";
+    case TINYGLTF_TYPE_VEC2: return "VEC2";
+    case TINYGLTF_TYPE_VEC3: return "VEC3";
+    case TINYGLTF_TYPE_VEC4: return "VEC4";
+    case TINYGLTF_TYPE_MAT2: return "MAT2";
+    case TINYGLTF_TYPE_MAT3: return "MAT3";
+    case TINYGLTF_TYPE_MAT4: return "MAT4";
+    default: return "type " + std::to_string(type);
     }
 }
 
@@ -257,12 +257,9 @@ std::vector<glm::vec2> AccessorReader::read_vec2(int index, std::string_view sem
     // Normalized unsigned integers map [0, max] to [0, 1] (glTF 2.0 §3.11).
     for (uint64_t i = 0; i < e.count; ++i) {
         const unsigned char* p = e.at(i);
-        if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT)
-            out.emplace_back(load<float>(p), load<float>(p + 4));
-        else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE)
-            out.push_back(glm::vec2(p[0], p[1]) / 255.0f);
-        else
-            out.push_back(glm::vec2(load<uint16_t>(p), load<uint16_t>(p + 2)) / 65535.0f);
+        if (ct == TINYGLTF_COMPONENT_TYPE_FLOAT) out.emplace_back(load<float>(p), load<float>(p + 4));
+        else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE) out.push_back(glm::vec2(p[0], p[1]) / 255.0f);
+        else out.push_back(glm::vec2(load<uint16_t>(p), load<uint16_t>(p + 2)) / 65535.0f);
     }
     return out;
 }
@@ -282,12 +279,9 @@ std::vector<uint32_t> AccessorReader::read_indices(int index) const {
     out.reserve(size_t(e.count));
     for (uint64_t i = 0; i < e.count; ++i) {
         const unsigned char* p = e.at(i);
-        if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE)
-            out.push_back(*p);
-        else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT)
-            out.push_back(load<uint16_t>(p));
-        else
-            out.push_back(load<uint32_t>(p));
+        if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE) out.push_back(*p);
+        else if (ct == TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT) out.push_back(load<uint16_t>(p));
+        else out.push_back(load<uint32_t>(p));
     }
     return out;
 }

@@ -29,14 +29,14 @@ struct LocalPrimitive {
 
 const char* mode_name(int mode) {
     switch (mode) {
-        case TINYGLTF_MODE_POINTS: return "POINTS";
-        case TINYGLTF_MODE_LINE: return "LINES";
-        case TINYGLTF_MODE_LINE_LOOP: return "LINE_LOOP";
-        case TINYGLTF_MODE_LINE_STRIP: return "LINE_STRIP";
-        case TINYGLTF_MODE_TRIANGLES: return "TRIANGLES";
-        case TINYGLTF_MODE_TRIANGLE_STRIP: return "TRIANGLE_STRIP";
-        case TINYGLTF_MODE_TRIANGLE_FAN: return "TRIANGLE_FAN";
-        default: return "unknown";
+    case TINYGLTF_MODE_POINTS: return "POINTS";
+    case TINYGLTF_MODE_LINE: return "LINES";
+    case TINYGLTF_MODE_LINE_LOOP: return "LINE_LOOP";
+    case TINYGLTF_MODE_LINE_STRIP: return "LINE_STRIP";
+    case TINYGLTF_MODE_TRIANGLES: return "TRIANGLES";
+    case TINYGLTF_MODE_TRIANGLE_STRIP: return "TRIANGLE_STRIP";
+    case TINYGLTF_MODE_TRIANGLE_FAN: return "TRIANGLE_FAN";
+    default: return "unknown";
     }
 }
 
@@ -60,10 +60,8 @@ std::vector<glm::uvec3> assemble(int mode, const std::vector<uint32_t>& idx, siz
     } else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
         // Every other triangle is flipped so that all keep the first one's winding.
         for (size_t i = 0; i + 2 < n; ++i) {
-            if (i % 2 == 0)
-                emit(idx[i], idx[i + 1], idx[i + 2]);
-            else
-                emit(idx[i], idx[i + 2], idx[i + 1]);
+            if (i % 2 == 0) emit(idx[i], idx[i + 1], idx[i + 2]);
+            else emit(idx[i], idx[i + 2], idx[i + 1]);
         }
     } else {  // TRIANGLE_FAN
         for (size_t i = 0; i + 2 < n; ++i) emit(idx[i + 1], idx[i + 2], idx[0]);
@@ -131,10 +129,8 @@ template <typename T>
 std::vector<T> GeometryBuilder::read_attribute(int accessor, const char* name, size_t vertices,
                                                const std::string& where) const {
     std::vector<T> values;
-    if constexpr (std::is_same_v<T, glm::vec3>)
-        values = reader_.read_vec3(accessor, name);
-    else
-        values = reader_.read_vec2(accessor, name);
+    if constexpr (std::is_same_v<T, glm::vec3>) values = reader_.read_vec3(accessor, name);
+    else values = reader_.read_vec2(accessor, name);
     if (values.size() != vertices) {
         errors_.fail(where + ": attribute " + name + " has " + std::to_string(values.size()) +
                      " elements, POSITION has " + std::to_string(vertices));

@@ -62,7 +62,8 @@ void check_extent(const Bounds& b, const LoadLimits& limits, const Errors& error
     for (int a = 0; a < 3; ++a) reach = std::max({reach, std::abs(b.lo[a]), std::abs(b.hi[a])});
     if (reach > limits.max_coordinate) {
         char text[160];
-        std::snprintf(text, sizeof text, "the scene reaches %.3g m from the origin, beyond the limit of %.3g m (are its units metres?)",
+        std::snprintf(text, sizeof text,
+                      "the scene reaches %.3g m from the origin, beyond the limit of %.3g m (are its units metres?)",
                       double(reach), double(limits.max_coordinate));
         errors.fail(text);
     }

@@ -147,14 +147,10 @@ void add_lights(const tinygltf::Model& model, const std::vector<PlacedNode>& lig
         const std::string where = "light " + std::to_string(placed.item);
         PunctualLight out;
         out.name = l.name;
-        if (l.type == kLightTypes[0])
-            out.type = PunctualLight::Type::Point;
-        else if (l.type == kLightTypes[1])
-            out.type = PunctualLight::Type::Spot;
-        else if (l.type == kLightTypes[2])
-            out.type = PunctualLight::Type::Directional;
-        else
-            errors.fail(where + ": type " + in_quotes(l.type, 20) + " is not point, spot or directional");
+        if (l.type == kLightTypes[0]) out.type = PunctualLight::Type::Point;
+        else if (l.type == kLightTypes[1]) out.type = PunctualLight::Type::Spot;
+        else if (l.type == kLightTypes[2]) out.type = PunctualLight::Type::Directional;
+        else errors.fail(where + ": type " + in_quotes(l.type, 20) + " is not point, spot or directional");
 
         glm::dvec3 color(1.0);
         if (!l.color.empty()) {

@@ -18,8 +18,14 @@ namespace lf {
 struct Bounds {
     glm::vec3 lo{std::numeric_limits<float>::max()};
     glm::vec3 hi{-std::numeric_limits<float>::max()};
-    void extend(const glm::vec3& p) { lo = glm::min(lo, p); hi = glm::max(hi, p); }
-    void extend(const Bounds& b) { lo = glm::min(lo, b.lo); hi = glm::max(hi, b.hi); }
+    void extend(const glm::vec3& p) {
+        lo = glm::min(lo, p);
+        hi = glm::max(hi, p);
+    }
+    void extend(const Bounds& b) {
+        lo = glm::min(lo, b.lo);
+        hi = glm::max(hi, b.hi);
+    }
     bool empty() const { return lo.x > hi.x; }
     glm::vec3 centre() const { return 0.5f * (lo + hi); }
     glm::vec3 extent() const { return empty() ? glm::vec3(0.0f) : hi - lo; }
@@ -47,8 +53,8 @@ struct Material {
     int base_color_texture = -1;  // index into Scene::textures, sampled with TEXCOORD_0
     // Emitted radiance in W/(sr·m²): emissiveFactor x KHR_materials_emissive_strength.
     glm::vec3 emission{0.0f};
-    int emissive_texture = -1;    // index into Scene::textures, sampled with TEXCOORD_0
-    bool double_sided = false;    // emits (and receives) on both sides
+    int emissive_texture = -1;  // index into Scene::textures, sampled with TEXCOORD_0
+    bool double_sided = false;  // emits (and receives) on both sides
     bool is_emissive() const { return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f; }
 };
 
@@ -57,13 +63,13 @@ struct PunctualLight {
     enum class Type { Point, Spot, Directional };
     Type type = Type::Point;
     std::string name;
-    glm::vec3 position{0.0f};             // world space (point, spot)
-    glm::vec3 direction{0.0f, 0.0f, -1.0f}; // world space, the way light travels (spot, directional)
+    glm::vec3 position{0.0f};                // world space (point, spot)
+    glm::vec3 direction{0.0f, 0.0f, -1.0f};  // world space, the way light travels (spot, directional)
     // Point/spot: radiant intensity in W/sr; directional: irradiance in W/m².
     glm::vec3 intensity{0.0f};
-    float range = 0.0f;                   // 0 = infinite
-    float inner_cone = 0.0f;              // radians (spot)
-    float outer_cone = 0.785398163f;      // radians (spot), glTF default pi/4
+    float range = 0.0f;               // 0 = infinite
+    float inner_cone = 0.0f;          // radians (spot)
+    float outer_cone = 0.785398163f;  // radians (spot), glTF default pi/4
 };
 
 // One glTF primitive as placed by one node: its slice of the flattened arrays.
@@ -71,12 +77,13 @@ struct PrimitiveInstance {
     int node = -1;
     int mesh = -1;
     int primitive = -1;
-    uint32_t first_vertex = 0;   // into Scene::positions etc.
-    uint32_t vertex_count = 0;   // vertex k of the glTF primitive is first_vertex + k (see Scene::source_vertex once an atlas split vertices)
-    uint32_t first_triangle = 0; // into Scene::triangles
+    uint32_t first_vertex = 0;  // into Scene::positions etc.
+    uint32_t vertex_count = 0;  // vertex k of the glTF primitive is first_vertex + k (see Scene::source_vertex once an
+                                // atlas split vertices)
+    uint32_t first_triangle = 0;  // into Scene::triangles
     uint32_t triangle_count = 0;
-    bool has_uv1 = false;        // the glTF primitive had TEXCOORD_1
-    bool mirrored = false;       // the node transform has negative determinant
+    bool has_uv1 = false;   // the glTF primitive had TEXCOORD_1
+    bool mirrored = false;  // the node transform has negative determinant
 };
 
 struct Scene {

@@ -18,9 +18,9 @@ protocol::SceneSummary summarize(const Scene& scene) {
     size_t point = 0, spot = 0, directional = 0;
     for (const PunctualLight& light : scene.lights) {
         switch (light.type) {
-            case PunctualLight::Type::Point: ++point; break;
-            case PunctualLight::Type::Spot: ++spot; break;
-            case PunctualLight::Type::Directional: ++directional; break;
+        case PunctualLight::Type::Point: ++point; break;
+        case PunctualLight::Type::Spot: ++spot; break;
+        case PunctualLight::Type::Directional: ++directional; break;
         }
     }
     int largest = 0;

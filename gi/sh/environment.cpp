@@ -124,8 +124,9 @@ Environment environment_from_function(int width, int height, const std::function
 }
 
 Environment uniform_sky(int width, int height) {
-    return environment_from_function(width, height, [](glm::vec3 d) { return glm::vec3(d.y > 0.0f ? 1.0f : 0.0f); },
-                                     "uniform sky (1 above the horizon, 0 below)");
+    return environment_from_function(
+        width, height, [](glm::vec3 d) { return glm::vec3(d.y > 0.0f ? 1.0f : 0.0f); },
+        "uniform sky (1 above the horizon, 0 below)");
 }
 
 EnvironmentSh project_environment(const Environment& env, ShWindow window, int bands) {
@@ -144,8 +145,8 @@ EnvironmentSh project_environment(const Environment& env, ShWindow window, int b
             // uniformly on the sphere; an equirectangular row does not).
             const double d_omega = dphi * (std::cos(M_PI * y / env.height) - std::cos(M_PI * (y + 1) / env.height));
             for (int x = 0; x < env.width; ++x) {
-                const glm::vec3 d = equirect_direction((float(x) + 0.5f) / float(env.width),
-                                                       (float(y) + 0.5f) / float(env.height));
+                const glm::vec3 d =
+                    equirect_direction((float(x) + 0.5f) / float(env.width), (float(y) + 0.5f) / float(env.height));
                 const ShCoefficients basis = sh_evaluate(d);
                 const glm::dvec3 l = glm::dvec3(env.texels[size_t(y) * size_t(env.width) + size_t(x)]) * d_omega;
                 for (int i = 0; i < kShMaxCoefficients; ++i) sum[i] += l * double(basis[i]);
@@ -171,15 +172,18 @@ nlohmann::json to_json(const EnvironmentSh& sh) {
     return {
         {"format", "lightfarm.env_sh"},
         {"version", 1},
-        {"basis", "real orthonormal SH, index l(l+1)+m, y up, no Condon-Shortley phase; y_1 = 0.488603 (x, y, z) "
-                  "for i = 1, 2, 3 (full table in sh_transfer.bin's documentation, gi/sh/transfer_file.h)"},
-        {"equirect", "theta = pi v from +y (top row up), phi = 2 pi (u - 0.5), d = (sin theta cos phi, cos theta, "
-                     "sin theta sin phi)"},
+        {"basis",
+         "real orthonormal SH, index l(l+1)+m, y up, no Condon-Shortley phase; y_1 = 0.488603 (x, y, z) "
+         "for i = 1, 2, 3 (full table in sh_transfer.bin's documentation, gi/sh/transfer_file.h)"},
+        {"equirect",
+         "theta = pi v from +y (top row up), phi = 2 pi (u - 0.5), d = (sin theta cos phi, cos theta, "
+         "sin theta sin phi)"},
         {"units", "L_i = integral of radiance W/(sr m^2) x y_i over the sphere; irradiance E = sum T_i L_i (W/m^2)"},
         {"source", sh.source},
         {"bands", sh.bands},
-        {"window", {{"kind", to_string(sh.window)},
-                    {"factors", {sh.window_factor[0], sh.window_factor[1], sh.window_factor[2], sh.window_factor[3]}}}},
+        {"window",
+         {{"kind", to_string(sh.window)},
+          {"factors", {sh.window_factor[0], sh.window_factor[1], sh.window_factor[2], sh.window_factor[3]}}}},
         {"coefficients", coefficients},
     };
 }

@@ -30,10 +30,10 @@ ShCoefficients sh_evaluate(glm::vec3 d) {
 double clamped_cosine_zonal(int band) {
     // z_l = 2 pi ∫_0^1 max(0, t) P_l(t) sqrt((2l+1)/(4pi)) dt.
     switch (band) {
-        case 0: return std::sqrt(M_PI) / 2.0;
-        case 1: return std::sqrt(M_PI / 3.0);
-        case 2: return std::sqrt(5.0 * M_PI) / 8.0;
-        default: return 0.0;  // odd bands above 1 vanish
+    case 0: return std::sqrt(M_PI) / 2.0;
+    case 1: return std::sqrt(M_PI / 3.0);
+    case 2: return std::sqrt(5.0 * M_PI) / 8.0;
+    default: return 0.0;  // odd bands above 1 vanish
     }
 }
 

@@ -60,7 +60,7 @@ tinygltf::Model load_gltf(const fs::path& file) {
     char magic[4] = {};
     std::ifstream(file, std::ios::binary).read(magic, 4);
     const bool ok = std::memcmp(magic, "glTF", 4) == 0 ? gltf.LoadBinaryFromFile(&model, &err, &warn, file.string())
-                                                        : gltf.LoadASCIIFromFile(&model, &err, &warn, file.string());
+                                                       : gltf.LoadASCIIFromFile(&model, &err, &warn, file.string());
     if (!ok) throw std::runtime_error(file.string() + ": cannot read: " + err);
     return model;
 }
@@ -96,14 +96,16 @@ std::vector<ShCoefficients> read_sh_glb_transfer(const fs::path& sh_glb, const S
         const tinygltf::Primitive& primitive = model.meshes.at(size_t(mesh)).primitives.at(size_t(inst.primitive));
         int count = 0;
         while (primitive.attributes.count("_SH_TRANSFER_" + std::to_string(count))) ++count;
-        if (count == 0 || count > 4) throw std::runtime_error(where + ": no _SH_TRANSFER_0 attribute (not a scene.sh.glb?)");
+        if (count == 0 || count > 4)
+            throw std::runtime_error(where + ": no _SH_TRANSFER_0 attribute (not a scene.sh.glb?)");
         if (attributes >= 0 && count != attributes)
             throw std::runtime_error(where + ": primitives differ in their number of _SH_TRANSFER attributes");
         attributes = count;
         for (int k = 0; k < count; ++k) {
             const std::string name = "_SH_TRANSFER_" + std::to_string(k);
             const std::vector<glm::vec4> values = read_vec4(model, primitive.attributes.at(name), where + " " + name);
-            if (values.size() < inst.vertex_count) throw std::runtime_error(where + ": " + name + " has too few vertices");
+            if (values.size() < inst.vertex_count)
+                throw std::runtime_error(where + ": " + name + " has too few vertices");
             for (uint32_t v = 0; v < inst.vertex_count; ++v) {
                 const uint32_t src = scene.source_vertex.empty() ? v : scene.source_vertex[inst.first_vertex + v];
                 for (int c = 0; c < 4; ++c) per_vertex[inst.first_vertex + v][4 * k + c] = values.at(src)[c];
@@ -171,8 +173,12 @@ nlohmann::json shade_sh_glb(const fs::path& transfer, const std::string& env, co
         colours[i].push_back(std::move(a));
     }
     write_glb_with_vertex_attributes(scene_file, scene, colours, out_glb, true);
-    return {{"vertices", scene.positions.size()}, {"bands", bands}, {"window", to_string(sh.window)},
-            {"min_e_over_pi", lowest}, {"max_e_over_pi", highest}, {"negative_vertices", negative},
+    return {{"vertices", scene.positions.size()},
+            {"bands", bands},
+            {"window", to_string(sh.window)},
+            {"min_e_over_pi", lowest},
+            {"max_e_over_pi", highest},
+            {"negative_vertices", negative},
             {"out", out_glb.string()}};
 }
 

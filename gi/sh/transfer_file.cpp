@@ -76,7 +76,9 @@ ShTransferFile transfer_by_primitive(const Scene& scene, const std::vector<ShCoe
         p.node = inst.node;
         p.mesh = inst.mesh;
         p.primitive = inst.primitive;
-        auto source = [&](uint32_t k) { return scene.source_vertex.empty() ? k : scene.source_vertex[inst.first_vertex + k]; };
+        auto source = [&](uint32_t k) {
+            return scene.source_vertex.empty() ? k : scene.source_vertex[inst.first_vertex + k];
+        };
         uint32_t count = 0;
         for (uint32_t k = 0; k < inst.vertex_count; ++k) count = std::max(count, source(k) + 1);
         p.vertices.assign(count, ShCoefficients{});
@@ -124,7 +126,9 @@ std::string encode_sh_transfer(const ShTransferFile& file, ShEncoding encoding) 
 }
 
 ShTransferFile decode_sh_transfer(const std::string& bytes, const std::string& what) {
-    auto bad = [&](const std::string& why) { return std::runtime_error(what + ": not a valid sh_transfer file: " + why); };
+    auto bad = [&](const std::string& why) {
+        return std::runtime_error(what + ": not a valid sh_transfer file: " + why);
+    };
     if (bytes.size() < kHeaderBytes || std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0) throw bad("bad magic");
     if (get_u32(bytes, 8) != kVersion) throw bad("version " + std::to_string(get_u32(bytes, 8)) + " (expected 1)");
     ShTransferFile file;

@@ -132,9 +132,15 @@ public:
         }
         BvhNode& n = bvh_.nodes[node];
         if (is_left) {
-            n.left_lo = box.lo; n.left_hi = box.hi; n.left_index = index; n.left_count = count;
+            n.left_lo = box.lo;
+            n.left_hi = box.hi;
+            n.left_index = index;
+            n.left_count = count;
         } else {
-            n.right_lo = box.lo; n.right_hi = box.hi; n.right_index = index; n.right_count = count;
+            n.right_lo = box.lo;
+            n.right_hi = box.hi;
+            n.right_index = index;
+            n.right_count = count;
         }
         bvh_.stats.max_depth = std::max(bvh_.stats.max_depth, depth);
         if (interior) {
@@ -154,7 +160,10 @@ double sah_cost(const Bvh& bvh, const Bounds& root_box) {
     const float root_area = std::max(root_box.surface_area(), 1e-30f);
     double cost = kTraversalCost;
     auto area = [](glm::vec3 lo, glm::vec3 hi) {
-        Bounds b; b.lo = lo; b.hi = hi; return b.empty() ? 0.0f : b.surface_area();
+        Bounds b;
+        b.lo = lo;
+        b.hi = hi;
+        return b.empty() ? 0.0f : b.surface_area();
     };
     for (const BvhNode& n : bvh.nodes) {
         const float al = area(n.left_lo, n.left_hi) / root_area, ar = area(n.right_lo, n.right_hi) / root_area;

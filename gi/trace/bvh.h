@@ -17,19 +17,26 @@ namespace lf {
 // (count > 0, index = first triangle in Bvh::triangles). An unused slot (the
 // root of a tiny or empty scene) has a box at +infinity: no ray enters it.
 struct BvhNode {
-    glm::vec3 left_lo;  uint32_t left_index;
-    glm::vec3 left_hi;  uint32_t right_index;
-    glm::vec3 right_lo; uint32_t left_count;
-    glm::vec3 right_hi; uint32_t right_count;
+    glm::vec3 left_lo;
+    uint32_t left_index;
+    glm::vec3 left_hi;
+    uint32_t right_index;
+    glm::vec3 right_lo;
+    uint32_t left_count;
+    glm::vec3 right_hi;
+    uint32_t right_count;
 };
 static_assert(sizeof(BvhNode) == 64);
 
 // A triangle as the traversal reads it: three vertices, 48 bytes; the
 // scene's triangle index rides in the first vertex's w.
 struct BvhTriangle {
-    glm::vec3 v0; uint32_t scene_triangle;
-    glm::vec3 v1; float pad1;
-    glm::vec3 v2; float pad2;
+    glm::vec3 v0;
+    uint32_t scene_triangle;
+    glm::vec3 v1;
+    float pad1;
+    glm::vec3 v2;
+    float pad2;
 };
 static_assert(sizeof(BvhTriangle) == 48);
 
@@ -38,12 +45,12 @@ struct BvhStats {
     size_t nodes = 0;
     size_t leaves = 0;
     size_t max_depth = 0;
-    size_t bytes = 0;          // nodes + triangles as uploaded
-    double sah_cost = 0.0;     // expected cost, traversal step = 1, triangle test = 1
+    size_t bytes = 0;       // nodes + triangles as uploaded
+    double sah_cost = 0.0;  // expected cost, traversal step = 1, triangle test = 1
 };
 
 struct Bvh {
-    std::vector<BvhNode> nodes;  // nodes[0] is the root
+    std::vector<BvhNode> nodes;          // nodes[0] is the root
     std::vector<BvhTriangle> triangles;  // in leaf order
     BvhStats stats;
 };

@@ -5,9 +5,8 @@
 
 namespace lf {
 
-bool intersect_triangle_reference(const glm::vec3& org, const glm::vec3& dir, const glm::vec3& v0,
-                                  const glm::vec3& v1, const glm::vec3& v2, float t_max, float* t,
-                                  glm::vec2* bary) {
+bool intersect_triangle_reference(const glm::vec3& org, const glm::vec3& dir, const glm::vec3& v0, const glm::vec3& v1,
+                                  const glm::vec3& v2, float t_max, float* t, glm::vec2* bary) {
     const glm::vec3 a = glm::abs(dir);
     int kz = (a.x > a.y) ? ((a.x > a.z) ? 0 : 2) : ((a.y > a.z) ? 1 : 2);
     int kx = (kz + 1) % 3, ky = (kx + 1) % 3;

@@ -8,9 +8,8 @@
 namespace lf {
 
 // Watertight ray/triangle test (Woop, Benthin & Wald 2013), as in trace.glsl.
-bool intersect_triangle_reference(const glm::vec3& org, const glm::vec3& dir, const glm::vec3& v0,
-                                  const glm::vec3& v1, const glm::vec3& v2, float t_max, float* t,
-                                  glm::vec2* bary);
+bool intersect_triangle_reference(const glm::vec3& org, const glm::vec3& dir, const glm::vec3& v0, const glm::vec3& v1,
+                                  const glm::vec3& v2, float t_max, float* t, glm::vec2* bary);
 
 // Closest hit over all triangles by brute force.
 RayHit trace_brute_force(const Scene& scene, const Ray& ray);

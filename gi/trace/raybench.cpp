@@ -46,8 +46,13 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
         {"scene", scene.source},
         {"triangles", scene.triangle_count()},
         {"device", {{"vendor", gpu.info().vendor}, {"renderer", gpu.info().renderer}}},
-        {"bvh", {{"build_seconds", bvh.build_seconds}, {"nodes", bvh.nodes}, {"leaves", bvh.leaves},
-                 {"max_depth", bvh.max_depth}, {"bytes", bvh.bytes}, {"sah_cost", bvh.sah_cost}}},
+        {"bvh",
+         {{"build_seconds", bvh.build_seconds},
+          {"nodes", bvh.nodes},
+          {"leaves", bvh.leaves},
+          {"max_depth", bvh.max_depth},
+          {"bytes", bvh.bytes},
+          {"sah_cost", bvh.sah_cost}}},
     };
 
     const std::vector<glm::vec4> points = surface_points(scene, 1u << 20);
@@ -94,7 +99,9 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
         const std::vector<uint32_t> hits = counts.read<uint32_t>();
         const double rays = double(n) * double(dispatches);
         const double hit_count = double(std::accumulate(hits.begin(), hits.end(), uint64_t(0)));
-        out[kind] = {{"rays", rays}, {"seconds", seconds}, {"rays_per_second", rays / seconds},
+        out[kind] = {{"rays", rays},
+                     {"seconds", seconds},
+                     {"rays_per_second", rays / seconds},
                      {"hit_fraction", hit_count / rays}};
     }
     return out;

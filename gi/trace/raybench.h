@@ -11,7 +11,7 @@ namespace lf {
 
 struct RaybenchOptions {
     size_t rays_per_dispatch = 1u << 22;  // 4M
-    double min_seconds = 1.0;              // per ray kind, after one warm-up dispatch
+    double min_seconds = 1.0;             // per ray kind, after one warm-up dispatch
     size_t max_dispatches = 64;
 };
 

@@ -121,8 +121,8 @@ void fuzz_scene_summary(const json& j) {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-    const json j = json::parse(reinterpret_cast<const char*>(data), reinterpret_cast<const char*>(data) + size,
-                               nullptr, false);
+    const json j =
+        json::parse(reinterpret_cast<const char*>(data), reinterpret_cast<const char*>(data) + size, nullptr, false);
     if (j.is_discarded()) return 0;
     fuzz_job_spec(j, server_limits());
     fuzz_job_spec(j, cli_limits());
