@@ -37,6 +37,11 @@ Scene furnace(float rho, float le) {
     return s;
 }
 
+void expect_inside(const std::vector<glm::vec3>& points) {
+    for (const glm::vec3& p : points)
+        for (int a = 0; a < 3; ++a) EXPECT_LT(std::abs(p[a]), 1.0f);
+}
+
 // Captures probes at `points` of `scene` for `passes` passes and reads back
 // the written set (the files are part of what is tested).
 ProbeSet capture(const Scene& scene, const std::vector<glm::vec3>& points, int r, int m, int passes) {
@@ -112,6 +117,24 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
         const ProbeEvaluation e = eval.evaluate(x, n);
         EXPECT_NEAR(e.polygon_to_point.g, expected, 0.05 * expected) << x.x << "," << x.y << "," << x.z;
     }
+}
+
+// Where probes go: the job's points win; else the file's nodes marked
+// lightfarm_probe; else a grid of cell centres over the bounds, a quarter of
+// the largest extent apart by default.
+TEST(ProbePlacement, ExplicitThenTheFilesNodesThenAGrid) {
+    Scene s = furnace(0.5f, 1.0f);  // [-1, 1]³
+    protocol::ProbesSettings settings;
+    float spacing = 0.0f;
+    std::vector<glm::vec3> grid = ProbesMethod::place(s, settings, &spacing);
+    EXPECT_FLOAT_EQ(spacing, 0.5f);
+    ASSERT_EQ(grid.size(), 64u);
+    expect_inside(grid);
+    s.probe_points = {{0.1f, 0.2f, 0.3f}};
+    EXPECT_EQ(ProbesMethod::place(s, settings, &spacing), s.probe_points);
+    EXPECT_EQ(spacing, 0.0f);
+    settings.positions = {{0.0f, 0.0f, 0.0f}, {0.5f, 0.5f, 0.5f}};
+    EXPECT_EQ(ProbesMethod::place(s, settings, &spacing).size(), 2u);
 }
 
 // A probe inside a solid box sees the backs of its one-sided faces: it is

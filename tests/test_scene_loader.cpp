@@ -582,6 +582,21 @@ TEST(GeneratedScenes, SpotLightConeAndDirectionFromTheNode) {
     EXPECT_EQ(summary["punctual_lights"]["point"], 1);
 }
 
+// Probes can be placed in the file: nodes whose extras hold
+// {"lightfarm_probe": true} give their world positions (children of
+// transformed parents included); other extras are ignored.
+TEST(GeneratedScenes, NodesMarkedAsProbesGiveProbePoints) {
+    TempDir dir;
+    GltfWriter w;
+    const int mesh = w.mesh(primitive(w.vec3(kQuad)));
+    const int probe = w.add("nodes", {{"translation", {1, 2, 3}}, {"extras", {{"lightfarm_probe", true}}}});
+    const int other = w.add("nodes", {{"translation", {9, 9, 9}}, {"extras", {{"lightfarm_probe", false}}}});
+    w.add("nodes", {{"mesh", mesh}, {"translation", {0, 1, 0}}, {"children", {probe, other}}});
+    const Scene s = load_written(w, dir);
+    ASSERT_EQ(s.probe_points.size(), 1u);
+    expect_near(s.probe_points[0], glm::vec3(1, 3, 3));
+}
+
 // Coordinates near float's limit are finite, so the accessor checks pass
 // them, but no derived size survives them (fuzzing found two overflows in
 // the atlas): a scene farther than LoadLimits::max_coordinate from the

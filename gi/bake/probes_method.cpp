@@ -23,6 +23,7 @@ std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::P
         for (const auto& p : settings.positions) points.emplace_back(p[0], p[1], p[2]);
         return points;
     }
+    if (!scene.probe_points.empty()) return scene.probe_points;  // the file's nodes marked lightfarm_probe
     // A grid of cell centres over the bounds; auto spacing: a quarter of the
     // largest extent (4 probes along it).
     const glm::vec3 extent = scene.bounds.extent();
@@ -72,7 +73,9 @@ nlohmann::json ProbesMethod::description() const {
     return {{"probes", positions_.size()},
             {"settings",
              {{"method", "robust_probes"},
-              {"placement", settings_.positions.empty() ? "grid" : "explicit"},
+              {"placement", !settings_.positions.empty()            ? "explicit"
+                            : !prepared_.scene.probe_points.empty() ? "gltf nodes"
+                                                                    : "grid"},
               {"spacing", spacing_},
               {"capture_resolution", settings_.res},
               {"m", settings_.m},

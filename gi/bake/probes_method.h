@@ -5,8 +5,9 @@
 // and path per texel per pass through the job's one tracer), downsampled to
 // M x M per face and written as probes.exr + probes.json (gi/probes/probe_set.h).
 //
-// Placement models no more than the scene needs: explicit points, or a grid
-// over the scene's bounds; a probe whose rays mostly meet the backs of
+// Placement models no more than the scene needs: explicit points (the job's
+// probe_positions, else the glTF nodes whose extras hold "lightfarm_probe":
+// true), or a grid over the scene's bounds; a probe whose rays mostly meet the backs of
 // one-sided surfaces is inside geometry and is dropped, and so is a grid
 // probe far from every surface. probes.json says which were kept and why.
 #pragma once

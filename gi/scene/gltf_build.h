@@ -29,6 +29,8 @@ struct PlacedNode {
 struct Placement {
     std::vector<PlacedNode> meshes;
     std::vector<PlacedNode> lights;
+    // Nodes whose extras say {"lightfarm_probe": true}: where a probe goes.
+    std::vector<PlacedNode> probes;
 };
 
 // Checks the whole node graph (indices, transforms, a single parent per node,

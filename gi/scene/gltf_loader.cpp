@@ -108,6 +108,7 @@ Scene load_scene(const std::filesystem::path& file, const LoadLimits& limits) {
     add_materials(model, errors, images, reader, scene, &scene.warnings);
     add_geometry(model, placement.meshes, reader, limits, errors, scene, &scene.warnings);
     add_lights(model, placement.lights, errors, scene, &scene.warnings);
+    for (const auto& p : placement.probes) scene.probe_points.emplace_back(p.world[3]);
     check_extent(scene.bounds, limits, errors);
     add_scene_warnings(scene);
     return scene;

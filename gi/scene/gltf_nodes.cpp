@@ -179,6 +179,9 @@ Placement place_nodes(const tinygltf::Model& model, const Errors& errors, std::v
         const glm::dmat4 world = parent_world * local[size_t(index)];
         if (node.mesh >= 0) placement.meshes.push_back({index, node.mesh, world});
         if (lights[size_t(index)] >= 0) placement.lights.push_back({index, lights[size_t(index)], world});
+        if (node.extras.IsObject() && node.extras.Has("lightfarm_probe") &&
+            node.extras.Get("lightfarm_probe").IsBool() && node.extras.Get("lightfarm_probe").Get<bool>())
+            placement.probes.push_back({index, -1, world});
         for (auto child = node.children.rbegin(); child != node.children.rend(); ++child)
             stack.emplace_back(*child, world);
     }

@@ -110,6 +110,9 @@ struct Scene {
     std::vector<Material> materials;  // glTF materials, plus a default at the end if any primitive had none
     std::vector<Texture> textures;    // decoded, indexed by materials
     std::vector<PunctualLight> lights;
+    // Probe reference points the file names: the world positions of nodes
+    // whose extras hold {"lightfarm_probe": true}.
+    std::vector<glm::vec3> probe_points;
 
     Bounds bounds;
     // Things the user should know that do not make the file invalid
