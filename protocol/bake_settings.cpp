@@ -438,34 +438,34 @@ json to_json(const BakeSettings& b) {
 
 namespace {
 
+// The whole of `text` read by `parse` (std::stoll, std::stod), or nothing.
+template <class T, class Parse>
+std::optional<T> parse_whole(const std::string& text, Parse parse) {
+    size_t used = 0;
+    try {
+        const T v = parse(text, &used);
+        if (!text.empty() && used == text.size()) return v;
+    } catch (const std::exception&) {
+    }
+    return std::nullopt;
+}
+
 // A command-line value as the JSON the catalog checks.
 json value_from_text(const Setting& s, const std::string& text) {
     const std::string flag = s.flag();
     if (s.accepts_auto && text == "auto") return "auto";
     auto bad = [&](const std::string& what) { return SpecError(flag, "'" + text + "' is not " + what); };
     switch (s.type) {
-    case SettingType::Integer: {
-        size_t used = 0;
-        long long v = 0;
-        try {
-            v = std::stoll(text, &used);
-        } catch (const std::exception&) {
-            used = 0;
-        }
-        if (text.empty() || used != text.size()) throw bad(s.accepts_auto ? "an integer or auto" : "an integer");
-        return v;
-    }
-    case SettingType::Number: {
-        size_t used = 0;
-        double v = 0;
-        try {
-            v = std::stod(text, &used);
-        } catch (const std::exception&) {
-            used = 0;
-        }
-        if (text.empty() || used != text.size()) throw bad(s.accepts_auto ? "a number or auto" : "a number");
-        return v;
-    }
+    case SettingType::Integer:
+        if (const auto v =
+                parse_whole<long long>(text, [](const std::string& t, size_t* used) { return std::stoll(t, used); }))
+            return *v;
+        throw bad(s.accepts_auto ? "an integer or auto" : "an integer");
+    case SettingType::Number:
+        if (const auto v =
+                parse_whole<double>(text, [](const std::string& t, size_t* used) { return std::stod(t, used); }))
+            return *v;
+        throw bad(s.accepts_auto ? "a number or auto" : "a number");
     case SettingType::Choice: return text;
     case SettingType::Flag: return s.default_value != true;
     case SettingType::MeshList: {

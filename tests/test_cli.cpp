@@ -1,5 +1,6 @@
 // `lightfarm bake` as a user runs it: the files it promises, its JSON lines,
 // its stop rules, and one clear line for every kind of failure.
+#include "cli_runner.h"
 #include "gpu_fixture.h"
 
 #include "io/image_files.h"
@@ -23,27 +24,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CliRun {
-    int exit_code;
-    std::string out;  // stdout
-    std::string err;  // stderr
-};
-
-CliRun run_lightfarm(const std::string& args) {
-    const fs::path err_file = fs::temp_directory_path() / ("lightfarm-cli-stderr-" + std::to_string(getpid()));
-    const std::string command = std::string(LIGHTFARM_BIN) + " " + args + " 2>" + err_file.string();
-    FILE* pipe = popen(command.c_str(), "r");
-    std::string out;
-    char buffer[4096];
-    size_t n;
-    while ((n = fread(buffer, 1, sizeof buffer, pipe)) > 0) out.append(buffer, n);
-    const int status = pclose(pipe);
-    std::ifstream e(err_file);
-    std::stringstream err;
-    err << e.rdbuf();
-    fs::remove(err_file);
-    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out, err.str()};
-}
+using test::CliRun;
+using test::run_lightfarm;
 
 fs::path fresh_dir(const std::string& name) {
     const fs::path d = fs::temp_directory_path() / ("lightfarm-cli-" + name + "-" + std::to_string(getpid()));

@@ -2,6 +2,7 @@
 // closed forms, the four estimators on synthetic probes captured by ray casting
 // simple geometry in C++ (no GPU capture needed), the GLSL include against the
 // C++, the probes files' round trip and `lightfarm probe-eval`.
+#include "cli_runner.h"
 #include "gpu_fixture.h"
 
 #include "gpu/shader.h"
@@ -686,26 +687,8 @@ TEST(ProbeFiles, WriteThenReadRoundTrips) {
     fs::remove_all(dir);
 }
 
-struct CliRun {
-    int exit_code;
-    std::string out, err;
-};
-
-CliRun run_lightfarm(const std::string& args) {
-    const fs::path err_file = fs::temp_directory_path() / ("lightfarm-probes-stderr-" + std::to_string(getpid()));
-    const std::string command = std::string(LIGHTFARM_BIN) + " " + args + " 2>" + err_file.string();
-    FILE* pipe = popen(command.c_str(), "r");
-    std::string out;
-    char buffer[4096];
-    size_t n;
-    while ((n = fread(buffer, 1, sizeof buffer, pipe)) > 0) out.append(buffer, n);
-    const int status = pclose(pipe);
-    std::ifstream e(err_file);
-    std::stringstream err;
-    err << e.rdbuf();
-    fs::remove(err_file);
-    return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, out, err.str()};
-}
+using test::CliRun;
+using test::run_lightfarm;
 
 TEST(ProbeCli, ProbeEvalPrintsTheFourEstimatorsInInputOrder) {
     const ProbeSet set = small_set();

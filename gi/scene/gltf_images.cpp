@@ -96,14 +96,18 @@ void ImageDecoder::decode(tinygltf::Image* image, int index, const unsigned char
                      std::to_string(limits_.max_total_texels) + " texels in all)");
     }
 
-    if (!limits_.decode_images) {  // header only: sizes known, no pixels
-        image->image.clear();
+    // RGBA8 of the header's size: the pixels decoded, or none (header only).
+    auto describe_rgba8 = [&] {
         image->width = width;
         image->height = height;
         image->component = 4;
         image->bits = 8;
         image->pixel_type = TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE;
         texels_left_ -= texels;
+    };
+    if (!limits_.decode_images) {  // header only: sizes known, no pixels
+        image->image.clear();
+        describe_rgba8();
         return;
     }
     int decoded_width = 0, decoded_height = 0, decoded_channels = 0;
@@ -116,12 +120,7 @@ void ImageDecoder::decode(tinygltf::Image* image, int index, const unsigned char
     }
     image->image.assign(pixels, pixels + size_t(texels) * 4);
     stbi_image_free(pixels);
-    image->width = width;
-    image->height = height;
-    image->component = 4;
-    image->bits = 8;
-    image->pixel_type = TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE;
-    texels_left_ -= texels;
+    describe_rgba8();
 }
 
 namespace {
