@@ -49,8 +49,23 @@ public:
         return it == values_.end() ? fallback : it->second;
     }
     double number(const std::string& key, double fallback) const {
+        return has(key) ? parse_number(key, values_.at(key)) : fallback;
+    }
+    // A comma-separated list ("1,2,4"), or `fallback` when the option is absent.
+    std::vector<double> numbers(const std::string& key, std::vector<double> fallback) const {
         if (!has(key)) return fallback;
+        std::vector<double> list;
         const std::string& text = values_.at(key);
+        for (size_t start = 0;;) {
+            const size_t comma = text.find(',', start);
+            list.push_back(parse_number(key, text.substr(start, comma - start)));
+            if (comma == std::string::npos) return list;
+            start = comma + 1;
+        }
+    }
+
+private:
+    static double parse_number(const std::string& key, const std::string& text) {
         size_t used = 0;
         double v = 0.0;
         try {
@@ -62,7 +77,6 @@ public:
         return v;
     }
 
-private:
     std::vector<std::string> positional_;
     std::set<std::string> flags_;
     std::map<std::string, std::string> values_;

@@ -5,6 +5,7 @@
 
 #include "atlas/atlas.h"
 #include "bake/bake_job.h"
+#include "bake/probe_bench.h"
 #include "job_spec.h"
 #include "sh/sh_glb.h"
 #include "sh/transfer_file.h"
@@ -45,6 +46,9 @@ commands:
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]
   compare TRANSFER.bin REFERENCE.bin error against a reference (JSON)
   probe-eval PROBES.json POINTS.json irradiance/pi at points from baked probes, four estimators (JSON)
+  probebench SCENE [--at X,Y,Z] [--toward X,Y,Z] [--res-list 32,64,128,256] [--m-list 1,2,4,8]
+       [--passes N] [--points N] [--seconds S] [--device auto|gpu|cpu]
+                                     probes: capture time, evaluation throughput, error (JSON)
 )";
 
 std::string one_scene(const Args& args, const char* command) {
@@ -76,6 +80,43 @@ int raybench(int argc, char** argv) {
     lf::RaybenchOptions options;
     options.min_seconds = args.number("--seconds", options.min_seconds);
     std::cout << lf::run_raybench(gpu, scene, options).dump(2) << "\n";
+    return 0;
+}
+
+glm::vec3 vector3(const Args& args, const std::string& key) {
+    const std::vector<double> v = args.numbers(key, {});
+    if (v.size() != 3) throw UsageError(key + " takes X,Y,Z");
+    return glm::vec3(float(v[0]), float(v[1]), float(v[2]));
+}
+
+std::vector<int> integers(const Args& args, const std::string& key, const std::vector<int>& fallback) {
+    std::vector<int> out;
+    for (double v : args.numbers(key, std::vector<double>(fallback.begin(), fallback.end()))) {
+        if (v != std::floor(v) || v < 1 || v > 4096)
+            throw UsageError(key + ": " + std::to_string(v) + " is not a count");
+        out.push_back(int(v));
+    }
+    return out;
+}
+
+int probebench(int argc, char** argv) {
+    Args args(argc, argv, 2,
+              {"--device", "--at", "--toward", "--res-list", "--m-list", "--passes", "--points", "--seconds"}, {});
+    lf::GpuContext gpu(lf::parse_device_choice(args.get("--device", "auto")));
+    const std::filesystem::path file = one_scene(args, "probebench");
+    const lf::Scene scene = lf::load_scene(file);
+    lf::ProbeBenchOptions options;
+    if (args.has("--at")) options.at = vector3(args, "--at");
+    if (args.has("--toward")) options.toward = vector3(args, "--toward");
+    options.capture_resolutions = integers(args, "--res-list", options.capture_resolutions);
+    options.ms = integers(args, "--m-list", options.ms);
+    options.passes = integers(args, "--passes", {options.passes})[0];
+    options.random_points = integers(args, "--points", {options.random_points})[0];
+    options.min_seconds = args.number("--seconds", options.min_seconds);
+    nlohmann::json out = lf::run_probe_bench(scene, options);
+    out["scene"] = file.filename().string();
+    out["device"] = {{"vendor", gpu.info().vendor}, {"renderer", gpu.info().renderer}};
+    std::cout << out.dump(2) << "\n";
     return 0;
 }
 
@@ -359,6 +400,7 @@ int main(int argc, char** argv) {
         if (command == "devices") return devices(argc, argv);
         if (command == "sh-shade") return sh_shade(argc, argv);
         if (command == "probe-eval") return probe_eval(argc, argv);
+        if (command == "probebench") return probebench(argc, argv);
         throw UsageError("unknown command '" + command + "'");
     } catch (const std::invalid_argument& e) {  // a bad option value
         std::cerr << "lightfarm: " << e.what() << "\n";

@@ -634,6 +634,49 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
                     count);
         EXPECT_LT(worst, 1e-4);
     }
+    // A grid, blended: a 3 x 2 x 2 lattice in the coloured box whose probes
+    // at x = -0.6 and 0 are invalid, so that points in the first cell fall
+    // back to the nearest valid probes and those in the second blend its two
+    // valid corners' faces only; points also outside the lattice.
+    {
+        const std::vector<Patch> scene = box(glm::vec3(-1.0f), glm::vec3(1.0f),
+                                             {glm::vec3(2, 0.1f, 0.1f), glm::vec3(0.1f, 2, 0.1f), glm::vec3(1.5f),
+                                              glm::vec3(0.2f), glm::vec3(0.1f, 0.1f, 1.5f), glm::vec3(0.5f)});
+        const glm::ivec3 counts(3, 2, 2);
+        const glm::vec3 origin(-0.6f, -0.4f, -0.4f), spacing(0.6f, 0.8f, 0.8f);
+        ProbeSet set;
+        set.m = 2;
+        for (int z = 0; z < counts.z; ++z)
+            for (int y = 0; y < counts.y; ++y)
+                for (int x = 0; x < counts.x; ++x) {
+                    set.probes.push_back(capture(scene, origin + glm::vec3(x, y, z) * spacing, 8, 2));
+                    set.probes.back().valid = x == 2;
+                }
+        const ProbeEvaluator cpu(set);
+        ASSERT_TRUE(cpu.is_grid());
+        GpuBuffer probes(pack_probe_buffer(set));
+        probes.bind(0);
+        std::vector<glm::vec4> cases;
+        const size_t count = 400;
+        for (size_t i = 0; i < count; ++i) {
+            cases.push_back(glm::vec4(0.95f * glm::vec3(u(rng), u(rng), u(rng)), 0));
+            cases.push_back(glm::vec4(random_direction(rng), 0));
+        }
+        program.use();
+        glUniform1i(program.uniform("m"), set.m);
+        glUniform3i(program.uniform("grid_counts"), counts.x, counts.y, counts.z);
+        glUniform3fv(program.uniform("grid_origin"), 1, &origin.x);
+        glUniform3fv(program.uniform("grid_spacing"), 1, &spacing.x);
+        const auto got = run(3, cases, count);
+        double worst = 0.0;
+        for (size_t i = 0; i < count; ++i) {
+            const glm::vec3 want = cpu.evaluate(glm::vec3(cases[2 * i]), glm::vec3(cases[2 * i + 1])).polygon_to_point;
+            worst = std::max(worst, double(relative_error(glm::vec3(got[i]), want)));
+        }
+        std::printf("  GLSL grid polygon-to-point vs C++: max relative difference %.2e over %zu points\n", worst,
+                    count);
+        EXPECT_LT(worst, 1e-4);
+    }
 }
 
 // --------------------------------------------------------- files ----

@@ -126,7 +126,7 @@ PassStats ProbesMethod::step() {
     return stats_;
 }
 
-ProbeSet ProbesMethod::current_set() const {
+ProbeSet ProbesMethod::probe_set() const {
     const int r = settings_.res, m = settings_.m;
     const size_t per_probe = size_t(6) * r * r;
     const std::vector<glm::vec4> acc = texels_.read<glm::vec4>();
@@ -169,11 +169,11 @@ ProbeSet ProbesMethod::current_set() const {
 std::vector<std::string> ProbesMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
     std::string stem = snapshot_file_name("probes", stats.pass, "");  // "probes.pass-0004."
     stem.pop_back();
-    return write_probe_set(dir, current_set(), stem);
+    return write_probe_set(dir, probe_set(), stem);
 }
 
 MethodResult ProbesMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
-    const ProbeSet set = current_set();
+    const ProbeSet set = probe_set();
     MethodResult result;
     result.files = write_probe_set(dir, set);
     nlohmann::json kept = nlohmann::json::object();

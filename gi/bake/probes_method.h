@@ -47,9 +47,10 @@ public:
     // the grid), before validity is known. Public for tests.
     static std::vector<glm::vec3> place(const Scene& scene, const protocol::ProbesSettings& settings, float* spacing);
 
-private:
-    ProbeSet current_set() const;
+    // The set as captured so far (reads the GPU's accumulators back).
+    ProbeSet probe_set() const;
 
+private:
     const PreparedScene& prepared_;
     protocol::ProbesSettings settings_;
     StopRule stop_;

@@ -1,7 +1,7 @@
 // Light-probe evaluation for renderers (issue 11; gi/probes/probe_eval.h is
 // the C++ twin, tested equal): the polygon-to-point form factor (Umenhoffer &
-// Szirmay-Kalos, eq. 1, each edge with its own pair of corners) and one
-// probe's polygon-to-point irradiance / π at (x, n).
+// Szirmay-Kalos, eq. 1, each edge with its own pair of corners), one
+// probe's polygon-to-point irradiance / π at (x, n), and a grid's, blended.
 //
 // The probe texels live in an SSBO, as lf::pack_probe_buffer writes it: per
 // probe, 6·M·M vec4 texels (radiance RGB, distance), faces +X,-X,+Y,-Y,+Z,-Z,
@@ -72,6 +72,89 @@ vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, v
                 sum += radiance * max(lf_polygon_to_point_form_factor(x, n, c0, c1, c2, c3), 0.0);
             }
     return sum;
+}
+
+// ----------------------------------------------------------- a grid ----
+// A lattice of probes (the bake's grid placement): counts.x × counts.y ×
+// counts.z probes, probe (ix, iy, iz) at origin + (ix, iy, iz) · spacing and
+// at index (iz·counts.y + iy)·counts.x + ix in the buffer (x fastest, the
+// order probes.json lists a grid in). An invalid probe's block is zero, so
+// its first texel's distance is 0 (a valid texel's never is).
+
+bool lf_probe_valid(uint probe, int m) { return lf_probe_texels[probe * lf_probe_stride(m)].w > 0.0; }
+
+vec3 lf_grid_probe_position(ivec3 counts, vec3 origin, vec3 spacing, int k) {
+    ivec3 i = ivec3(k % counts.x, (k / counts.x) % counts.y, k / (counts.x * counts.y));
+    return origin + vec3(i) * spacing;
+}
+
+// When every corner of x's cell is invalid: the nearest valid probes (up to
+// 8), weighted ((r − d) / (r·d))² with r the distance of the next one (or
+// 1.5 × the farthest's when there is no next), as lf::ProbeEvaluator::weights.
+vec3 lf_probe_grid_nearest(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 x, vec3 n) {
+    float d[9];
+    int k9[9];
+    int found = 0;
+    for (int k = 0; k < counts.x * counts.y * counts.z; ++k) {
+        if (!lf_probe_valid(uint(k), m)) continue;
+        float dk = length(lf_grid_probe_position(counts, origin, spacing, k) - x);
+        int at = min(found, 8);  // insertion into the 9 nearest, sorted
+        if (found == 9 && dk >= d[8]) continue;
+        while (at > 0 && d[at - 1] > dk) {
+            d[at] = d[at - 1];
+            k9[at] = k9[at - 1];
+            --at;
+        }
+        d[at] = dk;
+        k9[at] = k;
+        found = min(found + 1, 9);
+    }
+    if (found == 0) return vec3(0.0);
+    if (d[0] < 1e-6 || found == 1)
+        return lf_probe_polygon_to_point(uint(k9[0]), m, lf_grid_probe_position(counts, origin, spacing, k9[0]), x, n);
+    int count = min(found, 8);
+    float radius = count < found ? d[count] : d[count - 1] * 1.5;
+    vec3 sum = vec3(0.0);
+    float total = 0.0;
+    for (int i = 0; i < count; ++i) {
+        float w = pow(max(0.0, radius - d[i]) / (radius * d[i]), 2.0);
+        if (w <= 0.0) continue;
+        sum += w * lf_probe_polygon_to_point(uint(k9[i]), m, lf_grid_probe_position(counts, origin, spacing, k9[i]), x, n);
+        total += w;
+    }
+    if (total > 0.0) return sum / total;
+    for (int i = 0; i < count; ++i)  // every one as far as the next: equal weights
+        sum += lf_probe_polygon_to_point(uint(k9[i]), m, lf_grid_probe_position(counts, origin, spacing, k9[i]), x, n);
+    return sum / float(count);
+}
+
+// Irradiance / π at (x, n) from a grid: the valid corners of x's cell
+// blended trilinearly (weights renormalised over the valid ones), the
+// nearest valid probes where none of the cell's is, as the C++
+// lf::ProbeEvaluator does for a lattice.
+vec3 lf_probe_grid_polygon_to_point(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 x, vec3 n) {
+    ivec3 i0 = ivec3(0);
+    vec3 f = vec3(0.0);
+    for (int a = 0; a < 3; ++a) {
+        if (counts[a] == 1) continue;
+        float g = (x[a] - origin[a]) / spacing[a];
+        i0[a] = clamp(int(floor(g)), 0, counts[a] - 2);
+        f[a] = clamp(g - float(i0[a]), 0.0, 1.0);
+    }
+    vec3 sum = vec3(0.0);
+    float total = 0.0;
+    for (int corner = 0; corner < 8; ++corner) {
+        ivec3 bit = ivec3(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
+        if ((bit.x == 1 && counts.x == 1) || (bit.y == 1 && counts.y == 1) || (bit.z == 1 && counts.z == 1)) continue;
+        vec3 w3 = mix(vec3(1.0) - f, f, vec3(bit));
+        float w = w3.x * w3.y * w3.z;
+        ivec3 i = i0 + bit;
+        int k = (i.z * counts.y + i.y) * counts.x + i.x;
+        if (w <= 0.0 || !lf_probe_valid(uint(k), m)) continue;
+        sum += w * lf_probe_polygon_to_point(uint(k), m, origin + vec3(i) * spacing, x, n);
+        total += w;
+    }
+    return total > 0.0 ? sum / total : lf_probe_grid_nearest(counts, origin, spacing, m, x, n);
 }
 
 #endif

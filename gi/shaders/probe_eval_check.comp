@@ -4,6 +4,7 @@
 //   mode 0: form factor; cases[6i..6i+5] = x, n, c0, c1, c2, c3 -> results[i].x
 //   mode 1: probe `probe` at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 //   mode 2: cube direction; cases[i] = (face, u, v) -> results[i].xyz
+//   mode 3: the grid (grid_counts, grid_origin, grid_spacing) at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 layout(local_size_x = 64) in;
 
 #define LF_PROBE_BINDING 0
@@ -17,6 +18,9 @@ uniform uint mode;
 uniform int m;
 uniform uint probe;
 uniform vec3 probe_position;
+uniform ivec3 grid_counts;
+uniform vec3 grid_origin;
+uniform vec3 grid_spacing;
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
@@ -28,6 +32,9 @@ void main() {
         results[i] = vec4(f, 0.0, 0.0, 0.0);
     } else if (mode == 1u) {
         results[i] = vec4(lf_probe_polygon_to_point(probe, m, probe_position, cases[2u * i].xyz, cases[2u * i + 1u].xyz), 0.0);
+    } else if (mode == 3u) {
+        results[i] = vec4(lf_probe_grid_polygon_to_point(grid_counts, grid_origin, grid_spacing, m, cases[2u * i].xyz,
+                                                         cases[2u * i + 1u].xyz), 0.0);
     } else {
         vec4 c = cases[i];
         results[i] = vec4(lf_cube_direction(int(c.x), c.yz), 0.0);
