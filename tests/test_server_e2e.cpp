@@ -282,7 +282,7 @@ TEST_F(EndToEnd, WhatIsKnownAtSubmitIsRefusedAtSubmit) {
 }
 
 TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
-    const Bake bake;  // res 64, 16 passes, seed 3: snapshots at passes 1, 2, 4, 8, 16
+    const Bake bake;  // res 64, 16 passes, seed 3: a snapshot at pass 1, more as the schedule's budget allows
     const std::string id = submit(bake.spec(upload_cornell_box()));
     ASSERT_FALSE(id.empty());
 
@@ -294,7 +294,7 @@ TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
         EXPECT_EQ(events[i].id, int64_t(i + 1));
         if (events[i].type == "snapshot") snapshots.push_back(events[i].data["file"]);
     }
-    EXPECT_GE(snapshots.size(), 2u) << "snapshot events before done";
+    EXPECT_GE(snapshots.size(), 1u) << "snapshot events before done";
     EXPECT_EQ(events.back().data["pass"], bake.passes);
     EXPECT_EQ(events.back().data["cached"], false);
     const json status = wait_finished(id);

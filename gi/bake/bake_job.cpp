@@ -6,6 +6,7 @@
 #include "bake/probes_method.h"
 #include "bake/radiosity_map_method.h"
 #include "bake/sh_transfer_method.h"
+#include "bake/snapshot_writer.h"
 #include "io/image_files.h"
 #include "scene/gltf_loader.h"
 
@@ -65,7 +66,7 @@ void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
     options.texel_density = float(settings.texel_density.value_or(0.0));
     p.atlas_scene = p.scene;
     try {
-        p.atlas = prepare_lightmap_atlas(*p.atlas_scene, options);
+        p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
     } catch (const std::runtime_error& e) {  // the charts do not fit: say what would
         const int smallest = smallest_atlas_resolution(p.scene, options);
         throw BakeInputError(
@@ -73,22 +74,24 @@ void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
             (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")" : ""));
     }
     check_bake_memory(name, p.atlas.width, p.atlas.height);
-    p.texels = rasterize_texel_samples(*p.atlas_scene, p.atlas.width, p.atlas.height, settings.subsamples);
+    p.texels = p.timed("texel_samples", [&] {
+        return rasterize_texel_samples(*p.atlas_scene, p.atlas.width, p.atlas.height, settings.subsamples);
+    });
 }
 
 // Everything the outputs share, made once: scene, atlas, GL context, tracer.
 std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
     auto p = std::make_unique<PreparedScene>();
     p->file = job.scene;
-    p->scene = load_scene(job.scene);
+    p->scene = p->timed("load", [&] { return load_scene(job.scene); });
     const protocol::BakeSettings& s = job.settings;
     if ((s.lightmap || s.probes) && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
                              "environment was given (give a uniform sky with --env R,G,B)");
     if (needs_atlas(s)) prepare_atlas(*p, s.atlas);
-    p->gpu = std::make_unique<GpuContext>(job.device);
-    p->tracer = std::make_unique<Tracer>(p->atlas_scene ? *p->atlas_scene : p->scene);
+    p->gpu = p->timed("gpu", [&] { return std::make_unique<GpuContext>(job.device); });
+    p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->atlas_scene ? *p->atlas_scene : p->scene); });
     return p;
 }
 
@@ -121,13 +124,48 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
     return out;
 }
 
+// Runs one method through the progressive loop: progress after every pass;
+// snapshots when the schedule says, read back here and built and written on
+// the writer thread while the passes go on, announced once written (their
+// names appended to `files`).
+PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeEventSink& emit,
+                     std::vector<std::string>& files) {
+    const std::string output = method.output();
+    const auto start = Clock::now();
+    SnapshotSchedule schedule;
+    SnapshotWriter writer;
+    double read_seconds = 0.0;  // of the snapshot being written
+    const auto announce = [&](const std::vector<SnapshotWriter::Written>& written) {
+        for (const SnapshotWriter::Written& w : written) {
+            schedule.record_cost(read_seconds + w.seconds);
+            for (const std::string& file : w.files) {
+                files.push_back(file);
+                emit(protocol::SnapshotEvent{output, file, w.pass});
+            }
+        }
+    };
+    const auto on_pass = [&](const PassStats& stats) {
+        emit(protocol::ProgressEvent{output, stats});
+        announce(writer.take_written());
+        if (!schedule.due(stats.pass, seconds_since(start), writer.idle())) return;
+        const auto read_start = Clock::now();
+        SnapshotWrite write = method.snapshot(out, stats);
+        read_seconds = seconds_since(read_start);
+        writer.submit(output, stats.pass, std::move(write));
+    };
+    const PassStats last = run_progressive([&] { return method.step(); }, method.stop_rule(), on_pass);
+    announce(writer.drain());
+    return last;
+}
+
 }  // namespace
 
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
     const auto start = Clock::now();
     fs::create_directories(job.out);
     const std::unique_ptr<PreparedScene> prepared = prepare(job);
-    std::vector<std::unique_ptr<ProgressiveMethod>> methods = make_methods(*prepared, job.settings);
+    std::vector<std::unique_ptr<ProgressiveMethod>> methods =
+        prepared->timed("methods", [&] { return make_methods(*prepared, job.settings); });
     prepared->prepare_seconds = seconds_since(start);
 
     protocol::StartEvent started;
@@ -150,18 +188,11 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"triangles", started.triangles},
           {"atlas_generated", prepared->atlas.generated}}},
     };
+    for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
     for (const auto& m : methods) {
         const std::string output = m->output();
         manifest["prepared"]["outputs"].push_back(output);
-        auto on_pass = [&](const PassStats& stats, bool snapshot_due) {
-            emit(protocol::ProgressEvent{output, stats});
-            if (!snapshot_due) return;
-            for (const std::string& file : m->snapshot(job.out, stats)) {
-                done.files.push_back(file);
-                emit(protocol::SnapshotEvent{output, file, stats.pass});
-            }
-        };
-        const PassStats last = run_progressive([&] { return m->step(); }, m->stop_rule(), on_pass);
+        const PassStats last = run_method(*m, job.out, emit, done.files);
         MethodResult result = m->finish(job.out, last);
         done.final_files[output] = result.files.front();
         done.files.insert(done.files.end(), result.files.begin(), result.files.end());

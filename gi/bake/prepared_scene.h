@@ -9,7 +9,11 @@
 #include "scene/scene.h"
 #include "trace/tracer.h"
 
+#include <chrono>
 #include <filesystem>
+#include <string>
+#include <utility>
+#include <vector>
 #include <memory>
 #include <optional>
 
@@ -28,6 +32,25 @@ struct PreparedScene {
     // triangle t is the same triangle at the same position in both scenes.
     std::unique_ptr<Tracer> tracer;
     double prepare_seconds = 0.0;
+    // Where preparation's time went, stage by stage (load, atlas,
+    // texel_samples, gpu, bvh, methods): manifest.json's "prepared".
+    std::vector<std::pair<std::string, double>> stage_seconds;
+
+    // Runs `stage` and records its time under `name`.
+    template <class F>
+    auto timed(const std::string& name, F&& stage) {
+        const auto start = std::chrono::steady_clock::now();
+        struct Record {
+            PreparedScene* p;
+            const std::string& name;
+            std::chrono::steady_clock::time_point start;
+            ~Record() {
+                p->stage_seconds.emplace_back(
+                    name, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+            }
+        } record{this, name, start};
+        return stage();
+    }
 };
 
 }  // namespace lf

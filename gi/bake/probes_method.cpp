@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <memory>
 
 namespace lf {
 
@@ -126,10 +127,9 @@ PassStats ProbesMethod::step() {
     return stats_;
 }
 
-ProbeSet ProbesMethod::probe_set() const {
+ProbeSet ProbesMethod::probe_set(const std::vector<glm::vec4>& acc) const {
     const int r = settings_.res, m = settings_.m;
     const size_t per_probe = size_t(6) * r * r;
-    const std::vector<glm::vec4> acc = texels_.read<glm::vec4>();
     ProbeSet set;
     set.m = m;
     set.capture_resolution = r;
@@ -166,10 +166,13 @@ ProbeSet ProbesMethod::probe_set() const {
     return set;
 }
 
-std::vector<std::string> ProbesMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
-    std::string stem = snapshot_file_name("probes", stats.pass, "");  // "probes.pass-0004."
-    stem.pop_back();
-    return write_probe_set(dir, probe_set(), stem);
+SnapshotWrite ProbesMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
+    auto acc = std::make_shared<const std::vector<glm::vec4>>(texels_.read<glm::vec4>());
+    return [this, dir, acc, pass = stats.pass] {
+        std::string stem = snapshot_file_name("probes", pass, "");  // "probes.pass-0004."
+        stem.pop_back();
+        return write_probe_set(dir, probe_set(*acc), stem);
+    };
 }
 
 MethodResult ProbesMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {

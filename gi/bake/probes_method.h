@@ -40,7 +40,7 @@ public:
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
     PassStats step() override;
-    std::vector<std::string> snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
+    SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
 
     // The reference points a job's settings place in a scene (explicit, or
@@ -48,9 +48,12 @@ public:
     static std::vector<glm::vec3> place(const Scene& scene, const protocol::ProbesSettings& settings, float* spacing);
 
     // The set as captured so far (reads the GPU's accumulators back).
-    ProbeSet probe_set() const;
+    ProbeSet probe_set() const { return probe_set(texels_.read<glm::vec4>()); }
 
 private:
+    // The set from read-back accumulators (any thread: reads only what the
+    // constructor set).
+    ProbeSet probe_set(const std::vector<glm::vec4>& accumulators) const;
     const PreparedScene& prepared_;
     protocol::ProbesSettings settings_;
     StopRule stop_;

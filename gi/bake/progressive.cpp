@@ -19,20 +19,26 @@ std::string snapshot_file_name(const std::string& stem, int pass, const std::str
 }
 
 PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
-                          const std::function<void(const PassStats&, bool)>& on_pass) {
+                          const std::function<void(const PassStats&)>& on_pass) {
     PassStats stats;
-    int next_snapshot = 1;
     while (stats.pass < stop.max_passes) {
         stats = step();
-        const bool snapshot_due = stats.pass == next_snapshot;
-        if (snapshot_due) next_snapshot *= 2;
         const bool converged = stop.target_error > 0.0 && stats.pass >= stop.min_passes &&
                                stats.error_estimate.value_or(1e30) <= stop.target_error;
         const bool out_of_time = stop.time_limit > 0.0 && stats.seconds >= stop.time_limit;
-        if (on_pass) on_pass(stats, snapshot_due);
+        if (on_pass) on_pass(stats);
         if (converged || out_of_time) break;
     }
     return stats;
+}
+
+bool SnapshotSchedule::due(int pass, double now, bool writer_idle) {
+    const bool wanted = pass >= next_pass_ || (last_at_ >= 0.0 && now - last_at_ >= interval_);
+    if (!wanted || !writer_idle) return false;
+    if (last_at_ >= 0.0 && now - last_at_ < last_cost_ * (1.0 - budget_) / budget_) return false;
+    last_at_ = now;
+    while (next_pass_ <= pass) next_pass_ *= 2;
+    return true;
 }
 
 }  // namespace lf

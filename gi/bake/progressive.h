@@ -1,7 +1,7 @@
 // The one progressive loop every method runs in, for the CLI and the worker
 // alike: step() a pass at a time until a pass count, a target error or a time
-// limit is reached, reporting each pass and snapshotting on a geometric
-// schedule (passes 1, 2, 4, 8 …).
+// limit is reached, reporting each pass; and when to snapshot (passes 1, 2,
+// 4, 8 … and on a time schedule, within a budget of the wall time).
 #pragma once
 
 #include "bake_settings.h"
@@ -35,6 +35,10 @@ struct MethodResult {
     nlohmann::json manifest = nlohmann::json::object();
 };
 
+// The second half of a snapshot: builds and writes its files off the GL
+// thread; returns their names.
+using SnapshotWrite = std::function<std::vector<std::string>()>;
+
 // One output of a bake job (DESIGN.md "Data flow"): a progressive solution
 // and its writers. The job driver (bake/bake_job.h) prepares the scene once,
 // makes the methods, and runs each through run_progressive; a method never
@@ -49,9 +53,12 @@ public:
     virtual nlohmann::json description() const = 0;
     // Runs one pass and returns the totals after it.
     virtual PassStats step() = 0;
-    // Writes the current result as intermediate files of pass `stats.pass`
-    // (names from snapshot_file_name) and returns their names.
-    virtual std::vector<std::string> snapshot(const std::filesystem::path& dir, const PassStats& stats) = 0;
+    // Reads the current result back (on the GL thread, between passes) and
+    // returns the work that writes it as intermediate files of pass
+    // `stats.pass` (names from snapshot_file_name). The driver runs that work
+    // on its writer thread while the passes go on, so it must only use what
+    // it captured and what the method never changes after construction.
+    virtual SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) = 0;
     // Writes the final files.
     virtual MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) = 0;
 };
@@ -59,9 +66,30 @@ public:
 // "<stem>.pass-NNNN.<extension>": the name of an intermediate snapshot.
 std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension);
 
-// Runs passes until `stop` says so. on_pass(stats, snapshot_due) is called
-// after every pass; snapshot_due is true on passes 1, 2, 4, 8 …
+// Runs passes until `stop` says so; on_pass(stats) after every pass.
 PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
-                          const std::function<void(const PassStats&, bool snapshot_due)>& on_pass);
+                          const std::function<void(const PassStats&)>& on_pass);
+
+// When a snapshot is taken: at passes 1, 2, 4, 8 … and whenever `interval`
+// seconds have passed since the last one; but never while the last one is
+// still being written, and never so often that snapshots cost more than
+// `budget` of the wall time (a snapshot that cost c seconds is followed by
+// at least c · (1 − budget) / budget seconds without one). A snapshot held
+// back is taken at the first pass after that.
+class SnapshotSchedule {
+public:
+    explicit SnapshotSchedule(double budget = 0.1, double interval = 10.0) : budget_(budget), interval_(interval) {}
+    // Whether to take a snapshot after pass `pass` at wall time `now`
+    // (seconds); true records it as taken.
+    bool due(int pass, double now, bool writer_idle);
+    // What the last snapshot cost (reading back plus writing), in seconds.
+    void record_cost(double seconds) { last_cost_ = seconds; }
+
+private:
+    double budget_, interval_;
+    int next_pass_ = 1;
+    double last_at_ = -1.0;  // wall time of the last snapshot (-1: none yet)
+    double last_cost_ = 0.0;
+};
 
 }  // namespace lf

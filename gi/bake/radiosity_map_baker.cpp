@@ -209,8 +209,11 @@ PassStats RadiosityMapBaker::step() {
     return stats_;
 }
 
-FloatImage RadiosityMapBaker::snapshot() const {
-    const std::vector<glm::vec4> acc = accumulators_.read<glm::vec4>();
+RadiosityMapBaker::Readback RadiosityMapBaker::read_back() const { return {accumulators_.read<glm::vec4>(), stats_}; }
+
+FloatImage RadiosityMapBaker::image(const Readback& readback) const {
+    const std::vector<glm::vec4>& acc = readback.accumulators;
+    const PassStats& stats = readback.stats;
     FloatImage image;
     image.width = width_;
     image.height = height_;
@@ -248,10 +251,10 @@ FloatImage RadiosityMapBaker::snapshot() const {
     }
     for (auto& [name, data] : image.channels)
         for (const auto& [to, from] : dilation_) data[to] = data[from];
-    image.number_attributes["lightfarm.pass"] = stats_.pass;
-    image.number_attributes["lightfarm.rays"] = double(stats_.rays);
-    image.number_attributes["lightfarm.seconds"] = stats_.seconds;
-    image.number_attributes["lightfarm.errorEstimate"] = stats_.error_estimate.value_or(0.0);
+    image.number_attributes["lightfarm.pass"] = stats.pass;
+    image.number_attributes["lightfarm.rays"] = double(stats.rays);
+    image.number_attributes["lightfarm.seconds"] = stats.seconds;
+    image.number_attributes["lightfarm.errorEstimate"] = stats.error_estimate.value_or(0.0);
     image.string_attributes["lightfarm.scheme"] = to_string(settings_.scheme);
     return image;
 }

@@ -74,7 +74,17 @@ public:
     // The current lightmap: RGB = combined, direct.* and indirect.* layers,
     // "samples" (indirect samples behind the value), "error" (standard error
     // of the texel's value); dilated past chart borders. Uncovered texels are 0.
-    FloatImage snapshot() const;
+    FloatImage snapshot() const { return image(read_back()); }
+
+    // snapshot() in two halves: reading the accumulators back (GL thread),
+    // and making the image from them (any thread: reads only what the
+    // constructor set).
+    struct Readback {
+        std::vector<glm::vec4> accumulators;
+        PassStats stats;
+    };
+    Readback read_back() const;
+    FloatImage image(const Readback& readback) const;
 
     size_t covered_texels() const { return covered_count_; }
 

@@ -2,6 +2,8 @@
 
 #include "io/image_files.h"
 
+#include <memory>
+
 namespace lf {
 
 namespace {
@@ -81,8 +83,8 @@ nlohmann::json RadiosityMapMethod::description() const {
     return {{"texels", baker_.covered_texels()}, {"settings", settings_json_}};
 }
 
-FloatImage RadiosityMapMethod::stitched_image() const {
-    FloatImage image = baker_.snapshot();
+FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback) const {
+    FloatImage image = baker_.image(readback);
     image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;
     image.string_attributes["lightfarm.settings"] = settings_json_.dump();
     if (stitch_ && !seams_.empty()) {
@@ -95,16 +97,21 @@ FloatImage RadiosityMapMethod::stitched_image() const {
     return image;
 }
 
-std::vector<std::string> RadiosityMapMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
-    const std::string name = snapshot_file_name("lightmap", stats.pass, "exr");
-    last_snapshot_ = stitched_image();
-    last_snapshot_pass_ = stats.pass;
-    write_exr(dir / name, last_snapshot_);
-    return {name};
+SnapshotWrite RadiosityMapMethod::snapshot(const std::filesystem::path& dir, const PassStats& stats) {
+    auto readback = std::make_shared<RadiosityMapBaker::Readback>(baker_.read_back());
+    return [this, dir, readback, pass = stats.pass] {
+        const std::string name = snapshot_file_name("lightmap", pass, "exr");
+        FloatImage image = stitched_image(*readback);
+        write_exr(dir / name, image);
+        last_snapshot_ = std::move(image);
+        last_snapshot_pass_ = pass;
+        return std::vector<std::string>{name};
+    };
 }
 
 MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
-    const FloatImage image = last_snapshot_pass_ == stats.pass ? std::move(last_snapshot_) : stitched_image();
+    const FloatImage image =
+        last_snapshot_pass_ == stats.pass ? std::move(last_snapshot_) : stitched_image(baker_.read_back());
     write_exr(dir / "lightmap.exr", image);
     MethodResult result;
     result.files = {"lightmap.exr"};

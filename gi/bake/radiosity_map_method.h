@@ -22,11 +22,12 @@ public:
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
     PassStats step() override { return baker_.step(); }
-    std::vector<std::string> snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
+    SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
 
 private:
-    FloatImage stitched_image() const;
+    // The baker's image with the job's attributes, seams stitched.
+    FloatImage stitched_image(const RadiosityMapBaker::Readback& readback) const;
 
     const PreparedScene& prepared_;
     StopRule stop_;
@@ -34,7 +35,10 @@ private:
     RadiosityMapBaker baker_;
     std::vector<SeamEdge> seams_;  // smooth seams only (measured even when not stitched)
     bool stitch_ = true;
-    FloatImage last_snapshot_;  // the final image when the bake stops on a snapshot pass
+    // The last snapshot's image (set on the writer thread; finish() runs
+    // after the writer drained): the final image when the bake stops on a
+    // snapshot's pass.
+    FloatImage last_snapshot_;
     int last_snapshot_pass_ = 0;
 };
 

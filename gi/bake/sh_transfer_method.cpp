@@ -11,6 +11,7 @@
 #include "sh/transfer_file.h"
 #include "trace/tracer.h"
 
+#include <memory>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -208,23 +209,25 @@ FloatImage ShTransferMethod::texel_image(const ShVertexTransfer& t, int bands, c
     image.string_attributes["lightfarm.settings"] = settings_json_.dump();
     image.number_attributes["lightfarm.pass"] = s.pass;
     image.number_attributes["lightfarm.bounces"] = transfer_.bounces;
-    image.number_attributes["lightfarm.samples_per_point"] = double(baker_->samples_per_vertex());
+    image.number_attributes["lightfarm.samples_per_point"] = double(s.pass) * double(transfer_.samples_per_pass);
     return image;
 }
 
-std::vector<std::string> ShTransferMethod::snapshot(const fs::path& dir, const PassStats& stats) {
-    const int bands = settings_.bands.value_or(kShMaxBands);
-    const ShVertexTransfer t = baker_->snapshot();
-    const std::string name = snapshot_file_name("sh_transfer", stats.pass, "bin");
-    write_sh_transfer(dir / name, transfer_by_primitive(prepared_.scene, t.coefficients, bands, transfer_.bounces),
-                      ShEncoding::Float32);
-    std::vector<std::string> files = {name};
-    if (settings_.per_texel) {
-        const std::string exr = snapshot_file_name("sh_transfer", stats.pass, "exr");
-        write_exr(dir / exr, texel_image(t, bands, stats));
-        files.push_back(exr);
-    }
-    return files;
+SnapshotWrite ShTransferMethod::snapshot(const fs::path& dir, const PassStats& stats) {
+    auto t = std::make_shared<const ShVertexTransfer>(baker_->snapshot());
+    return [this, dir, t, stats] {
+        const int bands = settings_.bands.value_or(kShMaxBands);
+        const std::string name = snapshot_file_name("sh_transfer", stats.pass, "bin");
+        write_sh_transfer(dir / name, transfer_by_primitive(prepared_.scene, t->coefficients, bands, transfer_.bounces),
+                          ShEncoding::Float32);
+        std::vector<std::string> files = {name};
+        if (settings_.per_texel) {
+            const std::string exr = snapshot_file_name("sh_transfer", stats.pass, "exr");
+            write_exr(dir / exr, texel_image(*t, bands, stats));
+            files.push_back(exr);
+        }
+        return files;
+    };
 }
 
 MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stats) {

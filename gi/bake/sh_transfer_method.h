@@ -68,7 +68,7 @@ public:
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
     PassStats step() override;
-    std::vector<std::string> snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
+    SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
 
 private:

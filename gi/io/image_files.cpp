@@ -7,12 +7,15 @@
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
 #include <ImfStringAttribute.h>
+#include <ImfThreading.h>
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstring>
 #include <fstream>
 #include <stdexcept>
+#include <thread>
 
 namespace lf {
 
@@ -49,6 +52,13 @@ void write_file_atomic(const fs::path& path, const std::string& bytes) {
 }
 
 void write_exr(const fs::path& path, const FloatImage& image) {
+    // OpenEXR compresses its blocks of lines on its own thread pool: one
+    // thread per core (the bytes written are the same).
+    static const bool pool = [] {
+        Imf::setGlobalThreadCount(int(std::max(1u, std::thread::hardware_concurrency())));
+        return true;
+    }();
+    (void)pool;
     const fs::path tmp = temp_path_for(path);
     try {
         Imf::Header header(image.width, image.height);

@@ -1,0 +1,101 @@
+// The progressive loop's snapshot schedule and the writer thread that takes
+// snapshots off the passes (issue #12): pure logic, no GL.
+#include "bake/progressive.h"
+#include "bake/snapshot_writer.h"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <future>
+#include <stdexcept>
+#include <thread>
+
+namespace lf {
+namespace {
+
+// Passes 1..n at `pass_seconds` each; the passes at which a snapshot is taken
+// when each costs `cost` seconds and the writer is always idle.
+std::vector<int> taken(SnapshotSchedule& schedule, int n, double pass_seconds, double cost) {
+    std::vector<int> passes;
+    for (int pass = 1; pass <= n; ++pass)
+        if (schedule.due(pass, pass * pass_seconds, true)) {
+            passes.push_back(pass);
+            schedule.record_cost(cost);
+        }
+    return passes;
+}
+
+TEST(SnapshotSchedule, FreeSnapshotsFollowTheDoublingPasses) {
+    SnapshotSchedule schedule(0.1, 1e9);
+    EXPECT_EQ(taken(schedule, 40, 0.001, 0.0), (std::vector<int>{1, 2, 4, 8, 16, 32}));
+}
+
+TEST(SnapshotSchedule, CostlySnapshotsKeepToTheBudget) {
+    // A snapshot costs 1 s and a pass 1/8 s: after each, 9 s (72 passes)
+    // without one, so that snapshots take at most 10% of the wall time; a
+    // doubling held back is taken at the first pass after.
+    SnapshotSchedule schedule(0.1, 1e9);
+    const std::vector<int> passes = taken(schedule, 300, 0.125, 1.0);
+    EXPECT_EQ(passes, (std::vector<int>{1, 73, 145, 256}));
+    EXPECT_LE(double(passes.size()) * 1.0, 0.1 * 300 * 0.125 + 1.0);
+}
+
+TEST(SnapshotSchedule, ABusyWriterPostponesAndTimeAloneMakesOneDue) {
+    SnapshotSchedule schedule(0.1, 10.0);
+    EXPECT_TRUE(schedule.due(1, 0.0, true));
+    EXPECT_FALSE(schedule.due(2, 0.1, false)) << "the writer is still writing pass 1";
+    EXPECT_TRUE(schedule.due(3, 0.2, true)) << "pass 2's snapshot, held back";
+    EXPECT_TRUE(schedule.due(4, 5.0, true)) << "pass 4 is a doubling of its own";
+    EXPECT_FALSE(schedule.due(5, 14.5, true));
+    EXPECT_TRUE(schedule.due(6, 15.0, true)) << "10 s after the last";
+}
+
+TEST(SnapshotSchedule, EveryIntervalSecondsBetweenDoublings) {
+    SnapshotSchedule schedule(0.1, 10.0);
+    // Passes of 1 s: doublings at 1, 2, 4, 8, 16, 32 and, between 16 and 32,
+    // one at 26 (10 s after 16).
+    EXPECT_EQ(taken(schedule, 40, 1.0, 0.0), (std::vector<int>{1, 2, 4, 8, 16, 26, 32}));
+}
+
+TEST(SnapshotWriter, WritesOffTheCallersThreadInOrderAndReportsWhenIdle) {
+    SnapshotWriter writer;
+    EXPECT_TRUE(writer.idle());
+    std::promise<void> release;
+    std::shared_future<void> released = release.get_future().share();
+    const std::thread::id caller = std::this_thread::get_id();
+    std::atomic<bool> off_thread{true};
+    writer.submit("lightmap", 1, [&, released] {
+        off_thread = off_thread && std::this_thread::get_id() != caller;
+        released.wait();
+        return std::vector<std::string>{"lightmap.pass-0001.exr"};
+    });
+    EXPECT_FALSE(writer.idle());
+    EXPECT_TRUE(writer.take_written().empty()) << "nothing is announced before it is written";
+    writer.submit("lightmap", 2, [] { return std::vector<std::string>{"lightmap.pass-0002.exr"}; });
+    release.set_value();
+    const std::vector<SnapshotWriter::Written> written = writer.drain();
+    EXPECT_TRUE(off_thread);
+    ASSERT_EQ(written.size(), 2u);
+    EXPECT_EQ(written[0].pass, 1);
+    EXPECT_EQ(written[0].files, std::vector<std::string>{"lightmap.pass-0001.exr"});
+    EXPECT_EQ(written[1].pass, 2);
+    EXPECT_TRUE(writer.idle());
+}
+
+TEST(SnapshotWriter, AFailedWriteReachesTheDriver) {
+    SnapshotWriter writer;
+    writer.submit("lightmap", 4, []() -> std::vector<std::string> {
+        throw std::runtime_error("out/lightmap.pass-0004.exr: write failed (disk full?)");
+    });
+    try {
+        writer.drain();
+        FAIL() << "the failure was lost";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find("lightmap.pass-0004.exr"), std::string::npos);
+    }
+    EXPECT_TRUE(writer.take_written().empty());  // reported once
+}
+
+}  // namespace
+}  // namespace lf
