@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Speed against accuracy: bakes a scene with each progressive scheme at
-several resolutions, measures every snapshot (passes 1, 2, 4, …) against a
+several resolutions, measures bakes of 1, 2, 4, … passes against a
 reference, writes a CSV and draws error-versus-time with gnuplot (one curve
 per scheme and resolution).
 
@@ -13,12 +13,11 @@ tracer (--scheme pathtrace) at --reference-passes, baked first at each
 resolution (DESIGN.md: a reference is analytic, an independent renderer, or
 our path tracer at high sample count).
 
-The bake time is lightfarm's own per-pass time (`seconds` in each snapshot's
+The bake time is lightfarm's own per-pass time (`seconds` in each final file's
 header), without process start-up or file writing.
 """
 import argparse
 import csv
-import glob
 import json
 import os
 import subprocess
@@ -53,11 +52,17 @@ def reference_for(scene, res, reference_passes, out, device):
 
 
 def bake_and_measure(scene, scheme, res, passes, out, device, reference):
-    d = os.path.join(out, f"{stem(scene)}-{scheme}-{res}")
-    start = bake(scene, scheme, res, passes, d, device)
+    """One bake per pass count 1, 2, 4, … passes (the same seed: a bake of k
+    passes holds what a longer one held after its pass k), each final file
+    measured: the snapshots a bake writes follow a time budget, not the
+    doublings."""
     ref_exr, mask = reference
     rows = []
-    for f in sorted(glob.glob(os.path.join(d, "lightmap.pass-*.exr"))):
+    counts = [1 << k for k in range(passes.bit_length()) if 1 << k < passes] + [passes]
+    for count in counts:
+        d = os.path.join(out, f"{stem(scene)}-{scheme}-{res}-{count}")
+        start = bake(scene, scheme, res, count, d, device)
+        f = os.path.join(d, "lightmap.exr")
         e = json.loads(run([LIGHTFARM, "compare", f, ref_exr] + (["--mask", mask] if mask else [])))
         rows.append({"scene": stem(scene), "scheme": scheme, "res": res, "pass": int(e["pass"]), "rays": int(e["rays"]),
                      "seconds": e["seconds"], "relative_rmse": e["relative_rmse"], "bias": e["bias"],

@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """SH transfer, speed against accuracy: bakes a scene's per-vertex transfer
-once at a high sample count (the reference) and once progressively, measures
-every snapshot (passes 1, 2, 4, …) against the reference with
+once at a high sample count (the reference) and at 1, 2, 4, … passes
+(the same seed: a bake of k passes holds what a longer one held after its
+pass k; snapshots follow a time budget, not the doublings), measures each
+against the reference with
 `lightfarm compare` (relative RMSE of the coefficients), and draws
 error-versus-time with gnuplot.
 
@@ -41,12 +43,12 @@ def main():
     ref_dir = os.path.join(a.out, f"{name}-sh-reference")
     run_dir = os.path.join(a.out, f"{name}-sh")
     bake(a.scene, a.reference_passes, ref_dir, a.device, 1)
-    progress, start = bake(a.scene, a.passes, run_dir, a.device, 2)  # another seed: independent noise
     rows = []
     k = 1
     while k <= a.passes:
-        snapshot = os.path.join(run_dir, f"sh_transfer.pass-{k:04d}.bin")
-        e = json.loads(subprocess.run([LIGHTFARM, "compare", snapshot, os.path.join(ref_dir, "sh_transfer.bin")],
+        progress, start = bake(a.scene, k, f"{run_dir}-{k}", a.device, 2)  # another seed: independent noise
+        result = os.path.join(f"{run_dir}-{k}", "sh_transfer.bin")
+        e = json.loads(subprocess.run([LIGHTFARM, "compare", result, os.path.join(ref_dir, "sh_transfer.bin")],
                                       check=True, capture_output=True, text=True).stdout)
         rows.append({"pass": k, "samples_per_vertex": 64 * k, "seconds": progress[k]["seconds"],
                      "rays": progress[k]["rays"], "relative_rmse": e["relative_rmse"],

@@ -71,8 +71,9 @@ std::vector<Setting> build_catalog() {
                "stop when the relative standard error falls below this (0: no target)"),
         number("lightmap", "time_limit", 0, 0, false, 1e7, "time_limit",
                "stop after this many seconds of passes (0: none)"),
-        choice("lightmap", "scheme", {"epochs", "thesis", "pathtrace"},
-               "indirect light: doubling epochs, the thesis's running average, or brute-force path tracing"),
+        choice("lightmap", "scheme", {"epochs", "final-gather", "thesis", "pathtrace"},
+               "indirect light: doubling epochs reading the map, the same with a final gather (the first bounce "
+               "at the hit point), the thesis's running average, or brute-force path tracing"),
         integer("lightmap", "light_samples", 1, 1, 1024, "", "emitter samples per texel per pass"),
         choice("lightmap", "light_sampling", {"mis", "area", "solid-angle"},
                "emitter sampling: MIS of solid angle and cosine rays, area alone, solid angle alone"),

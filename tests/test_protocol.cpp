@@ -291,7 +291,8 @@ TEST(JobSpec, WrongTypesAndRangesNameTheField) {
     EXPECT_EQ(with("target_error", 0), "") << "0: no target";
     EXPECT_EQ(with("time_limit", 1e9), "lightmap.time_limit: 1000000000 exceeds the maximum 10000000");
     EXPECT_EQ(with("time_limit", 20000), "lightmap.time_limit: 20000 exceeds this server's limit 14400");
-    EXPECT_TRUE(starts_with(with("scheme", "fast"), "lightmap.scheme: must be one of epochs, thesis, pathtrace"))
+    EXPECT_TRUE(
+        starts_with(with("scheme", "fast"), "lightmap.scheme: must be one of epochs, final-gather, thesis, pathtrace"))
         << with("scheme", "fast");
     EXPECT_EQ(with("stitch", "no"), "lightmap.stitch: must be true or false, not a string");
 

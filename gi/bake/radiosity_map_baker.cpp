@@ -40,7 +40,19 @@ std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityM
     std::vector<std::pair<std::string, std::string>> defines = {
         {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
     if (s.scheme == RadiosityScheme::PathTracing) defines.emplace_back("LF_PATH_TRACE", "1");
+    if (s.scheme == RadiosityScheme::FinalGather) defines.emplace_back("LF_FINAL_GATHER", "1");
     return defines;
+}
+
+// The resolve pass publishes what indirect rays read: albedo x the whole
+// value, or albedo x the indirect layer alone under a final gather.
+std::vector<std::pair<std::string, std::string>> resolve_defines(const RadiosityMapSettings& s) {
+    if (s.scheme == RadiosityScheme::FinalGather) return {{"LF_FINAL_GATHER", "1"}};
+    return {};
+}
+
+bool restarts_epochs(RadiosityScheme s) {
+    return s == RadiosityScheme::DoublingEpochs || s == RadiosityScheme::FinalGather;
 }
 
 }  // namespace
@@ -49,6 +61,7 @@ const char* to_string(RadiosityScheme scheme) {
     switch (scheme) {
     case RadiosityScheme::Thesis: return "thesis";
     case RadiosityScheme::DoublingEpochs: return "epochs";
+    case RadiosityScheme::FinalGather: return "final-gather";
     case RadiosityScheme::PathTracing: return "pathtrace";
     }
     return "?";
@@ -57,8 +70,9 @@ const char* to_string(RadiosityScheme scheme) {
 RadiosityScheme parse_radiosity_scheme(const std::string& text) {
     if (text == "thesis") return RadiosityScheme::Thesis;
     if (text == "epochs") return RadiosityScheme::DoublingEpochs;
+    if (text == "final-gather") return RadiosityScheme::FinalGather;
     if (text == "pathtrace") return RadiosityScheme::PathTracing;
-    throw std::invalid_argument("--scheme must be epochs, thesis or pathtrace, not '" + text + "'");
+    throw std::invalid_argument("--scheme must be epochs, final-gather, thesis or pathtrace, not '" + text + "'");
 }
 
 RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& texels, const Tracer& tracer,
@@ -68,6 +82,7 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
       width_(texels.width),
       height_(texels.height),
       gather_("radiosity_gather.comp", gather_defines(settings)),
+      resolve_("radiosity_resolve.comp", resolve_defines(settings)),
       shading_(scene) {
     upload_texels(texels);
 }
@@ -101,6 +116,10 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     std::vector<glm::uvec2> pairs;
     for (const auto& [to, from] : dilation_) pairs.emplace_back(to, from);
     dilation_pairs_ = GpuBuffer(pairs);
+    std::vector<glm::vec4> albedo(size_t(width_) * size_t(height_), glm::vec4(0.0f));
+    for (size_t i = 0; i < covered_count_; ++i) albedo[texels.texels[i]] = glm::vec4(texels.albedo[i], 1.0f);
+    for (const auto& [to, from] : dilation_) albedo[to] = albedo[from];
+    texel_albedo_ = GpuBuffer(albedo);
     // Two vec4 per work group of the resolve pass, however it is dispatched.
     error_partials_ = GpuBuffer(2 * std::max<size_t>(1, resolve_.groups_1d(covered_count_)) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
@@ -157,6 +176,7 @@ PassStats RadiosityMapBaker::step() {
     shading_.bind();
     error_partials_.bind(9);
     texel_anchors_.bind(11);
+    texel_albedo_.bind(15);
 
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
@@ -173,7 +193,7 @@ PassStats RadiosityMapBaker::step() {
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 
     ++pass_in_epoch_;
-    const bool end_epoch = settings_.scheme == RadiosityScheme::DoublingEpochs && pass_in_epoch_ == epoch_length_;
+    const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
     resolve_.use();
     glUniform1ui(resolve_.uniform("covered_count"), GLuint(covered_count_));
     glUniform1ui(resolve_.uniform("end_epoch"), end_epoch ? 1u : 0u);

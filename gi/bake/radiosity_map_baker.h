@@ -30,6 +30,15 @@ enum class RadiosityScheme {
     // epochs' bounces, so old dark samples are dropped and the bias falls
     // geometrically with the epoch count instead of like 1/passes.
     DoublingEpochs,
+    // Doubling epochs with a final gather: where an indirect ray lands, its
+    // first bounce is computed there (the hit point's direct light by the
+    // same light sampling as the texels', times its albedo) and only the
+    // light beyond is read from the map (albedo x the map's indirect layer).
+    // The map then supplies light that has bounced at least once, which is
+    // smooth, so the bias of its resolution (shadow edges, lamp pools,
+    // corners smeared into the gather) falls with it; one more shadow ray per
+    // texel per pass.
+    FinalGather,
     // The baseline: brute-force path tracing per texel (next-event estimation
     // at every vertex), no radiosity map read. Unbiased, and slow to converge.
     PathTracing,
@@ -49,7 +58,7 @@ const char* to_string(LightSampling sampling);
 LightSampling parse_light_sampling(const std::string& text);  // "mis" | "area" | "solid-angle"
 
 const char* to_string(RadiosityScheme scheme);
-RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "epochs" | "thesis" | "pathtrace"
+RadiosityScheme parse_radiosity_scheme(const std::string& text);  // "epochs" | "final-gather" | "thesis" | "pathtrace"
 
 struct RadiosityMapSettings {
     RadiosityScheme scheme = RadiosityScheme::DoublingEpochs;
@@ -101,11 +110,12 @@ private:
     std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices
 
     ComputeProgram gather_;
-    ComputeProgram resolve_{"radiosity_resolve.comp"};
+    ComputeProgram resolve_;
     ComputeProgram copy_{"copy_texels.comp"};
     SceneShading shading_;
     GpuBuffer sample_points_, covered_, accumulators_, reflected_;
     GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
+    GpuBuffer texel_albedo_;  // per atlas texel, dilated: what a final gather's hit reflects
 
     PassStats stats_;
     int pass_in_epoch_ = 0;

@@ -6,7 +6,8 @@
 
 #include "trace.glsl"
 
-// Reflected radiance per atlas texel (rgb), width x height, row 0 at the top.
+// Reflected radiance per atlas texel (rgb; w = 1 where a chart's texel or its
+// dilation holds a value, 0 elsewhere), width x height, row 0 at the top.
 layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]; };
 // Per scene triangle, what a ray that lands on it needs:
 //   (uv1 of vertex 0, uv1 of vertex 1),
@@ -20,6 +21,10 @@ const uint SURFACE_VEC4S = 4u;
 // Per atlas texel: where its light was gathered; w = 0 uncovered, 1 covered,
 // 2 next to a wall (texel_anchor.comp, texel_wall_check.comp).
 layout(std430, binding = 11) buffer TexelAnchors { vec4 texel_anchors[]; };
+
+// Per atlas texel, dilated: the albedo its samples averaged (rgb), what a
+// final gather's hit reflects (radiosity_gather.comp with LF_FINAL_GATHER).
+layout(std430, binding = 15) readonly buffer TexelAlbedo { vec4 texel_albedo[]; };
 
 uniform uvec2 atlas_size;
 
@@ -51,9 +56,14 @@ uint atlas_index(int x, int y) {
 // Bilinear lookup of the reflected radiance at a hit point y; uv (0,0) is
 // the atlas's top-left corner and texel centres sit at half-integers
 // (DESIGN.md). Charts are dilated, so the four texels read near a chart's
-// border hold that chart's values. A texel that straddles a wall gathered on
-// one side of it only; it is left out when the wall stands between it and y
-// (one short shadow ray, only next to walls), so light does not leak through.
+// border hold that chart's values; where a chart is smaller than the lookup's
+// footprint, taps that hold no value (w = 0) are left out rather than read as
+// black. A texel that straddles a wall gathered on one side of it only; it is
+// left out when the wall stands between it and y (one short shadow ray, only
+// next to walls), so light does not leak through. Where that leaves no tap
+// (y in a crease all four texels' anchors are hidden from), the plain lookup
+// stands: reading black there made small-charted scenes 8% dark
+// (monkey.glb at 64²).
 vec3 reflected_radiance_at(vec2 uv, vec3 y) {
     vec2 p = uv * vec2(atlas_size) - 0.5;
     vec2 f = fract(p);
@@ -66,19 +76,44 @@ vec3 reflected_radiance_at(vec2 uv, vec3 y) {
         w[k] = ((k & 1) == 1 ? f.x : 1.0 - f.x) * ((k >> 1) == 1 ? f.y : 1.0 - f.y);
         near_wall = near_wall || (texel_anchors[a[k]].w == 2.0 && w[k] > 0.0);
     }
-    if (near_wall) {
-        for (int k = 0; k < 4; ++k) {
-            vec4 anchor = texel_anchors[a[k]];
-            if (anchor.w == 2.0 && w[k] > 0.0 && trace_occluded(y, anchor.xyz - y, 0.999)) w[k] = 0.0;
-        }
-    }
+    vec4 r[4];
     vec3 sum = vec3(0.0);
     float weight_sum = 0.0;
     for (int k = 0; k < 4; ++k) {
-        sum += w[k] * reflected_radiance[a[k]].rgb;
-        weight_sum += w[k];
+        r[k] = reflected_radiance[a[k]];
+        sum += w[k] * r[k].w * r[k].rgb;
+        weight_sum += w[k] * r[k].w;
+    }
+    if (near_wall) {
+        vec3 visible_sum = vec3(0.0);
+        float visible_weight = 0.0;
+        for (int k = 0; k < 4; ++k) {
+            vec4 anchor = texel_anchors[a[k]];
+            if (anchor.w == 2.0 && w[k] > 0.0 && trace_occluded(y, anchor.xyz - y, 0.999)) continue;
+            visible_sum += w[k] * r[k].w * r[k].rgb;
+            visible_weight += w[k] * r[k].w;
+        }
+        if (visible_weight > 0.0) return visible_sum / visible_weight;
     }
     return weight_sum > 0.0 ? sum / weight_sum : vec3(0.0);
+}
+
+// Bilinear lookup of the texels' albedo at the hit (the weights of
+// reflected_radiance_at, taps without a value left out); the triangle's own
+// albedo where no tap has one (a chart smaller than a texel).
+vec3 hit_texel_albedo(Hit hit) {
+    vec2 p = hit_lightmap_uv(hit) * vec2(atlas_size) - 0.5;
+    vec2 f = fract(p);
+    ivec2 i = ivec2(floor(p));
+    vec3 sum = vec3(0.0);
+    float weight_sum = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        vec4 a = texel_albedo[atlas_index(i.x + (k & 1), i.y + (k >> 1))];
+        float w = ((k & 1) == 1 ? f.x : 1.0 - f.x) * ((k >> 1) == 1 ? f.y : 1.0 - f.y) * a.w;
+        sum += w * a.rgb;
+        weight_sum += w;
+    }
+    return weight_sum > 0.0 ? sum / weight_sum : hit_albedo(hit);
 }
 
 #endif

@@ -2,9 +2,11 @@
 // One pass of the radiosity map (thesis §3.2-3.5): every covered texel
 // gathers direct light by shadow rays to the emitters and indirect light by
 // one cosine-distributed ray that reads the current radiosity map.
-// With LF_PATH_TRACE defined it is the brute-force baseline instead: the
-// indirect ray continues as a path (next-event estimation at every vertex,
-// Russian roulette) and reads no map.
+// With LF_FINAL_GATHER defined the indirect ray's first bounce is computed
+// where it lands (final_gather below) and the map supplies only the light
+// beyond. With LF_PATH_TRACE defined it is the brute-force baseline instead:
+// the indirect ray continues as a path (next-event estimation at every
+// vertex, Russian roulette) and reads no map.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 #include "random.glsl"
@@ -20,6 +22,19 @@ uniform uint pass;            // 0-based pass count since the bake began
 uniform uint pass_in_epoch;   // 0-based; the stratification restarts with each epoch
 uniform uint seed;
 uniform uint light_samples;   // emitter samples per texel per pass
+
+// The radiance the hit point y (geometric normal ny, on the ray's side)
+// reflects towards the texel, its emission aside: its direct light sampled
+// as the texels' is (one emitter sample, the punctual lights), times the
+// albedo there, plus albedo x the map's indirect layer for the light that
+// reaches y after bouncing at least once (the resolve pass publishes that
+// under LF_FINAL_GATHER). E/pi units, as reflected_radiance_at.
+vec3 final_gather(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
+    vec2 uv = hit_lightmap_uv(hit);
+    vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
+    rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
+    return hit_texel_albedo(hit) * e * (1.0 / PI) + reflected_radiance_at(uv, y);
+}
 
 
 void main() {
@@ -63,8 +78,10 @@ void main() {
             // The hit point, lifted off its surface on the ray's side.
             vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);
             vec3 y = offset_ray_origin(origin + hit.t * dir, n_hit);
-#ifdef LF_PATH_TRACE
+#if defined(LF_PATH_TRACE)
             indirect = path_radiance(hit, origin, dir, rng, path_rays);
+#elif defined(LF_FINAL_GATHER)
+            indirect = final_gather(hit, y, n_hit, rng, path_rays);
 #else
             indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
 #endif

@@ -55,7 +55,13 @@ void main() {
         bool use_current = current.w > 0.0;
         vec3 indirect = use_current ? current.rgb / current.w : previous.rgb;
         vec3 value = direct_mean + indirect;
+#ifdef LF_FINAL_GATHER
+        // A final gather computes the first bounce where its ray lands: the
+        // map supplies the light beyond it only.
+        reflected_radiance[covered_texels[i].z] = vec4(albedo * indirect, 1.0);
+#else
         reflected_radiance[covered_texels[i].z] = vec4(albedo * value, 1.0);
+#endif
 
         float var = variance_of_mean(channel_mean(direct.rgb), moments.x, direct.w) +
                     (use_current ? variance_of_mean(channel_mean(current.rgb), moments.y, current.w) : moments.z);
