@@ -101,6 +101,62 @@ double seam_metric(const std::vector<SeamEdge>& seams, const std::vector<glm::ve
     return sum / (double(seams.size()) * samples_per_edge);
 }
 
+namespace {
+
+struct RowTap {
+    uint32_t unknown;
+    float weight;
+};
+using SeamRow = std::array<RowTap, 8>;  // +bilinear weights on side A, -bilinear weights on side B
+
+constexpr int kMaxRounds = 8;  // of the active-set solve below
+
+// Conjugate gradients on (MᵀM + λI) x = λ x0 over the components `free_mask`
+// marks (1), the others held at their value in x (0 when called from the
+// active set), starting from x. The four channels are solved together,
+// independently.
+void solve_normal_equations(const std::vector<SeamRow>& rows, const std::vector<glm::vec4>& original,
+                            const std::vector<glm::vec4>& free_mask, float lambda, int iterations,
+                            std::vector<glm::vec4>& x) {
+    const size_t n = x.size();
+    auto apply = [&](const std::vector<glm::vec4>& v, std::vector<glm::vec4>& out) {
+        for (size_t i = 0; i < n; ++i) out[i] = lambda * v[i];
+        for (const SeamRow& row : rows) {
+            glm::vec4 residual(0.0f);
+            for (const RowTap& tap : row) residual += tap.weight * v[tap.unknown];
+            for (const RowTap& tap : row) out[tap.unknown] += tap.weight * residual;
+        }
+        for (size_t i = 0; i < n; ++i) out[i] *= free_mask[i];
+    };
+    auto dot = [&](const std::vector<glm::vec4>& a, const std::vector<glm::vec4>& b) {
+        glm::dvec4 sum(0.0);
+        for (size_t i = 0; i < n; ++i) sum += glm::dvec4(a[i] * b[i]);
+        return sum;
+    };
+    std::vector<glm::vec4> r(n), p(n), ap(n);
+    apply(x, ap);  // held components are 0 and contribute nothing
+    for (size_t i = 0; i < n; ++i) r[i] = free_mask[i] * (lambda * original[i]) - ap[i];
+    p = r;
+    glm::dvec4 rr = dot(r, r);
+    const double tolerance = 1e-12 * std::max(1.0, max_component(dot(original, original)));
+    for (int it = 0; it < iterations && max_component(rr) > tolerance; ++it) {
+        apply(p, ap);
+        const glm::dvec4 pap = dot(p, ap);
+        glm::vec4 alpha, beta;
+        for (int c = 0; c < 4; ++c) alpha[c] = pap[c] > 0.0 ? float(rr[c] / pap[c]) : 0.0f;
+        for (size_t i = 0; i < n; ++i) {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * ap[i];
+        }
+        const glm::dvec4 rr_next = dot(r, r);
+        for (int c = 0; c < 4; ++c) beta[c] = rr[c] > 0.0 ? float(rr_next[c] / rr[c]) : 0.0f;
+        for (size_t i = 0; i < n; ++i) p[i] = r[i] + beta * p[i];
+        rr = rr_next;
+    }
+}
+
+}  // namespace
+
 void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
                   int samples_per_edge, float lambda, int iterations) {
     check_image(image, width, height);
@@ -110,11 +166,7 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
     // row: +bilinear weights on side A, -bilinear weights on side B.
     std::unordered_map<uint32_t, uint32_t> unknown_of_pixel;
     std::vector<uint32_t> pixel_of_unknown;
-    struct RowTap {
-        uint32_t unknown;
-        float weight;
-    };
-    std::vector<std::array<RowTap, 8>> rows;
+    std::vector<SeamRow> rows;
     rows.reserve(seams.size() * size_t(samples_per_edge));
     auto unknown = [&](uint32_t pixel) {
         auto [it, inserted] = unknown_of_pixel.try_emplace(pixel, uint32_t(pixel_of_unknown.size()));
@@ -125,7 +177,7 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
         for (int k = 0; k < samples_per_edge; ++k) {
             const auto a = bilinear_taps(width, height, seam_point(seam.a0, seam.a1, k, samples_per_edge));
             const auto b = bilinear_taps(width, height, seam_point(seam.b0, seam.b1, k, samples_per_edge));
-            std::array<RowTap, 8> row;
+            SeamRow row;
             for (size_t i = 0; i < 4; ++i) {
                 row[i] = {unknown(a[i].pixel), a[i].weight};
                 row[4 + i] = {unknown(b[i].pixel), -b[i].weight};
@@ -135,43 +187,28 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
 
     // Normal equations (MᵀM + λI) x = λ x0, solved by conjugate gradients
     // from x0; the matrix is symmetric positive definite for λ > 0.
+    // Irradiance is never negative, and the unconstrained least-squares
+    // solution can be (a dark texel pulled below 0 by bright neighbours across
+    // a seam: 507 texels on the staircase at 512²). So the solve is repeated
+    // on the free components only, those that went negative held at 0 (an
+    // active-set method; `free_mask` is 1 for a free component, 0 for a held one),
+    // until none does; anything still negative after kMaxRounds is clamped.
     const size_t n = pixel_of_unknown.size();
-    std::vector<glm::vec4> original(n), x(n);
+    std::vector<glm::vec4> original(n), x(n), free_mask(n, glm::vec4(1.0f));
     for (size_t i = 0; i < n; ++i) original[i] = x[i] = image[pixel_of_unknown[i]];
-    auto apply = [&](const std::vector<glm::vec4>& v, std::vector<glm::vec4>& out) {
-        for (size_t i = 0; i < n; ++i) out[i] = lambda * v[i];
-        for (const auto& row : rows) {
-            glm::vec4 residual(0.0f);
-            for (const RowTap& tap : row) residual += tap.weight * v[tap.unknown];
-            for (const RowTap& tap : row) out[tap.unknown] += tap.weight * residual;
-        }
-    };
-    auto dot = [&](const std::vector<glm::vec4>& a, const std::vector<glm::vec4>& b) {
-        glm::dvec4 sum(0.0);
-        for (size_t i = 0; i < n; ++i) sum += glm::dvec4(a[i] * b[i]);
-        return sum;
-    };
-    std::vector<glm::vec4> r(n), p(n), ap(n);
-    apply(x, ap);
-    for (size_t i = 0; i < n; ++i) r[i] = lambda * original[i] - ap[i];
-    p = r;
-    glm::dvec4 rr = dot(r, r);
-    const double tolerance = 1e-12 * std::max(1.0, max_component(dot(original, original)));
-    for (int it = 0; it < iterations && max_component(rr) > tolerance; ++it) {
-        apply(p, ap);
-        const glm::dvec4 pap = dot(p, ap);
-        glm::vec4 alpha, beta;
-        glm::dvec4 rr_next;
-        for (int c = 0; c < 4; ++c) alpha[c] = pap[c] > 0.0 ? float(rr[c] / pap[c]) : 0.0f;
-        for (size_t i = 0; i < n; ++i) {
-            x[i] += alpha * p[i];
-            r[i] -= alpha * ap[i];
-        }
-        rr_next = dot(r, r);
-        for (int c = 0; c < 4; ++c) beta[c] = rr[c] > 0.0 ? float(rr_next[c] / rr[c]) : 0.0f;
-        for (size_t i = 0; i < n; ++i) p[i] = r[i] + beta * p[i];
-        rr = rr_next;
+    for (int round = 0; round < kMaxRounds; ++round) {
+        solve_normal_equations(rows, original, free_mask, lambda, iterations, x);
+        bool held_more = false;
+        for (size_t i = 0; i < n; ++i)
+            for (int c = 0; c < 4; ++c)
+                if (x[i][c] < 0.0f && free_mask[i][c] != 0.0f) {
+                    free_mask[i][c] = 0.0f;
+                    x[i][c] = 0.0f;
+                    held_more = true;
+                }
+        if (!held_more) break;
     }
+    for (size_t i = 0; i < n; ++i) x[i] = glm::max(x[i], glm::vec4(0.0f));
     for (size_t i = 0; i < n; ++i) image[pixel_of_unknown[i]] = x[i];
 }
 
