@@ -109,7 +109,11 @@ struct RowTap {
 };
 using SeamRow = std::array<RowTap, 8>;  // +bilinear weights on side A, -bilinear weights on side B
 
-constexpr int kMaxRounds = 8;  // of the active-set solve below
+// Rounds of the active-set solve below; after the first, each starts from the
+// last solution and needs few steps (it only moves the texels around the
+// newly held ones).
+constexpr int kMaxRounds = 4;
+constexpr int kLaterRoundDivisor = 4;
 
 // Conjugate gradients on (MᵀM + λI) x = λ x0 over the components `free_mask`
 // marks (1), the others held at their value in x (0 when called from the
@@ -197,7 +201,8 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
     std::vector<glm::vec4> original(n), x(n), free_mask(n, glm::vec4(1.0f));
     for (size_t i = 0; i < n; ++i) original[i] = x[i] = image[pixel_of_unknown[i]];
     for (int round = 0; round < kMaxRounds; ++round) {
-        solve_normal_equations(rows, original, free_mask, lambda, iterations, x);
+        solve_normal_equations(rows, original, free_mask, lambda,
+                               round == 0 ? iterations : std::max(1, iterations / kLaterRoundDivisor), x);
         bool held_more = false;
         for (size_t i = 0; i < n; ++i)
             for (int c = 0; c < 4; ++c)
