@@ -92,7 +92,7 @@ double local_bake(const Bake& b, const fs::path& out) {
 class EndToEnd : public ::testing::Test {
 protected:
     void SetUp() override {
-        if (!fs::exists(LIGHTFARM_ENGINE)) GTEST_SKIP() << "no engine at " << LIGHTFARM_ENGINE;
+        ASSERT_TRUE(fs::exists(LIGHTFARM_ENGINE)) << "no engine at " << LIGHTFARM_ENGINE << " (built with the tests)";
         write_text(tmp.path / "tokens", kToken + "\n");
         server = std::make_unique<Lightfarmd>(tmp.path / "data", tmp.path / "tokens", LIGHTFARM_ENGINE,
                                               std::vector<std::string>{"--stall-timeout", "120"});

@@ -1,11 +1,13 @@
 #include "atlas/lightmapped_gltf.h"
 
+#include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
 
 #include <algorithm>
 #include <cstring>
 #include <fstream>
 #include <map>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <unistd.h>
@@ -272,14 +274,50 @@ void add_vertex_attributes(tinygltf::Model& model, tinygltf::Primitive& primitiv
     }
 }
 
+uint32_t read_u32(const std::string& s, size_t at) {
+    uint32_t v = 0;
+    std::memcpy(&v, s.data() + at, 4);
+    return v;
+}
+
+void write_u32(std::string& s, size_t at, uint32_t v) { std::memcpy(&s[at], &v, 4); }
+
+// tinygltf writes a perspective camera's "zfar" even when it is 0 (its
+// "infinite projection"), which the glTF schema forbids (zfar > 0 or absent):
+// the GLB's JSON chunk is rewritten without it. `glb` is a whole GLB file.
+void drop_zero_zfar(std::string& glb, const std::filesystem::path& out) {
+    if (glb.size() < 20 || read_u32(glb, 16) != 0x4E4F534Au) fail(out, "tinygltf wrote no JSON chunk");
+    const uint32_t json_length = read_u32(glb, 12);
+    nlohmann::json doc = nlohmann::json::parse(glb.substr(20, json_length));
+    bool changed = false;
+    if (doc.contains("cameras"))
+        for (auto& camera : doc["cameras"])
+            if (camera.contains("perspective") && camera["perspective"].value("zfar", 1.0) == 0.0) {
+                camera["perspective"].erase("zfar");
+                changed = true;
+            }
+    if (!changed) return;
+    std::string json = doc.dump();
+    json.resize((json.size() + 3) / 4 * 4, ' ');  // chunks are 4-byte aligned, JSON padded with spaces
+    const std::string rest = glb.substr(20 + json_length);
+    std::string rebuilt = glb.substr(0, 20) + json + rest;
+    write_u32(rebuilt, 8, uint32_t(rebuilt.size()));
+    write_u32(rebuilt, 12, uint32_t(json.size()));
+    glb = std::move(rebuilt);
+}
+
 void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) {
     const std::filesystem::path temp =
         out.parent_path() / ("." + out.filename().string() + ".tmp-" + std::to_string(::getpid()));
     {
+        std::ostringstream encoded;
+        tinygltf::TinyGLTF gltf;
+        bool ok = gltf.WriteGltfSceneToStream(&model, encoded, false, true);
+        std::string glb = encoded.str();
+        if (ok) drop_zero_zfar(glb, out);
         std::ofstream stream(temp, std::ios::binary | std::ios::trunc);
         if (!stream) fail(out, "cannot create " + temp.string());
-        tinygltf::TinyGLTF gltf;
-        const bool ok = gltf.WriteGltfSceneToStream(&model, stream, false, true);
+        stream.write(glb.data(), std::streamsize(glb.size()));
         stream.flush();
         if (!ok || !stream) {
             stream.close();
