@@ -22,14 +22,17 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 const char* const kRemoteUsage = R"(remote commands (a lightfarmd server):
-  submit SCENE [bake options] [--wait [--out DIR] [--json]]
+  submit SCENE [bake options] [--wait [--out DIR] [--json] [--snapshots]]
                                      upload SCENE (a .glb, or a .gltf with its files),
                                      create a job, print its id; --wait follows it and
-                                     downloads the results into --out (default ./JOB).
+                                     downloads the final files into --out (default
+                                     ./JOB; --snapshots: the intermediate ones too).
                                      The bake options are those of `lightfarm bake`:
                                      every output (--lightmap, --sh) and setting
   watch JOB [--json]                 follow a job's progress until it ends
-  fetch JOB [--out DIR] [--latest]   download a job's files (--latest: the newest file
+  fetch JOB [--out DIR] [--latest | --snapshots]
+                                     download a job's final files (--snapshots: and
+                                     its intermediate ones; --latest: the newest file
                                      of each output: its final file once done, else
                                      its newest snapshot)
   cancel JOB                         cancel a queued or running job
@@ -200,10 +203,13 @@ protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_line
     return final_event;
 }
 
+// Which of a job's files to download.
+enum class Files { Final, FinalAndSnapshots, Latest };
+
 // Downloads artifacts into `dir` (temp file + rename, like the server's own).
-void fetch(Remote& remote, const std::string& job, const fs::path& dir, bool latest_only) {
+void fetch(Remote& remote, const std::string& job, const fs::path& dir, Files which) {
     std::vector<std::string> names;
-    if (latest_only) {
+    if (which == Files::Latest) {
         // The newest file of each output, as the server learnt it from the
         // worker's events (file names do not sort by pass: pass-16384 < pass-2048).
         const json status = remote.call(remote.http().Get("/v1/jobs/" + job), "read job " + job);
@@ -212,9 +218,12 @@ void fetch(Remote& remote, const std::string& job, const fs::path& dir, bool lat
     } else {
         const json listing =
             remote.call(remote.http().Get("/v1/jobs/" + job + "/artifacts"), "list the files of job " + job);
-        for (const json& a : listing["artifacts"]) names.push_back(a["name"]);
+        for (const json& a : listing["artifacts"])
+            if (which == Files::FinalAndSnapshots || !protocol::is_snapshot_file(a["name"])) names.push_back(a["name"]);
     }
-    if (names.empty()) throw RemoteError("job " + job + " has no files yet");
+    if (names.empty())
+        throw RemoteError("job " + job + " has no " + (which == Files::Final ? "final " : "") + "files yet" +
+                          (which == Files::Final ? " (--latest: its newest snapshots)" : ""));
     fs::create_directories(dir);
     for (const std::string& name : names) {
         const fs::path tmp = dir / ("." + name + ".tmp");
@@ -256,7 +265,7 @@ std::string one_job(const Args& args, const std::string& command) {
 int submit(int argc, char** argv) {
     // Every output and setting of `lightfarm bake`, from the one catalog.
     std::set<std::string> valued = with_common({"--out"});
-    std::set<std::string> flags = {"--wait", "--json"};
+    std::set<std::string> flags = {"--wait", "--json", "--snapshots"};
     for (const auto& [flag, takes_value] : protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
     const Args args(argc, argv, 2, valued, flags);
     if (args.positional().size() != 1) throw UsageError("submit takes exactly one SCENE argument");
@@ -279,7 +288,8 @@ int submit(int argc, char** argv) {
     std::cout << id << std::endl;
     if (!args.flag("--wait")) return 0;
     const protocol::JobEvent end = follow(remote, id, args.flag("--json"));
-    if (end.type == "done") fetch(remote, id, args.get("--out", id), false);
+    if (end.type == "done")
+        fetch(remote, id, args.get("--out", id), args.flag("--snapshots") ? Files::FinalAndSnapshots : Files::Final);
     return finish_with(end, id);
 }
 
@@ -291,10 +301,14 @@ int watch(int argc, char** argv) {
 }
 
 int fetch_command(int argc, char** argv) {
-    const Args args(argc, argv, 2, with_common({"--out"}), {"--latest"});
+    const Args args(argc, argv, 2, with_common({"--out"}), {"--latest", "--snapshots"});
     const std::string id = one_job(args, "fetch");
+    if (args.flag("--latest") && args.flag("--snapshots")) throw UsageError("fetch: --latest or --snapshots, not both");
     Remote remote(args);
-    fetch(remote, id, args.get("--out", id), args.flag("--latest"));
+    fetch(remote, id, args.get("--out", id),
+          args.flag("--latest")      ? Files::Latest
+          : args.flag("--snapshots") ? Files::FinalAndSnapshots
+                                     : Files::Final);
     return 0;
 }
 

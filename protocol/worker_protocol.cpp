@@ -1,6 +1,7 @@
 #include "worker_protocol.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 
@@ -31,6 +32,20 @@ Progress progress_from_json(const json& j) {
         p.error_estimate = j["error_estimate"].get<double>();
     if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
     return p;
+}
+
+std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension) {
+    char number[16];
+    std::snprintf(number, sizeof number, "%04d", pass);
+    return stem + ".pass-" + number + "." + extension;
+}
+
+bool is_snapshot_file(const std::string& name) {
+    const size_t at = name.find(".pass-");
+    if (at == std::string::npos) return false;
+    size_t digits = at + 6;
+    while (digits < name.size() && name[digits] >= '0' && name[digits] <= '9') ++digits;
+    return digits > at + 6 && digits < name.size() && name[digits] == '.';
 }
 
 namespace {

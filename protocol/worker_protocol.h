@@ -31,6 +31,12 @@ enum WorkerExit : int {
 };
 inline bool is_input_error_exit(int code) { return code == kExitUsage || code == kExitInputError; }
 
+// "<stem>.pass-NNNN.<extension>": an intermediate snapshot's file name (a
+// final file never has ".pass-" in it). Clients tell snapshots from final
+// files by it (`lightfarm fetch` without --snapshots).
+std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension);
+bool is_snapshot_file(const std::string& name);
+
 // Where a progressive bake stands: totals after the latest pass. The engine's
 // pass statistics and the server's progress are this one type.
 struct Progress {

@@ -82,6 +82,17 @@ std::string read_text(const std::filesystem::path& path) {
 // ---------------------------------------------------------------------------
 // The catalog
 
+// Snapshot names: what the engine writes, what clients tell from final files.
+TEST(SnapshotNames, AreStemPassNumberExtension) {
+    EXPECT_EQ(snapshot_file_name("lightmap", 4, "exr"), "lightmap.pass-0004.exr");
+    EXPECT_EQ(snapshot_file_name("sh_transfer", 16384, "bin"), "sh_transfer.pass-16384.bin");
+    EXPECT_TRUE(is_snapshot_file("lightmap.pass-0004.exr"));
+    EXPECT_TRUE(is_snapshot_file(snapshot_file_name("probes", 12, "json")));
+    for (const char* final_file : {"lightmap.exr", "manifest.json", "scene.lightmapped.glb", "probes.exr",
+                                   "lightmap.pass-.exr", "lightmap.pass-12", "x.pass-1a.exr"})
+        EXPECT_FALSE(is_snapshot_file(final_file)) << final_file;
+}
+
 TEST(Catalog, NamesFlagsAndFieldsAreUniqueAndConsistent) {
     std::set<std::string> flags, fields;
     for (const Setting& s : setting_catalog()) {

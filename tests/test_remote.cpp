@@ -65,6 +65,14 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
     EXPECT_EQ(id.size(), 24u) << r.out;
     EXPECT_EQ(read_text(out / "lightmap.exr"), read_text(engine.dir / "snapshot.exr"));
     EXPECT_TRUE(fs::exists(out / "manifest.json"));
+    // --wait downloads the final files only; fetch --snapshots brings the rest.
+    const auto snapshots_in = [](const fs::path& dir) {
+        size_t n = 0;
+        for (const auto& entry : fs::directory_iterator(dir))
+            n += entry.path().filename().string().find(".pass-") != std::string::npos;
+        return n;
+    };
+    EXPECT_EQ(snapshots_in(out), 0u);
     const json spec = json::parse(read_text(engine.dir / "last_spec.json"));
     EXPECT_EQ(spec["outputs"]["lightmap"]["passes"], 3);
     EXPECT_EQ(spec["seed"], 9);
@@ -78,6 +86,12 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
     // Done: the newest file of the lightmap is its final one.
     EXPECT_TRUE(fs::exists(tmp.path / "latest" / "lightmap.exr"));
     EXPECT_FALSE(fs::exists(tmp.path / "latest" / "lightmap.pass-0002.exr"));
+    const CliRun all = run(with_common({"fetch", id, "--snapshots", "--out", (tmp.path / "all").string()}));
+    EXPECT_EQ(all.status, 0) << all.err;
+    EXPECT_GT(snapshots_in(tmp.path / "all"), 0u);
+    EXPECT_TRUE(fs::exists(tmp.path / "all" / "lightmap.exr"));
+    const CliRun both = run(with_common({"fetch", id, "--snapshots", "--latest"}));
+    EXPECT_EQ(both.status, 2) << both.err;
 
     const CliRun w = run(with_common({"watch", id, "--json"}));
     EXPECT_EQ(w.status, 0);

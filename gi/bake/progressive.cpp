@@ -1,7 +1,5 @@
 #include "bake/progressive.h"
 
-#include <cstdio>
-
 namespace lf {
 
 StopRule stop_rule_from(const protocol::StopSettings& stop) {
@@ -10,12 +8,6 @@ StopRule stop_rule_from(const protocol::StopSettings& stop) {
     rule.target_error = stop.target_error;
     rule.time_limit = stop.time_limit;
     return rule;
-}
-
-std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension) {
-    char number[16];
-    std::snprintf(number, sizeof number, "%04d", pass);
-    return stem + ".pass-" + number + "." + extension;
 }
 
 PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,

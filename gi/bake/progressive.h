@@ -64,7 +64,7 @@ public:
 };
 
 // "<stem>.pass-NNNN.<extension>": the name of an intermediate snapshot.
-std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension);
+using protocol::snapshot_file_name;
 
 // Runs passes until `stop` says so; on_pass(stats) after every pass.
 PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
