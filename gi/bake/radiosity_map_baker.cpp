@@ -207,13 +207,14 @@ PassStats RadiosityMapBaker::step() {
 
     // Totals of the error estimate; reading them back also waits for the pass.
     const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();
-    double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0;
+    double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0, unknown = 0.0;
     for (size_t g = 0; g + 1 < partials.size(); g += 2) {
         variance += partials[g].x;
         level += partials[g].y;
         active_next += partials[g].z;
         covered += partials[g].w;
         extra_rays += partials[g + 1].x;
+        unknown += partials[g + 1].y;
     }
     // Rays of this pass: every texel that was active when it began, plus
     // path continuations (path tracing).
@@ -225,7 +226,10 @@ PassStats RadiosityMapBaker::step() {
     }
     ++stats_.pass;
     stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    stats_.error_estimate = level > 0.0 ? std::sqrt(variance / covered) / (level / covered) : 0.0;
+    // Unknown while any texel's delivered estimate rests on one sample (its
+    // variance would read 0, not small): passes 1 to 3 with epochs.
+    stats_.error_estimate.reset();
+    if (unknown == 0.0 && level > 0.0) stats_.error_estimate = std::sqrt(variance / covered) / (level / covered);
     return stats_;
 }
 

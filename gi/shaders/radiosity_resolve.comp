@@ -9,7 +9,8 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 
 // Per workgroup, two vec4: (sum of the variance of the mean, sum of the value,
-// active texels, covered texels), (extra rays traced this pass, 0, 0, 0).
+// active texels, covered texels), (extra rays traced this pass, texels whose
+// delivered estimate has fewer than two samples (its variance unknown), 0, 0).
 layout(std430, binding = 9) writeonly buffer ErrorPartials { vec4 error_partials[]; };
 
 uniform uint end_epoch;        // 1 after the last pass of an epoch: the current indirect estimate becomes "previous"
@@ -17,7 +18,7 @@ uniform float converged_error; // > 0: texels whose relative standard error is b
 uniform uint min_samples;      // before which no texel is called converged
 
 shared vec4 partial[64];
-shared float partial_rays[64];
+shared vec2 partial_rays[64];  // extra rays, texels of unknown variance
 
 // Variance of the mean of n samples with the given sum and sum of squares.
 float variance_of_mean(float sum, float sum_sq, float n) {
@@ -29,7 +30,7 @@ float variance_of_mean(float sum, float sum_sq, float n) {
 void main() {
     uint i = covered_index();
     vec4 contribution = vec4(0.0);
-    float extra_rays = 0.0;
+    float extra_rays = 0.0, unknown_variance = 0.0;
     if (i < covered_count) {
         vec4 direct = accumulators[5u * i];
         vec4 moments = accumulators[5u * i + 1u];
@@ -42,9 +43,14 @@ void main() {
 
         float current_var = variance_of_mean(channel_mean(current.rgb), moments.y, current.w);
         if (end_epoch != 0u && current.w > 0.0) {
-            // Restart the indirect estimate from this epoch's result (see RadiosityScheme).
-            previous = vec4(current.rgb / current.w, current.w);
-            moments.z = current_var;
+            // Restart the indirect estimate from this epoch's result (see
+            // RadiosityScheme). Epochs double, so it has at least the previous
+            // one's samples, except in a texel that converged (stopped
+            // tracing) during it: that texel keeps its previous estimate.
+            if (current.w >= previous.w) {
+                previous = vec4(current.rgb / current.w, current.w);
+                moments.z = current_var;
+            }
             current = vec4(0.0);
             moments.y = 0.0;
             accumulators[5u * i + 2u] = current;
@@ -63,9 +69,16 @@ void main() {
         reflected_radiance[covered_texels[i].z] = vec4(albedo * value, 1.0);
 #endif
 
+        // The error and convergence are those of what a snapshot delivers
+        // (RadiosityMapBaker::image): the indirect estimate with more samples
+        // behind it, so that the reported error does not jump up when an
+        // epoch restarts with few samples.
+        bool deliver_current = current.w > 0.0 && current.w >= previous.w;
+        vec3 delivered = direct_mean + (deliver_current ? current.rgb / current.w : previous.rgb);
         float var = variance_of_mean(channel_mean(direct.rgb), moments.x, direct.w) +
-                    (use_current ? variance_of_mean(channel_mean(current.rgb), moments.y, current.w) : moments.z);
-        float level = channel_mean(value);
+                    (deliver_current ? variance_of_mean(channel_mean(current.rgb), moments.y, current.w) : moments.z);
+        float level = channel_mean(delivered);
+        unknown_variance = (deliver_current ? current.w : previous.w) < 2.0 || direct.w < 2.0 ? 1.0 : 0.0;
         bool converged = converged_error > 0.0 && direct.w >= float(min_samples) && level > 0.0 &&
                          sqrt(var) < converged_error * level;
         moments.w = converged ? 1.0 : 0.0;
@@ -73,7 +86,7 @@ void main() {
         contribution = vec4(var, level, converged ? 0.0 : 1.0, 1.0);
     }
     partial[gl_LocalInvocationIndex] = contribution;
-    partial_rays[gl_LocalInvocationIndex] = extra_rays;
+    partial_rays[gl_LocalInvocationIndex] = vec2(extra_rays, unknown_variance);
     barrier();
     for (uint stride = 32u; stride > 0u; stride >>= 1u) {
         if (gl_LocalInvocationIndex < stride) {
@@ -85,6 +98,6 @@ void main() {
     uint group = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
     if (gl_LocalInvocationIndex == 0u) {
         error_partials[2u * group] = partial[0];
-        error_partials[2u * group + 1u] = vec4(partial_rays[0], 0.0, 0.0, 0.0);
+        error_partials[2u * group + 1u] = vec4(partial_rays[0], 0.0, 0.0);
     }
 }
