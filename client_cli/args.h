@@ -2,6 +2,7 @@
 // --flag options, with an error for anything unknown.
 #pragma once
 
+#include <algorithm>
 #include <map>
 #include <set>
 #include <stdexcept>
@@ -37,7 +38,7 @@ public:
                 else throw UsageError(key + " needs a value");
                 values_[key] = value;
             } else {
-                throw UsageError("unknown option " + key);
+                throw UsageError("unknown option " + key + did_you_mean(key, valued, flags));
             }
         }
     }
@@ -65,6 +66,36 @@ public:
     }
 
 private:
+    // " (did you mean --passes?)" for the known option nearest a mistyped
+    // one, when it is near enough to be what was meant; else "".
+    static std::string did_you_mean(const std::string& key, const std::set<std::string>& valued,
+                                    const std::set<std::string>& flags) {
+        std::string best;
+        size_t best_distance = std::string::npos;
+        for (const std::set<std::string>* known : {&valued, &flags})
+            for (const std::string& option : *known) {
+                const size_t d = edit_distance(key, option);
+                if (d < best_distance) best_distance = d, best = option;
+            }
+        const size_t near_enough = std::max<size_t>(1, key.size() / 4);
+        return best_distance <= near_enough ? " (did you mean " + best + "?)" : "";
+    }
+    // Levenshtein distance: insertions, deletions and substitutions.
+    static size_t edit_distance(const std::string& a, const std::string& b) {
+        std::vector<size_t> row(b.size() + 1);
+        for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
+        for (size_t i = 1; i <= a.size(); ++i) {
+            size_t diagonal = row[0];
+            row[0] = i;
+            for (size_t j = 1; j <= b.size(); ++j) {
+                const size_t above = row[j];
+                row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+                diagonal = above;
+            }
+        }
+        return row[b.size()];
+    }
+
     static double parse_number(const std::string& key, const std::string& text) {
         size_t used = 0;
         double v = 0.0;

@@ -1,6 +1,7 @@
 // lightfarm: the command-line tool. A thin layer over the gi library: each
 // command parses its options, calls the library, prints the result.
 #include "args.h"
+#include "bake_help.h"
 #include "remote.h"
 
 #include "atlas/atlas.h"
@@ -280,29 +281,7 @@ lf::protocol::BakeSettings bake_settings(const Args& args, const std::string& sc
     }
 }
 
-// `lightfarm bake --help`: the catalog's settings, as the README's table has them.
-std::string bake_help() {
-    std::string text =
-        "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh]\n"
-        "                      [--device auto|gpu|gpu:N|cpu] [--json] [settings]\n\nsettings:\n";
-    for (const lf::protocol::Setting& s : lf::protocol::setting_catalog()) {
-        std::string flag = s.flag() + (s.value_syntax().empty() ? "" : " " + s.value_syntax());
-        flag.resize(std::max<size_t>(flag.size(), 34), ' ');
-        text += "  " + flag + " " + s.help;
-        if (!s.default_value.is_null() && s.type != lf::protocol::SettingType::Flag)
-            text += " [" + (s.default_value.is_string() ? s.default_value.get<std::string>() : s.default_value.dump()) +
-                    "]";
-        text += "\n";
-    }
-    return text;
-}
-
 int bake(int argc, char** argv) {
-    for (int i = 2; i < argc; ++i)
-        if (std::string(argv[i]) == "--help") {
-            std::cout << bake_help();
-            return 0;
-        }
     std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json"};
     for (const auto& [flag, takes_value] : lf::protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
     Args args(argc, argv, 2, valued, flags);
@@ -391,6 +370,14 @@ int main(int argc, char** argv) {
         return argc < 2 ? 2 : 0;
     }
     const std::string command = argv[1];
+    for (int i = 2; i < argc; ++i)
+        if (std::string(argv[i]) == "--help") {  // every command answers --help
+            if (command == "bake") std::cout << lf::cli::bake_help();
+            else if (lf::cli::is_remote_command(command)) std::cout << lf::cli::kRemoteUsage;
+            else std::cout << kUsage;
+            if (command == "submit") std::cout << "\n" << lf::cli::bake_settings_help();
+            return 0;
+        }
     try {
         if (lf::cli::is_remote_command(command)) return lf::cli::run_remote_command(command, argc, argv);
         if (command == "inspect") return inspect(argc, argv);

@@ -1,5 +1,7 @@
 #include "remote.h"
 
+#include "bake_help.h"
+
 #include "args.h"
 #include "job_spec.h"
 #include "job_status.h"
@@ -21,7 +23,7 @@ namespace lf::cli {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-const char* const kRemoteUsage = R"(remote commands (a lightfarmd server):
+const char* const kRemoteUsage = R"(usage of the remote commands (a lightfarmd server):
   submit SCENE [bake options] [--wait [--out DIR] [--json] [--snapshots]]
                                      upload SCENE (a .glb, or a .gltf with its files),
                                      create a job, print its id; --wait follows it and
@@ -356,6 +358,7 @@ int run_remote_command(const std::string& command, int argc, char** argv) {
         throw UsageError("unknown command '" + command + "'");
     } catch (const UsageError& e) {
         std::cerr << "lightfarm " << command << ": " << e.what() << "\n" << kRemoteUsage;
+        if (command == "submit") std::cerr << "\n" << bake_settings_help();
         return 2;
     } catch (const std::exception& e) {
         std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";

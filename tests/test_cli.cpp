@@ -112,6 +112,29 @@ TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
     fs::remove_all(out);
 }
 
+// What is printed works as printed: every command answers --help, and a
+// mistyped option names the one that was meant.
+TEST(CliUsage, EveryCommandAnswersHelpAndTyposGetASuggestion) {
+    for (const char* command : {"inspect", "raybench", "bake", "compare", "devices", "sh-shade", "probe-eval",
+                                "probebench", "submit", "watch", "fetch", "cancel", "jobs"}) {
+        const CliRun r = run_lightfarm(std::string(command) + " --help");
+        EXPECT_EQ(r.exit_code, 0) << command << ": " << r.err;
+        EXPECT_NE(r.out.find("usage"), std::string::npos) << command;
+    }
+    const CliRun bake = run_lightfarm("bake --help");
+    EXPECT_NE(bake.out.find("--probe-res"), std::string::npos) << "every setting of the catalog";
+    const CliRun typo = run_lightfarm("bake scene.glb --out x --pases 3");
+    EXPECT_EQ(typo.exit_code, 2);
+    EXPECT_NE(typo.err.find("unknown option --pases (did you mean --passes?)"), std::string::npos) << typo.err;
+    const CliRun far = run_lightfarm("bake scene.glb --out x --colour red");
+    EXPECT_EQ(far.exit_code, 2);
+    EXPECT_EQ(far.err.find("did you mean"), std::string::npos) << "no suggestion for what resembles nothing";
+    const CliRun submit = run_lightfarm("submit scene.glb --token t --light-sample 2");
+    EXPECT_EQ(submit.exit_code, 2);
+    EXPECT_NE(submit.err.find("did you mean --light-samples?"), std::string::npos) << submit.err;
+    EXPECT_NE(submit.err.find("--sh-bands"), std::string::npos) << "submit lists the bake options";
+}
+
 TEST(CliBake, StopsAtTheTargetError) {
     const fs::path out = fresh_dir("target");
     const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +

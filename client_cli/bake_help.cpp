@@ -1,0 +1,29 @@
+#include "bake_help.h"
+
+#include "bake_settings.h"
+
+#include <algorithm>
+
+namespace lf::cli {
+
+std::string bake_settings_help() {
+    std::string text = "settings (of `lightfarm bake` and `lightfarm submit`):\n";
+    for (const protocol::Setting& s : protocol::setting_catalog()) {
+        std::string flag = s.flag() + (s.value_syntax().empty() ? "" : " " + s.value_syntax());
+        flag.resize(std::max<size_t>(flag.size(), 34), ' ');
+        text += "  " + flag + " " + s.help;
+        if (!s.default_value.is_null() && s.type != protocol::SettingType::Flag)
+            text += " [" + (s.default_value.is_string() ? s.default_value.get<std::string>() : s.default_value.dump()) +
+                    "]";
+        text += "\n";
+    }
+    return text;
+}
+
+std::string bake_help() {
+    return "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh] [--probes]\n"
+           "                      [--device auto|gpu|gpu:N|cpu] [--json] [settings]\n\n" +
+           bake_settings_help();
+}
+
+}  // namespace lf::cli
