@@ -956,8 +956,29 @@ JobRecord Service::owned_job(const httplib::Request& req, const Caller& caller) 
     const std::string id = req.matches[1].str();
     std::optional<JobRecord> job = store_->job(id);
     // Another token's job answers exactly like a job that does not exist.
-    if (!job || job->owner != caller.owner) throw HttpError(404, "no job " + id, {{"id", id}});
-    return *job;
+    if (job && job->owner == caller.owner) return *job;
+    // The short ids a person reads on screen (the status page shows 12
+    // characters): an unambiguous prefix of one of the caller's jobs.
+    if (is_job_id_prefix(id))
+        if (std::optional<JobRecord> named = job_by_id_prefix(id, store_->jobs_of(caller.owner))) return *named;
+    throw HttpError(404, "no job " + id, {{"id", id}});
+}
+
+bool is_job_id_prefix(const std::string& id) {
+    return id.size() >= kMinJobIdPrefix && id.size() <= 24 &&
+           id.find_first_not_of("0123456789abcdef") == std::string::npos;
+}
+
+std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector<JobRecord> jobs) {
+    if (!is_job_id_prefix(prefix)) return std::nullopt;
+    std::vector<JobRecord> matches;
+    for (JobRecord& j : jobs)
+        if (j.status.id.compare(0, prefix.size(), prefix) == 0) matches.push_back(std::move(j));
+    if (matches.size() > 1)
+        throw HttpError(409, "job id prefix " + prefix + " is ambiguous: " + std::to_string(matches.size()) + " jobs",
+                        {{"id", prefix}});
+    if (matches.empty()) return std::nullopt;
+    return matches.front();
 }
 
 json Service::status_json(const JobRecord& job) const {

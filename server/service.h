@@ -28,6 +28,13 @@ namespace lf::server {
 
 class GatedServer;  // cpp-httplib's server behind lightfarmd's connection gate (service.cpp)
 
+// Short job ids: kMinJobIdPrefix or more lower-case hex digits.
+constexpr size_t kMinJobIdPrefix = 6;
+bool is_job_id_prefix(const std::string& id);
+// The one of `jobs` whose id starts with `prefix` (nullopt: none, or not a
+// prefix); throws HttpError 409 when several do.
+std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector<JobRecord> jobs);
+
 class Service {
 public:
     // `tokens`: the bearer tokens that may use the API.
@@ -71,6 +78,8 @@ private:
     // Answers (fills `res`, returns true) when the request must go no further.
     bool check_before_body(const httplib::Request& req, httplib::Response& res);
     const Route* match_route(const std::string& method, const std::string& path) const;
+    // The caller's job the path's {id} names: its whole id, or an unambiguous
+    // prefix (job_by_id_prefix; 404 when no job of the caller's has it).
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
     nlohmann::json status_json(const JobRecord& job) const;
 

@@ -42,7 +42,8 @@ add_dependencies(test_server_http lightfarmd)
 
 # client_cli/remote.cpp is compiled in here too, so that the client is tested
 # against a real server without the GL engine the lightfarm binary links.
-lightfarm_test(test_remote ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp)
+lightfarm_test(test_remote ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp
+  ${CMAKE_CURRENT_LIST_DIR}/../client_cli/bake_help.cpp)
 target_include_directories(test_remote PRIVATE ${CMAKE_CURRENT_LIST_DIR}/../client_cli)
 target_link_libraries(test_remote PRIVATE lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
 target_compile_definitions(test_remote PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")

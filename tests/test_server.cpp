@@ -6,6 +6,7 @@
 #include "server_harness.h"
 
 #include "hash.h"
+#include "http_error.h"
 #include "service.h"
 #include "supervisor.h"
 
@@ -131,6 +132,35 @@ TEST_F(ServerTest, ATokenSeesOnlyItsOwnScenesAndJobs) {
     EXPECT_EQ(json::parse(r->body)["jobs"].size(), 0u);
     r = client(kAlice).Get("/v1/jobs");
     EXPECT_EQ(json::parse(r->body)["jobs"].size(), 1u);
+    // The 12-character id a person reads on screen names the job for its
+    // owner only; a prefix shorter than 6 names nothing.
+    EXPECT_EQ(bob.Get("/v1/jobs/" + job.substr(0, 12))->status, 404);
+    r = client(kAlice).Get("/v1/jobs/" + job.substr(0, 12));
+    ASSERT_EQ(r->status, 200);
+    EXPECT_EQ(json::parse(r->body)["id"], job);
+    EXPECT_EQ(client(kAlice).Get("/v1/jobs/" + job.substr(0, 12) + "/artifacts")->status, 200);
+    EXPECT_EQ(client(kAlice).Get("/v1/jobs/" + job.substr(0, 5))->status, 404);
+}
+
+// Which job a short id names: an unambiguous prefix of 6 or more hex
+// digits; ambiguous is a 409 that says so.
+TEST(JobIdPrefix, NamesOneJobOrIsAConflict) {
+    std::vector<server::JobRecord> jobs(3);
+    jobs[0].status.id = "abcdef000000000000000001";
+    jobs[1].status.id = "abcdef000000000000000002";
+    jobs[2].status.id = "123456789abc000000000000";
+    EXPECT_EQ(server::job_by_id_prefix("123456789abc", jobs)->status.id, jobs[2].status.id);
+    EXPECT_EQ(server::job_by_id_prefix("abcdef000000000000000002", jobs)->status.id, jobs[1].status.id);
+    EXPECT_FALSE(server::job_by_id_prefix("12345", jobs)) << "shorter than 6";
+    EXPECT_FALSE(server::job_by_id_prefix("fedcba", jobs));
+    EXPECT_FALSE(server::job_by_id_prefix("ABCDEF", jobs)) << "ids are lower-case hex";
+    try {
+        server::job_by_id_prefix("abcdef0000", jobs);
+        FAIL() << "an ambiguous prefix named a job";
+    } catch (const server::HttpError& e) {
+        EXPECT_EQ(e.status(), 409);
+        EXPECT_NE(std::string(e.what()).find("ambiguous: 2 jobs"), std::string::npos) << e.what();
+    }
 }
 
 TEST_F(ServerTest, ScenesAreStoredByContentHash) {
