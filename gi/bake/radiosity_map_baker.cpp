@@ -153,8 +153,23 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     glUniform1ui(wall_check.uniform("covered_count"), GLuint(covered_count_));
     glUniform2ui(wall_check.uniform("atlas_size"), GLuint(width_), GLuint(height_));
     wall_check.dispatch_1d(covered_count_);
-    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    count_texels_by_geometry();
     copy_to_dilated_texels(texel_anchors_);
+}
+
+// How many texels intersecting geometry touched, for the output to say
+// (read back once, before the passes).
+void RadiosityMapBaker::count_texels_by_geometry() {
+    const std::vector<glm::vec4> points = sample_points_.read<glm::vec4>();
+    const std::vector<glm::vec4> anchors = texel_anchors_.read<glm::vec4>();
+    const std::vector<glm::uvec4> covered = covered_.read<glm::uvec4>();
+    for (const glm::uvec4& texel : covered) {
+        bool moved = false;
+        for (uint32_t s = texel.x; s < texel.x + texel.y; ++s) moved = moved || points[3 * size_t(s) + 1].w != 0.0f;
+        moved_texels_ += moved ? 1 : 0;
+        cut_texels_ += anchors[texel.z].w == 2.0f ? 1 : 0;
+    }
 }
 
 void RadiosityMapBaker::copy_to_dilated_texels(const GpuBuffer& atlas_buffer) {

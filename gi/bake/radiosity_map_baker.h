@@ -96,16 +96,26 @@ public:
     FloatImage image(const Readback& readback) const;
 
     size_t covered_texels() const { return covered_count_; }
+    // Texels next to intersecting geometry (a shelf through a wall, a stair
+    // against one): those with a sample point moved out from inside or
+    // behind a surface (texel_relocate.comp), and all those whose samples
+    // were moved, or cut apart by a surface and kept to one side of it, or
+    // that straddle a wall (texel_anchor.comp, texel_wall_check.comp; the
+    // lookups test which side of the wall they see).
+    size_t texels_moved_out_of_geometry() const { return moved_texels_; }
+    size_t texels_cut_by_geometry() const { return cut_texels_; }
 
 private:
     void upload_texels(const TexelSamples& texels);
     void relocate_samples_inside_geometry(size_t sample_count);
     void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
+    void count_texels_by_geometry();
 
     const Tracer& tracer_;
     RadiosityMapSettings settings_;
     int width_ = 0, height_ = 0;
     size_t covered_count_ = 0;
+    size_t moved_texels_ = 0, cut_texels_ = 0;
     std::vector<uint32_t> covered_atlas_index_;
     std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices
 

@@ -80,7 +80,10 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
 }
 
 nlohmann::json RadiosityMapMethod::description() const {
-    return {{"texels", baker_.covered_texels()}, {"settings", settings_json_}};
+    return {{"texels", baker_.covered_texels()},
+            {"texels_moved_out_of_geometry", baker_.texels_moved_out_of_geometry()},
+            {"texels_cut_by_geometry", baker_.texels_cut_by_geometry()},
+            {"settings", settings_json_}};
 }
 
 FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback) const {
@@ -117,6 +120,10 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
     result.files = {"lightmap.exr"};
     result.manifest = {
         {"settings", settings_json_},
+        {"texels",
+         {{"covered", baker_.covered_texels()},
+          {"moved_out_of_geometry", baker_.texels_moved_out_of_geometry()},
+          {"cut_by_geometry", baker_.texels_cut_by_geometry()}}},
         {"result", protocol::to_json(stats)},
         {"seams",
          {{"edges", seams_.size()},
