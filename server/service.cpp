@@ -983,6 +983,12 @@ std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector
 
 json Service::status_json(const JobRecord& job) const {
     json j = protocol::to_json(job.status);
+    // What a person recognises the scene by: its file's name and size.
+    if (const std::optional<SceneRecord> scene = store_->scene(job.status.scene)) {
+        const protocol::SceneSummary summary = summary_of(*scene);
+        j["scene_name"] = summary.source;
+        j["scene_triangles"] = summary.triangles;
+    }
     const std::string base = "/v1/jobs/" + job.status.id;
     j["links"] = {{"self", base},
                   {"events", base + "/events"},
@@ -999,8 +1005,15 @@ void Service::metrics(const httplib::Request&, httplib::Response& res, const Cal
     res.set_content(metrics_.render(store_->count_by_state()), "text/plain; version=0.0.4");
 }
 
-void Service::status_page(const httplib::Request&, httplib::Response& res, const Caller&) {
-    res.set_content(kStatusPage, "text/html; charset=utf-8");
+void Service::status_page(const httplib::Request&, httplib::Response& res, const Caller& caller) {
+    // The caller's jobs come with the page, so it shows them at once instead
+    // of after its first fetch; "</" escaped so that no value ends the script.
+    std::string jobs = jobs_json(caller.owner).dump();
+    for (size_t at = jobs.find("</"); at != std::string::npos; at = jobs.find("</", at + 3)) jobs.insert(at + 1, "\\");
+    std::string page = kStatusPage;
+    const std::string slot = "/*JOBS*/null";
+    page.replace(page.find(slot), slot.size(), jobs);
+    res.set_content(page, "text/html; charset=utf-8");
 }
 
 void Service::post_scene(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
@@ -1117,10 +1130,14 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
     send_json(res, 201, {{"id", job.status.id}, {"state", "queued"}});
 }
 
-void Service::list_jobs(const httplib::Request&, httplib::Response& res, const Caller& caller) {
+json Service::jobs_json(const std::string& owner) const {
     json jobs = json::array();
-    for (const JobRecord& job : store_->jobs_of(caller.owner)) jobs.push_back(status_json(job));
-    send_json(res, 200, {{"jobs", jobs}});
+    for (const JobRecord& job : store_->jobs_of(owner)) jobs.push_back(status_json(job));
+    return {{"jobs", jobs}};
+}
+
+void Service::list_jobs(const httplib::Request&, httplib::Response& res, const Caller& caller) {
+    send_json(res, 200, jobs_json(caller.owner));
 }
 
 void Service::get_job(const httplib::Request& req, httplib::Response& res, const Caller& caller) {

@@ -82,6 +82,7 @@ private:
     // prefix (job_by_id_prefix; 404 when no job of the caller's has it).
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
     nlohmann::json status_json(const JobRecord& job) const;
+    nlohmann::json jobs_json(const std::string& owner) const;  // GET /v1/jobs's body
 
     void healthz(const httplib::Request&, httplib::Response&, const Caller&);
     void metrics(const httplib::Request&, httplib::Response&, const Caller&);

@@ -578,6 +578,16 @@ TEST_F(ServerTest, MetricsAndTheStatusPage) {
     EXPECT_NE(page->body.find("<script>"), std::string::npos);
     EXPECT_EQ(page->body.find("http://"), std::string::npos);  // nothing fetched from elsewhere
     EXPECT_EQ(page->body.find("https://"), std::string::npos);
+    // The jobs come with the page (no blank first second), with what a
+    // person recognises: the scene's name and size, the times.
+    const size_t embedded = page->body.find("const initial = {\"jobs\":");
+    ASSERT_NE(embedded, std::string::npos);
+    EXPECT_NE(page->body.find("\"id\":\"" + id + "\"", embedded), std::string::npos);
+    EXPECT_EQ(page->body.find("/*JOBS*/"), std::string::npos);
+    const json listed = json::parse(c.Get("/v1/jobs")->body)["jobs"][0];
+    EXPECT_FALSE(listed.value("scene_name", "").empty()) << listed.dump();
+    EXPECT_TRUE(listed.contains("scene_triangles"));
+    EXPECT_GT(listed["finished_at"].get<double>(), 0.0);
 
     // A browser trades ?token= for a cookie; the cookie reads, never writes.
     httplib::Client browser(server->host, server->port);
