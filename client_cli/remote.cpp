@@ -10,7 +10,9 @@
 #include <nlohmann/json.hpp>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -146,6 +148,30 @@ std::string format_seconds(double s) {
     return buf;
 }
 
+}  // namespace
+
+std::string progress_line(const std::string& job, const std::string& output, const protocol::Progress& p) {
+    // Done so far against what is left: passes or time, whichever stop comes
+    // first, as the server's ETA already takes every stop into account.
+    const double fraction =
+        p.eta_seconds && p.seconds > 0.0 ? std::clamp(p.seconds / (p.seconds + *p.eta_seconds), 0.0, 1.0) : 0.0;
+    const int width = 24, filled = int(std::lround(fraction * width));
+    char percent[16];
+    std::snprintf(percent, sizeof percent, "%3d%%", int(std::lround(100.0 * fraction)));
+    std::string line = job.substr(0, 12) + (output.empty() ? "" : " " + output) + "  [" +
+                       std::string(size_t(filled), '#') + std::string(size_t(width - filled), '-') + "] " + percent +
+                       "  pass " + std::to_string(p.pass);
+    if (p.error_estimate) {
+        char error[32];
+        std::snprintf(error, sizeof error, "  error %.4f", *p.error_estimate);
+        line += error;
+    }
+    if (p.eta_seconds) line += "  ETA " + format_seconds(*p.eta_seconds);
+    return line;
+}
+
+namespace {
+
 // Follows a job's events until its final one, reconnecting with
 // Last-Event-ID when the connection drops. Returns the final event.
 protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_lines) {
@@ -175,10 +201,7 @@ protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_line
                         std::cout << json{{"id", e.id}, {"event", e.type}, {"data", e.data}}.dump() << std::endl;
                     } else if (e.type == "progress" && tty) {
                         const protocol::Progress p = protocol::progress_from_json(e.data);
-                        std::cerr << "\r" << job.substr(0, 12) << "  pass " << p.pass;
-                        if (p.error_estimate) std::cerr << "  error " << *p.error_estimate;
-                        if (p.eta_seconds) std::cerr << "  ETA " << format_seconds(*p.eta_seconds);
-                        std::cerr << "      " << std::flush;
+                        std::cerr << "\r" << progress_line(job, e.data.value("output", ""), p) << "    " << std::flush;
                     } else if (e.type == "snapshot" && !tty) {
                         std::cerr << "snapshot " << e.data.value("file", "") << "\n";
                     } else if (e.type == "retrying") {

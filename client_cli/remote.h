@@ -3,6 +3,8 @@
 // read through protocol/'s one catalog.
 #pragma once
 
+#include "worker_protocol.h"
+
 #include <string>
 
 namespace lf::cli {
@@ -16,5 +18,9 @@ bool is_remote_command(const std::string& command);
 int run_remote_command(const std::string& command, int argc, char** argv);
 
 extern const char* const kRemoteUsage;
+
+// What `watch` and `submit --wait` show on a terminal for a progress event:
+// "3cfd1af2a543 lightmap  [##########--------------]  42%  pass 108  error 0.0312  ETA 14s".
+std::string progress_line(const std::string& job, const std::string& output, const protocol::Progress& p);
 
 }  // namespace lf::cli

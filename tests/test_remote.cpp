@@ -98,6 +98,24 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
     EXPECT_NE(w.out.find("\"event\":\"done\""), std::string::npos) << w.out;
 }
 
+// The terminal's progress line: a bar with its percentage of passes or time,
+// whichever the server's ETA says stops first; nothing claimed before the
+// ETA is known.
+TEST(ProgressLine, ABarWithItsPercentageAndTheEta) {
+    protocol::Progress p;
+    p.pass = 108;
+    p.seconds = 10.0;
+    p.eta_seconds = 30.0;
+    p.error_estimate = 0.03125;
+    EXPECT_EQ(cli::progress_line("3cfd1af2a543f2c834404872", "lightmap", p),
+              "3cfd1af2a543 lightmap  [######------------------]  25%  pass 108  error 0.0312  ETA 30s");
+    p.eta_seconds.reset();
+    p.error_estimate.reset();
+    EXPECT_EQ(cli::progress_line("3cfd1af2a543", "", p), "3cfd1af2a543  [------------------------]   0%  pass 108");
+    p.eta_seconds = 0.0;
+    EXPECT_NE(cli::progress_line("3cfd1af2a543", "sh", p).find("[########################] 100%"), std::string::npos);
+}
+
 TEST_F(RemoteTest, SubmitsAGltfWithItsFiles) {
     const CliRun r = run(with_common({"submit", (tmp.path / "gltf" / "scene.gltf").string()}));
     ASSERT_EQ(r.status, 0) << r.err;
