@@ -633,6 +633,16 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
         std::printf("  GLSL probe polygon-to-point vs C++: max relative difference %.2e over %zu points\n", worst,
                     count);
         EXPECT_LT(worst, 1e-4);
+        // The same probe's SH9 irradiance (its coefficients after the corners).
+        std::vector<glm::vec4> normals;
+        for (size_t i = 0; i < count; ++i) normals.push_back(glm::vec4(random_direction(rng), 0));
+        const auto sh = run(4, normals, count);
+        double worst_sh = 0.0;
+        for (size_t i = 0; i < count; ++i)
+            worst_sh =
+                std::max(worst_sh, double(relative_error(glm::vec3(sh[i]), probe_sh9(p, glm::vec3(normals[i])))));
+        std::printf("  GLSL probe SH9 vs C++: max relative difference %.2e over %zu normals\n", worst_sh, count);
+        EXPECT_LT(worst_sh, 1e-4);
     }
     // A grid, blended: a 3 x 2 x 2 lattice in the coloured box whose probes
     // at x = -0.6 and 0 are invalid, so that points in the first cell fall

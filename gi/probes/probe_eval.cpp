@@ -486,7 +486,7 @@ ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const Pr
     return ProbeEvaluator(set, options).evaluate(x, n);
 }
 
-size_t probe_buffer_stride(int m) { return size_t(6) * m * m + (size_t(6) * (m + 1) * (m + 1) + 3) / 4; }
+size_t probe_buffer_stride(int m) { return size_t(6) * m * m + (size_t(6) * (m + 1) * (m + 1) + 3) / 4 + 9; }
 
 std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
     const int m = set.m;
@@ -499,6 +499,8 @@ std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
         for (size_t t = 0; t < texels; ++t) block[t] = glm::vec4(p.radiance[t], p.distance[t]);
         const std::vector<float> corners = cube_corner_distances(m, p.distance);
         for (size_t c = 0; c < corners.size(); ++c) block[texels + c / 4][int(c % 4)] = corners[c];
+        glm::vec4* sh9 = block + stride - 9;
+        for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], 0.0f);
     }
     return out;
 }

@@ -183,8 +183,9 @@ ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const Pr
 
 // The SSBO gi/shaders/probe_eval.glsl reads: per probe, 6·M·M vec4 texels
 // (radiance RGB, distance) in ProbeSet::texel order, then the 6·(M+1)² corner
-// distances of cube_corner_distances packed four to a vec4; probe k starts at
-// vec4 k · probe_buffer_stride(M). Invalid probes' blocks are zero.
+// distances of cube_corner_distances packed four to a vec4, then the 9 SH9
+// coefficients (RGB); probe k starts at vec4 k · probe_buffer_stride(M).
+// Invalid probes' blocks are zero.
 size_t probe_buffer_stride(int m);
 std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set);
 

@@ -7,12 +7,14 @@
 // probe, 6·M·M vec4 texels (radiance RGB, distance), faces +X,-X,+Y,-Y,+Z,-Z,
 // rows from the top (texel (f, i, j) at (f·M + j)·M + i), then the 6·(M+1)²
 // corner distances (corner (f, a, b) at (f·(M+1) + b)·(M+1) + a) packed four
-// to a vec4. Probe k starts at vec4 k · lf_probe_stride(M). Define
-// LF_PROBE_BINDING before the #include to choose the binding (default 6).
+// to a vec4, then the probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
+// k · lf_probe_stride(M). Define LF_PROBE_BINDING before the #include to
+// choose the binding (default 6).
 #ifndef LF_PROBE_EVAL_GLSL
 #define LF_PROBE_EVAL_GLSL
 
 #include "probe_cube.glsl"
+#include "sh_basis.glsl"
 
 #ifndef LF_PROBE_BINDING
 #define LF_PROBE_BINDING 6
@@ -22,7 +24,20 @@ layout(std430, binding = LF_PROBE_BINDING) readonly buffer LfProbeTexels { vec4 
 
 const float LF_TWO_PI = 6.283185307179586;
 
-uint lf_probe_stride(int m) { return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u; }
+uint lf_probe_stride(int m) { return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + 9u; }
+
+// Irradiance / π at normal n from the probe's SH9 environment, convolved with
+// the clamped cosine (Ramamoorthi & Hanrahan's A_l / π: 1, 2/3, 1/4): the
+// paper's first column, which ignores where the point is.
+vec3 lf_probe_sh9(uint probe, int m, vec3 n) {
+    uint base = (probe + 1u) * lf_probe_stride(m) - 9u;
+    vec4 y[4];
+    sh_evaluate(normalize(n), y);
+    const float band[9] = float[9](1.0, 2.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0, 0.25, 0.25, 0.25, 0.25, 0.25);
+    vec3 e = vec3(0.0);
+    for (int c = 0; c < 9; ++c) e += lf_probe_texels[base + uint(c)].rgb * (band[c] * y[c / 4][c % 4]);
+    return e;
+}
 
 // One edge's term of Lambert's formula: angle(a, b) · n · unit(a × b).
 float lf_edge_term(vec3 a, vec3 b, vec3 n) {

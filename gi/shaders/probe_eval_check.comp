@@ -4,6 +4,7 @@
 //   mode 0: form factor; cases[6i..6i+5] = x, n, c0, c1, c2, c3 -> results[i].x
 //   mode 1: probe `probe` at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 //   mode 2: cube direction; cases[i] = (face, u, v) -> results[i].xyz
+//   mode 4: probe `probe`'s SH9 irradiance at normal cases[i] -> results[i].rgb
 //   mode 3: the grid (grid_counts, grid_origin, grid_spacing) at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 layout(local_size_x = 64) in;
 
@@ -32,6 +33,8 @@ void main() {
         results[i] = vec4(f, 0.0, 0.0, 0.0);
     } else if (mode == 1u) {
         results[i] = vec4(lf_probe_polygon_to_point(probe, m, probe_position, cases[2u * i].xyz, cases[2u * i + 1u].xyz), 0.0);
+    } else if (mode == 4u) {
+        results[i] = vec4(lf_probe_sh9(probe, m, cases[i].xyz), 0.0);
     } else if (mode == 3u) {
         results[i] = vec4(lf_probe_grid_polygon_to_point(grid_counts, grid_origin, grid_spacing, m, cases[2u * i].xyz,
                                                          cases[2u * i + 1u].xyz), 0.0);
