@@ -64,18 +64,23 @@ uint atlas_index(int x, int y) {
 // (y in a crease all four texels' anchors are hidden from), the plain lookup
 // stands: reading black there made small-charted scenes 8% dark
 // (monkey.glb at 64²).
-vec3 reflected_radiance_at(vec2 uv, vec3 y) {
+// The four atlas texels a bilinear lookup at uv reads, and their weights.
+void bilinear_taps(vec2 uv, out uint a[4], out float w[4]) {
     vec2 p = uv * vec2(atlas_size) - 0.5;
     vec2 f = fract(p);
     ivec2 i = ivec2(floor(p));
-    uint a[4];
-    float w[4];
-    bool near_wall = false;
     for (int k = 0; k < 4; ++k) {
         a[k] = atlas_index(i.x + (k & 1), i.y + (k >> 1));
         w[k] = ((k & 1) == 1 ? f.x : 1.0 - f.x) * ((k >> 1) == 1 ? f.y : 1.0 - f.y);
-        near_wall = near_wall || (texel_anchors[a[k]].w == 2.0 && w[k] > 0.0);
     }
+}
+
+vec3 reflected_radiance_at(vec2 uv, vec3 y) {
+    uint a[4];
+    float w[4];
+    bilinear_taps(uv, a, w);
+    bool near_wall = false;
+    for (int k = 0; k < 4; ++k) near_wall = near_wall || (texel_anchors[a[k]].w == 2.0 && w[k] > 0.0);
     vec4 r[4];
     vec3 sum = vec3(0.0);
     float weight_sum = 0.0;
@@ -102,16 +107,15 @@ vec3 reflected_radiance_at(vec2 uv, vec3 y) {
 // reflected_radiance_at, taps without a value left out); the triangle's own
 // albedo where no tap has one (a chart smaller than a texel).
 vec3 hit_texel_albedo(Hit hit) {
-    vec2 p = hit_lightmap_uv(hit) * vec2(atlas_size) - 0.5;
-    vec2 f = fract(p);
-    ivec2 i = ivec2(floor(p));
+    uint a[4];
+    float w[4];
+    bilinear_taps(hit_lightmap_uv(hit), a, w);
     vec3 sum = vec3(0.0);
     float weight_sum = 0.0;
     for (int k = 0; k < 4; ++k) {
-        vec4 a = texel_albedo[atlas_index(i.x + (k & 1), i.y + (k >> 1))];
-        float w = ((k & 1) == 1 ? f.x : 1.0 - f.x) * ((k >> 1) == 1 ? f.y : 1.0 - f.y) * a.w;
-        sum += w * a.rgb;
-        weight_sum += w;
+        vec4 albedo = texel_albedo[a[k]];
+        sum += w[k] * albedo.w * albedo.rgb;
+        weight_sum += w[k] * albedo.w;
     }
     return weight_sum > 0.0 ? sum / weight_sum : hit_albedo(hit);
 }
