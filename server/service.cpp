@@ -981,14 +981,24 @@ std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector
     return matches.front();
 }
 
-json Service::status_json(const JobRecord& job) const {
-    json j = protocol::to_json(job.status);
-    // What a person recognises the scene by: its file's name and size.
-    if (const std::optional<SceneRecord> scene = store_->scene(job.status.scene)) {
+json Service::scene_brief(const std::string& scene_id) const {
+    json brief = json::object();
+    if (const std::optional<SceneRecord> scene = store_->scene(scene_id)) {
         const protocol::SceneSummary summary = summary_of(*scene);
-        j["scene_name"] = summary.source;
-        j["scene_triangles"] = summary.triangles;
+        brief = {{"scene_name", summary.source}, {"scene_triangles", summary.triangles}};
     }
+    return brief;
+}
+
+json Service::status_json(const JobRecord& job, std::map<std::string, json>* briefs) const {
+    json j = protocol::to_json(job.status);
+    // What a person recognises the scene by: its file's name and size (a
+    // listing looks each scene up once, however many jobs bake it).
+    std::map<std::string, json> own;
+    if (!briefs) briefs = &own;
+    auto [it, fresh] = briefs->try_emplace(job.status.scene);
+    if (fresh) it->second = scene_brief(job.status.scene);
+    j.update(it->second);
     const std::string base = "/v1/jobs/" + job.status.id;
     j["links"] = {{"self", base},
                   {"events", base + "/events"},
@@ -1132,7 +1142,8 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
 
 json Service::jobs_json(const std::string& owner) const {
     json jobs = json::array();
-    for (const JobRecord& job : store_->jobs_of(owner)) jobs.push_back(status_json(job));
+    std::map<std::string, json> briefs;
+    for (const JobRecord& job : store_->jobs_of(owner)) jobs.push_back(status_json(job, &briefs));
     return {{"jobs", jobs}};
 }
 

@@ -81,7 +81,10 @@ private:
     // The caller's job the path's {id} names: its whole id, or an unambiguous
     // prefix (job_by_id_prefix; 404 when no job of the caller's has it).
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
-    nlohmann::json status_json(const JobRecord& job) const;
+    // A job's status for the API; `briefs` (scene id -> its name and size)
+    // spares a listing one store query per job.
+    nlohmann::json status_json(const JobRecord& job, std::map<std::string, nlohmann::json>* briefs = nullptr) const;
+    nlohmann::json scene_brief(const std::string& scene_id) const;
     nlohmann::json jobs_json(const std::string& owner) const;  // GET /v1/jobs's body
 
     void healthz(const httplib::Request&, httplib::Response&, const Caller&);
