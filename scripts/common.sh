@@ -27,6 +27,19 @@ ensure_packages() {
   fi
 }
 
+# The status page's three.js, and the tests' glTF validator and browser
+# driver, from the npm registry at the versions web/package-lock.json pins,
+# into web/node_modules (again only when the lock file changed). Node.js and
+# npm from Debian when this machine has no npm.
+ensure_web_packages() {
+  command -v npm >/dev/null || ensure_packages nodejs npm
+  local stamp="$LIGHTFARM_ROOT/web/node_modules/.package-lock.json"
+  if [ ! -f "$stamp" ] || [ "$LIGHTFARM_ROOT/web/package-lock.json" -nt "$stamp" ]; then
+    echo "lightfarm: installing web/package-lock.json's packages (three.js, gltf-validator, playwright-core)" >&2
+    (cd "$LIGHTFARM_ROOT/web" && npm ci --no-audit --no-fund --loglevel=error) >&2
+  fi
+}
+
 # build_tree DIR [cmake options...]: configure once, then build incrementally
 # (only $LIGHTFARM_TARGETS when set, e.g. "lightfarmd lightfarm").
 build_tree() {

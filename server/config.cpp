@@ -19,6 +19,8 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
   --tokens FILE          bearer tokens, one per line (default DATA/tokens, created
                          with a new random token when missing)
   --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)
+  --web-dir DIR          where npm installed the status page's three.js (DIR/node_modules/three;
+                         default: the source tree's web/)
   --workers N            concurrent bakes (default: one per GPU, one without a GPU)
   --attempts N           worker runs per job before it fails (default 3)
   --stall-timeout S      kill a worker silent for S seconds (default 300)
@@ -91,6 +93,7 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
         } else if (a == "--data") c.data_dir = v;
         else if (a == "--tokens") c.tokens_file = v;
         else if (a == "--engine") c.engine = v;
+        else if (a == "--web-dir") c.web_dir = v;
         else if (a == "--workers") c.workers = int(parse_number(a, v));
         else if (a == "--attempts") c.default_attempts = int(parse_number(a, v));
         else if (a == "--stall-timeout") c.stall_seconds = parse_number(a, v);

@@ -38,8 +38,9 @@ struct ServerConfig {
     std::string data_dir;     // empty: $XDG_DATA_HOME/lightfarm, else $HOME/.local/share/lightfarm
     std::string tokens_file;  // empty: DATA/tokens, created with a random token if missing
     std::string engine;       // empty: found beside lightfarmd, else in PATH
-    int workers = 0;          // 0: one per GPU (the engine's `devices`), one without a GPU
-    int http_threads = 64;    // SSE readers hold a thread each
+    std::string web_dir = LIGHTFARM_WEB_DIR;  // web/ with node_modules/three (scripts/common.sh installs it)
+    int workers = 0;                          // 0: one per GPU (the engine's `devices`), one without a GPU
+    int http_threads = 64;                    // SSE readers hold a thread each
     int default_attempts = 3;
     double default_max_seconds = 4 * 3600;  // one attempt's wall-clock deadline
     double stall_seconds = 300;             // no worker output for this long = hung

@@ -1,7 +1,11 @@
 #include "preview.h"
 
-#include <OpenEXR/ImfArray.h>
-#include <OpenEXR/ImfRgbaFile.h>
+#include "lightmap_rgbm.h"
+
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
 #include <stb/stb_image_write.h>
 
 #include <algorithm>
@@ -12,6 +16,63 @@
 namespace lf::server {
 
 namespace {
+
+// R, G, B (and "error" when present) of an EXR, as floats, rows from the top.
+struct LightmapPixels {
+    int width = 0, height = 0;
+    std::vector<float> rgb;      // 3 per pixel
+    std::vector<float> error;    // empty when the file has no error channel
+    std::vector<float> samples;  // empty when the file has no samples channel
+};
+
+LightmapPixels read_lightmap(const std::string& path) {
+    LightmapPixels out;
+    try {
+        Imf::InputFile file(path.c_str());
+        const Imath::Box2i dw = file.header().dataWindow();
+        out.width = dw.max.x - dw.min.x + 1;
+        out.height = dw.max.y - dw.min.y + 1;
+        const size_t pixels = size_t(out.width) * size_t(out.height);
+        out.rgb.assign(pixels * 3, 0.0f);
+        const auto has = [&](const char* name) { return file.header().channels().findChannel(name) != nullptr; };
+        if (has("error")) out.error.assign(pixels, 0.0f);
+        if (has("samples")) out.samples.assign(pixels, 0.0f);
+        const auto origin = [&](float* base, size_t stride) {
+            return reinterpret_cast<char*>(base -
+                                           (ptrdiff_t(dw.min.x) + ptrdiff_t(dw.min.y) * out.width) * ptrdiff_t(stride));
+        };
+        Imf::FrameBuffer frame;
+        const char* names[3] = {"R", "G", "B"};
+        for (int c = 0; c < 3; ++c)
+            frame.insert(names[c], Imf::Slice(Imf::FLOAT, origin(out.rgb.data() + c, 3), 3 * sizeof(float),
+                                              3 * sizeof(float) * size_t(out.width)));
+        for (auto [name, data] : {std::pair{"error", &out.error}, std::pair{"samples", &out.samples}})
+            if (!data->empty())
+                frame.insert(name, Imf::Slice(Imf::FLOAT, origin(data->data(), 1), sizeof(float),
+                                              sizeof(float) * size_t(out.width)));
+        file.setFrameBuffer(frame);
+        file.readPixels(dw.min.y, dw.max.y);
+    } catch (const std::exception& e) {
+        throw std::runtime_error("cannot read " + path + ": " + e.what());
+    }
+    return out;
+}
+
+float luminance(const float* rgb) { return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2]; }
+
+double automatic_exposure(const LightmapPixels& image) {
+    double log_sum = 0;
+    size_t lit = 0;
+    for (size_t p = 0; p < image.rgb.size() / 3; ++p) {
+        const float lum = luminance(&image.rgb[3 * p]);
+        if (std::isfinite(lum) && lum > 1e-8f) {
+            log_sum += std::log(double(lum));
+            ++lit;
+        }
+    }
+    return lit ? 0.18 / std::exp(log_sum / double(lit)) : 1.0;
+}
+
 unsigned char encode_srgb(float linear) {
     const float c = std::clamp(linear, 0.0f, 1.0f);
     const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
@@ -21,53 +82,80 @@ unsigned char encode_srgb(float linear) {
 void append_bytes(void* context, void* data, int size) {
     static_cast<std::string*>(context)->append(static_cast<const char*>(data), size_t(size));
 }
-}  // namespace
 
-std::string exr_to_png(const std::string& exr_path) {
-    int width = 0, height = 0;
-    Imf::Array2D<Imf::Rgba> pixels;
-    try {
-        Imf::RgbaInputFile file(exr_path.c_str());
-        const Imath::Box2i dw = file.dataWindow();
-        width = dw.max.x - dw.min.x + 1;
-        height = dw.max.y - dw.min.y + 1;
-        pixels.resizeErase(height, width);
-        file.setFrameBuffer(&pixels[0][0] - dw.min.x - dw.min.y * width, 1, size_t(width));
-        file.readPixels(dw.min.y, dw.max.y);
-    } catch (const std::exception& e) {
-        throw std::runtime_error("cannot read " + exr_path + ": " + e.what());
-    }
-
-    // Auto exposure from the geometric mean of lit texels: robust to a few
-    // very bright ones (texels beside a light).
-    double log_sum = 0;
-    size_t lit = 0;
-    for (int y = 0; y < height; ++y)
-        for (int x = 0; x < width; ++x) {
-            const Imf::Rgba& p = pixels[y][x];
-            const float lum = 0.2126f * float(p.r) + 0.7152f * float(p.g) + 0.0722f * float(p.b);
-            if (std::isfinite(lum) && lum > 1e-8f) {
-                log_sum += std::log(double(lum));
-                ++lit;
-            }
-        }
-    const float exposure = lit ? float(0.18 / std::exp(log_sum / double(lit))) : 1.0f;
-
-    std::vector<unsigned char> rgb(size_t(width) * size_t(height) * 3);
-    for (int y = 0; y < height; ++y)
-        for (int x = 0; x < width; ++x) {
-            const Imf::Rgba& p = pixels[y][x];
-            const float c[3] = {float(p.r), float(p.g), float(p.b)};
-            for (int k = 0; k < 3; ++k) {
-                float v = std::isfinite(c[k]) ? std::max(0.0f, c[k]) * exposure : 0.0f;
-                v = v / (1.0f + v);
-                rgb[(size_t(y) * size_t(width) + size_t(x)) * 3 + size_t(k)] = encode_srgb(v);
-            }
-        }
+std::string rgb_png(const std::vector<unsigned char>& rgb, int width, int height, const std::string& path) {
     std::string png;
     if (!stbi_write_png_to_func(append_bytes, &png, width, height, 3, rgb.data(), width * 3))
-        throw std::runtime_error("cannot encode a PNG preview of " + exr_path);
+        throw std::runtime_error("cannot encode a PNG preview of " + path);
     return png;
+}
+
+std::vector<unsigned char> tonemapped(const LightmapPixels& image, float exposure) {
+    std::vector<unsigned char> out(image.rgb.size());
+    for (size_t i = 0; i < image.rgb.size(); ++i) {
+        float v = std::isfinite(image.rgb[i]) ? std::max(0.0f, image.rgb[i]) * exposure : 0.0f;
+        out[i] = encode_srgb(v / (1.0f + v));
+    }
+    return out;
+}
+
+// Blue (low) through green and yellow to red (high): a scale read without a legend's help.
+void error_colour(double t, unsigned char* rgb) {
+    static const float stops[5][3] = {
+        {0.1f, 0.2f, 0.9f}, {0.0f, 0.7f, 0.8f}, {0.2f, 0.8f, 0.2f}, {0.95f, 0.85f, 0.1f}, {0.9f, 0.1f, 0.1f}};
+    const double x = std::clamp(t, 0.0, 1.0) * 4.0;
+    const int i = std::min(3, int(x));
+    const float f = float(x - i);
+    for (int c = 0; c < 3; ++c) rgb[c] = encode_srgb(stops[i][c] + (stops[i + 1][c] - stops[i][c]) * f);
+}
+
+constexpr unsigned char kUnknownGrey = 128;
+
+std::vector<unsigned char> error_scale(const LightmapPixels& image, const std::string& path) {
+    if (image.error.empty()) throw std::runtime_error(path + " has no \"error\" channel");
+    std::vector<unsigned char> out(image.rgb.size(), 0);
+    const double decades = std::log10(kErrorScaleHigh / kErrorScaleLow);
+    for (size_t p = 0; p < image.error.size(); ++p) {
+        const float lum = luminance(&image.rgb[3 * p]);
+        if (!(lum > 1e-8f) || !std::isfinite(image.error[p])) continue;
+        if (!image.samples.empty() && image.samples[p] < 2.0f) {  // not known yet (one sample has no variance)
+            std::fill_n(&out[3 * p], 3, kUnknownGrey);
+            continue;
+        }
+        const double relative = std::max(double(image.error[p]) / lum, kErrorScaleLow);
+        error_colour(std::log10(relative / kErrorScaleLow) / decades, &out[3 * p]);
+    }
+    return out;
+}
+
+std::string number(double v) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.6g", v);
+    return text;
+}
+
+}  // namespace
+
+Preview render_preview(const std::string& exr_path, PreviewKind kind) {
+    const LightmapPixels image = read_lightmap(exr_path);
+    const double exposure = automatic_exposure(image);
+    Preview out;
+    out.headers["X-Lightfarm-Exposure"] = number(exposure);
+    switch (kind) {
+    case PreviewKind::Tonemapped:
+        out.png = rgb_png(tonemapped(image, float(exposure)), image.width, image.height, exr_path);
+        break;
+    case PreviewKind::Rgbm: {
+        const protocol::RgbmImage rgbm = protocol::encode_rgbm(image.rgb, image.width, image.height);
+        out.png = protocol::rgbm_png(rgbm);
+        out.headers["X-Lightfarm-Rgbm-Range"] = number(rgbm.range);
+        break;
+    }
+    case PreviewKind::Error:
+        out.png = rgb_png(error_scale(image, exr_path), image.width, image.height, exr_path);
+        break;
+    }
+    return out;
 }
 
 }  // namespace lf::server

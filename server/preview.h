@@ -1,14 +1,36 @@
-// GET /v1/jobs/{id}/preview.png: an EXR (linear radiance) tone-mapped to an
-// 8-bit sRGB PNG a person can look at.
+// What the status page shows of a lightmap, made from its EXR (linear
+// irradiance/pi, rows from the top) without any GL:
+//   GET /v1/jobs/{id}/preview.png        tone-mapped 8-bit sRGB, to look at as an atlas
+//   GET /v1/jobs/{id}/lightmap.rgbm.png  RGBM (protocol/lightmap_rgbm.h), for the 3D view's lightMap
+//   GET /v1/jobs/{id}/error.png          the per-texel relative error as a colour scale
 #pragma once
 
+#include <map>
 #include <string>
 
 namespace lf::server {
 
-// Reads RGB of `exr_path`, scales by an automatic exposure (mean luminance
-// of the lit texels to 0.18), applies Reinhard x/(1+x) and the sRGB curve.
-// Unlit (black) texels stay black. Throws std::runtime_error with the path.
-std::string exr_to_png(const std::string& exr_path);
+enum class PreviewKind { Tonemapped, Rgbm, Error };
+
+struct Preview {
+    std::string png;
+    // Response headers that say how to read the image:
+    // X-Lightfarm-Exposure (the automatic exposure, every kind),
+    // X-Lightfarm-Rgbm-Range (Rgbm).
+    std::map<std::string, std::string> headers;
+};
+
+// Exposure: the geometric mean luminance of the lit texels brought to 0.18
+// (robust to the few very bright texels beside a light). Tonemapped applies
+// it, Reinhard x/(1+x) and the sRGB curve; unlit texels stay black.
+// Error: relative standard error (the "error" channel over the texel's
+// luminance) on a logarithmic scale from kErrorScaleLow (blue) to
+// kErrorScaleHigh (red), texels without light black, texels with fewer than
+// 2 samples (no variance yet) grey.
+// Throws std::runtime_error naming the path.
+Preview render_preview(const std::string& exr_path, PreviewKind kind);
+
+inline constexpr double kErrorScaleLow = 0.001;
+inline constexpr double kErrorScaleHigh = 1.0;
 
 }  // namespace lf::server

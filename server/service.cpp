@@ -107,7 +107,8 @@ protocol::SceneSummary summary_of(const SceneRecord& scene) {
 // "/v1/jobs/{id}/artifacts/{name}" -> regex with one group per parameter.
 std::string route_regex(const std::string& path) {
     static const std::regex param(R"(\{[a-z_]+\})");
-    return std::regex_replace(path, param, "([^/]+)");
+    // {path} spans folders (a file under a directory); any other parameter is one segment.
+    return std::regex_replace(std::regex_replace(path, std::regex(R"(\{path\})"), "(.+)"), param, "([^/]+)");
 }
 
 }  // namespace
@@ -673,6 +674,9 @@ const std::vector<Service::Route>& Service::routes() {
         {"GET", "/v1/jobs/{id}/artifacts", Auth::Token, &Service::list_artifacts},
         {"GET", "/v1/jobs/{id}/artifacts/{name}", Auth::Token, &Service::get_artifact},
         {"GET", "/v1/jobs/{id}/preview.png", Auth::Token, &Service::preview},
+        {"GET", "/v1/jobs/{id}/lightmap.rgbm.png", Auth::Token, &Service::lightmap_rgbm},
+        {"GET", "/v1/jobs/{id}/error.png", Auth::Token, &Service::error_map},
+        {"GET", "/ui/three/{path}", Auth::None, &Service::web_library},
         {"POST", "/v1/jobs/{id}/cancel", Auth::Token, &Service::cancel_job},
     };
     return table;
@@ -1003,7 +1007,9 @@ json Service::status_json(const JobRecord& job, std::map<std::string, json>* bri
     j["links"] = {{"self", base},
                   {"events", base + "/events"},
                   {"artifacts", base + "/artifacts"},
-                  {"preview", base + "/preview.png"}};
+                  {"preview", base + "/preview.png"},
+                  {"lightmap_rgbm", base + "/lightmap.rgbm.png"},
+                  {"error_map", base + "/error.png"}};
     return j;
 }
 
@@ -1309,6 +1315,17 @@ void Service::get_artifact(const httplib::Request& req, httplib::Response& res, 
 }
 
 void Service::preview(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    send_preview(req, res, caller, PreviewKind::Tonemapped);
+}
+void Service::lightmap_rgbm(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    send_preview(req, res, caller, PreviewKind::Rgbm);
+}
+void Service::error_map(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    send_preview(req, res, caller, PreviewKind::Error);
+}
+
+void Service::send_preview(const httplib::Request& req, httplib::Response& res, const Caller& caller,
+                           PreviewKind kind) {
     const JobRecord job = owned_job(req, caller);
     // The newest lightmap, as the worker's events named it (its final file
     // once done, else its latest snapshot): never guessed from file names.
@@ -1323,24 +1340,50 @@ void Service::preview(const httplib::Request& req, httplib::Response& res, const
         throw HttpError(404, "job " + job.status.id + " has no artifact " + chosen, {{"id", job.status.id}});
     const std::string source = path.string() + ":" + std::to_string(fs::file_size(path, ec)) + ":" +
                                std::to_string(fs::last_write_time(path, ec).time_since_epoch().count());
-    std::string png;
+    const std::string key = job.status.id + ":" + std::to_string(int(kind));
+    Preview preview;
     {
         std::lock_guard lock(preview_mutex_);
-        auto it = previews_.find(job.status.id);
-        if (it != previews_.end() && it->second.source == source) png = it->second.png;
+        auto it = previews_.find(key);
+        if (it != previews_.end() && it->second.source == source) preview = it->second.preview;
     }
-    if (png.empty()) {
+    if (preview.png.empty()) {
         try {
-            png = exr_to_png(path.string());
+            preview = render_preview(path.string(), kind);
         } catch (const std::exception& e) {
             throw HttpError(500, e.what(), {{"id", job.status.id}});
         }
         std::lock_guard lock(preview_mutex_);
-        previews_[job.status.id] = {source, png};
+        previews_[key] = {source, preview};
     }
     res.set_header("X-Lightfarm-Source", chosen);
+    res.set_header("X-Lightfarm-Pass", std::to_string(latest->second.pass));
+    for (const auto& [name, value] : preview.headers) res.set_header(name.c_str(), value);
     res.set_header("Cache-Control", "no-cache");
-    res.set_content(png, "image/png");
+    res.set_content(preview.png, "image/png");
+}
+
+// GET /ui/three/{path}: three.js from the npm registry (web/node_modules,
+// installed by the scripts), for the status page's 3D view. Only files
+// under that folder, only the kinds a page loads.
+void Service::web_library(const httplib::Request& req, httplib::Response& res, const Caller&) {
+    const std::string relative = req.matches[1];
+    if (relative.find("..") != std::string::npos || relative.empty() || relative.front() == '/')
+        throw HttpError(404, "no such file: " + relative);
+    const fs::path root = fs::path(config_.web_dir) / "node_modules" / "three";
+    const fs::path path = root / relative;
+    std::error_code ec;
+    const std::string extension = path.extension().string();
+    if (extension != ".js" || !fs::is_regular_file(path, ec)) {
+        if (!fs::is_directory(root, ec))
+            throw HttpError(404, "three.js is not installed in " + root.string() +
+                                     ": run scripts/run (or `npm ci` in web/) to install it");
+        throw HttpError(404, "no such file: three/" + relative);
+    }
+    std::ifstream in(path, std::ios::binary);
+    std::string body((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    res.set_header("Cache-Control", "max-age=3600");
+    res.set_content(body, "text/javascript; charset=utf-8");
 }
 
 void Service::cancel_job(const httplib::Request& req, httplib::Response& res, const Caller& caller) {

@@ -6,6 +6,7 @@
 #include "events.h"
 #include "job_store.h"
 #include "metrics.h"
+#include "preview.h"
 #include "scene_store.h"
 #include "supervisor.h"
 
@@ -99,6 +100,10 @@ private:
     void list_artifacts(const httplib::Request&, httplib::Response&, const Caller&);
     void get_artifact(const httplib::Request&, httplib::Response&, const Caller&);
     void preview(const httplib::Request&, httplib::Response&, const Caller&);
+    void lightmap_rgbm(const httplib::Request&, httplib::Response&, const Caller&);
+    void error_map(const httplib::Request&, httplib::Response&, const Caller&);
+    void send_preview(const httplib::Request&, httplib::Response&, const Caller&, PreviewKind);
+    void web_library(const httplib::Request&, httplib::Response&, const Caller&);
     void cancel_job(const httplib::Request&, httplib::Response&, const Caller&);
 
     ServerConfig config_;
@@ -120,10 +125,10 @@ private:
 
     struct CachedPreview {
         std::string source;  // path + size + mtime of the EXR it came from
-        std::string png;
+        Preview preview;
     };
     std::mutex preview_mutex_;
-    std::map<std::string, CachedPreview> previews_;  // by job id
+    std::map<std::string, CachedPreview> previews_;  // by job id and kind
 };
 
 }  // namespace lf::server

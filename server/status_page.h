@@ -1,7 +1,8 @@
 // GET /: a read-only page with the token's jobs (scene, times, progress, a
-// failure's cause), the selected job's files and its latest preview. Plain HTML and JavaScript, nothing fetched from
-// elsewhere. It authenticates with the lightfarm_token cookie that GET /?token=T sets, because <img> and fetch from a
-// page cannot be given a bearer header by a person typing a URL.
+// failure's cause), the selected job's files, its latest preview and a 3D view
+// of the scene lit by the latest snapshot (three.js, served by lightfarmd from
+// web/node_modules: nothing is fetched from elsewhere). It authenticates with the lightfarm_token cookie that GET
+// /?token=T sets, because <img> and fetch from a page cannot be given a bearer header by a person typing a URL.
 #pragma once
 
 namespace lf::server {
@@ -11,6 +12,7 @@ inline constexpr const char* kStatusPage = R"html(<!doctype html>
 <head>
 <meta charset="utf-8">
 <title>lightfarm</title>
+<link rel="icon" href="data:,">
 <style>
   body { font: 14px/1.4 system-ui, sans-serif; margin: 2em; color: #222; }
   table { border-collapse: collapse; }
@@ -23,7 +25,15 @@ inline constexpr const char* kStatusPage = R"html(<!doctype html>
   #preview img { max-width: 512px; image-rendering: pixelated; border: 1px solid #ccc; }
   .failed { color: #b00; } .succeeded { color: #070; }
   .muted { color: #777; }
+  #view3d canvas { border: 1px solid #ccc; display: block; }
+  #view3d-legend { display: none; font-size: 12px; }
+  #view3d-legend .scale { width: 320px; height: 10px;
+    background: linear-gradient(to right, rgb(89,124,240), rgb(0,218,231), rgb(124,231,124), rgb(250,239,89), rgb(240,89,89)); }
+  #view3d-legend .ticks { width: 320px; display: flex; justify-content: space-between; }
 </style>
+<script type="importmap">
+{ "imports": { "three": "/ui/three/build/three.module.js", "three/addons/": "/ui/three/examples/jsm/" } }
+</script>
 </head>
 <body>
 <h1>lightfarm</h1>
@@ -35,13 +45,25 @@ inline constexpr const char* kStatusPage = R"html(<!doctype html>
 </table>
 <h2>Job <span id="selected-job"></span></h2>
 <div id="files"></div>
+<div id="view3d">
+  <p>
+    <label><input type="radio" name="view3d-mode" value="lit" checked> lit</label>
+    <label><input type="radio" name="view3d-mode" value="lightmap"> lightmap only</label>
+    <label><input type="radio" name="view3d-mode" value="error"> per-texel error</label>
+    <span id="view3d-status" class="muted"></span>
+  </p>
+  <div id="view3d-canvas"></div>
+  <div id="view3d-legend"><div class="scale"></div>
+    <div class="ticks"><span>0.1%</span><span>1%</span><span>10%</span><span>100% relative standard error</span></div></div>
+</div>
 <div id="preview"></div>
 <script>
 "use strict";
 // The jobs as the server had them when it sent this page (GET /v1/jobs's
 // body), so they show at once; then refreshed every 2 s.
 const initial = /*JOBS*/null;
-let selected = null, shownFilesOf = null;
+// #job=ID selects a job (a link to one job's view).
+let selected = new URLSearchParams(location.hash.slice(1)).get("job"), shownFilesOf = null;
 
 function cell(row, text) {
   const td = document.createElement("td");
@@ -69,7 +91,7 @@ function scene(job) {
 
 function render(jobs) {
   document.getElementById("note").textContent = jobs.length ? "" : "No jobs yet.";
-  if (selected === null && jobs.length) selected = jobs[0].id;
+  if (jobs.length && !jobs.some(j => j.id === selected)) selected = jobs[0].id;
   const body = document.querySelector("#jobs tbody");
   body.replaceChildren();
   for (const job of jobs) {
@@ -112,6 +134,8 @@ function render(jobs) {
 // snapshot exists (no broken image for a job that has none).
 async function show(job) {
   document.getElementById("selected-job").textContent = job.id.slice(0, 12) + " · " + scene(job);
+  // The 3D view (the module script below) once it has loaded, else when it does.
+  if (window.lightfarmView) window.lightfarmView.show(job); else window.lightfarmPendingJob = job;
   const preview = document.getElementById("preview");
   const hasImage = job.latest && job.latest.lightmap;
   if (hasImage) {
@@ -163,6 +187,159 @@ async function refresh() {
 
 if (initial) render(initial.jobs);
 setInterval(refresh, 2000);
+</script>
+<script type="module">
+// The 3D view: the selected job's scene.lightmapped.glb (written before the
+// first pass) lit by its latest lightmap, RGBM-decoded in the shader
+// (value = range * rgb * a, README "scene.lit.glb"), or that lightmap on
+// white, or the per-texel error. window.lightfarmView.state is what a test
+// reads: the job and pass shown, frames drawn, and any error.
+const status = document.getElementById("view3d-status");
+const state = { job: null, pass: null, mode: "lit", frames: 0, ready: false, error: null };
+let THREE, GLTFLoader, OrbitControls;
+try {
+  THREE = await import("three");
+  ({ GLTFLoader } = await import("three/addons/loaders/GLTFLoader.js"));
+  ({ OrbitControls } = await import("three/addons/controls/OrbitControls.js"));
+} catch (e) {
+  state.error = "three.js is not installed on the server (scripts/run installs it): " + e.message;
+  status.textContent = state.error;
+}
+
+const view = { state, show: () => {} };
+window.lightfarmView = view;
+
+if (THREE) {
+  const width = 720, height = 450;
+  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setSize(width, height);
+  renderer.toneMapping = THREE.ACESFilmicToneMapping;
+  document.getElementById("view3d-canvas").appendChild(renderer.domElement);
+  const world = new THREE.Scene();
+  world.background = new THREE.Color(0x303030);
+  const camera = new THREE.PerspectiveCamera(50, width / height, 0.01, 1000);
+  const controls = new OrbitControls(camera, renderer.domElement);
+  const draw = () => { renderer.render(world, camera); state.frames++; };
+  controls.addEventListener("change", draw);
+
+  let model = null, originals = new Map(), lightmap = null, errorMap = null, range = 1, loading = null;
+
+  // three.js's lightMap is irradiance; the texels are E/pi in RGBM, so the
+  // shader multiplies by the alpha and the intensity carries pi * range.
+  const chunk = THREE.ShaderChunk.lights_fragment_maps, from = "lightMapTexel.rgb * lightMapIntensity";
+  if (!chunk.includes(from)) {
+    state.error = "this three.js's lightmap shader differs from the one web/package.json pins: cannot decode RGBM";
+    status.textContent = state.error;
+  }
+  const rgbmChunk = chunk.replace(from, "lightMapTexel.rgb * lightMapTexel.a * lightMapIntensity");
+  const decodeRgbm = (shader) => {
+    shader.fragmentShader = shader.fragmentShader.replace("#include <lights_fragment_maps>", rgbmChunk);
+  };
+  const lightmapOn = (material) => {
+    material.lightMap = lightmap;
+    material.lightMapIntensity = Math.PI * range;
+    material.metalness = 0;  // the bake is Lambertian
+    material.onBeforeCompile = decodeRgbm;
+    material.customProgramCacheKey = () => "rgbm";
+    material.needsUpdate = true;
+    return material;
+  };
+  const white = new THREE.MeshStandardMaterial({ color: 0xffffff, roughness: 1, metalness: 0 });
+
+  function applyMode() {
+    if (!model || !lightmap) return;
+    document.getElementById("view3d-legend").style.display = state.mode === "error" ? "block" : "none";
+    model.traverse((node) => {
+      if (!node.isMesh) return;
+      const original = originals.get(node);
+      if (state.mode === "lit") node.material = lightmapOn(original.clone());
+      else if (state.mode === "lightmap") node.material = lightmapOn(white.clone());
+      else node.material = new THREE.MeshBasicMaterial({ map: errorMap, side: original.side });
+    });
+    draw();
+  }
+  for (const radio of document.querySelectorAll("input[name=view3d-mode]"))
+    radio.onchange = () => { state.mode = radio.value; applyMode(); };
+
+  // Where a person would stand: the file's own camera if it has one (an
+  // interior seen from outside is its unlit outer walls), else outside the box.
+  function frame(gltf) {
+    const box = new THREE.Box3().setFromObject(gltf.scene);
+    const size = box.getSize(new THREE.Vector3()).length() || 1;
+    camera.near = size / 1000;
+    camera.far = size * 10;
+    const own = gltf.cameras && gltf.cameras[0];
+    if (own) {
+      own.updateMatrixWorld(true);
+      own.matrixWorld.decompose(camera.position, camera.quaternion, new THREE.Vector3());
+      if (own.fov) camera.fov = own.fov;
+      const ahead = new THREE.Vector3(0, 0, -1).applyQuaternion(camera.quaternion).multiplyScalar(size * 0.1);
+      controls.target.copy(camera.position).add(ahead);
+    } else {
+      const centre = box.getCenter(new THREE.Vector3());
+      camera.position.copy(centre).add(new THREE.Vector3(0.6, 0.4, 0.9).multiplyScalar(size * 0.9));
+      controls.target.copy(centre);
+    }
+    camera.updateProjectionMatrix();
+    controls.update();
+  }
+
+  async function texture(url) {
+    const r = await fetch(url, { credentials: "same-origin", cache: "no-cache" });
+    if (!r.ok) throw new Error(url + ": " + r.status + " " + r.statusText);
+    // Not premultiplied, no colour conversion: RGBM's alpha is data.
+    const bitmap = await createImageBitmap(await r.blob(), { premultiplyAlpha: "none", colorSpaceConversion: "none" });
+    const t = new THREE.Texture(bitmap);
+    t.flipY = false;  // glTF UVs count rows from the top, as the image does
+    t.channel = 1;    // TEXCOORD_1
+    t.generateMipmaps = false;
+    t.minFilter = THREE.LinearFilter;
+    t.needsUpdate = true;
+    return { texture: t, headers: r.headers };
+  }
+
+  async function load(job) {
+    const pass = job.latest.lightmap.pass;
+    if (state.job !== job.id) {
+      status.textContent = "loading the scene…";
+      const gltf = await new GLTFLoader().loadAsync(job.links.artifacts + "/scene.lightmapped.glb");
+      if (model) world.remove(model);
+      model = gltf.scene;
+      originals = new Map();
+      model.traverse((node) => { if (node.isMesh) originals.set(node, node.material); });
+      world.add(model);
+      frame(gltf);
+      state.job = job.id;
+      state.pass = null;
+    }
+    if (state.pass !== pass) {
+      const [rgbm, error] = await Promise.all([texture(job.links.lightmap_rgbm), texture(job.links.error_map)]);
+      rgbm.texture.colorSpace = THREE.NoColorSpace;
+      error.texture.colorSpace = THREE.SRGBColorSpace;
+      if (lightmap) lightmap.dispose();
+      if (errorMap) errorMap.dispose();
+      lightmap = rgbm.texture;
+      errorMap = error.texture;
+      range = Number(rgbm.headers.get("X-Lightfarm-Rgbm-Range")) || 1;
+      renderer.toneMappingExposure = Number(rgbm.headers.get("X-Lightfarm-Exposure")) || 1;
+      state.pass = Number(rgbm.headers.get("X-Lightfarm-Pass"));
+      applyMode();
+    }
+    status.textContent = "pass " + state.pass + (job.state === "succeeded" ? " (final)" : "") + " · drag to orbit, scroll to zoom";
+    state.ready = true;
+  }
+
+  view.show = (job) => {
+    if (!job.latest || !job.latest.lightmap) {
+      status.textContent = "No lightmap snapshot yet.";
+      return;
+    }
+    if (loading) return;  // the next refresh (2 s) catches up
+    loading = load(job).catch((e) => { state.error = e.message; status.textContent = "3D view: " + e.message; })
+                       .finally(() => { loading = null; });
+  };
+  if (window.lightfarmPendingJob) view.show(window.lightfarmPendingJob);
+}
 </script>
 </body>
 </html>

@@ -75,6 +75,7 @@ if(TARGET lightfarm)
   target_link_libraries(test_server_e2e PRIVATE lightfarm_server lightfarm_gi PkgConfig::CPP_HTTPLIB)
   target_compile_definitions(test_server_e2e PRIVATE
     LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
-    LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>")
+    LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>"
+    LIGHTFARM_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
   add_dependencies(test_server_e2e lightfarmd lightfarm)
 endif()

@@ -564,6 +564,57 @@ TEST(LightmappedGlb, AnInfiniteCameraKeepsNoZfar) {
     fs::remove_all(dir);
 }
 
+// scene.lit.glb: every baked primitive's material carries the lightmap with
+// MOZ_lightmap (texCoord 1, intensity pi, RGBM with its range), primitives
+// without a material get a white Lambertian one, and the embedded PNG decodes
+// to the lightmap it was given, within RGBM's half step.
+TEST(LitGlb, CarriesTheLightmapOnEveryBakedMaterial) {
+    const fs::path dir = fs::temp_directory_path() / ("lightfarm_lit_test_" + std::to_string(::getpid()));
+    fs::create_directories(dir);
+    for (const char* name : {"monkey.glb", "cornell_box.gltf"}) {  // no materials; materials and its own UVs
+        Scene scene = load_scene(kScenes / name);
+        generate_lightmap_uvs(scene, {.resolution = 64});
+        std::vector<float> rgb(64 * 32 * 3);
+        for (size_t i = 0; i < rgb.size(); ++i) rgb[i] = 0.001f + float(i % 97) * 0.05f * float(1 + i % 3);
+        const protocol::RgbmImage lightmap = protocol::encode_rgbm(rgb, 64, 32);
+        const fs::path out = dir / "scene.lit.glb";
+        write_lit_glb(kScenes / name, scene, lightmap, out);
+
+        tinygltf::Model model;
+        tinygltf::TinyGLTF gltf;
+        std::string err, warn;
+        ASSERT_TRUE(gltf.LoadBinaryFromFile(&model, &err, &warn, out.string())) << err;
+        EXPECT_NE(std::find(model.extensionsUsed.begin(), model.extensionsUsed.end(), "MOZ_lightmap"),
+                  model.extensionsUsed.end());
+        int texture = -1;
+        for (const tinygltf::Mesh& mesh : model.meshes)
+            for (const tinygltf::Primitive& primitive : mesh.primitives) {
+                ASSERT_GE(primitive.material, 0) << name;
+                const tinygltf::Material& material = model.materials[size_t(primitive.material)];
+                ASSERT_TRUE(material.extensions.count("MOZ_lightmap")) << name << " " << material.name;
+                const tinygltf::Value& ext = material.extensions.at("MOZ_lightmap");
+                EXPECT_EQ(ext.Get("texCoord").GetNumberAsInt(), 1);
+                EXPECT_NEAR(ext.Get("intensity").GetNumberAsDouble(), M_PI, 1e-9);
+                EXPECT_EQ(ext.Get("extras").Get("encoding").Get<std::string>(), "RGBM");
+                EXPECT_FLOAT_EQ(float(ext.Get("extras").Get("rgbm_range").GetNumberAsDouble()), lightmap.range);
+                texture = ext.Get("index").GetNumberAsInt();
+                EXPECT_TRUE(primitive.attributes.count("TEXCOORD_1"));
+                if (std::string(name) == "monkey.glb") {
+                    EXPECT_EQ(material.pbrMetallicRoughness.metallicFactor, 0.0) << "white Lambertian, not metal";
+                }
+            }
+        ASSERT_GE(texture, 0);
+        const tinygltf::Image& image = model.images[size_t(model.textures[size_t(texture)].source)];
+        ASSERT_EQ(image.width, 64);
+        ASSERT_EQ(image.height, 32);
+        ASSERT_EQ(image.component, 4);
+        EXPECT_EQ(image.image, lightmap.rgba) << "the PNG holds the RGBM bytes exactly";
+        EXPECT_EQ(model.samplers[size_t(model.textures[size_t(texture)].sampler)].magFilter,
+                  TINYGLTF_TEXTURE_FILTER_LINEAR);
+    }
+    fs::remove_all(dir);
+}
+
 // A glTF with one box mesh (24 vertices, faces split as exporters do) placed
 // by two nodes, one of them mirrored.
 void write_instanced_box(const fs::path& file) {

@@ -83,7 +83,9 @@ TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
     for (const auto& f : done["files"]) EXPECT_TRUE(fs::exists(out / f.get<std::string>())) << f;
     for (const char* f : {"lightmap.exr", "manifest.json", "lightmap.pass-0001.exr"})
         EXPECT_TRUE(fs::exists(out / f)) << f;
-    EXPECT_FALSE(fs::exists(out / "scene.lightmapped.glb")) << "the Cornell box has its own TEXCOORD_1";
+    // The Cornell box has its own TEXCOORD_1; the glb carries it all the same
+    // (the 3D view needs the geometry), and the lit scene the lightmap.
+    for (const char* f : {"scene.lightmapped.glb", "scene.lit.glb"}) EXPECT_TRUE(fs::exists(out / f)) << f;
     for (const auto& entry : fs::directory_iterator(out))
         EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << "temp file left behind";
 
@@ -313,6 +315,42 @@ TEST(CliBake, LightmapAndShShareOnePreparation) {
     EXPECT_EQ(pixels(both / "lightmap.exr", "R"), pixels(lightmap / "lightmap.exr", "R"));
     EXPECT_EQ(read_file(both / "sh_transfer.bin"), read_file(sh / "sh_transfer.bin"));
     for (const fs::path& d : {both, lightmap, sh}) fs::remove_all(d);
+}
+
+// The Khronos glTF validator (npm gltf-validator, which the scripts install
+// into web/) on each file; its JSON lines in `report`. True when no file has
+// an error.
+bool khronos_valid(const std::vector<fs::path>& files, std::string& report) {
+    std::string command = "node " + std::string(LIGHTFARM_SOURCE_DIR) + "/tests/web/validate_gltf.mjs";
+    for (const fs::path& f : files) command += " " + f.string();
+    FILE* pipe = popen((command + " 2>&1").c_str(), "r");
+    char buffer[4096];
+    size_t n;
+    while ((n = fread(buffer, 1, sizeof buffer, pipe)) > 0) report.append(buffer, n);
+    return pclose(pipe) == 0;
+}
+
+// Every glb lightfarm writes passes the Khronos validator: the lightmapped
+// scene (a generated atlas, split vertices), the lit scene (its lightmap
+// embedded), the SH scene and sh-shade's vertex colours (clamped to [0, 1]).
+TEST(CliOutputs, EveryGlbPassesTheKhronosValidator) {
+    const fs::path out = fresh_dir("validator");
+    const std::string scene = test::shared_scene("monkey.glb");
+    const CliRun bake = run_lightfarm("bake " + scene + " --lightmap --sh --out " + out.string() +
+                                      " --res 64 --passes 2 --sh-passes 2 --seed 5");
+    ASSERT_EQ(bake.exit_code, 0) << bake.err;
+    // A bright sky, so that vertex colours would exceed 1 without the clamp.
+    const CliRun shade =
+        run_lightfarm("sh-shade " + (out / "scene.sh.glb").string() + " 4,4,4 --out " + (out / "shaded.glb").string());
+    ASSERT_EQ(shade.exit_code, 0) << shade.err;
+    EXPECT_GT(nlohmann::json::parse(shade.out)["saturated_vertices"].get<int>(), 0);
+
+    std::string report;
+    EXPECT_TRUE(khronos_valid(
+        {out / "scene.lightmapped.glb", out / "scene.lit.glb", out / "scene.sh.glb", out / "shaded.glb"}, report))
+        << report;
+    EXPECT_EQ(std::count(report.begin(), report.end(), '\n'), 4) << report;
+    fs::remove_all(out);
 }
 
 }  // namespace

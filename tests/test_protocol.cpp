@@ -6,6 +6,7 @@
 #include "bake_settings.h"
 #include "job_spec.h"
 #include "job_status.h"
+#include "lightmap_rgbm.h"
 #include "worker_protocol.h"
 
 #include <gtest/gtest.h>
@@ -83,6 +84,37 @@ std::string read_text(const std::filesystem::path& path) {
 // The catalog
 
 // Snapshot names: what the engine writes, what clients tell from final files.
+// RGBM (protocol/lightmap_rgbm.h): every value comes back within half a step
+// of its pixel's scale, range * a / 255², and the brightest channel within
+// 0.4% from range / 255 up, as the header promises.
+TEST(Rgbm, RoundTripsWithinHalfAStepOverItsDynamicRange) {
+    std::vector<float> rgb;
+    for (double v = 1e-5; v <= 20.0; v *= 1.07) {
+        rgb.insert(rgb.end(), {float(v), float(v * 0.5), float(v * 0.11)});
+    }
+    rgb.insert(rgb.end(), {0.0f, -1.0f, std::nanf("")});  // stored as 0
+    const int width = int(rgb.size() / 3);
+    const protocol::RgbmImage image = protocol::encode_rgbm(rgb, width, 1);
+    EXPECT_FLOAT_EQ(image.range, *std::max_element(rgb.begin(), rgb.end() - 3)) << "the range is the brightest value";
+    const std::vector<float> back = protocol::decode_rgbm(image);
+    ASSERT_EQ(back.size(), rgb.size());
+    for (int p = 0; p < width - 1; ++p) {
+        const float largest = rgb[3 * size_t(p)];
+        const float step = image.range * float(image.rgba[4 * size_t(p) + 3]) / 255.0f / 255.0f;
+        EXPECT_LE(step, 1.0001f * (largest + image.range / 255.0f) / 255.0f)
+            << "the multiplier rounds up by at most one step";
+        for (int k = 0; k < 3; ++k)
+            EXPECT_NEAR(back[3 * size_t(p) + size_t(k)], rgb[3 * size_t(p) + size_t(k)], 0.5001f * step) << p;
+        if (largest >= image.range / 255.0f) {
+            EXPECT_NEAR(back[3 * size_t(p)] / largest, 1.0f, 0.5f / 127.0f) << largest;
+        }
+    }
+    for (size_t k = back.size() - 3; k < back.size(); ++k) EXPECT_EQ(back[k], 0.0f);
+    const std::string png = protocol::rgbm_png(image);
+    EXPECT_EQ(png.substr(1, 3), "PNG");
+    EXPECT_THROW(protocol::encode_rgbm(rgb, width + 1, 1), std::invalid_argument);
+}
+
 TEST(SnapshotNames, AreStemPassNumberExtension) {
     EXPECT_EQ(snapshot_file_name("lightmap", 4, "exr"), "lightmap.pass-0004.exr");
     EXPECT_EQ(snapshot_file_name("sh_transfer", 16384, "bin"), "sh_transfer.pass-16384.bin");

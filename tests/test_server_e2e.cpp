@@ -315,6 +315,53 @@ TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
     EXPECT_EQ(png->body.substr(1, 3), "PNG");
 }
 
+// `node SCRIPT ARGS...` from tests/web (its packages in web/node_modules,
+// installed by the scripts); stdout and stderr in `output`.
+int run_node(const std::string& script, const std::vector<std::string>& args, std::string& output) {
+    std::vector<std::string> command = {"node", std::string(LIGHTFARM_SOURCE_DIR) + "/tests/web/" + script};
+    command.insert(command.end(), args.begin(), args.end());
+    const server::RunResult r = server::run_command(command, std::chrono::seconds(240));
+    output = r.out + r.err_last_line;
+    return r.status.success() ? 0 : 1;
+}
+
+// What a studio gets back: scene.lit.glb, downloaded from the service, passes
+// the Khronos validator; the status page's 3D view, in a real headless
+// Chromium, draws the scene lit by the bake in each of its modes (lit,
+// lightmap only, per-texel error) with no console error; three.js is served
+// from the npm install and nothing outside it.
+TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
+    const std::string id = submit(
+        {{"scene", upload_cornell_box()}, {"outputs", {{"lightmap", {{"passes", 32}}}}}, {"atlas", {{"res", 96}}}});
+    ASSERT_FALSE(id.empty());
+    ASSERT_EQ(wait_finished(id)["state"], "succeeded");
+
+    std::string report;
+    EXPECT_EQ(run_node("validate_gltf.mjs", {download(id, "scene.lit.glb", "studio").string()}, report), 0) << report;
+    auto rgbm = client().Get("/v1/jobs/" + id + "/lightmap.rgbm.png");
+    ASSERT_TRUE(rgbm);
+    EXPECT_EQ(rgbm->status, 200) << rgbm->body;
+    EXPECT_GT(std::stod(rgbm->get_header_value("X-Lightfarm-Rgbm-Range")), 0.0);
+    EXPECT_EQ(rgbm->get_header_value("X-Lightfarm-Pass"), "32");
+    auto error = client().Get("/v1/jobs/" + id + "/error.png");
+    ASSERT_TRUE(error);
+    EXPECT_EQ(error->status, 200) << error->body;
+    auto three = client().Get("/ui/three/build/three.module.js");
+    ASSERT_TRUE(three);
+    EXPECT_EQ(three->status, 200) << "three.js is installed by the scripts (npm ci in web/)";
+    for (const char* outside : {"/ui/three/../../package.json", "/ui/three/package.json", "/ui/three/%2e%2e/x.js"}) {
+        auto r = client().Get(outside);
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 404) << outside;
+    }
+
+    const fs::path screenshot = tmp.path / "view3d.png";
+    const std::string url = "http://" + server->host + ":" + std::to_string(server->port);
+    std::string browser;
+    EXPECT_EQ(run_node("status_page_3d.mjs", {url, kToken, id, screenshot.string()}, browser), 0) << browser;
+    EXPECT_GT(fs::exists(screenshot) ? fs::file_size(screenshot) : 0u, 1000u) << browser;
+}
+
 TEST_F(EndToEnd, AWorkerKilledMidBakeIsRetriedAndTheResultStillEqualsTheCli) {
     const Bake bake = long_bake();
     const std::string id = submit(bake.spec(upload_cornell_box()));

@@ -4,7 +4,9 @@
 #include <tiny_gltf.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <set>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -333,24 +335,65 @@ void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) 
     }
 }
 
-}  // namespace
-
-void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
-                           const std::filesystem::path& out_glb) {
-    std::vector<std::vector<VertexAttribute>> uv1(scene.instances.size());
-    for (size_t i = 0; i < scene.instances.size(); ++i) {
-        const PrimitiveInstance& inst = scene.instances[i];
-        VertexAttribute a{"TEXCOORD_1", 2, {}};
-        a.values.resize(size_t(inst.vertex_count) * 2);
-        std::memcpy(a.values.data(), &scene.uv1[inst.first_vertex], a.values.size() * sizeof(float));
-        uv1[i].push_back(std::move(a));
-    }
-    write_glb_with_vertex_attributes(source_gltf, scene, uv1, out_glb);
+void use_extension(tinygltf::Model& model, const std::string& name) {
+    if (std::find(model.extensionsUsed.begin(), model.extensionsUsed.end(), name) == model.extensionsUsed.end())
+        model.extensionsUsed.push_back(name);
 }
 
-void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,
-                                      const std::vector<std::vector<VertexAttribute>>& per_instance,
-                                      const std::filesystem::path& out_glb, bool unlit_materials) {
+// A new material for primitives that had none: glTF's default material is
+// metallic (metallicFactor 1), the scene loader's is white Lambertian.
+int add_default_lambertian_material(tinygltf::Model& model) {
+    tinygltf::Material m;
+    m.name = "lightfarm default (white Lambertian)";
+    m.pbrMetallicRoughness.metallicFactor = 0.0;
+    m.pbrMetallicRoughness.roughnessFactor = 1.0;
+    model.materials.push_back(m);
+    return int(model.materials.size() - 1);
+}
+
+// The lightmap as an embedded PNG texture (linear filtering, clamped: RGBM
+// is not sRGB), applied with MOZ_lightmap to the materials of `primitives`.
+void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+                    const protocol::RgbmImage& lightmap) {
+    const std::string png = protocol::rgbm_png(lightmap);
+    tinygltf::Image image;
+    image.name = "lightmap (RGBM)";
+    image.mimeType = "image/png";
+    image.bufferView = append_view(model, std::vector<unsigned char>(png.begin(), png.end()), 0);
+    model.images.push_back(image);
+    tinygltf::Sampler sampler;
+    sampler.magFilter = TINYGLTF_TEXTURE_FILTER_LINEAR;
+    sampler.minFilter = TINYGLTF_TEXTURE_FILTER_LINEAR;
+    sampler.wrapS = sampler.wrapT = TINYGLTF_TEXTURE_WRAP_CLAMP_TO_EDGE;
+    model.samplers.push_back(sampler);
+    tinygltf::Texture texture;
+    texture.source = int(model.images.size() - 1);
+    texture.sampler = int(model.samplers.size() - 1);
+    model.textures.push_back(texture);
+
+    tinygltf::Value::Object extras{{"encoding", tinygltf::Value(std::string("RGBM"))},
+                                   {"rgbm_range", tinygltf::Value(double(lightmap.range))}};
+    tinygltf::Value::Object extension{{"index", tinygltf::Value(int(model.textures.size() - 1))},
+                                      {"texCoord", tinygltf::Value(1)},
+                                      {"intensity", tinygltf::Value(M_PI)},
+                                      {"extras", tinygltf::Value(extras)}};
+    int default_material = -1;
+    std::set<int> materials;
+    for (tinygltf::Primitive* primitive : primitives) {
+        if (primitive->material < 0) {
+            if (default_material < 0) default_material = add_default_lambertian_material(model);
+            primitive->material = default_material;
+        }
+        materials.insert(primitive->material);
+    }
+    for (int m : materials) model.materials[size_t(m)].extensions["MOZ_lightmap"] = tinygltf::Value(extension);
+    use_extension(model, "MOZ_lightmap");
+}
+
+// write_glb_with_vertex_attributes, and the lightmap embedded when given.
+void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
+               const std::vector<std::vector<VertexAttribute>>& per_instance, const std::filesystem::path& out_glb,
+               bool unlit_materials, const protocol::RgbmImage* lightmap) {
     if (per_instance.size() != scene.instances.size())
         fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
                               std::to_string(scene.instances.size()));
@@ -381,21 +424,53 @@ void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, 
         mesh_taken[size_t(inst.mesh)] = true;
         mesh_of_node[inst.node] = mesh;
     }
+    std::vector<tinygltf::Primitive*> baked;
     for (size_t i = 0; i < scene.instances.size(); ++i) {
         const PrimitiveInstance& inst = scene.instances[i];
         auto& primitives = model.meshes[size_t(mesh_of_node[inst.node])].primitives;
         if (inst.primitive < 0 || size_t(inst.primitive) >= primitives.size())
             fail(source_gltf, "scene does not match the file (mesh " + std::to_string(inst.mesh) + ")");
         add_vertex_attributes(model, primitives[size_t(inst.primitive)], scene, inst, per_instance[i], source_gltf);
+        baked.push_back(&primitives[size_t(inst.primitive)]);
     }
     if (unlit_materials && !model.materials.empty()) {
         for (tinygltf::Material& m : model.materials)
             m.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
-        if (std::find(model.extensionsUsed.begin(), model.extensionsUsed.end(), "KHR_materials_unlit") ==
-            model.extensionsUsed.end())
-            model.extensionsUsed.push_back("KHR_materials_unlit");
+        use_extension(model, "KHR_materials_unlit");
     }
+    if (lightmap) embed_lightmap(model, baked, *lightmap);
     write_atomically(model, out_glb);
+}
+
+// TEXCOORD_1 = the scene's lightmap UVs, per instance.
+std::vector<std::vector<VertexAttribute>> lightmap_uvs(const Scene& scene) {
+    std::vector<std::vector<VertexAttribute>> uv1(scene.instances.size());
+    for (size_t i = 0; i < scene.instances.size(); ++i) {
+        const PrimitiveInstance& inst = scene.instances[i];
+        VertexAttribute a{"TEXCOORD_1", 2, {}};
+        a.values.resize(size_t(inst.vertex_count) * 2);
+        std::memcpy(a.values.data(), &scene.uv1[inst.first_vertex], a.values.size() * sizeof(float));
+        uv1[i].push_back(std::move(a));
+    }
+    return uv1;
+}
+
+}  // namespace
+
+void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
+                           const std::filesystem::path& out_glb) {
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, nullptr);
+}
+
+void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const protocol::RgbmImage& lightmap,
+                   const std::filesystem::path& out_glb) {
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, &lightmap);
+}
+
+void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,
+                                      const std::vector<std::vector<VertexAttribute>>& per_instance,
+                                      const std::filesystem::path& out_glb, bool unlit_materials) {
+    write_glb(source_gltf, scene, per_instance, out_glb, unlit_materials, nullptr);
 }
 
 }  // namespace lf

@@ -2,6 +2,7 @@
 // as TEXCOORD_1 (DESIGN.md "Outputs"), so an engine can apply the lightmap.
 #pragma once
 
+#include "lightmap_rgbm.h"
 #include "scene/scene.h"
 
 #include <filesystem>
@@ -22,6 +23,18 @@ namespace lf {
 // file in the same directory, then rename). Throws std::runtime_error.
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                            const std::filesystem::path& out_glb);
+
+// scene.lit.glb: write_lightmapped_glb's file with `lightmap` (the final
+// lightmap, RGBM-encoded) embedded as a PNG and applied to every material of
+// the baked primitives with the MOZ_lightmap extension (texCoord 1), the
+// convention three.js-based viewers read:
+//   "MOZ_lightmap": {"index": T, "texCoord": 1, "intensity": pi,
+//                    "extras": {"encoding": "RGBM", "rgbm_range": R}}
+// A viewer shows irradiance E = intensity * R * rgb * a, as three.js's
+// lightMap expects (the texels are E/pi, DESIGN.md "Units"). Primitives
+// without a material get a white, rough, non-metallic one to carry it.
+void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const protocol::RgbmImage& lightmap,
+                   const std::filesystem::path& out_glb);
 
 // One float vertex attribute for one primitive instance: `components` (1..4)
 // values per vertex of the instance, Scene vertex first_vertex + k at k.

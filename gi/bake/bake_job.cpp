@@ -158,6 +158,20 @@ PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeE
     return last;
 }
 
+// scene.lit.glb from the final lightmap: its RGB (irradiance/pi), RGBM-encoded.
+void write_lit_scene(const BakeJob& job, const Scene& atlas_scene, const fs::path& lightmap_exr) {
+    const FloatImage image = read_exr(lightmap_exr);
+    const auto &r = image.at("R"), &g = image.at("G"), &b = image.at("B");
+    std::vector<float> rgb(r.size() * 3);
+    for (size_t i = 0; i < r.size(); ++i) {
+        rgb[3 * i] = r[i];
+        rgb[3 * i + 1] = g[i];
+        rgb[3 * i + 2] = b[i];
+    }
+    write_lit_glb(job.scene, atlas_scene, protocol::encode_rgbm(rgb, image.width, image.height),
+                  job.out / "scene.lit.glb");
+}
+
 }  // namespace
 
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
@@ -175,6 +189,10 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     started.prepare_seconds = prepared->prepare_seconds;
     for (const auto& m : methods) started.outputs[m->output()] = m->description();
     emit(started);
+    // The geometry a viewer needs to show the lightmap's snapshots on the
+    // scene (the status page's 3D view), there before the first snapshot.
+    if (prepared->atlas_scene)
+        write_lightmapped_glb(job.scene, *prepared->atlas_scene, job.out / "scene.lightmapped.glb");
 
     protocol::DoneEvent done;
     nlohmann::json manifest = {
@@ -199,15 +217,21 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         done.progress = last;
         manifest[output] = std::move(result.manifest);
     }
-    if (prepared->atlas.generated) {
-        write_lightmapped_glb(job.scene, *prepared->atlas_scene, job.out / "scene.lightmapped.glb");
+    if (prepared->atlas_scene) {
         done.files.push_back("scene.lightmapped.glb");
+        if (const auto lightmap = done.final_files.find("lightmap"); lightmap != done.final_files.end()) {
+            write_lit_scene(job, *prepared->atlas_scene, job.out / lightmap->second);
+            done.files.push_back("scene.lit.glb");
+        }
     }
     done.files.push_back("manifest.json");
     manifest["files"] = describe_files(done.files, manifest);
     manifest["files"]["manifest.json"] = "this file; its \"settings\" are a spec for `lightfarm bake --spec`";
-    if (prepared->atlas.generated)
-        manifest["files"]["scene.lightmapped.glb"] = "the input scene with TEXCOORD_1 = the generated atlas";
+    if (prepared->atlas_scene)
+        manifest["files"]["scene.lightmapped.glb"] = "the input scene with TEXCOORD_1 = the lightmap's UVs";
+    if (done.final_files.count("lightmap"))
+        manifest["files"]["scene.lit.glb"] =
+            "scene.lightmapped.glb with the final lightmap embedded (MOZ_lightmap, RGBM PNG; see README)";
     write_file_atomic(job.out / "manifest.json", manifest.dump(2) + "\n");
     emit(done);
     return done;

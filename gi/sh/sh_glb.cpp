@@ -157,29 +157,33 @@ nlohmann::json shade_sh_glb(const fs::path& transfer, const std::string& env, co
 
     std::vector<std::vector<VertexAttribute>> colours(scene.instances.size());
     double lowest = 1e300, highest = -1e300;
-    size_t negative = 0;
+    size_t negative = 0, saturated = 0;
     for (size_t i = 0; i < scene.instances.size(); ++i) {
         const PrimitiveInstance& inst = scene.instances[i];
-        VertexAttribute a{"COLOR_0", 3, {}};
+        VertexAttribute colour{"COLOR_0", 3, {}}, radiance{"_E_OVER_PI", 3, {}};
         for (uint32_t v = 0; v < inst.vertex_count; ++v) {
             const glm::vec3 e = sh_irradiance(per_vertex[inst.first_vertex + v], sh, bands) / float(M_PI);
             const float mean = (e.r + e.g + e.b) / 3.0f;
             lowest = std::min(lowest, double(mean));
             highest = std::max(highest, double(mean));
             negative += mean < 0.0f;
-            // Ringing can make E negative; a colour cannot be.
-            for (int c = 0; c < 3; ++c) a.values.push_back(std::max(0.0f, e[c]));
+            saturated += std::max({e.r, e.g, e.b}) > 1.0f;
+            // Ringing can make E negative, and a float COLOR_0 must lie in
+            // [0, 1] (glTF 2.0 §3.7.2.1): the colour is what a display shows,
+            // _E_OVER_PI keeps the values.
+            for (int c = 0; c < 3; ++c) {
+                colour.values.push_back(std::clamp(e[c], 0.0f, 1.0f));
+                radiance.values.push_back(e[c]);
+            }
         }
-        colours[i].push_back(std::move(a));
+        colours[i].push_back(std::move(colour));
+        colours[i].push_back(std::move(radiance));
     }
     write_glb_with_vertex_attributes(scene_file, scene, colours, out_glb, true);
-    return {{"vertices", scene.positions.size()},
-            {"bands", bands},
-            {"window", to_string(sh.window)},
-            {"min_e_over_pi", lowest},
-            {"max_e_over_pi", highest},
-            {"negative_vertices", negative},
-            {"out", out_glb.string()}};
+    return {{"vertices", scene.positions.size()}, {"bands", bands},
+            {"window", to_string(sh.window)},     {"min_e_over_pi", lowest},
+            {"max_e_over_pi", highest},           {"negative_vertices", negative},
+            {"saturated_vertices", saturated},    {"out", out_glb.string()}};
 }
 
 }  // namespace lf

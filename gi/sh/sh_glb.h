@@ -44,9 +44,11 @@ struct ShShadeOptions {
 // scene.sh.glb or an sh_transfer.bin (then options.scene is needed), ENV an
 // env_sh.json, an .exr/.hdr environment or "R,G,B". Writes the scene with
 // COLOR_0 = E/pi per vertex (E = Σ T_i L_i, the radiance a white surface
-// reflects) and KHR_materials_unlit on its materials, so any glTF viewer shows
-// base colour x COLOR_0 = albedo x E/pi. An existing COLOR_0 is replaced.
-// Returns a summary: vertices, bands, min/max of E/pi, negative vertex count.
+// reflects) clamped to [0, 1] as glTF requires of a float colour, the values
+// themselves in _E_OVER_PI (VEC3 float), and KHR_materials_unlit on its
+// materials, so any glTF viewer shows base colour x COLOR_0 = albedo x E/pi.
+// An existing COLOR_0 is replaced. Returns a summary: vertices, bands,
+// min/max of E/pi, the counts of negative and of saturated (> 1) vertices.
 nlohmann::json shade_sh_glb(const std::filesystem::path& transfer, const std::string& env,
                             const std::filesystem::path& out_glb, const ShShadeOptions& options = {});
 

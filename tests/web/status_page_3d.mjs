@@ -1,0 +1,84 @@
+// node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png
+// Opens lightfarmd's status page in a real headless Chromium (Debian's
+// /usr/bin/chromium, or $LIGHTFARM_CHROMIUM) driven by playwright-core, selects
+// the job, waits for the 3D view to draw its latest lightmap, switches through
+// the three modes, and checks what a person would see: the canvas drew the
+// scene (its pixels are not one colour), and no error reached the console.
+// Saves the lit view to SCREENSHOT.png. Prints one JSON line; exits 1 on any
+// failure, 2 on bad use.
+import { createRequire } from "node:module";
+import path from "node:path";
+import { fileURLToPath } from "node:url";
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const require = createRequire(path.join(here, "../../web/package.json"));
+const { chromium } = require("playwright-core");
+
+const [url, token, job, screenshot] = process.argv.slice(2);
+if (!screenshot) {
+  console.error("usage: node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png");
+  process.exit(2);
+}
+
+const problems = [];
+const browser = await chromium.launch({
+  executablePath: process.env.LIGHTFARM_CHROMIUM || "/usr/bin/chromium",
+  // No GPU here: WebGL on SwiftShader. No background traffic to the outside.
+  args: ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"],
+});
+const result = { job };
+try {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 1400 } });
+  page.on("console", (m) => { if (m.type() === "error") problems.push(`console: ${m.text()} (${m.location().url})`); });
+  page.on("pageerror", (e) => problems.push("page error: " + e.message));
+  page.on("response", (r) => { if (r.status() >= 400) problems.push(`HTTP ${r.status()}: ${r.url()}`); });
+  page.on("requestfailed", (r) => problems.push("request failed: " + r.url() + " " + r.failure()?.errorText));
+
+  await page.goto(`${url}/?token=${encodeURIComponent(token)}`);  // sets the cookie, redirects to /
+  await page.goto(`${url}/#job=${job}`);
+  await page.reload();  // the hash alone does not reload the page
+
+  const drawn = async (mode) => {
+    await page.waitForFunction((m) => {
+      const v = window.lightfarmView;
+      return v && (v.state.error || (v.state.ready && v.state.mode === m && v.state.frames > 0));
+    }, mode, { timeout: 90_000 });
+    const state = await page.evaluate(() => ({ ...window.lightfarmView.state }));
+    if (state.error) throw new Error("3D view: " + state.error);
+    // The canvas's pixels (preserveDrawingBuffer): how many distinct colours.
+    const pixels = await page.evaluate(() => {
+      const gl = document.querySelector("#view3d-canvas canvas");
+      const c = document.createElement("canvas");
+      c.width = gl.width;
+      c.height = gl.height;
+      const ctx = c.getContext("2d");
+      ctx.drawImage(gl, 0, 0);
+      const data = ctx.getImageData(0, 0, c.width, c.height).data;
+      const colours = new Set();
+      let background = 0;
+      for (let i = 0; i < data.length; i += 4) {
+        colours.add((data[i] >> 2) << 12 | (data[i + 1] >> 2) << 6 | data[i + 2] >> 2);
+        if (data[i] === 0x30 && data[i + 1] === 0x30 && data[i + 2] === 0x30) background++;
+      }
+      return { distinct: colours.size, scene_fraction: 1 - background / (data.length / 4) };
+    });
+    result[mode] = { pass: state.pass, frames: state.frames, ...pixels };
+    if (pixels.distinct < 16) problems.push(`${mode}: the canvas has ${pixels.distinct} colours`);
+    if (pixels.scene_fraction < 0.05) problems.push(`${mode}: the scene covers ${pixels.scene_fraction} of the canvas`);
+  };
+
+  await drawn("lit");
+  for (const mode of ["lightmap", "error", "lit"]) {
+    await page.check(`input[name=view3d-mode][value=${mode}]`);
+    await drawn(mode);
+  }
+  await page.locator("#view3d-canvas canvas").screenshot({ path: screenshot });
+} catch (e) {
+  problems.push(e.message);
+} finally {
+  await browser.close();
+}
+result.problems = problems;
+console.log(JSON.stringify(result));
+process.exit(problems.length ? 1 : 0);
