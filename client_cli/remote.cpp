@@ -153,8 +153,8 @@ std::string format_seconds(double s) {
 std::string progress_line(const std::string& job, const std::string& output, const protocol::Progress& p) {
     // Done so far against what is left: passes or time, whichever stop comes
     // first, as the server's ETA already takes every stop into account.
-    const double fraction =
-        p.eta_seconds && p.seconds > 0.0 ? std::clamp(p.seconds / (p.seconds + *p.eta_seconds), 0.0, 1.0) : 0.0;
+    // Preparation counts: its seconds are part of the job's done fraction.
+    const double fraction = std::clamp(protocol::done_fraction(p).value_or(0.0), 0.0, 1.0);
     const int width = 24, filled = int(std::lround(fraction * width));
     char percent[16];
     std::snprintf(percent, sizeof percent, "%3d%%", int(std::lround(100.0 * fraction)));

@@ -75,13 +75,11 @@ function cell(row, text) {
 function fmt(x, digits) { return x === null || x === undefined ? "–" : Number(x).toFixed(digits); }
 function when(t) { return t ? new Date(t * 1000).toLocaleString() : "–"; }
 
-// How far the job is: passes or time, whichever stop comes first (the ETA is
-// the server's, which takes every stop into account).
+// How far the job is, preparation included: the server's fraction, from its
+// ETA, which takes every stop (passes, time, target error) into account.
 function fraction(job) {
   if (job.state === "succeeded") return 1;
-  const p = job.progress, eta = p.eta_seconds;
-  if (eta === null || eta === undefined || !(p.seconds > 0)) return 0;
-  return p.seconds / (p.seconds + eta);
+  return job.progress.fraction || 0;
 }
 
 function scene(job) {
@@ -112,7 +110,8 @@ function render(jobs) {
     const fill = document.createElement("div");
     fill.style.width = percent + "%";
     bar.appendChild(fill);
-    const progress = cell(row, percent + "%");
+    const preparing = job.state === "running" && !job.progress.pass;  // load, atlas, BVH: no ETA yet
+    const progress = cell(row, preparing ? "preparing" : percent + "%");
     progress.prepend(bar);
     cell(row, job.progress.eta_seconds === null || job.progress.eta_seconds === undefined ? "–"
                                                                                      : fmt(job.progress.eta_seconds, 0) + " s");
@@ -253,7 +252,7 @@ if (THREE) {
       if (!node.isMesh) return;
       const original = originals.get(node);
       if (state.mode === "lit") node.material = lightmapOn(original.clone());
-      else if (state.mode === "lightmap") node.material = lightmapOn(white.clone());
+      else if (state.mode === "lightmap") node.material = Object.assign(lightmapOn(white.clone()), { side: original.side });
       else node.material = new THREE.MeshBasicMaterial({ map: errorMap, side: original.side });
     });
     draw();

@@ -261,10 +261,12 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         json data = protocol::to_json(protocol::WorkerEvent(*start));
         data.erase("event");
         data["attempt"] = attempt;
+        u.state.prepare_seconds = start->prepare_seconds;
         u.event = JobEvent{0, "started", data};
     } else if (const auto* progress = std::get_if<protocol::ProgressEvent>(&event)) {
         const std::string output = output_or_only(progress->output, bake);
         Progress p = progress->progress;
+        p.prepare_seconds = state.prepare_seconds;
         if (const auto stop = stop_settings_of(output, bake)) p.eta_seconds = protocol::estimate_eta(*stop, p);
         // Rays are counted per output: each output's totals start again at 0.
         const uint64_t seen = state.rays.count(output) ? state.rays.at(output) : 0;
@@ -295,6 +297,7 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         const auto& done = std::get<protocol::DoneEvent>(event);
         Progress p = done.progress;
         p.eta_seconds = 0.0;
+        p.prepare_seconds = state.prepare_seconds;
         u.progress = p;
         json files = json::array();
         for (const std::string& f : done.files)

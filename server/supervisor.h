@@ -37,6 +37,7 @@ struct AttemptState {
     std::map<std::string, uint64_t> rays;  // output -> rays its progress reported last
     std::map<std::string, int> passes;     // output -> pass its progress reported last
     std::optional<nlohmann::json> done;    // the "done" event's data, once the worker reported done
+    double prepare_seconds = 0.0;          // the start event's: part of every progress's done fraction
 };
 
 // What applying one worker event asks the supervisor to store. Empty parts

@@ -114,6 +114,9 @@ TEST(ProgressLine, ABarWithItsPercentageAndTheEta) {
     EXPECT_EQ(cli::progress_line("3cfd1af2a543", "", p), "3cfd1af2a543  [------------------------]   0%  pass 108");
     p.eta_seconds = 0.0;
     EXPECT_NE(cli::progress_line("3cfd1af2a543", "sh", p).find("[########################] 100%"), std::string::npos);
+    p.eta_seconds = 30.0;
+    p.prepare_seconds = 20.0;  // preparation is done work too: 30 of 60 s
+    EXPECT_NE(cli::progress_line("3cfd1af2a543", "", p).find("[############------------]  50%"), std::string::npos);
 }
 
 TEST_F(RemoteTest, SubmitsAGltfWithItsFiles) {

@@ -798,6 +798,29 @@ TEST(ApplyWorkerEvent, StartBecomesAStartedEventOfTheAttempt) {
     EXPECT_TRUE(u.ignored.empty());
 }
 
+// The job's done fraction counts its preparation: 8 s preparing and 2 s of
+// passes with 2 s left is 10 of 12 s done, not 2 of 4.
+TEST(ApplyWorkerEvent, TheDoneFractionIncludesPreparation) {
+    const protocol::BakeSettings bake = protocol::parse_bake_settings({{"outputs", {{"lightmap", {{"passes", 20}}}}}});
+    protocol::StartEvent start;
+    start.prepare_seconds = 8.0;
+    const server::AttemptUpdate started = server::apply_worker_event({}, start, bake, "job1", 1);
+    protocol::ProgressEvent p{"lightmap", {}};
+    p.progress.pass = 10;
+    p.progress.seconds = 2.0;
+    const server::AttemptUpdate u = server::apply_worker_event(started.state, p, bake, "job1", 1);
+    ASSERT_TRUE(u.progress);
+    EXPECT_DOUBLE_EQ(u.progress->prepare_seconds, 8.0);
+    ASSERT_TRUE(protocol::done_fraction(*u.progress));
+    EXPECT_DOUBLE_EQ(*protocol::done_fraction(*u.progress), 10.0 / 12.0);
+    EXPECT_DOUBLE_EQ(protocol::to_json(*u.progress)["fraction"].get<double>(), 10.0 / 12.0);
+    protocol::DoneEvent done;
+    done.progress = p.progress;
+    const server::AttemptUpdate finished = server::apply_worker_event(u.state, done, bake, "job1", 1);
+    EXPECT_DOUBLE_EQ(*protocol::done_fraction(*finished.progress), 1.0);
+    EXPECT_FALSE(protocol::done_fraction(protocol::Progress{})) << "no fraction claimed before the ETA is known";
+}
+
 TEST(ApplyWorkerEvent, ProgressGetsTheEtaOfItsOwnOutputAndCountsRaysPerOutput) {
     const protocol::BakeSettings bake = lightmap_and_sh();
     protocol::ProgressEvent p{"lightmap", {}};
