@@ -6,6 +6,7 @@
 #include "atlas/atlas.h"
 #include "atlas/seams.h"
 #include "atlas/texel_samples.h"
+#include "bake/double_sided.h"
 #include "bake/radiosity_map_baker.h"
 #include "io/image_files.h"
 #include "io/reference_error.h"
@@ -392,6 +393,57 @@ TEST(RadiosityMap, PathTracingBaselineConvergesInTheFurnace) {
     settings.scheme = RadiosityScheme::PathTracing;
     const BakeResult r = bake(s, res, 64, settings);
     EXPECT_NEAR(mean_covered(r, "R"), 5.0, 0.02 * 5.0);
+}
+
+// A room of double-sided walls exported with their fronts facing out (as the
+// staircase's back rooms are): baked as given, every wall is black inside
+// (its texels face the void); turned to face the scene
+// (face_double_sided_charts_to_the_scene), the walls carry the same light as
+// the same room built facing in, and a free-standing double-sided panel in
+// the room (both sides in the scene) keeps its front.
+TEST(RadiosityMap, DoubleSidedWallsFacingOutAreBakedForTheRoom) {
+    const int res = 64, passes = 96;
+    auto room = [&](bool facing_out) {
+        Scene s;
+        const uint32_t wall = test::add_material(s, glm::vec3(0.5f), glm::vec3(0.0f), true);
+        const uint32_t light = test::add_material(s, glm::vec3(0.0f), glm::vec3(10.0f));
+        const glm::vec3 o(-1.0f), X(2, 0, 0), Y(0, 2, 0), Z(0, 0, 2);
+        const glm::vec3 walls[6][3] = {{o, Z, X}, {o + Y, X, Z}, {o, X, Y}, {o + Z, Y, X}, {o, Y, Z}, {o + X, Z, Y}};
+        int cell = 0;
+        for (const auto& w : walls)  // inward: cross(u, v) points into the room
+            if (facing_out) test::add_quad(s, w[0], w[2], w[1], wall, grid_cell(cell++, 3, res));
+            else test::add_quad(s, w[0], w[1], w[2], wall, grid_cell(cell++, 3, res));
+        test::add_quad(s, {-0.25f, 0.95f, -0.25f}, {0.5f, 0, 0}, {0, 0, 0.5f}, light, grid_cell(cell++, 3, res));
+        test::add_quad(s, {-0.5f, -1.0f, 0.0f}, {0, 1.2f, 0}, {1.0f, 0, 0}, wall, grid_cell(cell++, 3, res));
+        return s;
+    };
+    auto wall_mean = [](const BakeResult& r) {  // texels on the six walls (|coordinate| = 1)
+        double sum = 0.0;
+        size_t n = 0;
+        for (size_t i = 0; i < r.texels.covered_count(); ++i) {
+            const glm::vec3 p = r.texels.samples[r.texels.first_sample[i]].position;
+            if (std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)}) < 0.999f) continue;
+            sum += r.image.at("R")[r.texels.texels[i]];
+            ++n;
+        }
+        return sum / double(n);
+    };
+    gpu();
+    Scene inward = room(false);
+    EXPECT_EQ(face_double_sided_charts_to_the_scene(inward, Tracer(inward)).charts, 0u);
+    const double expected = wall_mean(bake(inward, res, passes));
+    ASSERT_GT(expected, 0.01);
+
+    Scene outward = room(true);
+    EXPECT_LT(wall_mean(bake(outward, res, passes)), 0.01 * expected) << "as given, the walls face the void";
+    const TurnedCharts turned = face_double_sided_charts_to_the_scene(outward, Tracer(outward));
+    EXPECT_EQ(turned.charts, 6u) << "the six walls, not the panel (both its sides see the room) nor the light";
+    EXPECT_EQ(turned.triangles, 12u);
+    ASSERT_EQ(outward.triangle_turned.size(), outward.triangles.size());
+    EXPECT_EQ(std::count(outward.triangle_turned.begin(), outward.triangle_turned.end(), 1), 12);
+    const double turned_mean = wall_mean(bake(outward, res, passes));
+    std::printf("  wall mean: built facing in %.4f, facing out and turned %.4f\n", expected, turned_mean);
+    EXPECT_NEAR(turned_mean / expected, 1.0, 0.03);
 }
 
 // A sealed box with the only light outside: nothing inside may be lit.

@@ -212,13 +212,16 @@ int add_float_accessor(tinygltf::Model& model, const VertexAttribute& attribute,
 
 // The instance's triangles as glTF indices local to the primitive, in the
 // file's own winding: the loader turned mirrored nodes' triangles around to
-// make them counter-clockwise in world space; turning them back restores it.
+// make them counter-clockwise in world space, and the bake may have turned
+// double-sided ones to face the scene; turning them back restores it.
 int add_index_accessor(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst) {
     std::vector<unsigned char> bytes(size_t(inst.triangle_count) * 3 * sizeof(uint32_t));
     uint32_t max_index = 0;
     for (uint32_t i = 0; i < inst.triangle_count; ++i) {
-        glm::uvec3 tri = scene.triangles[inst.first_triangle + i] - glm::uvec3(inst.first_vertex);
-        if (inst.mirrored) std::swap(tri.y, tri.z);
+        const size_t t = inst.first_triangle + i;
+        glm::uvec3 tri = scene.triangles[t] - glm::uvec3(inst.first_vertex);
+        const bool turned = !scene.triangle_turned.empty() && scene.triangle_turned[t];
+        if (inst.mirrored != turned) std::swap(tri.y, tri.z);
         max_index = std::max({max_index, tri.x, tri.y, tri.z});
         std::memcpy(&bytes[size_t(i) * 12], &tri, 12);
     }

@@ -1,6 +1,7 @@
 #include "bake/bake_job.h"
 
 #include "atlas/atlas.h"
+#include "bake/double_sided.h"
 #include "atlas/lightmapped_gltf.h"
 #include "bake/prepared_scene.h"
 #include "bake/probes_method.h"
@@ -10,6 +11,7 @@
 #include "io/image_files.h"
 #include "scene/gltf_loader.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
@@ -58,7 +60,7 @@ void check_bake_memory(const std::string& name, int width, int height) {
 }
 
 // The lightmap atlas on a copy of the scene (a generated atlas splits
-// vertices; per-vertex outputs keep the input's), and its texel samples.
+// vertices; per-vertex outputs keep the input's).
 void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
     const std::string name = p.file.filename().string();
     AtlasOptions options;
@@ -74,8 +76,19 @@ void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
             (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")" : ""));
     }
     check_bake_memory(name, p.atlas.width, p.atlas.height);
+}
+
+// The atlas's texels: double-sided charts turned to face the scene first
+// (gi/bake/double_sided.h, with a BVH of their own: turning changes which
+// side the final one calls front), then the texels' sample points.
+void prepare_texels(PreparedScene& p, const protocol::AtlasSettings& settings) {
+    Scene& scene = *p.atlas_scene;
+    const bool any_double_sided =
+        std::any_of(scene.materials.begin(), scene.materials.end(), [](const Material& m) { return m.double_sided; });
+    if (any_double_sided)
+        p.turned = p.timed("double_sided", [&] { return face_double_sided_charts_to_the_scene(scene, Tracer(scene)); });
     p.texels = p.timed("texel_samples", [&] {
-        return rasterize_texel_samples(*p.atlas_scene, p.atlas.width, p.atlas.height, settings.subsamples);
+        return rasterize_texel_samples(scene, p.atlas.width, p.atlas.height, settings.subsamples);
     });
 }
 
@@ -91,6 +104,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
                              "environment was given (give a uniform sky with --env R,G,B)");
     if (needs_atlas(s)) prepare_atlas(*p, s.atlas);
     p->gpu = p->timed("gpu", [&] { return std::make_unique<GpuContext>(job.device); });
+    if (p->atlas_scene) prepare_texels(*p, s.atlas);
     p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->atlas_scene ? *p->atlas_scene : p->scene); });
     return p;
 }
@@ -204,7 +218,9 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
          {{"seconds", prepared->prepare_seconds},
           {"outputs", nlohmann::json::array()},
           {"triangles", started.triangles},
-          {"atlas_generated", prepared->atlas.generated}}},
+          {"atlas_generated", prepared->atlas.generated},
+          {"double_sided_charts_turned", prepared->turned.charts},
+          {"double_sided_triangles_turned", prepared->turned.triangles}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
     for (const auto& m : methods) {

@@ -5,6 +5,7 @@
 
 #include "atlas/atlas.h"
 #include "atlas/texel_samples.h"
+#include "bake/double_sided.h"
 #include "gpu/context.h"
 #include "scene/scene.h"
 #include "trace/tracer.h"
@@ -26,6 +27,7 @@ struct PreparedScene {
     // triangles, their order and positions are the scene's): per-texel methods.
     std::optional<Scene> atlas_scene;
     AtlasReport atlas;
+    TurnedCharts turned;  // double-sided charts baked for their back, which faces the scene
     TexelSamples texels;
     std::unique_ptr<GpuContext> gpu;
     // One BVH for every method. Built from atlas_scene when there is one:

@@ -105,6 +105,10 @@ struct Scene {
     // already undone) and material index.
     std::vector<glm::uvec3> triangles;
     std::vector<uint32_t> triangle_material;
+    // Empty, or 1 where the bake turned a double-sided triangle round to face
+    // the scene (lf::face_double_sided_charts_to_the_scene); files written
+    // from the scene keep the input's own winding.
+    std::vector<uint8_t> triangle_turned;
 
     std::vector<PrimitiveInstance> instances;
     std::vector<Material> materials;  // glTF materials, plus a default at the end if any primitive had none
