@@ -36,22 +36,26 @@ def stem(scene):
     return os.path.splitext(os.path.basename(scene))[0]
 
 
-def bake(scene, scheme, res, passes, out_dir, device):
+def bake(scene, scheme, res, passes, out_dir, device, env=None):
+    """`scheme` is a --scheme, or one with "+denoise" (the same bake, --denoise)."""
+    base, _, variant = scheme.partition("+")
     lines = run([LIGHTFARM, "bake", os.path.join(SCENES, scene), "--out", out_dir, "--res", str(res),
-                 "--passes", str(passes), "--scheme", scheme, "--device", device, "--json"]).splitlines()
+                 "--passes", str(passes), "--scheme", base, "--device", device, "--json"]
+                + (["--denoise"] if variant == "denoise" else []) + (["--env", env] if env else [])).splitlines()
     return json.loads(lines[0])
 
 
-def reference_for(scene, res, reference_passes, out, device):
+def reference_for(scene, res, reference_passes, out, device, env=None):
     """(reference EXR, mask or None) to measure a bake of `scene` at `res` against."""
     if scene == "cornell_box.gltf":
         return os.path.join(SCENES, "cornell_box.ref256.exr"), os.path.join(SCENES, "cornell_box.mask256.pfm")
-    d = os.path.join(out, f"{stem(scene)}-reference-{res}")
-    bake(scene, "pathtrace", res, reference_passes, d, device)
+    d = os.path.join(out, f"{stem(scene)}-reference-{res}-{reference_passes}")
+    if not os.path.exists(os.path.join(d, "lightmap.exr")):  # a reference baked before in --out is reused
+        bake(scene, "pathtrace", res, reference_passes, d, device, env)
     return os.path.join(d, "lightmap.exr"), None
 
 
-def bake_and_measure(scene, scheme, res, passes, out, device, reference):
+def bake_and_measure(scene, scheme, res, passes, out, device, reference, env=None):
     """One bake per pass count 1, 2, 4, … passes (the same seed: a bake of k
     passes holds what a longer one held after its pass k), each final file
     measured: the snapshots a bake writes follow a time budget, not the
@@ -61,11 +65,13 @@ def bake_and_measure(scene, scheme, res, passes, out, device, reference):
     counts = [1 << k for k in range(passes.bit_length()) if 1 << k < passes] + [passes]
     for count in counts:
         d = os.path.join(out, f"{stem(scene)}-{scheme}-{res}-{count}")
-        start = bake(scene, scheme, res, count, d, device)
+        start = bake(scene, scheme, res, count, d, device, env)
         f = os.path.join(d, "lightmap.exr")
         e = json.loads(run([LIGHTFARM, "compare", f, ref_exr] + (["--mask", mask] if mask else [])))
+        # A denoised bake's time includes the filter's (upload, filter, read back).
         rows.append({"scene": stem(scene), "scheme": scheme, "res": res, "pass": int(e["pass"]), "rays": int(e["rays"]),
-                     "seconds": e["seconds"], "relative_rmse": e["relative_rmse"], "bias": e["bias"],
+                     "seconds": e["seconds"] + e.get("denoiseSeconds", 0.0), "relative_rmse": e["relative_rmse"],
+                     "bias": e["bias"],
                      "error_estimate": e["errorEstimate"], "renderer": start["renderer"]})
     return rows
 
@@ -84,7 +90,7 @@ def plot(csv_path, png_path, series, scene):
         "set xlabel 'bake seconds'",
         "set ylabel '%s'" % ("relative RMSE vs Cycles (32768 spp)" if scene == "cornell_box.gltf"
                              else "relative RMSE vs lightfarm path tracing"),
-        f"set title '{stem(scene)}'",
+        f"set title '{stem(scene)}' noenhanced",
         "set key outside right",
         "set grid",
     ]
@@ -105,7 +111,10 @@ def main():
     p.add_argument("--scene", default="cornell_box.gltf", help="a file in shared/scenes")
     p.add_argument("--reference-passes", type=int, default=4096, help="path-tracing passes of a reference")
     p.add_argument("--res", type=int, nargs="+", default=[64, 128, 256, 512])
-    p.add_argument("--schemes", nargs="+", default=["epochs", "thesis"])
+    p.add_argument("--schemes", nargs="+", default=["epochs", "thesis"],
+                   help="--scheme values; SCHEME+denoise bakes the same with --denoise")
+    p.add_argument("--env", help="a uniform sky R,G,B for scenes lit through windows")
+    p.add_argument("--tag", default="", help="appended to the CSV and chart names")
     p.add_argument("--passes", type=int, default=1024)
     p.add_argument("--device", default="auto")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "out"))
@@ -113,17 +122,17 @@ def main():
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
     name = stem(a.scene)
-    csv_path = os.path.join(a.out, f"{name}_error_vs_time.csv")
-    png_path = os.path.join(a.out, f"{name}_error_vs_time.png")
+    csv_path = os.path.join(a.out, f"{name}_error_vs_time{a.tag}.csv")
+    png_path = os.path.join(a.out, f"{name}_error_vs_time{a.tag}.png")
     series = [(s, r) for r in a.res for s in a.schemes]
     if a.plot_only:
         plot(csv_path, png_path, series, a.scene)
         return
     rows = []
     for res in a.res:
-        reference = reference_for(a.scene, res, a.reference_passes, a.out, a.device)
+        reference = reference_for(a.scene, res, a.reference_passes, a.out, a.device, a.env)
         for scheme in a.schemes:
-            rows += bake_and_measure(a.scene, scheme, res, a.passes, a.out, a.device, reference)
+            rows += bake_and_measure(a.scene, scheme, res, a.passes, a.out, a.device, reference, a.env)
             print(f"{scheme} {res}²: {rows[-1]}", file=sys.stderr)
     with open(csv_path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))

@@ -190,7 +190,8 @@ int compare(int argc, char** argv) {
                           {"bias", e.bias},
                           {"reference_mean", e.reference_mean},
                           {"texels", e.texels}};
-    for (const char* key : {"lightfarm.pass", "lightfarm.rays", "lightfarm.seconds", "lightfarm.errorEstimate"}) {
+    for (const char* key : {"lightfarm.pass", "lightfarm.rays", "lightfarm.seconds", "lightfarm.errorEstimate",
+                            "lightfarm.denoiseSeconds"}) {
         auto it = bake.number_attributes.find(key);
         if (it != bake.number_attributes.end()) out[std::string(key).substr(10)] = it->second;
     }

@@ -78,6 +78,8 @@ std::vector<Setting> build_catalog() {
         choice("lightmap", "light_sampling", {"mis", "area", "solid-angle"},
                "emitter sampling: MIS of solid angle and cosine rays, area alone, solid angle alone"),
         typed("lightmap", "stitch", T::Flag, true, "least-squares stitch of UV seams"),
+        typed("lightmap", "denoise", T::Flag, false,
+              "edge-aware filter of the final lightmap (RGB; the raw result stays in layer raw.)"),
 
         with_auto(integer("sh", "sh_bands", 4, 1, 4, "", "SH bands (auto: fewest within 2% of 4 bands)")),
         integer("sh", "sh_bounces", 0, 0, 4, "", "interreflection bounces (0: shadowed transfer)"),
@@ -369,8 +371,8 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     b.atlas.subsamples = atlas["subsamples"].get<int>();
     if (outputs.contains("lightmap")) {
         const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
-        b.lightmap =
-            LightmapSettings{stop_from(l, ""), l["scheme"], l["light_samples"], l["light_sampling"], l["stitch"]};
+        b.lightmap = LightmapSettings{stop_from(l, ""),    l["scheme"], l["light_samples"],
+                                      l["light_sampling"], l["stitch"], l["denoise"]};
     }
     if (outputs.contains("sh")) {
         const json s = settings_of_group("sh", outputs["sh"], limits);
@@ -409,10 +411,14 @@ json to_json(const BakeSettings& b) {
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
     if (const auto& l = b.lightmap)
-        j["outputs"]["lightmap"] = {
-            {"passes", l->stop.passes}, {"target_error", l->stop.target_error}, {"time_limit", l->stop.time_limit},
-            {"scheme", l->scheme},      {"light_samples", l->light_samples},    {"light_sampling", l->light_sampling},
-            {"stitch", l->stitch}};
+        j["outputs"]["lightmap"] = {{"passes", l->stop.passes},
+                                    {"target_error", l->stop.target_error},
+                                    {"time_limit", l->stop.time_limit},
+                                    {"scheme", l->scheme},
+                                    {"light_samples", l->light_samples},
+                                    {"light_sampling", l->light_sampling},
+                                    {"stitch", l->stitch},
+                                    {"denoise", l->denoise}};
     if (const auto& s = b.sh)
         j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)},
                               {"sh_bounces", s->bounces},

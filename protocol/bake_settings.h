@@ -106,6 +106,7 @@ struct LightmapSettings {
     int light_samples = 1;
     std::string light_sampling = "mis";
     bool stitch = true;
+    bool denoise = false;  // measured: docs/BENCHMARKS.md "Denoising"
 };
 
 struct ShSettings {

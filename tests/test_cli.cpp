@@ -317,6 +317,25 @@ TEST(CliBake, LightmapAndShShareOnePreparation) {
     for (const fs::path& d : {both, lightmap, sh}) fs::remove_all(d);
 }
 
+// --denoise: RGB filtered, the raw bake kept as raw.R/G/B (the same as a bake
+// without --denoise, bit for bit), the filter's time in the header.
+TEST(CliBake, DenoiseKeepsTheRawBake) {
+    const fs::path raw = fresh_dir("raw"), denoised = fresh_dir("denoised");
+    const std::string common = " --res 64 --passes 8 --seed 3";
+    ASSERT_EQ(
+        run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + raw.string() + common).exit_code,
+        0);
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + denoised.string() +
+                                   common + " --denoise");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const FloatImage a = read_exr(raw / "lightmap.exr"), b = read_exr(denoised / "lightmap.exr");
+    EXPECT_EQ(b.at("raw.R"), a.at("R"));
+    EXPECT_NE(b.at("R"), a.at("R"));
+    EXPECT_GT(b.number_attributes.at("lightfarm.denoiseSeconds"), 0.0);
+    EXPECT_FALSE(a.channels.count("raw.R"));
+    for (const fs::path& d : {raw, denoised}) fs::remove_all(d);
+}
+
 // The Khronos glTF validator (npm gltf-validator, which the scripts install
 // into web/) on each file; its JSON lines in `report`. True when no file has
 // an error.

@@ -7,6 +7,7 @@
 #include "atlas/seams.h"
 #include "atlas/texel_samples.h"
 #include "bake/double_sided.h"
+#include "bake/lightmap_denoiser.h"
 #include "bake/radiosity_map_baker.h"
 #include "io/image_files.h"
 #include "io/reference_error.h"
@@ -444,6 +445,70 @@ TEST(RadiosityMap, DoubleSidedWallsFacingOutAreBakedForTheRoom) {
     const double turned_mean = wall_mean(bake(outward, res, passes));
     std::printf("  wall mean: built facing in %.4f, facing out and turned %.4f\n", expected, turned_mean);
     EXPECT_NEAR(turned_mean / expected, 1.0, 0.03);
+}
+
+// The denoiser (--denoise) on the furnace, where every texel has the same
+// answer: the raw map's texel-to-texel spread is noise, and filtering must
+// cut it by more than half without moving the mean (a filter that averages
+// within charts keeps a flat answer where it was), keeping the raw map.
+TEST(LightmapDenoiser, CutsTheFurnacesNoiseAndKeepsItsMean) {
+    const int res = 48;
+    const Scene s = furnace(0.8f, 1.0f, res);
+    BakeResult r = bake(s, res, 64);
+    auto spread_and_mean = [&](const char* channel) {
+        double sum = 0.0, sq = 0.0;
+        for (uint32_t t : r.texels.texels) {
+            sum += r.image.at(channel)[t];
+            sq += double(r.image.at(channel)[t]) * r.image.at(channel)[t];
+        }
+        const double n = double(r.texels.covered_count()), mean = sum / n;
+        return std::pair{std::sqrt(std::max(0.0, sq / n - mean * mean)) / mean, mean};
+    };
+    const auto [raw_spread, raw_mean] = spread_and_mean("R");
+    LightmapDenoiser(s, r.texels).denoise(r.image);
+    const auto [spread, mean] = spread_and_mean("R");
+    const auto [kept_spread, kept_mean] = spread_and_mean("raw.R");
+    std::printf("  furnace, 64 passes: relative spread raw %.4f, denoised %.4f; mean %.4f -> %.4f\n", raw_spread,
+                spread, raw_mean, mean);
+    EXPECT_LT(spread, 0.5 * raw_spread);
+    EXPECT_NEAR(mean / raw_mean, 1.0, 0.002);
+    EXPECT_EQ(kept_spread, raw_spread);
+    EXPECT_EQ(kept_mean, raw_mean);
+}
+
+// Two charts side by side in the atlas, on one plane, equally noisy, one at
+// 1 and one at 3: the filter's 61-texel footprint spans both, and the
+// luminance weight alone would let them mix (exp(-2 / (4 x 0.5)) = 0.37);
+// the chart guard keeps each exactly what it was.
+TEST(LightmapDenoiser, NeverMixesCharts) {
+    gpu();
+    const int width = 32, height = 16;
+    Scene scene;
+    const uint32_t m = test::add_material(scene, glm::vec3(0.5f));
+    test::add_quad(scene, {0, 0, 0}, {0, 0, 1.6f}, {1.6f, 0, 0}, m);     // triangles 0, 1: chart A
+    test::add_quad(scene, {1.6f, 0, 0}, {0, 0, 1.6f}, {1.6f, 0, 0}, m);  // triangles 2, 3: chart B
+    TexelSamples texels;
+    texels.width = width;
+    texels.height = height;
+    FloatImage image;
+    image.width = width;
+    image.height = height;
+    for (int y = 0; y < height; ++y)
+        for (int x = 0; x < width; ++x) {
+            const bool b = x >= width / 2;
+            texels.texels.push_back(uint32_t(y * width + x));
+            texels.first_sample.push_back(uint32_t(texels.samples.size()));
+            texels.samples.push_back({glm::vec3(0.1f * float(x), 0.0f, 0.1f * float(y)), glm::vec3(0, 1, 0),
+                                      glm::vec3(0, 1, 0), b ? 2u : 0u, glm::vec2(0.0f)});
+            texels.texel_world_size.push_back(0.1f);
+            for (const char* c : {"R", "G", "B"}) image.channel(c)[size_t(y * width + x)] = b ? 3.0f : 1.0f;
+            image.channel("error")[size_t(y * width + x)] = 0.5f;
+        }
+    texels.first_sample.push_back(uint32_t(texels.samples.size()));
+    LightmapDenoiser(scene, texels).denoise(image);
+    for (int y = 0; y < height; ++y)
+        for (int x = 0; x < width; ++x)
+            ASSERT_NEAR(image.at("R")[size_t(y * width + x)], x >= width / 2 ? 3.0f : 1.0f, 1e-5f) << x << ", " << y;
 }
 
 // A sealed box with the only light outside: nothing inside may be lit.

@@ -632,9 +632,16 @@ double utilisation(const Scene& scene, int width, int height) {
     return double(std::count(mask.begin(), mask.end(), uint8_t(1))) / (double(width) * double(height));
 }
 
-// Islands of triangles connected through shared vertex indices (a glTF
-// exporter splits vertices at UV seams, so these are the UV charts).
 size_t count_uv_islands(const Scene& scene) {
+    const std::vector<uint32_t> island = uv_island_of_triangle(scene);
+    std::vector<uint8_t> is_island(scene.positions.size(), 0);
+    for (uint32_t i : island) is_island[i] = 1;
+    return size_t(std::count(is_island.begin(), is_island.end(), uint8_t(1)));
+}
+
+}  // namespace
+
+std::vector<uint32_t> uv_island_of_triangle(const Scene& scene) {
     std::vector<uint32_t> parent(scene.positions.size());
     std::iota(parent.begin(), parent.end(), 0u);
     auto find = [&](uint32_t x) {
@@ -645,12 +652,10 @@ size_t count_uv_islands(const Scene& scene) {
         parent[find(t.y)] = find(t.x);
         parent[find(t.z)] = find(t.x);
     }
-    std::vector<uint8_t> is_root(parent.size(), 0);
-    for (const glm::uvec3& t : scene.triangles) is_root[find(t.x)] = 1;
-    return size_t(std::count(is_root.begin(), is_root.end(), uint8_t(1)));
+    std::vector<uint32_t> island(scene.triangles.size());
+    for (size_t t = 0; t < island.size(); ++t) island[t] = find(scene.triangles[t].x);
+    return island;
 }
-
-}  // namespace
 
 // ---------------------------------------------------------------------------
 

@@ -67,6 +67,12 @@ AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& op
 // Builds the charts (about a second for 260k triangles), packs ~14 times.
 int smallest_atlas_resolution(const Scene& scene, const AtlasOptions& options = {});
 
+// Islands of triangles connected through shared vertex indices, per
+// triangle (the island's id is one of its vertices). These are the lightmap's
+// charts: a generated atlas splits vertices on chart borders, and a glTF
+// exporter splits them on UV seams.
+std::vector<uint32_t> uv_island_of_triangle(const Scene& scene);
+
 // TEXCOORD_1 when every primitive has it, else a generated atlas.
 AtlasReport prepare_lightmap_atlas(Scene& scene, const AtlasOptions& options);
 

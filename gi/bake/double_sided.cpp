@@ -1,11 +1,11 @@
 #include "bake/double_sided.h"
 
+#include "atlas/atlas.h"
 #include "trace/ray_reference.h"
 
 #include <glm/gtc/constants.hpp>
 
 #include <algorithm>
-#include <numeric>
 #include <random>
 
 namespace lf {
@@ -20,23 +20,6 @@ constexpr int kRaysPerSide = 4;     // cosine rays from each point, on each side
 // its front: a wall of a closed room scores about 1 inside and 0 outside; a
 // free-standing panel about the same on both sides, and keeps its front.
 constexpr float kClearMargin = 0.25f;
-
-// Charts: triangles joined by shared vertices (union-find over vertices).
-std::vector<uint32_t> chart_of_triangle(const Scene& scene) {
-    std::vector<uint32_t> parent(scene.positions.size());
-    std::iota(parent.begin(), parent.end(), 0u);
-    const auto root = [&](uint32_t v) {
-        while (parent[v] != v) v = parent[v] = parent[parent[v]];
-        return v;
-    };
-    for (const glm::uvec3& t : scene.triangles) {
-        parent[root(t.y)] = root(t.x);
-        parent[root(t.z)] = root(t.x);
-    }
-    std::vector<uint32_t> chart(scene.triangles.size());
-    for (size_t t = 0; t < chart.size(); ++t) chart[t] = root(scene.triangles[t].x);
-    return chart;
-}
 
 glm::vec3 cosine_direction(const glm::vec3& n, float u1, float u2) {
     const float r = std::sqrt(u1), phi = 2.0f * glm::pi<float>() * u2;
@@ -108,7 +91,7 @@ void turn_chart_triangles(Scene& scene, const std::vector<uint32_t>& chart, cons
 
 TurnedCharts face_double_sided_charts_to_the_scene(Scene& scene, const Tracer& tracer) {
     TurnedCharts report;
-    const std::vector<uint32_t> chart = chart_of_triangle(scene);
+    const std::vector<uint32_t> chart = uv_island_of_triangle(scene);
     const ChartRays batch = rays_of_double_sided_charts(scene, chart);
     if (batch.charts.empty()) return report;
     const std::vector<RayHit> hits = tracer.trace(batch.rays);

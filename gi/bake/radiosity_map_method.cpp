@@ -56,6 +56,7 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
       baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer, radiosity_settings(settings)),
       seams_(smooth_seams(*prepared.atlas_scene)),
       stitch_(settings.lightmap->stitch) {
+    if (settings.lightmap->denoise) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
     const RadiosityMapSettings r = radiosity_settings(settings);
     const AtlasReport& atlas = prepared.atlas;
     settings_json_ = {
@@ -72,6 +73,7 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
         {"light_sampling", to_string(r.light_sampling)},
         {"subsamples_per_texel", settings.atlas.subsamples * settings.atlas.subsamples},
         {"stitch", settings.lightmap->stitch},
+        {"denoise", settings.lightmap->denoise},
         {"seed", r.seed},
         {"max_passes", stop_.max_passes},
         {"target_error", stop_.target_error},
@@ -86,12 +88,15 @@ nlohmann::json RadiosityMapMethod::description() const {
             {"settings", settings_json_}};
 }
 
-FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback) const {
+FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback,
+                                              const LightmapDenoiser* denoiser) const {
     FloatImage image = baker_.image(readback);
+    if (denoiser) denoiser->denoise(image);
     image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;
     image.string_attributes["lightfarm.settings"] = settings_json_.dump();
     if (stitch_ && !seams_.empty()) {
-        for (const char* layer : {"", "direct.", "indirect."}) {
+        for (const char* layer : {"", "direct.", "indirect.", "raw."}) {
+            if (!image.channels.count(std::string(layer) + "R")) continue;
             std::vector<glm::vec4> rgb = image_layer(image, layer);
             stitch_seams(seams_, rgb, image.width, image.height);
             set_image_layer(image, layer, rgb);
@@ -113,8 +118,11 @@ SnapshotWrite RadiosityMapMethod::snapshot(const std::filesystem::path& dir, con
 }
 
 MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
-    const FloatImage image =
-        last_snapshot_pass_ == stats.pass ? std::move(last_snapshot_) : stitched_image(baker_.read_back());
+    // The final file is the last snapshot when it shows the last pass (and
+    // nothing is filtered: snapshots are not; the filter needs the GL thread).
+    const FloatImage image = last_snapshot_pass_ == stats.pass && !denoiser_
+                                 ? std::move(last_snapshot_)
+                                 : stitched_image(baker_.read_back(), denoiser_ ? &*denoiser_ : nullptr);
     write_exr(dir / "lightmap.exr", image);
     MethodResult result;
     result.files = {"lightmap.exr"};
@@ -129,7 +137,9 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
          {{"edges", seams_.size()},
           {"metric", seam_metric(seams_, image_layer(image, ""), image.width, image.height)}}},
         {"files",
-         {{"lightmap.exr", "final lightmap: RGB = irradiance/pi, layers direct, indirect, samples, error"},
+         {{"lightmap.exr", denoiser_ ? "final lightmap: RGB = irradiance/pi, denoised; layers raw (as baked), "
+                                       "direct, indirect, samples, error"
+                                     : "final lightmap: RGB = irradiance/pi, layers direct, indirect, samples, error"},
           {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
     };
     return result;

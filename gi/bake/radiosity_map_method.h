@@ -4,11 +4,13 @@
 #pragma once
 
 #include "atlas/seams.h"
+#include "bake/lightmap_denoiser.h"
 #include "bake/prepared_scene.h"
 #include "bake/progressive.h"
 #include "bake/radiosity_map_baker.h"
 #include "bake_settings.h"
 
+#include <optional>
 #include <vector>
 
 namespace lf {
@@ -26,8 +28,10 @@ public:
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
 
 private:
-    // The baker's image with the job's attributes, seams stitched.
-    FloatImage stitched_image(const RadiosityMapBaker::Readback& readback) const;
+    // The baker's image with the job's attributes, seams stitched; with
+    // `denoiser`, filtered before stitching (the filter stops at chart borders).
+    FloatImage stitched_image(const RadiosityMapBaker::Readback& readback,
+                              const LightmapDenoiser* denoiser = nullptr) const;
 
     const PreparedScene& prepared_;
     StopRule stop_;
@@ -35,6 +39,7 @@ private:
     RadiosityMapBaker baker_;
     std::vector<SeamEdge> seams_;  // smooth seams only (measured even when not stitched)
     bool stitch_ = true;
+    std::optional<LightmapDenoiser> denoiser_;  // with --denoise
     // The last snapshot's image (set on the writer thread; finish() runs
     // after the writer drained): the final image when the bake stops on a
     // snapshot's pass.
