@@ -50,6 +50,7 @@ inline constexpr const char* kStatusPage = R"html(<!doctype html>
     <label><input type="radio" name="view3d-mode" value="lit" checked> lit</label>
     <label><input type="radio" name="view3d-mode" value="lightmap"> lightmap only</label>
     <label><input type="radio" name="view3d-mode" value="error"> per-texel error</label>
+    <label>· or open a <code>scene.lit.glb</code>: <input type="file" id="view3d-file" accept=".glb"></label>
     <span id="view3d-status" class="muted"></span>
   </p>
   <div id="view3d-canvas"></div>
@@ -95,7 +96,12 @@ function render(jobs) {
   for (const job of jobs) {
     const row = document.createElement("tr");
     row.className = "job" + (job.id === selected ? " selected" : "");
-    row.onclick = () => { selected = job.id; shownFilesOf = null; render(jobs); };
+    row.onclick = () => {
+      selected = job.id;
+      shownFilesOf = null;
+      if (window.lightfarmView) window.lightfarmView.state.file = null;  // back from an opened file
+      render(jobs);
+    };
     cell(row, job.id.slice(0, 12)).title = job.id;
     cell(row, scene(job));
     cell(row, job.state).className = job.state;
@@ -194,7 +200,7 @@ setInterval(refresh, 2000);
 // white, or the per-texel error. window.lightfarmView.state is what a test
 // reads: the job and pass shown, frames drawn, and any error.
 const status = document.getElementById("view3d-status");
-const state = { job: null, pass: null, mode: "lit", frames: 0, ready: false, error: null };
+const state = { job: null, pass: null, mode: "lit", frames: 0, ready: false, error: null, file: null };
 let THREE, GLTFLoader, OrbitControls;
 try {
   THREE = await import("three");
@@ -247,11 +253,13 @@ if (THREE) {
 
   function applyMode() {
     if (!model || !lightmap) return;
+    if (state.file && state.mode === "error") status.textContent = "a file has no per-texel error: lit or lightmap only";
     document.getElementById("view3d-legend").style.display = state.mode === "error" ? "block" : "none";
     model.traverse((node) => {
       if (!node.isMesh) return;
       const original = originals.get(node);
-      if (state.mode === "lit") node.material = lightmapOn(original.clone());
+      if (state.mode === "error" && !errorMap) node.material = original;
+      else if (state.mode === "lit") node.material = lightmapOn(original.clone());
       else if (state.mode === "lightmap") node.material = Object.assign(lightmapOn(white.clone()), { side: original.side });
       else node.material = new THREE.MeshBasicMaterial({ map: errorMap, side: original.side });
     });
@@ -328,7 +336,54 @@ if (THREE) {
     state.ready = true;
   }
 
+  // A scene.lit.glb opened from disk: its MOZ_lightmap read as the README
+  // says (the texture, texCoord, intensity x the RGBM range), shown until a
+  // job row is clicked.
+  class MozLightmap {
+    constructor(parser) { this.parser = parser; this.name = "MOZ_lightmap"; }
+    extendMaterialParams(index, params) {
+      const ext = (this.parser.json.materials[index].extensions || {}).MOZ_lightmap;
+      if (!ext) return Promise.resolve();
+      this.found = ext;
+      return this.parser.assignTexture(params, "lightMap", { index: ext.index, texCoord: ext.texCoord });
+    }
+  }
+  async function openFile(file) {
+    status.textContent = "opening " + file.name + "…";
+    let plugin = null;
+    const loader = new GLTFLoader().register((parser) => (plugin = new MozLightmap(parser)));
+    const gltf = await loader.parseAsync(await file.arrayBuffer(), "");
+    if (!plugin || !plugin.found) throw new Error(file.name + " has no MOZ_lightmap: not a scene.lit.glb");
+    const extras = plugin.found.extras || {};
+    if (extras.encoding !== "RGBM") throw new Error(file.name + ": lightmap encoding " + extras.encoding + ", not RGBM");
+    if (model) world.remove(model);
+    model = gltf.scene;
+    originals = new Map();
+    lightmap = null;
+    model.traverse((node) => {
+      if (!node.isMesh) return;
+      originals.set(node, node.material);
+      if (node.material.lightMap) lightmap = node.material.lightMap;
+    });
+    lightmap.colorSpace = THREE.NoColorSpace;
+    if (errorMap) errorMap.dispose();
+    errorMap = null;
+    range = (plugin.found.intensity / Math.PI) * extras.rgbm_range;  // lightmapOn multiplies by pi
+    world.add(model);
+    frame(gltf);
+    state.file = file.name;
+    state.job = null;
+    state.pass = null;
+    applyMode();
+    status.textContent = file.name + " (its own lightmap) · drag to orbit, scroll to zoom · click a job to go back";
+  }
+  document.getElementById("view3d-file").onchange = (e) => {
+    const file = e.target.files[0];
+    if (file) openFile(file).catch((err) => { state.error = err.message; status.textContent = "3D view: " + err.message; });
+  };
+
   view.show = (job) => {
+    if (state.file) return;  // an opened file stays until a job is clicked
     if (!job.latest || !job.latest.lightmap) {
       status.textContent = "No lightmap snapshot yet.";
       return;

@@ -328,8 +328,9 @@ int run_node(const std::string& script, const std::vector<std::string>& args, st
 // What a studio gets back: scene.lit.glb, downloaded from the service, passes
 // the Khronos validator; the status page's 3D view, in a real headless
 // Chromium, draws the scene lit by the bake in each of its modes (lit,
-// lightmap only, per-texel error) with no console error; three.js is served
-// from the npm install and nothing outside it.
+// lightmap only, per-texel error) and the downloaded scene.lit.glb opened
+// from disk by its own embedded lightmap, with no console error; three.js is
+// served from the npm install and nothing outside it.
 TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
     const std::string id = submit(
         {{"scene", upload_cornell_box()}, {"outputs", {{"lightmap", {{"passes", 32}}}}}, {"atlas", {{"res", 96}}}});
@@ -337,7 +338,8 @@ TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
     ASSERT_EQ(wait_finished(id)["state"], "succeeded");
 
     std::string report;
-    EXPECT_EQ(run_node("validate_gltf.mjs", {download(id, "scene.lit.glb", "studio").string()}, report), 0) << report;
+    const fs::path lit = download(id, "scene.lit.glb", "studio");
+    EXPECT_EQ(run_node("validate_gltf.mjs", {lit.string()}, report), 0) << report;
     auto rgbm = client().Get("/v1/jobs/" + id + "/lightmap.rgbm.png");
     ASSERT_TRUE(rgbm);
     EXPECT_EQ(rgbm->status, 200) << rgbm->body;
@@ -358,7 +360,9 @@ TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
     const fs::path screenshot = tmp.path / "view3d.png";
     const std::string url = "http://" + server->host + ":" + std::to_string(server->port);
     std::string browser;
-    EXPECT_EQ(run_node("status_page_3d.mjs", {url, kToken, id, screenshot.string()}, browser), 0) << browser;
+    EXPECT_EQ(run_node("status_page_3d.mjs", {url, kToken, id, screenshot.string(), lit.string()}, browser), 0)
+        << browser;
+    EXPECT_NE(browser.find("\"file\":{"), std::string::npos) << "the lit glb opened in the view: " << browser;
     EXPECT_GT(fs::exists(screenshot) ? fs::file_size(screenshot) : 0u, 1000u) << browser;
 }
 

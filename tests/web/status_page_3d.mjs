@@ -1,9 +1,11 @@
-// node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png
+// node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png [SCENE.lit.glb]
 // Opens lightfarmd's status page in a real headless Chromium (Debian's
 // /usr/bin/chromium, or $LIGHTFARM_CHROMIUM) driven by playwright-core, selects
 // the job, waits for the 3D view to draw its latest lightmap, switches through
 // the three modes, and checks what a person would see: the canvas drew the
 // scene (its pixels are not one colour), and no error reached the console.
+// With SCENE.lit.glb, also opens that file in the view, as a person would, and
+// checks that it draws by its own embedded lightmap (MOZ_lightmap, RGBM).
 // Saves the lit view to SCREENSHOT.png. Prints one JSON line; exits 1 on any
 // failure, 2 on bad use.
 import { createRequire } from "node:module";
@@ -14,7 +16,7 @@ const here = path.dirname(fileURLToPath(import.meta.url));
 const require = createRequire(path.join(here, "../../web/package.json"));
 const { chromium } = require("playwright-core");
 
-const [url, token, job, screenshot] = process.argv.slice(2);
+const [url, token, job, screenshot, litGlb] = process.argv.slice(2);
 if (!screenshot) {
   console.error("usage: node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png");
   process.exit(2);
@@ -39,11 +41,11 @@ try {
   await page.goto(`${url}/#job=${job}`);
   await page.reload();  // the hash alone does not reload the page
 
-  const drawn = async (mode) => {
-    await page.waitForFunction((m) => {
+  const drawn = async (mode, file = null, after = 0) => {
+    await page.waitForFunction(([m, f, n]) => {
       const v = window.lightfarmView;
-      return v && (v.state.error || (v.state.ready && v.state.mode === m && v.state.frames > 0));
-    }, mode, { timeout: 90_000 });
+      return v && (v.state.error || (v.state.ready && v.state.mode === m && v.state.file === f && v.state.frames > n));
+    }, [mode, file, after], { timeout: 90_000 });
     const state = await page.evaluate(() => ({ ...window.lightfarmView.state }));
     if (state.error) throw new Error("3D view: " + state.error);
     // The canvas's pixels (preserveDrawingBuffer): how many distinct colours.
@@ -63,9 +65,10 @@ try {
       }
       return { distinct: colours.size, scene_fraction: 1 - background / (data.length / 4) };
     });
-    result[mode] = { pass: state.pass, frames: state.frames, ...pixels };
-    if (pixels.distinct < 16) problems.push(`${mode}: the canvas has ${pixels.distinct} colours`);
-    if (pixels.scene_fraction < 0.05) problems.push(`${mode}: the scene covers ${pixels.scene_fraction} of the canvas`);
+    const name = file ? "file" : mode;
+    result[name] = { pass: state.pass, frames: state.frames, ...pixels };
+    if (pixels.distinct < 16) problems.push(`${name}: the canvas has ${pixels.distinct} colours`);
+    if (pixels.scene_fraction < 0.05) problems.push(`${name}: the scene covers ${pixels.scene_fraction} of the canvas`);
   };
 
   await drawn("lit");
@@ -74,6 +77,11 @@ try {
     await drawn(mode);
   }
   await page.locator("#view3d-canvas canvas").screenshot({ path: screenshot });
+  if (litGlb) {
+    const before = await page.evaluate(() => window.lightfarmView.state.frames);
+    await page.setInputFiles("#view3d-file", litGlb);
+    await drawn("lit", path.basename(litGlb), before);
+  }
 } catch (e) {
   problems.push(e.message);
 } finally {
