@@ -78,6 +78,8 @@ std::vector<Setting> build_catalog() {
         choice("lightmap", "light_sampling", {"mis", "area", "solid-angle"},
                "emitter sampling: MIS of solid angle and cosine rays, area alone, solid angle alone"),
         typed("lightmap", "stitch", T::Flag, true, "least-squares stitch of UV seams"),
+        typed("lightmap", "directional", T::Flag, false,
+              "L1 SH per texel too: layers L1x, L1y, L1z for normal-mapped shading"),
         typed("lightmap", "denoise", T::Flag, false,
               "edge-aware filter of the final lightmap (RGB; the raw result stays in layer raw.)"),
 
@@ -371,8 +373,8 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     b.atlas.subsamples = atlas["subsamples"].get<int>();
     if (outputs.contains("lightmap")) {
         const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
-        b.lightmap = LightmapSettings{stop_from(l, ""),    l["scheme"], l["light_samples"],
-                                      l["light_sampling"], l["stitch"], l["denoise"]};
+        b.lightmap = LightmapSettings{stop_from(l, ""), l["scheme"],  l["light_samples"], l["light_sampling"],
+                                      l["stitch"],      l["denoise"], l["directional"]};
     }
     if (outputs.contains("sh")) {
         const json s = settings_of_group("sh", outputs["sh"], limits);
@@ -418,7 +420,8 @@ json to_json(const BakeSettings& b) {
                                     {"light_samples", l->light_samples},
                                     {"light_sampling", l->light_sampling},
                                     {"stitch", l->stitch},
-                                    {"denoise", l->denoise}};
+                                    {"denoise", l->denoise},
+                                    {"directional", l->directional}};
     if (const auto& s = b.sh)
         j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)},
                               {"sh_bounces", s->bounces},

@@ -106,7 +106,8 @@ struct LightmapSettings {
     int light_samples = 1;
     std::string light_sampling = "mis";
     bool stitch = true;
-    bool denoise = false;  // measured: docs/BENCHMARKS.md "Denoising"
+    bool denoise = false;      // measured: docs/BENCHMARKS.md "Denoising"
+    bool directional = false;  // L1 layers (README "Directional lightmaps")
 };
 
 struct ShSettings {

@@ -336,6 +336,22 @@ TEST(CliBake, DenoiseKeepsTheRawBake) {
     for (const fs::path& d : {raw, denoised}) fs::remove_all(d);
 }
 
+// --directional: the L1 layers in lightmap.exr, and the manifest says so.
+TEST(CliBake, DirectionalWritesTheL1Layers) {
+    const fs::path out = fresh_dir("directional");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+                                   " --res 64 --passes 4 --directional");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const FloatImage image = read_exr(out / "lightmap.exr");
+    for (const char* c : {"L1x.R", "L1y.G", "L1z.B"}) EXPECT_NO_THROW(image.at(c)) << c;
+    const auto& y = image.at("L1y.R");
+    EXPECT_GT(*std::max_element(y.begin(), y.end()), 0.0f) << "light from above: the floor's L1 points up";
+    std::ifstream manifest(out / "manifest.json");
+    const std::string text((std::istreambuf_iterator<char>(manifest)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("L1x, L1y, L1z"), std::string::npos);
+    fs::remove_all(out);
+}
+
 // The Khronos glTF validator (npm gltf-validator, which the scripts install
 // into web/) on each file; its JSON lines in `report`. True when no file has
 // an error.

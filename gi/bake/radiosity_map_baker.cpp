@@ -41,6 +41,7 @@ std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityM
         {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
     if (s.scheme == RadiosityScheme::PathTracing) defines.emplace_back("LF_PATH_TRACE", "1");
     if (s.scheme == RadiosityScheme::FinalGather) defines.emplace_back("LF_FINAL_GATHER", "1");
+    if (s.directional) defines.emplace_back("LF_DIRECTIONAL", "1");
     return defines;
 }
 
@@ -120,6 +121,10 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     for (size_t i = 0; i < covered_count_; ++i) albedo[texels.texels[i]] = glm::vec4(texels.albedo[i], 1.0f);
     for (const auto& [to, from] : dilation_) albedo[to] = albedo[from];
     texel_albedo_ = GpuBuffer(albedo);
+    if (settings_.directional) {
+        directional_ = GpuBuffer(3 * covered_count_ * sizeof(glm::vec4));
+        directional_.clear_zero();
+    }
     // Two vec4 per work group of the resolve pass, however it is dispatched.
     error_partials_ = GpuBuffer(2 * std::max<size_t>(1, resolve_.groups_1d(covered_count_)) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
@@ -192,6 +197,7 @@ PassStats RadiosityMapBaker::step() {
     error_partials_.bind(9);
     texel_anchors_.bind(11);
     texel_albedo_.bind(15);
+    if (settings_.directional) directional_.bind(16);
 
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
@@ -248,7 +254,24 @@ PassStats RadiosityMapBaker::step() {
     return stats_;
 }
 
-RadiosityMapBaker::Readback RadiosityMapBaker::read_back() const { return {accumulators_.read<glm::vec4>(), stats_}; }
+// L1x.*, L1y.*, L1z.*: the mean of each texel's L1 sums over its passes.
+void RadiosityMapBaker::add_directional_layers(FloatImage& image, const std::vector<glm::vec4>& sums) const {
+    static const char* const axes[3] = {"L1x.", "L1y.", "L1z."};
+    static const char* const rgb[3] = {"R", "G", "B"};
+    for (int axis = 0; axis < 3; ++axis)
+        for (int c = 0; c < 3; ++c) {
+            std::vector<float>& layer = image.channel(std::string(axes[axis]) + rgb[c]);
+            for (size_t i = 0; i < covered_count_; ++i) {
+                const float passes = sums[3 * i].w;
+                layer[covered_atlas_index_[i]] = passes > 0.0f ? sums[3 * i + size_t(axis)][c] / passes : 0.0f;
+            }
+        }
+}
+
+RadiosityMapBaker::Readback RadiosityMapBaker::read_back() const {
+    return {accumulators_.read<glm::vec4>(),
+            settings_.directional ? directional_.read<glm::vec4>() : std::vector<glm::vec4>{}, stats_};
+}
 
 FloatImage RadiosityMapBaker::image(const Readback& readback) const {
     const std::vector<glm::vec4>& acc = readback.accumulators;
@@ -288,6 +311,7 @@ FloatImage RadiosityMapBaker::image(const Readback& readback) const {
         samples[a] = n;
         error[a] = std::sqrt(var);
     }
+    if (!readback.directional.empty()) add_directional_layers(image, readback.directional);
     for (auto& [name, data] : image.channels)
         for (const auto& [to, from] : dilation_) data[to] = data[from];
     image.number_attributes["lightfarm.pass"] = stats.pass;

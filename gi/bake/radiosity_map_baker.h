@@ -69,6 +69,9 @@ struct RadiosityMapSettings {
     // > 0: a texel whose own relative standard error falls below this stops
     // tracing (adaptive sampling); set from the bake's target error.
     double converged_texel_error = 0.0;
+    // Directional lightmaps: each texel's L1 vector too (image layers L1x,
+    // L1y, L1z; direct_light.glsl's lf_add_directional).
+    bool directional = false;
 };
 
 class RadiosityMapBaker {
@@ -82,7 +85,9 @@ public:
 
     // The current lightmap: RGB = combined, direct.* and indirect.* layers,
     // "samples" (indirect samples behind the value), "error" (standard error
-    // of the texel's value); dilated past chart borders. Uncovered texels are 0.
+    // of the texel's value), with settings.directional the L1x.*, L1y.*,
+    // L1z.* layers (E(n')/pi ~ RGB + L1 . (n' - n), n the texel's normal);
+    // dilated past chart borders. Uncovered texels are 0.
     FloatImage snapshot() const { return image(read_back()); }
 
     // snapshot() in two halves: reading the accumulators back (GL thread),
@@ -90,6 +95,7 @@ public:
     // constructor set).
     struct Readback {
         std::vector<glm::vec4> accumulators;
+        std::vector<glm::vec4> directional;  // 3 per covered texel, with settings.directional
         PassStats stats;
     };
     Readback read_back() const;
@@ -110,6 +116,7 @@ private:
     void relocate_samples_inside_geometry(size_t sample_count);
     void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
     void count_texels_by_geometry();
+    void add_directional_layers(FloatImage& image, const std::vector<glm::vec4>& sums) const;
 
     const Tracer& tracer_;
     RadiosityMapSettings settings_;
@@ -126,6 +133,7 @@ private:
     GpuBuffer sample_points_, covered_, accumulators_, reflected_;
     GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
     GpuBuffer texel_albedo_;  // per atlas texel, dilated: what a final gather's hit reflects
+    GpuBuffer directional_;   // 3 vec4 per covered texel: L1 sums (settings.directional)
 
     PassStats stats_;
     int pass_in_epoch_ = 0;

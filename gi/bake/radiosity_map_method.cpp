@@ -47,6 +47,7 @@ RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) 
         r.background = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     // Adaptive sampling: a texel well below the target stops tracing.
     if (l.stop.target_error > 0.0) r.converged_texel_error = 0.5 * l.stop.target_error;
+    r.directional = l.directional;
     return r;
 }
 
@@ -74,6 +75,7 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
         {"subsamples_per_texel", settings.atlas.subsamples * settings.atlas.subsamples},
         {"stitch", settings.lightmap->stitch},
         {"denoise", settings.lightmap->denoise},
+        {"directional", settings.lightmap->directional},
         {"seed", r.seed},
         {"max_passes", stop_.max_passes},
         {"target_error", stop_.target_error},
@@ -95,7 +97,7 @@ FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback&
     image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;
     image.string_attributes["lightfarm.settings"] = settings_json_.dump();
     if (stitch_ && !seams_.empty()) {
-        for (const char* layer : {"", "direct.", "indirect.", "raw."}) {
+        for (const char* layer : {"", "direct.", "indirect.", "raw.", "L1x.", "L1y.", "L1z."}) {
             if (!image.channels.count(std::string(layer) + "R")) continue;
             std::vector<glm::vec4> rgb = image_layer(image, layer);
             stitch_seams(seams_, rgb, image.width, image.height);
@@ -137,9 +139,10 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
          {{"edges", seams_.size()},
           {"metric", seam_metric(seams_, image_layer(image, ""), image.width, image.height)}}},
         {"files",
-         {{"lightmap.exr", denoiser_ ? "final lightmap: RGB = irradiance/pi, denoised; layers raw (as baked), "
-                                       "direct, indirect, samples, error"
-                                     : "final lightmap: RGB = irradiance/pi, layers direct, indirect, samples, error"},
+         {{"lightmap.exr", std::string("final lightmap: RGB = irradiance/pi") + (denoiser_ ? ", denoised" : "") +
+                               "; layers " + (denoiser_ ? "raw (as baked), " : "") +
+                               "direct, indirect, samples, error" +
+                               (image.channels.count("L1x.R") ? ", L1x, L1y, L1z (directional)" : "")},
           {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
     };
     return result;

@@ -26,6 +26,30 @@ uniform uint punctual_count;
 #define LF_LIGHT_SAMPLING 0
 #endif
 
+// Directional lightmaps (LF_DIRECTIONAL): while lf_directional_on, every
+// irradiance contribution c arriving from direction w at a point of normal n
+// also adds to the texel's L1 vector, so that E(n')/pi ~ E(n)/pi + L1 . (n' - n)
+// for normals n' near n. With c = L cos / pdf, the radiance's L1 SH
+// coefficients are E[L Y_1m / pdf] = E[c Y_1m / cos], and the clamped
+// cosine's band-1 factor 2pi/3 (Ramamoorthi & Hanrahan 2001) turns them into
+// irradiance: L1 = (2pi/3) (0.488603)^2 E[c w / cos] / pi = E[c w / cos] / (2 pi).
+// The cosine is held at 0.05 or more: its inverse has an unbounded (log-
+// divergent) variance at grazing angles, and the light within 3 degrees of
+// the horizon adds almost nothing to a nearby normal's irradiance.
+#ifdef LF_DIRECTIONAL
+bool lf_directional_on = false;
+vec3 lf_directional[3] = vec3[](vec3(0.0), vec3(0.0), vec3(0.0));  // the L1 vector's x, y, z, each RGB
+void lf_add_directional(vec3 irradiance, vec3 w, vec3 n) {
+    if (!lf_directional_on) return;
+    vec3 s = irradiance / (2.0 * PI * max(dot(w, n), 0.05));
+    lf_directional[0] += s * w.x;
+    lf_directional[1] += s * w.y;
+    lf_directional[2] += s * w.z;
+}
+#else
+void lf_add_directional(vec3 irradiance, vec3 w, vec3 n) {}
+#endif
+
 const uint LIGHT_POINT = 0u;
 const uint LIGHT_SPOT = 1u;
 const uint LIGHT_DIRECTIONAL = 2u;
@@ -144,7 +168,9 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
 #endif
     // Stop just short of the light's surface so the light does not occlude itself.
     if (trace_occluded(origin, y - origin, 0.9999)) return vec3(0.0);
-    return le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);
+    vec3 irradiance = le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);
+    lf_add_directional(irradiance, w, n);
+    return irradiance;
 }
 
 // glTF's recommended spot falloff (KHR_lights_punctual): smooth between the cones.
@@ -166,6 +192,7 @@ vec3 punctual_irradiance(vec3 x, vec3 n, vec3 origin, float far) {
             if (cos_x <= 0.0) continue;
             if (trace_occluded(origin, -p1.xyz, far)) continue;
             e += p2.rgb * cos_x;  // intensity is irradiance (W/m²) for directional lights
+            lf_add_directional(p2.rgb * cos_x, -p1.xyz, n);
             continue;
         }
         vec3 d = p0.xyz - x;
@@ -182,6 +209,7 @@ vec3 punctual_irradiance(vec3 x, vec3 n, vec3 origin, float far) {
         if (falloff <= 0.0) continue;
         if (trace_occluded(origin, p0.xyz - origin, 1.0)) continue;
         e += p2.rgb * cos_x * falloff;
+        lf_add_directional(p2.rgb * cos_x * falloff, w, n);
     }
     return e;
 }

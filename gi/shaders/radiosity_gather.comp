@@ -23,6 +23,12 @@ uniform uint pass_in_epoch;   // 0-based; the stratification restarts with each 
 uniform uint seed;
 uniform uint light_samples;   // emitter samples per texel per pass
 
+#ifdef LF_DIRECTIONAL
+// Per covered texel: the running sum of its L1 vector's x, y, z (RGB each;
+// the pass count in the first's w). See lf_add_directional.
+layout(std430, binding = 16) buffer DirectionalAccumulators { vec4 directional_accumulators[]; };
+#endif
+
 // The radiance the hit point y (geometric normal ny, on the ray's side)
 // reflects towards the texel, its emission aside: its direct light sampled
 // as the texels' is (one emitter sample, the punctual lights), times the
@@ -55,9 +61,15 @@ void main() {
     // Direct: eq. 3.12 for the emitters (MIS with the indirect ray below),
     // punctual lights exactly. Stored as E / pi.
     vec3 direct = vec3(0.0);
+#ifdef LF_DIRECTIONAL
+    lf_directional_on = true;  // the texel's own light only, not the hit points' of the final gather
+#endif
     for (uint k = 0u; k < light_samples; ++k)
         direct += sample_emitters(x, n, origin, rng_next2(rng), rng_next2(rng), float(light_samples), true);
     direct += punctual_irradiance(x, n, origin, far);
+#ifdef LF_DIRECTIONAL
+    lf_directional_on = false;
+#endif
 
     // Indirect: eq. 3.7, one cosine-distributed ray. The hit point's emission
     // is left out (the direct term already counts it); what it reflects is
@@ -92,13 +104,28 @@ void main() {
                 float cos_x = dot(n, dir);
                 float cos_y = abs(dot(normalize(hit.normal), dir));
                 float pdf_light = emitter_pdf(hit_emitter_index(hit), x, hit.t * hit.t, cos_y);
-                direct += hit_emission(hit) * cos_x * mis_weight(pdf_light, cos_x / PI, float(light_samples));
+                vec3 e = hit_emission(hit) * cos_x * mis_weight(pdf_light, cos_x / PI, float(light_samples));
+                direct += e;
+#ifdef LF_DIRECTIONAL
+                lf_directional_on = true;
+                lf_add_directional(e, dir, n);
+                lf_directional_on = false;
+#endif
             }
         } else {
             indirect = vec3(0.0);  // the back of a one-sided surface is the inside of something
         }
     }
     direct *= 1.0 / PI;
+#ifdef LF_DIRECTIONAL
+    // The indirect sample: E/pi = L for a cosine ray, so its irradiance is pi L.
+    lf_directional_on = true;
+    lf_add_directional(PI * indirect, dir, n);
+    lf_directional_on = false;
+    directional_accumulators[3u * i] += vec4(lf_directional[0], 1.0);
+    directional_accumulators[3u * i + 1u] += vec4(lf_directional[1], 0.0);
+    directional_accumulators[3u * i + 2u] += vec4(lf_directional[2], 0.0);
+#endif
 
     vec4 acc_direct = accumulators[5u * i];
     vec4 acc_indirect = accumulators[5u * i + 2u];
