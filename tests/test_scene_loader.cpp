@@ -5,6 +5,7 @@
 
 #include "scene/gltf_loader.h"
 #include "scene/scene_summary.h"
+#include "scene_builders.h"
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -854,6 +855,35 @@ void load_or_refuse(const fs::path& file, const std::string& what) {
     } catch (const std::exception& e) {
         ADD_FAILURE() << what << ": " << typeid(e).name() << ": " << e.what();
     }
+}
+
+// One albedo per triangle (what the GPU's hit shading reads) is the
+// texture's mean over the triangle, not one sample at its centroid: a
+// two-texel stripe texture across a triangle, against a dense average.
+TEST(SceneShading, TriangleAlbedoIsTheTexturesMeanOverTheTriangle) {
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(1.0f));
+    s.materials[m].base_color_texture = 0;
+    Texture stripes;
+    stripes.width = 2;
+    stripes.height = 1;
+    stripes.texels = {glm::vec4(0.9f), glm::vec4(0.1f)};
+    s.textures.push_back(stripes);
+    test::add_mesh(s, {{0, 0, 0}, {1, 0, 0}, {1, 0, 1}}, {{0, 1, 2}}, m);
+    s.uv0 = {{0, 0}, {1, 0}, {1, 1}};
+    double dense = 0.0;
+    int n = 0;
+    for (int i = 0; i < 400; ++i)
+        for (int j = 0; i + j < 400; ++j, ++n)
+            dense += s.albedo_at(0, glm::vec2((float(i) + 0.3f) / 400.0f, (float(j) + 0.3f) / 400.0f)).x;
+    dense /= n;
+    const float centroid = s.albedo_at(0, glm::vec2(1.0f / 3.0f)).x;
+    EXPECT_NEAR(s.mean_albedo(0).x, dense, 0.02);
+    EXPECT_GT(std::abs(centroid - dense), 0.05) << "the centroid sample was the old answer, and a wrong one";
+    // Without a texture the mean is the base colour exactly.
+    const uint32_t plain = test::add_material(s, glm::vec3(0.25f, 0.5f, 0.75f));
+    s.triangle_material[0] = plain;
+    EXPECT_EQ(s.mean_albedo(0), glm::vec3(0.25f, 0.5f, 0.75f));
 }
 
 TEST(Robustness, FeatureFileLoads) {

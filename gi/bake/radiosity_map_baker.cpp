@@ -39,7 +39,10 @@ namespace {
 std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityMapSettings& s) {
     std::vector<std::pair<std::string, std::string>> defines = {
         {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
-    if (s.scheme == RadiosityScheme::PathTracing) defines.emplace_back("LF_PATH_TRACE", "1");
+    if (s.scheme == RadiosityScheme::PathTracing) {
+        defines.emplace_back("LF_PATH_TRACE", "1");
+        defines.emplace_back("LF_TEXEL_ALBEDO", "1");  // bound at 15 by every pass
+    }
     if (s.scheme == RadiosityScheme::FinalGather) defines.emplace_back("LF_FINAL_GATHER", "1");
     if (s.directional) defines.emplace_back("LF_DIRECTIONAL", "1");
     return defines;

@@ -25,7 +25,7 @@ SceneShading::SceneShading(const Scene& scene) {
     for (size_t t = 0; t < scene.triangles.size(); ++t) {
         const Material& m = scene.materials[scene.triangle_material[t]];
         if (!m.is_emissive() || scene.triangle_area(t) <= 0.0f) continue;
-        const glm::vec3 radiance = scene.emission_at(t, glm::vec2(1.0f / 3.0f));
+        const glm::vec3 radiance = scene.mean_emission(t);
         const double p = double(scene.triangle_area(t)) * double(channel_mean(radiance)) * (m.double_sided ? 2.0 : 1.0);
         if (p <= 0.0) continue;
         emitter_triangles.push_back(uint32_t(t));
@@ -40,7 +40,7 @@ SceneShading::SceneShading(const Scene& scene) {
         const bool two_sided = scene.materials[scene.triangle_material[t]].double_sided;
         surfaces[kSurfaceVec4s * t] = glm::vec4(scene.uv1[tri.x], scene.uv1[tri.y]);
         surfaces[kSurfaceVec4s * t + 1] = glm::vec4(scene.uv1[tri.z], uint_bits(two_sided ? 1u : 0u), 0.0f);
-        surfaces[kSurfaceVec4s * t + 3] = glm::vec4(scene.albedo_at(t, glm::vec2(1.0f / 3.0f)), 0.0f);
+        surfaces[kSurfaceVec4s * t + 3] = glm::vec4(scene.mean_albedo(t), 0.0f);
     }
 
     std::vector<glm::vec4> emitters;
@@ -50,7 +50,7 @@ SceneShading::SceneShading(const Scene& scene) {
         const glm::uvec3 tri = scene.triangles[t];
         const float area = scene.triangle_area(t);
         const float pdf_choose = float(power[e] / total);
-        const glm::vec3 radiance = scene.emission_at(t, glm::vec2(1.0f / 3.0f));
+        const glm::vec3 radiance = scene.mean_emission(t);
         running += power[e];
         const float cdf = e + 1 == emitter_triangles.size() ? 1.0f : float(running / total);
         emitters.push_back(glm::vec4(scene.positions[tri.x], cdf));

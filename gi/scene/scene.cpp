@@ -84,4 +84,32 @@ glm::vec3 Scene::emission_at(size_t t, glm::vec2 bary) const {
     return emission;
 }
 
+namespace {
+// The centroids of the n² sub-triangles of a triangle cut into n parts per
+// side: equal areas, so their mean is the midpoint rule over the triangle.
+template <class F>
+glm::vec3 triangle_mean(F value_at) {
+    constexpr int n = 4;
+    glm::vec3 sum(0.0f);
+    for (int i = 0; i < n; ++i)
+        for (int j = 0; i + j < n; ++j) {
+            sum += value_at(glm::vec2(float(i) + 1.0f / 3.0f, float(j) + 1.0f / 3.0f) / float(n));  // upright
+            if (i + j + 1 < n) sum += value_at(glm::vec2(float(i) + 2.0f / 3.0f, float(j) + 2.0f / 3.0f) / float(n));
+        }
+    return sum / float(n * n);
+}
+}  // namespace
+
+glm::vec3 Scene::mean_albedo(size_t t) const {
+    const Material& m = materials[triangle_material[t]];
+    if (m.base_color_texture < 0) return glm::vec3(m.base_color);
+    return triangle_mean([&](glm::vec2 bary) { return albedo_at(t, bary); });
+}
+
+glm::vec3 Scene::mean_emission(size_t t) const {
+    const Material& m = materials[triangle_material[t]];
+    if (!m.is_emissive() || m.emissive_texture < 0) return emission_at(t, glm::vec2(1.0f / 3.0f));
+    return triangle_mean([&](glm::vec2 bary) { return emission_at(t, bary); });
+}
+
 }  // namespace lf

@@ -132,6 +132,12 @@ struct Scene {
     // Albedo and emission of triangle t at barycentrics (b1, b2), textures included.
     glm::vec3 albedo_at(size_t t, glm::vec2 bary) const;
     glm::vec3 emission_at(size_t t, glm::vec2 bary) const;
+    // Their means over triangle t (textures averaged by the midpoint rule on
+    // 16 equal sub-triangles; exact without a texture): what one constant per
+    // triangle should be, where one texture sample at the centroid could be
+    // any plank of a wooden floor.
+    glm::vec3 mean_albedo(size_t t) const;
+    glm::vec3 mean_emission(size_t t) const;
 };
 
 }  // namespace lf
