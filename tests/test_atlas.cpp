@@ -121,6 +121,31 @@ TEST(Seams, StitchingNeverWritesANegativeTexel) {
     EXPECT_GT(changed, 0u);
 }
 
+// Signed data (a directional lightmap's L1 components) is stitched without
+// the constraint: a field negative everywhere, whose two sides already agree
+// on every seam, comes back unchanged; with the constraint it would be
+// clamped to 0 at every texel the seams read.
+TEST(Seams, SignedDataIsStitchedWithoutTheNonNegativeConstraint) {
+    const int w = 16, h = 16;
+    std::vector<glm::vec4> image(size_t(w) * h, glm::vec4(-0.5f, -1.0f, 0.25f, 0.0f));
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::vector<SeamEdge> seams;
+    for (int k = 0; k < 20; ++k) {
+        const glm::vec2 a0(u(rng), u(rng)), b0(u(rng), u(rng));
+        seams.push_back({a0, a0 + glm::vec2(0.05f, 0.0f), b0, b0 + glm::vec2(0.0f, 0.05f), true});
+    }
+    std::vector<glm::vec4> signed_image = image, clamped = image;
+    stitch_seams(seams, signed_image, w, h, 8, 0.1f, 64, false);
+    for (const glm::vec4& p : signed_image) {
+        ASSERT_NEAR(p.x, -0.5f, 1e-5f);
+        ASSERT_NEAR(p.y, -1.0f, 1e-5f);
+    }
+    stitch_seams(seams, clamped, w, h);
+    EXPECT_GT(std::count_if(clamped.begin(), clamped.end(), [](const glm::vec4& p) { return p.x == 0.0f; }), 0)
+        << "the default (irradiance) stitch holds negative components at 0";
+}
+
 TEST(Atlas, GeneratedChartsNeitherOverlapNorTouch) {
     Scene s = mixed_scene();
     AtlasOptions options;

@@ -162,7 +162,7 @@ void solve_normal_equations(const std::vector<SeamRow>& rows, const std::vector<
 }  // namespace
 
 void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
-                  int samples_per_edge, float lambda, int iterations) {
+                  int samples_per_edge, float lambda, int iterations, bool non_negative) {
     check_image(image, width, height);
     if (seams.empty() || samples_per_edge <= 0) return;
 
@@ -203,6 +203,7 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
     for (int round = 0; round < kMaxRounds; ++round) {
         solve_normal_equations(rows, original, free_mask, lambda,
                                round == 0 ? iterations : std::max(1, iterations / kLaterRoundDivisor), x);
+        if (!non_negative) break;  // signed data: the unconstrained solution is the answer
         bool held_more = false;
         for (size_t i = 0; i < n; ++i)
             for (int c = 0; c < 4; ++c)
@@ -213,7 +214,8 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
                 }
         if (!held_more) break;
     }
-    for (size_t i = 0; i < n; ++i) x[i] = glm::max(x[i], glm::vec4(0.0f));
+    if (non_negative)
+        for (size_t i = 0; i < n; ++i) x[i] = glm::max(x[i], glm::vec4(0.0f));
     for (size_t i = 0; i < n; ++i) image[pixel_of_unknown[i]] = x[i];
 }
 

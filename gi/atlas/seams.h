@@ -50,11 +50,12 @@ double seam_metric(const std::vector<SeamEdge>& seams, const std::vector<glm::ve
 // minimising
 //     Σ_seam points |A(t) - B(t)|²  +  λ Σ_texels |texel - original|²
 // by conjugate gradients (`iterations` steps; all four channels solved
-// together, independently), subject to texel >= 0 (irradiance is never
-// negative: components that go negative are held at 0 and the rest solved
-// again). Only texels the lookups touch change. Run it after dilation
-// (dilation would overwrite stitched padding texels).
+// together, independently), subject to texel >= 0 when `non_negative`
+// (irradiance is never negative: components that go negative are held at 0
+// and the rest solved again); signed data (a directional lightmap's L1
+// vectors) is stitched without it. Only texels the lookups touch change. Run
+// it after dilation (dilation would overwrite stitched padding texels).
 void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
-                  int samples_per_edge = 8, float lambda = 0.1f, int iterations = 64);
+                  int samples_per_edge = 8, float lambda = 0.1f, int iterations = 64, bool non_negative = true);
 
 }  // namespace lf

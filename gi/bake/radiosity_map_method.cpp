@@ -99,8 +99,9 @@ FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback&
     if (stitch_ && !seams_.empty()) {
         for (const char* layer : {"", "direct.", "indirect.", "raw.", "L1x.", "L1y.", "L1z."}) {
             if (!image.channels.count(std::string(layer) + "R")) continue;
+            const bool irradiance = layer[0] != 'L';  // the L1 vectors' components are signed
             std::vector<glm::vec4> rgb = image_layer(image, layer);
-            stitch_seams(seams_, rgb, image.width, image.height);
+            stitch_seams(seams_, rgb, image.width, image.height, 8, 0.1f, 64, irradiance);
             set_image_layer(image, layer, rgb);
         }
     }
