@@ -111,8 +111,7 @@ void error_colour(double t, unsigned char* rgb) {
 
 constexpr unsigned char kUnknownGrey = 128;
 
-std::vector<unsigned char> error_scale(const LightmapPixels& image, const std::string& path) {
-    if (image.error.empty()) throw std::runtime_error(path + " has no \"error\" channel");
+std::vector<unsigned char> error_scale(const LightmapPixels& image) {
     std::vector<unsigned char> out(image.rgb.size(), 0);
     const double decades = std::log10(kErrorScaleHigh / kErrorScaleLow);
     for (size_t p = 0; p < image.error.size(); ++p) {
@@ -136,25 +135,17 @@ std::string number(double v) {
 
 }  // namespace
 
-Preview render_preview(const std::string& exr_path, PreviewKind kind) {
+std::map<PreviewKind, Preview> render_previews(const std::string& exr_path) {
     const LightmapPixels image = read_lightmap(exr_path);
     const double exposure = automatic_exposure(image);
-    Preview out;
-    out.headers["X-Lightfarm-Exposure"] = number(exposure);
-    switch (kind) {
-    case PreviewKind::Tonemapped:
-        out.png = rgb_png(tonemapped(image, float(exposure)), image.width, image.height, exr_path);
-        break;
-    case PreviewKind::Rgbm: {
-        const protocol::RgbmImage rgbm = protocol::encode_rgbm(image.rgb, image.width, image.height);
-        out.png = protocol::rgbm_png(rgbm);
-        out.headers["X-Lightfarm-Rgbm-Range"] = number(rgbm.range);
-        break;
-    }
-    case PreviewKind::Error:
-        out.png = rgb_png(error_scale(image, exr_path), image.width, image.height, exr_path);
-        break;
-    }
+    std::map<PreviewKind, Preview> out;
+    out[PreviewKind::Tonemapped].png = rgb_png(tonemapped(image, float(exposure)), image.width, image.height, exr_path);
+    const protocol::RgbmImage rgbm = protocol::encode_rgbm(image.rgb, image.width, image.height);
+    out[PreviewKind::Rgbm].png = protocol::rgbm_png(rgbm);
+    out[PreviewKind::Rgbm].headers["X-Lightfarm-Rgbm-Range"] = number(rgbm.range);
+    if (!image.error.empty())
+        out[PreviewKind::Error].png = rgb_png(error_scale(image), image.width, image.height, exr_path);
+    for (auto& [kind, preview] : out) preview.headers["X-Lightfarm-Exposure"] = number(exposure);
     return out;
 }
 

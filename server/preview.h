@@ -20,6 +20,8 @@ struct Preview {
     std::map<std::string, std::string> headers;
 };
 
+// All three kinds from one read of the EXR (a page showing a pass asks for
+// each of them); Error is absent when the file has no "error" channel.
 // Exposure: the geometric mean luminance of the lit texels brought to 0.18
 // (robust to the few very bright texels beside a light). Tonemapped applies
 // it, Reinhard x/(1+x) and the sRGB curve; unlit texels stay black.
@@ -28,7 +30,7 @@ struct Preview {
 // kErrorScaleHigh (red), texels without light black, texels with fewer than
 // 2 samples (no variance yet) grey.
 // Throws std::runtime_error naming the path.
-Preview render_preview(const std::string& exr_path, PreviewKind kind);
+std::map<PreviewKind, Preview> render_previews(const std::string& exr_path);
 
 inline constexpr double kErrorScaleLow = 0.001;
 inline constexpr double kErrorScaleHigh = 1.0;

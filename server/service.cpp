@@ -1340,22 +1340,26 @@ void Service::send_preview(const httplib::Request& req, httplib::Response& res, 
         throw HttpError(404, "job " + job.status.id + " has no artifact " + chosen, {{"id", job.status.id}});
     const std::string source = path.string() + ":" + std::to_string(fs::file_size(path, ec)) + ":" +
                                std::to_string(fs::last_write_time(path, ec).time_since_epoch().count());
-    const std::string key = job.status.id + ":" + std::to_string(int(kind));
-    Preview preview;
+    std::map<PreviewKind, Preview> previews;
     {
         std::lock_guard lock(preview_mutex_);
-        auto it = previews_.find(key);
-        if (it != previews_.end() && it->second.source == source) preview = it->second.preview;
+        auto it = previews_.find(job.status.id);
+        if (it != previews_.end() && it->second.source == source) previews = it->second.previews;
     }
-    if (preview.png.empty()) {
+    if (previews.empty()) {
         try {
-            preview = render_preview(path.string(), kind);
+            previews = render_previews(path.string());
         } catch (const std::exception& e) {
             throw HttpError(500, e.what(), {{"id", job.status.id}});
         }
         std::lock_guard lock(preview_mutex_);
-        previews_[key] = {source, preview};
+        previews_[job.status.id] = {source, previews};
     }
+    const auto found = previews.find(kind);
+    if (found == previews.end())
+        throw HttpError(404, "job " + job.status.id + ": " + chosen + " has no \"error\" channel",
+                        {{"id", job.status.id}});
+    const Preview& preview = found->second;
     res.set_header("X-Lightfarm-Source", chosen);
     res.set_header("X-Lightfarm-Pass", std::to_string(latest->second.pass));
     for (const auto& [name, value] : preview.headers) res.set_header(name.c_str(), value);

@@ -124,11 +124,11 @@ private:
     static constexpr int kListenBacklog = 1024;
 
     struct CachedPreview {
-        std::string source;  // path + size + mtime of the EXR it came from
-        Preview preview;
+        std::string source;                       // path + size + mtime of the EXR it came from
+        std::map<PreviewKind, Preview> previews;  // every kind, made from one read
     };
     std::mutex preview_mutex_;
-    std::map<std::string, CachedPreview> previews_;  // by job id and kind
+    std::map<std::string, CachedPreview> previews_;  // by job id
 };
 
 }  // namespace lf::server
