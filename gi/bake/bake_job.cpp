@@ -220,7 +220,8 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"triangles", started.triangles},
           {"atlas_generated", prepared->atlas.generated},
           {"double_sided_charts_turned", prepared->turned.charts},
-          {"double_sided_triangles_turned", prepared->turned.triangles}}},
+          {"double_sided_triangles_turned", prepared->turned.triangles},
+          {"double_sided_rays", prepared->turned.rays}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
     for (const auto& m : methods) {

@@ -5,7 +5,6 @@
 #include <glm/glm.hpp>
 
 #include <chrono>
-#include <cstring>
 #include <stdexcept>
 
 namespace lf {
@@ -13,12 +12,6 @@ namespace lf {
 namespace {
 
 constexpr uint32_t kNoTexel = 0xffffffffu;  // as lightmap_denoise.comp's NO_TEXEL
-
-float uint_bits(uint32_t v) {
-    float f;
-    std::memcpy(&f, &v, sizeof f);
-    return f;
-}
 
 // Two vec4 per atlas texel: (position, chart bits), (normal, world size),
 // each averaged over the texel's samples (the chart is its first sample's).

@@ -1,17 +1,10 @@
 #include "bake/scene_shading.h"
 
 #include <cmath>
-#include <cstring>
 
 namespace lf {
 
 namespace {
-
-float uint_bits(uint32_t u) {
-    float f;
-    std::memcpy(&f, &u, sizeof f);
-    return f;
-}
 
 float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
@@ -20,6 +13,7 @@ float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 SceneShading::SceneShading(const Scene& scene) {
     // Emissive triangles, chosen in proportion to their power (area x radiance).
     std::vector<uint32_t> emitter_triangles;
+    std::vector<glm::vec3> emitter_radiance;  // each one's mean (a texture average: computed once)
     std::vector<double> power;
     double total = 0.0;
     for (size_t t = 0; t < scene.triangles.size(); ++t) {
@@ -29,6 +23,7 @@ SceneShading::SceneShading(const Scene& scene) {
         const double p = double(scene.triangle_area(t)) * double(channel_mean(radiance)) * (m.double_sided ? 2.0 : 1.0);
         if (p <= 0.0) continue;
         emitter_triangles.push_back(uint32_t(t));
+        emitter_radiance.push_back(radiance);
         power.push_back(p);
         total += p;
     }
@@ -50,7 +45,7 @@ SceneShading::SceneShading(const Scene& scene) {
         const glm::uvec3 tri = scene.triangles[t];
         const float area = scene.triangle_area(t);
         const float pdf_choose = float(power[e] / total);
-        const glm::vec3 radiance = scene.mean_emission(t);
+        const glm::vec3 radiance = emitter_radiance[e];
         running += power[e];
         const float cdf = e + 1 == emitter_triangles.size() ? 1.0f : float(running / total);
         emitters.push_back(glm::vec4(scene.positions[tri.x], cdf));

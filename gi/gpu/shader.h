@@ -5,6 +5,8 @@
 #include <epoxy/gl.h>
 
 #include <cstddef>
+#include <cstdint>
+#include <cstring>
 #include <string>
 #include <utility>
 #include <vector>
@@ -47,6 +49,14 @@ private:
     std::string name_;
     GLint local_size_x_ = 1;
 };
+
+// A uint stored in a float lane of a vec4 buffer, read back in GLSL with
+// floatBitsToUint (flags, indices, chart ids).
+inline float uint_bits(uint32_t u) {
+    float f;
+    std::memcpy(&f, &u, sizeof f);
+    return f;
+}
 
 // A shader storage buffer that owns its GL name.
 class GpuBuffer {
