@@ -211,6 +211,16 @@ try {
   status.textContent = state.error;
 }
 
+// three.js's lightMap is irradiance; the texels are E/pi in RGBM, so the
+// shader multiplies by the alpha and the intensity carries pi * range. A
+// three.js whose lightmap chunk reads otherwise cannot show the bake.
+const fromChunk = "lightMapTexel.rgb * lightMapIntensity";
+if (THREE && !THREE.ShaderChunk.lights_fragment_maps.includes(fromChunk)) {
+  state.error = "this three.js's lightmap shader differs from the one web/package.json pins: cannot decode RGBM";
+  status.textContent = state.error;
+  THREE = null;
+}
+
 const view = { state, show: () => {} };
 window.lightfarmView = view;
 
@@ -229,14 +239,8 @@ if (THREE) {
 
   let model = null, originals = new Map(), lightmap = null, errorMap = null, range = 1, loading = null;
 
-  // three.js's lightMap is irradiance; the texels are E/pi in RGBM, so the
-  // shader multiplies by the alpha and the intensity carries pi * range.
-  const chunk = THREE.ShaderChunk.lights_fragment_maps, from = "lightMapTexel.rgb * lightMapIntensity";
-  if (!chunk.includes(from)) {
-    state.error = "this three.js's lightmap shader differs from the one web/package.json pins: cannot decode RGBM";
-    status.textContent = state.error;
-  }
-  const rgbmChunk = chunk.replace(from, "lightMapTexel.rgb * lightMapTexel.a * lightMapIntensity");
+  const rgbmChunk = THREE.ShaderChunk.lights_fragment_maps.replace(
+      fromChunk, "lightMapTexel.rgb * lightMapTexel.a * lightMapIntensity");
   const decodeRgbm = (shader) => {
     shader.fragmentShader = shader.fragmentShader.replace("#include <lights_fragment_maps>", rgbmChunk);
   };
@@ -258,6 +262,7 @@ if (THREE) {
     model.traverse((node) => {
       if (!node.isMesh) return;
       const original = originals.get(node);
+      if (node.material !== original) node.material.dispose();  // the last pass's or mode's copy
       if (state.mode === "error" && !errorMap) node.material = original;
       else if (state.mode === "lit") node.material = lightmapOn(original.clone());
       else if (state.mode === "lightmap") node.material = Object.assign(lightmapOn(white.clone()), { side: original.side });
@@ -333,6 +338,7 @@ if (THREE) {
       applyMode();
     }
     status.textContent = "pass " + state.pass + (job.state === "succeeded" ? " (final)" : "") + " · drag to orbit, scroll to zoom";
+    state.error = null;  // a failed refresh before this one is behind us
     state.ready = true;
   }
 
