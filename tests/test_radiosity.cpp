@@ -9,6 +9,7 @@
 #include "bake/double_sided.h"
 #include "bake/lightmap_denoiser.h"
 #include "bake/radiosity_map_baker.h"
+#include "bake/surface_textures.h"
 #include "io/image_files.h"
 #include "io/reference_error.h"
 #include "scene/gltf_loader.h"
@@ -18,6 +19,7 @@
 
 #include <cmath>
 #include <functional>
+#include <random>
 
 namespace lf {
 namespace {
@@ -396,6 +398,85 @@ TEST(RadiosityMap, PathTracingBaselineConvergesInTheFurnace) {
     EXPECT_NEAR(mean_covered(r, "R"), 5.0, 0.02 * 5.0);
 }
 
+// The path tracer (the lightmap's reference) reflects the albedo texture
+// where each path lands, not a per-triangle or per-texel average. A floor
+// (2x2 m, two triangles, 10 x 10 texels) is white in its middle square
+// and black elsewhere; a point light 0.5 m above its centre lights mostly the
+// white square. A black ceiling 1 m above receives the light directly and the
+// light the floor reflects, the latter known by quadrature of the floor's
+// radiosity a(y) E(y) with the texture itself (Texture::sample). The floor's
+// mean albedo (0.25) gives 2.5 times less reflected light on the ceiling:
+// the test fails any averaging of the texture over a triangle.
+TEST(RadiosityMap, PathTracerReflectsTexturesWhereThePathsLand) {
+    Scene s;
+    Texture pattern;
+    pattern.width = pattern.height = 64;
+    for (int y = 0; y < 64; ++y)
+        for (int x = 0; x < 64; ++x) {
+            const bool white = x >= 16 && x < 48 && y >= 16 && y < 48;
+            pattern.texels.push_back(glm::vec4(white ? 1.0f : 0.0f, white ? 1.0f : 0.0f, white ? 1.0f : 0.0f, 1.0f));
+        }
+    s.textures.push_back(pattern);
+    const uint32_t floor = test::add_material(s, glm::vec3(1.0f));
+    s.materials[floor].base_color_texture = 0;
+    const uint32_t black = test::add_material(s, glm::vec3(0.0f));
+    const int res = 32;
+    test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, floor, grid_cell(0, 2, res));  // y = 0, facing up
+    for (size_t v = 0; v < 4; ++v) s.uv0[v] = glm::vec2(s.positions[v].x + 1.0f, s.positions[v].z + 1.0f) * 0.5f;
+    test::add_quad(s, {-1, 1, -1}, {2, 0, 0}, {0, 0, 2}, black, grid_cell(1, 2, res));  // y = 1, facing down
+    PunctualLight light;
+    light.position = {0.0f, 0.5f, 0.0f};
+    light.intensity = glm::vec3(1.0f);  // W/sr
+    s.lights.push_back(light);
+
+    // Irradiance/pi at a ceiling point q: direct, and reflected by the floor
+    // (radiance a E / pi, cos·cos/r² = 1/r⁴ between planes 1 m apart),
+    // by the midpoint rule on 256² floor cells.
+    auto ceiling_value = [&](glm::vec3 q, bool mean_albedo) {
+        const float h = 0.5f;  // the light's height over the floor, and under the ceiling
+        const glm::vec3 to_light = light.position - q;
+        const double direct = h / std::pow(double(glm::length(to_light)), 3.0);
+        const int n = 256;
+        const double cell = 2.0 / n;
+        double reflected = 0.0;
+        for (int i = 0; i < n; ++i)
+            for (int k = 0; k < n; ++k) {
+                const double x = -1.0 + (i + 0.5) * cell, z = -1.0 + (k + 0.5) * cell;
+                const double a = mean_albedo ? 0.25 : pattern.sample(glm::vec2((x + 1.0) / 2.0, (z + 1.0) / 2.0)).r;
+                const double e = h / std::pow(x * x + z * z + h * h, 1.5);
+                const double r2 = (x - q.x) * (x - q.x) + (z - q.z) * (z - q.z) + 1.0;
+                reflected += a * e / M_PI / (r2 * r2) * cell * cell;
+            }
+        return std::pair<double, double>(direct / M_PI, reflected / M_PI);
+    };
+
+    RadiosityMapSettings settings;
+    settings.scheme = RadiosityScheme::PathTracing;
+    const BakeResult r = bake(s, res, 256, settings);
+    double baked = 0.0, direct = 0.0, reflected = 0.0, reflected_if_averaged = 0.0;
+    size_t texels = 0;
+    for (size_t i = 0; i < r.texels.covered_count(); ++i) {
+        if (r.texels.samples[r.texels.first_sample[i]].position.y < 0.5f) continue;  // the floor's texels
+        for (uint32_t k = r.texels.first_sample[i]; k < r.texels.first_sample[i + 1]; ++k) {
+            const glm::vec3 q = r.texels.samples[k].position;
+            const auto [d, f] = ceiling_value(q, false);
+            direct += d / r.texels.sample_count(i);
+            reflected += f / r.texels.sample_count(i);
+            reflected_if_averaged += ceiling_value(q, true).second / r.texels.sample_count(i);
+        }
+        baked += r.image.at("R")[r.texels.texels[i]];
+        ++texels;
+    }
+    ASSERT_GT(texels, 10u);
+    const double baked_reflected = (baked - direct) / double(texels);
+    reflected /= double(texels);
+    reflected_if_averaged /= double(texels);
+    std::printf("ceiling's reflected light: baked %.5f, quadrature %.5f, with the mean albedo %.5f\n", baked_reflected,
+                reflected, reflected_if_averaged);
+    ASSERT_GT(reflected / reflected_if_averaged, 2.0) << "the scene must tell texture from mean";
+    EXPECT_NEAR(baked_reflected, reflected, 0.03 * reflected);
+}
+
 // A room of double-sided walls exported with their fronts facing out (as the
 // staircase's back rooms are): baked as given, every wall is black inside
 // (its texels face the void); turned to face the scene
@@ -752,6 +833,76 @@ TEST(RadiosityMap, StitchedSeamsAgreeToTheNoiseFloor) {
 
 // The Cornell box at 256² against Blender Cycles (32768 samples per texel,
 // shared/scenes/SOURCES.md), over the reference's mask.
+// Two quads textured with random colours (37 x 23 texels, odd sizes), one
+// reflecting, one emitting, their texture coordinates reaching outside
+// [0, 1] on both sides (REPEAT).
+Scene randomly_textured_quads() {
+    Scene s;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    Texture t;
+    t.width = 37;
+    t.height = 23;
+    for (int i = 0; i < t.width * t.height; ++i) t.texels.push_back(glm::vec4(u(rng), u(rng), u(rng), 1.0f));
+    s.textures.push_back(t);
+    const uint32_t reflecting = test::add_material(s, glm::vec3(0.9f, 0.5f, 0.7f));
+    s.materials[reflecting].base_color_texture = 0;
+    const uint32_t emitting = test::add_material(s, glm::vec3(0.5f), glm::vec3(3.0f, 2.0f, 1.0f));
+    s.materials[emitting].base_color_texture = 0;
+    s.materials[emitting].emissive_texture = 0;
+    test::add_quad(s, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}, reflecting);
+    test::add_quad(s, {0, 0, 1}, {1, 0, 0}, {0, 1, 0}, emitting);
+    for (size_t v = 0; v < s.uv0.size(); ++v) s.uv0[v] = glm::vec2(3.1f * u(rng) - 1.3f, 2.7f * u(rng) - 1.1f);
+    return s;
+}
+
+// surface_textures.glsl reads albedo and emission as Scene::albedo_at and
+// Scene::emission_at do (the CPU's Texture::sample), at random points of
+// every triangle of randomly_textured_quads and of the staircase (real
+// textures, 262 k triangles), to the half-float texels' precision.
+TEST(SurfaceTextures, GlslMatchesTheSceneOnTheCpu) {
+    gpu();
+    const ComputeProgram program("surface_texture_check.comp");
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    const std::vector<std::pair<std::string, Scene>> scenes = {
+        {"random textures", randomly_textured_quads()},
+        {"staircase", load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf"))}};
+    for (const auto& [name, scene] : scenes) {
+        SCOPED_TRACE(name);
+        const SurfaceTextures textures(scene);
+        size_t textured = 0;
+        for (const Material& m : scene.materials) textured += m.base_color_texture >= 0;
+        ASSERT_GT(textured, 0u);
+        std::vector<glm::vec4> cases;
+        for (int i = 0; i < 4096; ++i) {
+            const uint32_t t = uint32_t(u(rng) * float(scene.triangle_count())) % uint32_t(scene.triangle_count());
+            const float a = u(rng), b = u(rng);
+            const glm::vec2 bary = a + b > 1.0f ? glm::vec2(1.0f - a, 1.0f - b) : glm::vec2(a, b);
+            cases.push_back(glm::vec4(uint_bits(t), bary, 0.0f));
+        }
+        GpuBuffer in(cases), out(2 * cases.size() * sizeof(glm::vec4));
+        textures.bind();
+        in.bind(1);
+        out.bind(2);
+        program.use();
+        glUniform1ui(program.uniform("item_count"), GLuint(cases.size()));
+        program.dispatch_1d(cases.size());
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        const auto got = out.read<glm::vec4>();
+        for (size_t i = 0; i < cases.size(); ++i) {
+            const size_t t = glm::floatBitsToUint(cases[i].x);
+            const glm::vec2 bary(cases[i].y, cases[i].z);
+            const glm::vec3 albedo = scene.albedo_at(t, bary), emission = scene.emission_at(t, bary);
+            for (int c = 0; c < 3; ++c) {
+                // Half floats: 2^-11 relative, and the bilinear weights' float rounding.
+                ASSERT_NEAR(got[2 * i][c], albedo[c], 1e-3f * albedo[c] + 1e-5f) << "triangle " << t;
+                ASSERT_NEAR(got[2 * i + 1][c], emission[c], 1e-3f * emission[c] + 1e-5f) << "triangle " << t;
+            }
+        }
+    }
+}
+
 TEST(RadiosityMap, CornellBoxAgreesWithCyclesReference) {
     const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
     const FloatImage reference = read_exr(test::shared_scene("cornell_box.ref256.exr"));

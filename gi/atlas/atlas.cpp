@@ -17,6 +17,7 @@
 namespace lf {
 namespace {
 
+using atlas_detail::EdgeRef;
 using atlas_detail::SharedEdges;
 using Tri2 = std::array<glm::dvec2, 3>;
 using CornerUVs = std::vector<std::array<glm::vec2, 3>>;  // per triangle, per corner
@@ -64,9 +65,29 @@ TriangleAdjacency triangle_adjacency(size_t triangle_count, const SharedEdges& s
     return adj;
 }
 
-TriangleAdjacency scene_adjacency(const Scene& scene) {
+SharedEdges scene_shared_edges(const Scene& scene) {
     const auto weld = atlas_detail::weld_positions(scene.positions, atlas_detail::weld_tolerance(scene));
-    return triangle_adjacency(scene.triangles.size(), atlas_detail::find_shared_edges(scene.triangles, weld));
+    return atlas_detail::find_shared_edges(scene.triangles, weld);
+}
+
+// The world length of every chart's border: triangle edges that no other
+// triangle of the same chart shares (a chart's outline, and the rims of its holes).
+double chart_border_length(const Scene& scene, const SharedEdges& shared, const std::vector<uint32_t>& triangle_chart) {
+    auto length = [&](EdgeRef e) {
+        const glm::uvec3 t = scene.triangles[e.triangle];
+        return double(glm::distance(scene.positions[t[e.edge]], scene.positions[t[(e.edge + 1) % 3]]));
+    };
+    double border = 0.0;
+    for (uint32_t t = 0; t < scene.triangles.size(); ++t)
+        for (uint32_t k = 0; k < 3; ++k) border += length({t, k});
+    for (size_t g = 0; g < shared.group_count(); ++g)
+        for (uint32_t i = shared.group_start[g]; i < shared.group_start[g + 1]; ++i)
+            for (uint32_t j = shared.group_start[g]; j < shared.group_start[g + 1]; ++j)
+                if (j != i && triangle_chart[shared.edges[j].triangle] == triangle_chart[shared.edges[i].triangle]) {
+                    border -= length(shared.edges[i]);
+                    break;
+                }
+    return std::max(border, 0.0);
 }
 
 // ---------------------------------------------------------------------------
@@ -632,6 +653,24 @@ double utilisation(const Scene& scene, int width, int height) {
     return double(std::count(mask.begin(), mask.end(), uint8_t(1))) / (double(width) * double(height));
 }
 
+double border_fraction(double border_length, double area, double density) {
+    return area > 0.0 && density > 0.0 ? border_length / (2.0 * area * density) : 0.0;
+}
+
+// Options with the texel density chosen from the scene when neither a
+// resolution nor a density is given and max_border_fraction is: the density
+// at which border_fraction is max_border_fraction, the atlas capped at
+// auto_max_resolution. Unchanged otherwise.
+AtlasOptions with_density_from_scene(const AtlasOptions& options, double border_length, double area) {
+    if (options.resolution > 0 || options.texel_density > 0.0f || options.max_border_fraction <= 0.0f ||
+        border_length <= 0.0 || area <= 0.0)
+        return options;
+    AtlasOptions chosen = options;
+    chosen.texel_density = float(border_length / (2.0 * area * double(options.max_border_fraction)));
+    chosen.max_resolution = std::min(options.max_resolution, options.auto_max_resolution);
+    return chosen;
+}
+
 size_t count_uv_islands(const Scene& scene) {
     const std::vector<uint32_t> island = uv_island_of_triangle(scene);
     std::vector<uint8_t> is_island(scene.positions.size(), 0);
@@ -662,15 +701,18 @@ std::vector<uint32_t> uv_island_of_triangle(const Scene& scene) {
 AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     AtlasReport report;
     report.generated = true;
-    const TriangleAdjacency adjacency = scene_adjacency(scene);
-    std::vector<Chart> charts =
-        segment_charts(scene, adjacency, options.max_chart_angle_degrees, report.triangle_chart);
+    const SharedEdges shared = scene_shared_edges(scene);
+    std::vector<Chart> charts = segment_charts(scene, triangle_adjacency(scene.triangles.size(), shared),
+                                               options.max_chart_angle_degrees, report.triangle_chart);
 
     std::vector<Tri2> corners(scene.triangles.size());
     std::vector<ChartShape> shapes(charts.size());
     for (size_t c = 0; c < charts.size(); ++c) shapes[c] = lay_out_chart(scene, charts[c], corners);
 
-    const Packing packing = pack_atlas(shapes, options);
+    const double border = chart_border_length(scene, shared, report.triangle_chart);
+    const AtlasOptions chosen = with_density_from_scene(options, border, total_world_area(scene));
+    report.density_from_scene = chosen.texel_density != options.texel_density;
+    const Packing packing = pack_atlas(shapes, chosen);
     const double w = packing.size, h = packing.size;
     CornerUVs corner_uv(scene.triangles.size());
     for (size_t c = 0; c < charts.size(); ++c) {
@@ -690,13 +732,14 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
 
     report.width = report.height = packing.size;
     report.texel_density = float(packing.density);
+    report.border_fraction = border_fraction(border, total_world_area(scene), packing.density);
     report.charts = charts.size();
     report.utilisation = utilisation(scene, report.width, report.height);
     return report;
 }
 
 int smallest_atlas_resolution(const Scene& scene, const AtlasOptions& options) {
-    const TriangleAdjacency adjacency = scene_adjacency(scene);
+    const TriangleAdjacency adjacency = triangle_adjacency(scene.triangles.size(), scene_shared_edges(scene));
     std::vector<uint32_t> triangle_chart;
     const std::vector<Chart> charts = segment_charts(scene, adjacency, options.max_chart_angle_degrees, triangle_chart);
     std::vector<Tri2> corners(scene.triangles.size());
@@ -719,16 +762,20 @@ int smallest_atlas_resolution(const Scene& scene, const AtlasOptions& options) {
 AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& options) {
     AtlasReport report;
     const double world = total_world_area(scene), uv = total_uv1_area(scene);
+    const double border = chart_border_length(scene, scene_shared_edges(scene), uv_island_of_triangle(scene));
+    const AtlasOptions chosen = with_density_from_scene(options, border, world);
+    report.density_from_scene = chosen.texel_density != options.texel_density;
     int size = kDefaultResolution;
-    if (options.resolution > 0) {
-        size = options.resolution;
-    } else if (options.texel_density > 0.0f && uv > 0.0) {
+    if (chosen.resolution > 0) {
+        size = chosen.resolution;
+    } else if (chosen.texel_density > 0.0f && uv > 0.0) {
         // uv x size² texels cover `world` m² at density²: size = density x sqrt(world / uv).
-        const double wanted = std::ceil(double(options.texel_density) * std::sqrt(world / uv));
-        size = int(std::clamp(wanted, 1.0, double(options.max_resolution)));
+        const double wanted = std::ceil(double(chosen.texel_density) * std::sqrt(world / uv));
+        size = int(std::clamp(wanted, 1.0, double(chosen.max_resolution)));
     }
     report.width = report.height = size;
     report.texel_density = world > 0.0 ? float(std::sqrt(uv * double(size) * double(size) / world)) : 0.0f;
+    report.border_fraction = border_fraction(border, world, report.texel_density);
     report.charts = count_uv_islands(scene);
     report.utilisation = utilisation(scene, size, size);
     return report;

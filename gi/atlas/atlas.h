@@ -37,6 +37,14 @@ struct AtlasOptions {
     int padding = 2;             // empty texels between any two charts
     float max_chart_angle_degrees = 40.0f;  // how far a chart's normals may turn from its first triangle's
     int max_resolution = 8192;              // a density-derived atlas is never larger; the density shrinks instead
+    // With neither resolution nor texel_density: the density at which at most
+    // this fraction of the surface lies within half a texel of a chart
+    // border (AtlasReport::border_fraction), the map's resolution bias being
+    // proportional to it (docs/BENCHMARKS.md, "Resolution from the scene").
+    // The atlas then stays within auto_max_resolution, its density shrinking.
+    // 0: kDefaultAtlasResolution.
+    float max_border_fraction = 0.0f;
+    int auto_max_resolution = 4096;
 };
 
 struct AtlasReport {
@@ -47,6 +55,11 @@ struct AtlasReport {
     double utilisation = 0.0;              // texels touched by some triangle / all texels
     bool generated = false;                // this call wrote Scene::uv1
     std::vector<uint32_t> triangle_chart;  // chart of every triangle (generated atlases only)
+    // The fraction of the surface within half a texel of a chart border,
+    // border length / (2 x area x texel_density): where texels straddle a
+    // crease or a chart's edge and lookups blend across it.
+    double border_fraction = 0.0;
+    bool density_from_scene = false;  // chosen for max_border_fraction
 };
 
 // Builds charts, packs them, splits vertices on chart borders and writes

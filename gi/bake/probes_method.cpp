@@ -50,7 +50,8 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
       settings_(*settings.probes),
       stop_(stop_rule_from(settings.probes->stop)),
       seed_(settings.seed),
-      shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene) {
+      shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
+      surface_textures_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene) {
     if (settings.env.sky)
         background_ = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     positions_ = place(prepared.scene, settings_, &spacing_);
@@ -92,6 +93,7 @@ PassStats ProbesMethod::step() {
     const uint64_t texels = capture_texels(positions_.size(), settings_.res);
     prepared_.tracer->bind();
     shading_.bind();
+    surface_textures_.bind();
     positions_buffer_.bind(12);
     texels_.bind(13);
     rays_.bind(14);

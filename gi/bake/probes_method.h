@@ -15,6 +15,7 @@
 #include "bake/prepared_scene.h"
 #include "bake/progressive.h"
 #include "bake/scene_shading.h"
+#include "bake/surface_textures.h"
 #include "bake_settings.h"
 #include "gpu/shader.h"
 #include "probes/probe_set.h"
@@ -62,7 +63,8 @@ private:
     float spacing_ = 0.0f;  // 0 for explicit points
     std::vector<glm::vec3> positions_;
     SceneShading shading_;
-    ComputeProgram capture_{"probe_capture.comp"};
+    SurfaceTextures surface_textures_;  // paths reflect the textures where they land
+    ComputeProgram capture_{"probe_capture.comp", {{"LF_EXACT_TEXTURES", "1"}}};
     GpuBuffer positions_buffer_, texels_, rays_;
     PassStats stats_;
 };

@@ -41,7 +41,7 @@ std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityM
         {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
     if (s.scheme == RadiosityScheme::PathTracing) {
         defines.emplace_back("LF_PATH_TRACE", "1");
-        defines.emplace_back("LF_TEXEL_ALBEDO", "1");  // bound at 15 by every pass
+        defines.emplace_back("LF_EXACT_TEXTURES", "1");  // the reference reads textures where paths land
     }
     if (s.scheme == RadiosityScheme::FinalGather) defines.emplace_back("LF_FINAL_GATHER", "1");
     if (s.directional) defines.emplace_back("LF_DIRECTIONAL", "1");
@@ -88,6 +88,7 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
       gather_("radiosity_gather.comp", gather_defines(settings)),
       resolve_("radiosity_resolve.comp", resolve_defines(settings)),
       shading_(scene) {
+    if (settings.scheme == RadiosityScheme::PathTracing) surface_textures_.emplace(scene);
     upload_texels(texels);
 }
 
@@ -201,6 +202,7 @@ PassStats RadiosityMapBaker::step() {
     texel_anchors_.bind(11);
     texel_albedo_.bind(15);
     if (settings_.directional) directional_.bind(16);
+    if (surface_textures_) surface_textures_->bind();
 
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();

@@ -6,6 +6,7 @@
 #include "atlas/texel_samples.h"
 #include "bake/progressive.h"
 #include "bake/scene_shading.h"
+#include "bake/surface_textures.h"
 #include "gpu/shader.h"
 #include "io/image_files.h"
 #include "scene/scene.h"
@@ -13,6 +14,7 @@
 
 #include <glm/glm.hpp>
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -130,6 +132,7 @@ private:
     ComputeProgram resolve_;
     ComputeProgram copy_{"copy_texels.comp"};
     SceneShading shading_;
+    std::optional<SurfaceTextures> surface_textures_;  // the path-tracing scheme's exact textures
     GpuBuffer sample_points_, covered_, accumulators_, reflected_;
     GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
     GpuBuffer texel_albedo_;  // per atlas texel, dilated: what a final gather's hit reflects

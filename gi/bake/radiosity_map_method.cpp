@@ -67,6 +67,8 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
          {{"width", atlas.width},
           {"height", atlas.height},
           {"texel_density", atlas.texel_density},
+          {"density_from_scene", atlas.density_from_scene},
+          {"border_fraction", atlas.border_fraction},
           {"generated", atlas.generated},
           {"charts", atlas.charts},
           {"utilisation", atlas.utilisation}}},

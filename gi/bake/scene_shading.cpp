@@ -51,7 +51,8 @@ SceneShading::SceneShading(const Scene& scene) {
         emitters.push_back(glm::vec4(scene.positions[tri.x], cdf));
         emitters.push_back(glm::vec4(scene.positions[tri.y], pdf_choose));
         emitters.push_back(glm::vec4(scene.positions[tri.z], area));
-        emitters.push_back(glm::vec4(radiance, scene.materials[scene.triangle_material[t]].double_sided ? 1.0f : 0.0f));
+        const uint32_t double_sided = scene.materials[scene.triangle_material[t]].double_sided ? 1u : 0u;
+        emitters.push_back(glm::vec4(radiance, uint_bits(t << 1 | double_sided)));
         surfaces[kSurfaceVec4s * t + 1].w = pdf_choose / area;
         surfaces[kSurfaceVec4s * t + 2] = glm::vec4(radiance, uint_bits(uint32_t(e)));
     }

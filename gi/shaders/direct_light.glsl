@@ -7,8 +7,12 @@
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
+#ifdef LF_EXACT_TEXTURES
+#include "surface_textures.glsl"
+#endif
 
-// Emissive triangle e: (v0, cdf), (v1, pdf of choosing it), (v2, area), (radiance, double-sided flag).
+// Emissive triangle e: (v0, cdf), (v1, pdf of choosing it), (v2, area),
+// (mean radiance, bits: scene triangle index << 1 | double-sided).
 layout(std430, binding = 7) readonly buffer Emitters { vec4 emitters[]; };
 // Punctual light l: (position, type), (direction of travel, range), (intensity rgb, cos inner), (cos outer, 0, 0, 0).
 layout(std430, binding = 8) readonly buffer PunctualLights { vec4 punctual_lights[]; };
@@ -139,6 +143,7 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
     uint e = choose_emitter(u_choose.x);
     vec4 a = emitters[4u * e], b = emitters[4u * e + 1u], c = emitters[4u * e + 2u], le = emitters[4u * e + 3u];
     vec3 ny = normalize(cross(b.xyz - a.xyz, c.xyz - a.xyz));
+    uint emitter_bits = floatBitsToUint(le.w);
     vec3 y;
     float omega = 0.0;
 #if LF_LIGHT_SAMPLING != 1
@@ -159,7 +164,7 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
     vec3 w = d * inversesqrt(dist2);
     float cos_x = dot(n, w);
     float cos_y = -dot(ny, w);
-    if (le.w == 0.0 && cos_y <= 0.0) return vec3(0.0);  // one-sided emitters light their front only
+    if ((emitter_bits & 1u) == 0u && cos_y <= 0.0) return vec3(0.0);  // one-sided emitters light their front only
     cos_y = abs(cos_y);
     if (cos_x <= 0.0 || cos_y <= 0.0) return vec3(0.0);
     float pdf_light = omega > 0.0 ? b.w / omega : light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
@@ -168,6 +173,11 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
 #endif
     // Stop just short of the light's surface so the light does not occlude itself.
     if (trace_occluded(origin, y - origin, 0.9999)) return vec3(0.0);
+#ifdef LF_EXACT_TEXTURES
+    // The emission texture where the sample landed (the choice of emitter
+    // follows the mean: any choice density is unbiased).
+    le.rgb = surface_emission(emitter_bits >> 1u, triangle_barycentrics(y, a.xyz, b.xyz, c.xyz));
+#endif
     vec3 irradiance = le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);
     lf_add_directional(irradiance, w, n);
     return irradiance;

@@ -5,6 +5,9 @@
 #define LF_LIGHTMAP_LOOKUP_GLSL
 
 #include "trace.glsl"
+#ifdef LF_EXACT_TEXTURES
+#include "surface_textures.glsl"
+#endif
 
 // Reflected radiance per atlas texel (rgb; w = 1 where a chart's texel or its
 // dilation holds a value, 0 elsewhere), width x height, row 0 at the top.
@@ -13,7 +16,7 @@ layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]
 //   (uv1 of vertex 0, uv1 of vertex 1),
 //   (uv1 of vertex 2, flags bits, area density with which emitter sampling picks its points (0: not an emitter)),
 //   (emitted radiance rgb, emitter index bits (if it emits)),
-//   (albedo rgb at the centroid, 0): for the path-tracing baseline, which reads no map.
+//   (albedo rgb: its mean over the triangle, 0).
 layout(std430, binding = 6) readonly buffer SurfaceTriangles { vec4 surface_triangles[]; };
 
 const uint SURFACE_VEC4S = 4u;
@@ -43,11 +46,27 @@ bool hit_is_double_sided(Hit hit) {
 // Area density of emitter sampling at the hit's triangle (0 if it emits nothing).
 float hit_emitter_area_pdf(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].w; }
 
-vec3 hit_emission(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 2u].rgb; }
+// The radiance the hit point emits: the emitter's mean over its triangle, or
+// under LF_EXACT_TEXTURES its emission texture at the point itself.
+vec3 hit_emission(Hit hit) {
+#ifdef LF_EXACT_TEXTURES
+    return surface_emission(hit.triangle, hit.bary);
+#else
+    return surface_triangles[SURFACE_VEC4S * hit.triangle + 2u].rgb;
+#endif
+}
 
 uint hit_emitter_index(Hit hit) { return floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 2u].w); }
 
-vec3 hit_albedo(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 3u].rgb; }
+// The albedo a path reflects with at the hit: its texture at the point under
+// LF_EXACT_TEXTURES, else the triangle's mean (Scene::mean_albedo).
+vec3 hit_albedo(Hit hit) {
+#ifdef LF_EXACT_TEXTURES
+    return surface_albedo(hit.triangle, hit.bary);
+#else
+    return surface_triangles[SURFACE_VEC4S * hit.triangle + 3u].rgb;
+#endif
+}
 
 uint atlas_index(int x, int y) {
     return uint(clamp(y, 0, int(atlas_size.y) - 1)) * atlas_size.x + uint(clamp(x, 0, int(atlas_size.x) - 1));

@@ -15,13 +15,9 @@ vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint ray
     for (int bounce = 0; bounce < 64; ++bounce) {
         vec3 ny = normalize(hit.front ? hit.normal : -hit.normal);  // the side the path arrived on
         vec3 y = offset_ray_origin(origin + hit.t * dir, ny);
-#ifdef LF_TEXEL_ALBEDO
-        // The albedo the map's own texels reflect with (textures averaged per
-        // texel): the path tracer and the map then model the same surfaces.
-        throughput *= hit_texel_albedo(hit);
-#else
-        throughput *= hit_albedo(hit);  // the triangle's mean (Scene::mean_albedo)
-#endif
+        // Under LF_EXACT_TEXTURES (the lightmap's path-tracing reference, the
+        // probes) the albedo texture at the hit point itself.
+        throughput *= hit_albedo(hit);
         float keep = max(throughput.r, max(throughput.g, throughput.b));
         if (keep <= 0.0) break;
         vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);

@@ -35,4 +35,15 @@ vec2 sample_triangle(vec2 u) {
     return vec2(1.0 - s, u.y * s);
 }
 
+// Barycentrics (b1, b2) of a point p in the plane of triangle (a, b, c):
+// p = (1 - b1 - b2) a + b1 b + b2 c.
+vec2 triangle_barycentrics(vec3 p, vec3 a, vec3 b, vec3 c) {
+    vec3 e1 = b - a, e2 = c - a, d = p - a;
+    float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
+    float d1 = dot(d, e1), d2 = dot(d, e2);
+    float det = d11 * d22 - d12 * d12;
+    if (det <= 0.0) return vec2(1.0 / 3.0);
+    return clamp(vec2(d22 * d1 - d12 * d2, d11 * d2 - d12 * d1) / det, 0.0, 1.0);
+}
+
 #endif

@@ -1,0 +1,34 @@
+// The scene's materials and textures on the GPU, for shaders that read albedo
+// and emission at the exact point a ray lands (gi/shaders/surface_textures.glsl,
+// LF_EXACT_TEXTURES): the path tracer that serves as the lightmap's reference,
+// and the probes' capture. Methods that only read the lightmap do not need it.
+#pragma once
+
+#include "gpu/shader.h"
+#include "scene/scene.h"
+
+#include <cstddef>
+
+namespace lf {
+
+class SurfaceTextures {
+public:
+    explicit SurfaceTextures(const Scene& scene);
+
+    // Binds the two buffers at the bindings surface_textures.glsl declares.
+    void bind() const;
+
+    // Bytes the textures take on the GPU (half-float RGBA texels).
+    size_t texture_bytes() const { return texture_bytes_; }
+
+    // Textures wider or taller than this are halved (2x2 box) until they fit:
+    // a bake's texels are centimetres, a 4096 texture's sub-millimetre, and
+    // a studio's 16k textures would not fit in the GPU's memory.
+    static constexpr int kMaxTextureSide = 4096;
+
+private:
+    GpuBuffer texcoords_, materials_;
+    size_t texture_bytes_ = 0;
+};
+
+}  // namespace lf

@@ -1,0 +1,21 @@
+#version 450 core
+// Runs gi/shaders/surface_textures.glsl on inputs from the tests
+// (tests/test_radiosity.cpp), to compare with Scene::albedo_at and
+// Scene::emission_at: cases[i] = (triangle bits, b1, b2, 0) ->
+// results[2i] = albedo, results[2i + 1] = emission.
+layout(local_size_x = 64) in;
+
+#include "surface_textures.glsl"
+
+layout(std430, binding = 1) readonly buffer Cases { vec4 cases[]; };
+layout(std430, binding = 2) writeonly buffer Results { vec4 results[]; };
+
+uniform uint item_count;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    if (i >= item_count) return;
+    uint triangle = floatBitsToUint(cases[i].x);
+    results[2u * i] = vec4(surface_albedo(triangle, cases[i].yz), 0.0);
+    results[2u * i + 1u] = vec4(surface_emission(triangle, cases[i].yz), 0.0);
+}
