@@ -111,7 +111,8 @@ std::vector<Setting> build_catalog() {
 
         with_auto(
             integer("atlas", "res", 0, 1, 16384, "res",
-                    "atlas width and height in texels (auto: the file's TEXCOORD_1 at 256, or from texel_density)")),
+                    "atlas width and height in texels (auto: from texel_density, or from the scene's charts and the "
+                    "lightmap's target error, at least 256)")),
         with_auto(
             number("atlas", "texel_density", 0, 0, true, 1e4, "", "texels per metre of surface (auto: from res)")),
         integer("atlas", "subsamples", 2, 1, 8, "", "sample points per texel along each axis"),

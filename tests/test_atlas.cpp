@@ -210,6 +210,69 @@ TEST(Atlas, DensityTooHighForTheResolutionShrinks) {
     EXPECT_GT(report.texel_density, 1.0f);
 }
 
+// A unit cube's faces are its six charts (90° apart): 24 m of chart border
+// over 6 m², so at d texels per metre the surface within half a texel of a
+// border is 24 / (2 · 6 · d) = 2 / d of it.
+TEST(Atlas, BorderFractionOfACubeIsTwoOverTheDensity) {
+    Scene s;
+    test::add_box(s, glm::vec3(0.0f), glm::vec3(1.0f), test::add_material(s, glm::vec3(0.5f)));
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 64});
+    ASSERT_EQ(report.charts, 6u);
+    EXPECT_NEAR(report.border_fraction, 2.0 / report.texel_density, 1e-6 * report.border_fraction);
+    EXPECT_FALSE(report.density_from_scene);
+}
+
+// With neither a resolution nor a density, the density follows the scene:
+// the one at which the border fraction is the one asked for (the cube: 2 /
+// 0.05 = 40 texels/m), twice as fine for half the fraction, but never
+// coarser than the default atlas filled; a given resolution or density still
+// wins, and the cap holds (the fraction then reported as it is, above the
+// one asked for).
+TEST(Atlas, DensityFromTheSceneMeetsTheBorderFraction) {
+    Scene cube;
+    test::add_box(cube, glm::vec3(0.0f), glm::vec3(1.0f), test::add_material(cube, glm::vec3(0.5f)));
+    Scene a = cube;
+    const AtlasReport r = generate_lightmap_uvs(a, {.max_border_fraction = 0.002f});
+    EXPECT_TRUE(r.density_from_scene);
+    EXPECT_NEAR(r.texel_density, 1000.0f, 1e-2f);
+    EXPECT_NEAR(r.border_fraction, 0.002, 1e-8);
+    EXPECT_GT(r.width, kDefaultAtlasResolution);
+
+    Scene m1 = mixed_scene(), m2 = mixed_scene();
+    const AtlasReport coarse = generate_lightmap_uvs(m1, {.max_border_fraction = 0.01f});
+    const AtlasReport fine = generate_lightmap_uvs(m2, {.max_border_fraction = 0.005f});
+    ASSERT_TRUE(coarse.density_from_scene);
+    EXPECT_NEAR(coarse.border_fraction, 0.01, 1e-7);
+    EXPECT_NEAR(fine.texel_density / coarse.texel_density, 2.0f, 1e-4f);
+    EXPECT_GT(fine.width, coarse.width);
+
+    // A fraction the default atlas already meets: the default atlas, filled.
+    Scene lax = cube, plain = cube;
+    const AtlasReport at_default = generate_lightmap_uvs(lax, {.max_border_fraction = 0.5f});
+    const AtlasReport reference = generate_lightmap_uvs(plain, {});
+    EXPECT_FALSE(at_default.density_from_scene);
+    EXPECT_EQ(at_default.width, kDefaultAtlasResolution);
+    EXPECT_EQ(at_default.texel_density, reference.texel_density);
+    EXPECT_LT(at_default.border_fraction, 0.5);
+
+    Scene given = cube;
+    const AtlasReport fixed = generate_lightmap_uvs(given, {.resolution = 64, .max_border_fraction = 0.002f});
+    EXPECT_FALSE(fixed.density_from_scene);
+    EXPECT_EQ(fixed.width, 64);
+
+    Scene capped = mixed_scene();
+    const AtlasReport cap = generate_lightmap_uvs(capped, {.max_border_fraction = 1e-5f, .auto_max_resolution = 512});
+    EXPECT_EQ(cap.width, 512);
+    EXPECT_GT(cap.border_fraction, 1e-5);
+
+    // A file's own TEXCOORD_1: its islands are the charts.
+    const Scene cornell = load_scene(kScenes / "cornell_box.gltf");
+    const AtlasReport own = use_existing_lightmap_uvs(cornell, {.max_border_fraction = 0.005f});
+    EXPECT_TRUE(own.density_from_scene);
+    EXPECT_GT(own.width, kDefaultAtlasResolution);
+    EXPECT_NEAR(own.border_fraction, 0.005, 0.02 * 0.005);  // the side rounds up to whole texels
+}
+
 // The smallest resolution an upload's generated atlas fits: every smaller
 // one is refused by the atlas itself, that one is not. A triangle 1e30 m wide
 // (finite, so the loader takes it) packs nowhere and is answered with 0, not

@@ -571,6 +571,38 @@ Packing pack_atlas(const std::vector<ChartShape>& shapes, const AtlasOptions& op
     return *packing;
 }
 
+double border_fraction(double border_length, double area, double density) {
+    return area > 0.0 && density > 0.0 ? border_length / (2.0 * area * density) : 0.0;
+}
+
+// Options with the texel density chosen from the scene when neither a
+// resolution nor a density is given and max_border_fraction is: the density
+// at which border_fraction is max_border_fraction, the atlas capped at
+// auto_max_resolution. Unchanged otherwise.
+AtlasOptions with_density_from_scene(const AtlasOptions& options, double border_length, double area) {
+    if (options.resolution > 0 || options.texel_density > 0.0f || options.max_border_fraction <= 0.0f ||
+        border_length <= 0.0 || area <= 0.0)
+        return options;
+    AtlasOptions chosen = options;
+    chosen.texel_density = float(border_length / (2.0 * area * double(options.max_border_fraction)));
+    chosen.max_resolution = std::min(options.max_resolution, options.auto_max_resolution);
+    return chosen;
+}
+
+// pack_atlas, the density chosen from the scene where with_density_from_scene
+// chooses one and it is finer than the default atlas filled: an auto atlas
+// is never coarser than kDefaultResolution² (sets from_scene when finer).
+Packing pack_atlas_for_scene(const std::vector<ChartShape>& shapes, const AtlasOptions& options, double border_length,
+                             double area, bool& from_scene) {
+    const AtlasOptions chosen = with_density_from_scene(options, border_length, area);
+    from_scene = false;
+    if (chosen.texel_density == options.texel_density) return pack_atlas(shapes, options);
+    auto filled = pack_at_resolution(shapes, kDefaultResolution, std::max(0, options.padding), 0.0);
+    if (filled && filled->density >= chosen.texel_density) return *filled;
+    from_scene = true;
+    return pack_atlas(shapes, chosen);
+}
+
 // ---------------------------------------------------------------------------
 // Writing UVs: a vertex has one UV1, so a vertex used by triangles of several
 // charts is split into one copy per chart.
@@ -653,24 +685,6 @@ double utilisation(const Scene& scene, int width, int height) {
     return double(std::count(mask.begin(), mask.end(), uint8_t(1))) / (double(width) * double(height));
 }
 
-double border_fraction(double border_length, double area, double density) {
-    return area > 0.0 && density > 0.0 ? border_length / (2.0 * area * density) : 0.0;
-}
-
-// Options with the texel density chosen from the scene when neither a
-// resolution nor a density is given and max_border_fraction is: the density
-// at which border_fraction is max_border_fraction, the atlas capped at
-// auto_max_resolution. Unchanged otherwise.
-AtlasOptions with_density_from_scene(const AtlasOptions& options, double border_length, double area) {
-    if (options.resolution > 0 || options.texel_density > 0.0f || options.max_border_fraction <= 0.0f ||
-        border_length <= 0.0 || area <= 0.0)
-        return options;
-    AtlasOptions chosen = options;
-    chosen.texel_density = float(border_length / (2.0 * area * double(options.max_border_fraction)));
-    chosen.max_resolution = std::min(options.max_resolution, options.auto_max_resolution);
-    return chosen;
-}
-
 size_t count_uv_islands(const Scene& scene) {
     const std::vector<uint32_t> island = uv_island_of_triangle(scene);
     std::vector<uint8_t> is_island(scene.positions.size(), 0);
@@ -710,9 +724,8 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     for (size_t c = 0; c < charts.size(); ++c) shapes[c] = lay_out_chart(scene, charts[c], corners);
 
     const double border = chart_border_length(scene, shared, report.triangle_chart);
-    const AtlasOptions chosen = with_density_from_scene(options, border, total_world_area(scene));
-    report.density_from_scene = chosen.texel_density != options.texel_density;
-    const Packing packing = pack_atlas(shapes, chosen);
+    const Packing packing =
+        pack_atlas_for_scene(shapes, options, border, total_world_area(scene), report.density_from_scene);
     const double w = packing.size, h = packing.size;
     CornerUVs corner_uv(scene.triangles.size());
     for (size_t c = 0; c < charts.size(); ++c) {
@@ -764,7 +777,6 @@ AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& op
     const double world = total_world_area(scene), uv = total_uv1_area(scene);
     const double border = chart_border_length(scene, scene_shared_edges(scene), uv_island_of_triangle(scene));
     const AtlasOptions chosen = with_density_from_scene(options, border, world);
-    report.density_from_scene = chosen.texel_density != options.texel_density;
     int size = kDefaultResolution;
     if (chosen.resolution > 0) {
         size = chosen.resolution;
@@ -772,6 +784,9 @@ AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& op
         // uv x size² texels cover `world` m² at density²: size = density x sqrt(world / uv).
         const double wanted = std::ceil(double(chosen.texel_density) * std::sqrt(world / uv));
         size = int(std::clamp(wanted, 1.0, double(chosen.max_resolution)));
+        // From the scene: never coarser than the default (see pack_atlas_for_scene).
+        report.density_from_scene = chosen.texel_density != options.texel_density && size > kDefaultResolution;
+        if (chosen.texel_density != options.texel_density) size = std::max(size, kDefaultResolution);
     }
     report.width = report.height = size;
     report.texel_density = world > 0.0 ? float(std::sqrt(uv * double(size) * double(size) / world)) : 0.0f;

@@ -59,13 +59,31 @@ void check_bake_memory(const std::string& name, int width, int height) {
                          " available; bake at --res " + std::to_string(fits) + " or less (or a lower --texel-density)");
 }
 
+// With neither a resolution nor a texel density, the atlas takes its density
+// from the scene (AtlasOptions::max_border_fraction): the radiosity map's
+// bias against the path tracer grows with the share of the surface within
+// half a texel of a chart border, measured at 1.0-1.8% per unit of that
+// share (monkey at 64² and 128², the staircase at 384², the Cornell box at
+// 256²; docs/BENCHMARKS.md, "Resolution from the scene"). The atlas keeps
+// the bias below the lightmap's target error, or 1% without one.
+constexpr double kBiasPerBorderFraction = 0.02;
+constexpr double kDefaultResolutionBias = 0.01;
+
+AtlasOptions atlas_options(const protocol::BakeSettings& s) {
+    AtlasOptions options;
+    options.resolution = s.atlas.res.value_or(0);
+    options.texel_density = float(s.atlas.texel_density.value_or(0.0));
+    const double target =
+        s.lightmap && s.lightmap->stop.target_error > 0.0 ? s.lightmap->stop.target_error : kDefaultResolutionBias;
+    options.max_border_fraction = float(target / kBiasPerBorderFraction);
+    return options;
+}
+
 // The lightmap atlas on a copy of the scene (a generated atlas splits
 // vertices; per-vertex outputs keep the input's).
-void prepare_atlas(PreparedScene& p, const protocol::AtlasSettings& settings) {
+void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings) {
     const std::string name = p.file.filename().string();
-    AtlasOptions options;
-    options.resolution = settings.res.value_or(0);
-    options.texel_density = float(settings.texel_density.value_or(0.0));
+    const AtlasOptions options = atlas_options(settings);
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
@@ -102,7 +120,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
                              "environment was given (give a uniform sky with --env R,G,B)");
-    if (needs_atlas(s)) prepare_atlas(*p, s.atlas);
+    if (needs_atlas(s)) prepare_atlas(*p, s);
     p->gpu = p->timed("gpu", [&] { return std::make_unique<GpuContext>(job.device); });
     if (p->atlas_scene) prepare_texels(*p, s.atlas);
     p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->atlas_scene ? *p->atlas_scene : p->scene); });

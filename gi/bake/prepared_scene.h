@@ -10,13 +10,15 @@
 #include "scene/scene.h"
 #include "trace/tracer.h"
 
+#include <nlohmann/json.hpp>
+
 #include <chrono>
 #include <filesystem>
+#include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
-#include <memory>
-#include <optional>
 
 namespace lf {
 
@@ -54,5 +56,17 @@ struct PreparedScene {
         return stage();
     }
 };
+
+// The atlas as every per-texel method's manifest section describes it.
+inline nlohmann::json atlas_json(const AtlasReport& atlas) {
+    return {{"width", atlas.width},
+            {"height", atlas.height},
+            {"texel_density", atlas.texel_density},
+            {"density_from_scene", atlas.density_from_scene},
+            {"border_fraction", atlas.border_fraction},
+            {"generated", atlas.generated},
+            {"charts", atlas.charts},
+            {"utilisation", atlas.utilisation}};
+}
 
 }  // namespace lf

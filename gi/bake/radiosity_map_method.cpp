@@ -59,19 +59,10 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
       stitch_(settings.lightmap->stitch) {
     if (settings.lightmap->denoise) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
     const RadiosityMapSettings r = radiosity_settings(settings);
-    const AtlasReport& atlas = prepared.atlas;
     settings_json_ = {
         {"method", "radiosity_map"},
         {"scheme", to_string(r.scheme)},
-        {"atlas",
-         {{"width", atlas.width},
-          {"height", atlas.height},
-          {"texel_density", atlas.texel_density},
-          {"density_from_scene", atlas.density_from_scene},
-          {"border_fraction", atlas.border_fraction},
-          {"generated", atlas.generated},
-          {"charts", atlas.charts},
-          {"utilisation", atlas.utilisation}}},
+        {"atlas", atlas_json(prepared.atlas)},
         {"light_samples", r.light_samples},
         {"light_sampling", to_string(r.light_sampling)},
         {"subsamples_per_texel", settings.atlas.subsamples * settings.atlas.subsamples},

@@ -143,11 +143,6 @@ void check_mesh_sets(const PreparedScene& prepared, const protocol::ShSettings& 
                                      " meshes)");
 }
 
-nlohmann::json atlas_json(const AtlasReport& atlas) {
-    return {{"width", atlas.width},         {"height", atlas.height}, {"texel_density", atlas.texel_density},
-            {"generated", atlas.generated}, {"charts", atlas.charts}, {"utilisation", atlas.utilisation}};
-}
-
 }  // namespace
 
 ShTransferMethod::ShTransferMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
