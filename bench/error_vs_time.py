@@ -36,12 +36,19 @@ def stem(scene):
     return os.path.splitext(os.path.basename(scene))[0]
 
 
-def bake(scene, scheme, res, passes, out_dir, device, env=None):
+# The reference's seed: not the measured bakes' (the default, 1), so that
+# `--schemes pathtrace` is measured against independent samples rather than
+# against a longer run of its own first passes.
+REFERENCE_SEED = 7919
+
+
+def bake(scene, scheme, res, passes, out_dir, device, env=None, seed=None):
     """`scheme` is a --scheme, or one with "+denoise" (the same bake, --denoise)."""
     base, _, variant = scheme.partition("+")
     lines = run([LIGHTFARM, "bake", os.path.join(SCENES, scene), "--out", out_dir, "--res", str(res),
                  "--passes", str(passes), "--scheme", base, "--device", device, "--json"]
-                + (["--denoise"] if variant == "denoise" else []) + (["--env", env] if env else [])).splitlines()
+                + (["--denoise"] if variant == "denoise" else []) + (["--env", env] if env else [])
+                + (["--seed", str(seed)] if seed is not None else [])).splitlines()
     return json.loads(lines[0])
 
 
@@ -49,9 +56,9 @@ def reference_for(scene, res, reference_passes, out, device, env=None):
     """(reference EXR, mask or None) to measure a bake of `scene` at `res` against."""
     if scene == "cornell_box.gltf":
         return os.path.join(SCENES, "cornell_box.ref256.exr"), os.path.join(SCENES, "cornell_box.mask256.pfm")
-    d = os.path.join(out, f"{stem(scene)}-reference-{res}-{reference_passes}")
+    d = os.path.join(out, f"{stem(scene)}-reference-{res}-{reference_passes}-seed{REFERENCE_SEED}")
     if not os.path.exists(os.path.join(d, "lightmap.exr")):  # a reference baked before in --out is reused
-        bake(scene, "pathtrace", res, reference_passes, d, device, env)
+        bake(scene, "pathtrace", res, reference_passes, d, device, env, REFERENCE_SEED)
     return os.path.join(d, "lightmap.exr"), None
 
 

@@ -10,6 +10,7 @@
 #include "bake/lightmap_denoiser.h"
 #include "bake/radiosity_map_baker.h"
 #include "bake/surface_textures.h"
+#include "bake/unlit_charts.h"
 #include "io/image_files.h"
 #include "io/reference_error.h"
 #include "scene/gltf_loader.h"
@@ -475,6 +476,61 @@ TEST(RadiosityMap, PathTracerReflectsTexturesWhereThePathsLand) {
                 reflected, reflected_if_averaged);
     ASSERT_GT(reflected / reflected_if_averaged, 2.0) << "the scene must tell texture from mean";
     EXPECT_NEAR(baked_reflected, reflected, 0.03 * reflected);
+}
+
+// A lit room (six walls facing in, a point light inside) wrapped in a shell
+// 0.1 m outside it whose six walls face out, to the void, as a closed
+// interior's outer walls do: no light can reach the shell. Its charts are
+// found unlit and packed at 1/8 of the density (1/64 of the texels); with a
+// sky, or a light outside, they are lit again.
+TEST(UnlitCharts, AClosedRoomsOuterWallsGetFewTexels) {
+    gpu();
+    Scene s = furnace(0.5f, 0.0f, 64);
+    test::add_box(s, glm::vec3(-1.1f), glm::vec3(1.1f), test::add_material(s, glm::vec3(0.5f)));
+    PunctualLight inside;
+    inside.intensity = glm::vec3(1.0f);
+    s.lights.push_back(inside);
+    const Tracer tracer(s);
+    auto atlas = [&](Scene scene, bool sky) {
+        AtlasOptions options;
+        options.resolution = 128;
+        options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
+            return find_unlit_charts(scene, tracer, chart, count, sky).unlit;
+        };
+        AtlasReport report = generate_lightmap_uvs(scene, options);
+        // Texel area of the shell (x beyond 1.05) against the room's, per m².
+        double shell = 0.0, room = 0.0;
+        for (size_t t = 0; t < scene.triangles.size(); ++t) {
+            const glm::uvec3 v = scene.triangles[t];
+            const glm::vec2 a = scene.uv1[v.x], b = scene.uv1[v.y], c = scene.uv1[v.z];
+            const double texels = 0.5 * std::abs((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y)) * 128 * 128;
+            (std::abs(scene.positions[v.x].x) > 1.05f || std::abs(scene.positions[v.x].y) > 1.05f ||
+                     std::abs(scene.positions[v.x].z) > 1.05f
+                 ? shell
+                 : room) += texels / scene.triangle_area(t);
+        }
+        return std::make_pair(report, shell / room);
+    };
+    const auto [dark, dark_ratio] = atlas(s, false);
+    EXPECT_EQ(dark.unlit_charts, 6u);
+    EXPECT_NEAR(dark.unlit_area_fraction, 6 * 2.2 * 2.2 / (6 * 2.2 * 2.2 + 6 * 2.0 * 2.0), 1e-4);
+    EXPECT_NEAR(dark_ratio, 1.0 / 64.0, 0.2 / 64.0);  // whole texels round each chart up a little
+    const auto [sky, sky_ratio] = atlas(s, true);
+    EXPECT_EQ(sky.unlit_charts, 0u);
+    EXPECT_NEAR(sky_ratio, 1.0, 0.1);
+    Scene outside_light = s;
+    PunctualLight sun;
+    sun.type = PunctualLight::Type::Directional;
+    sun.direction = glm::vec3(0.0f, -1.0f, 0.0f);
+    sun.intensity = glm::vec3(1.0f);
+    outside_light.lights.push_back(sun);
+    const Tracer tracer2(outside_light);
+    AtlasOptions options;
+    options.resolution = 128;
+    options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
+        return find_unlit_charts(outside_light, tracer2, chart, count, false).unlit;
+    };
+    EXPECT_EQ(generate_lightmap_uvs(outside_light, options).unlit_charts, 5u) << "the sun lights the shell's top";
 }
 
 // A room of double-sided walls exported with their fronts facing out (as the

@@ -71,19 +71,23 @@ SharedEdges scene_shared_edges(const Scene& scene) {
 }
 
 // The world length of every chart's border: triangle edges that no other
-// triangle of the same chart shares (a chart's outline, and the rims of its holes).
-double chart_border_length(const Scene& scene, const SharedEdges& shared, const std::vector<uint32_t>& triangle_chart) {
+// triangle of the same chart shares (a chart's outline, and the rims of its
+// holes); charts with `unlit` set (by chart id; empty: none) left out.
+double chart_border_length(const Scene& scene, const SharedEdges& shared, const std::vector<uint32_t>& triangle_chart,
+                           const std::vector<uint8_t>& unlit = {}) {
+    auto counts = [&](uint32_t t) { return unlit.empty() || !unlit[triangle_chart[t]]; };
     auto length = [&](EdgeRef e) {
         const glm::uvec3 t = scene.triangles[e.triangle];
         return double(glm::distance(scene.positions[t[e.edge]], scene.positions[t[(e.edge + 1) % 3]]));
     };
     double border = 0.0;
     for (uint32_t t = 0; t < scene.triangles.size(); ++t)
-        for (uint32_t k = 0; k < 3; ++k) border += length({t, k});
+        for (uint32_t k = 0; k < 3 && counts(t); ++k) border += length({t, k});
     for (size_t g = 0; g < shared.group_count(); ++g)
         for (uint32_t i = shared.group_start[g]; i < shared.group_start[g + 1]; ++i)
             for (uint32_t j = shared.group_start[g]; j < shared.group_start[g + 1]; ++j)
-                if (j != i && triangle_chart[shared.edges[j].triangle] == triangle_chart[shared.edges[i].triangle]) {
+                if (j != i && counts(shared.edges[i].triangle) &&
+                    triangle_chart[shared.edges[j].triangle] == triangle_chart[shared.edges[i].triangle]) {
                     border -= length(shared.edges[i]);
                     break;
                 }
@@ -603,6 +607,29 @@ Packing pack_atlas_for_scene(const std::vector<ChartShape>& shapes, const AtlasO
     return pack_atlas(shapes, chosen);
 }
 
+// Lays the charts flagged in `unlit` out at kUnlitChartScale of their size
+// (fewer texels for one black value); counts them in the report. Returns
+// the area of the lit charts.
+double shrink_unlit_charts(const Scene& scene, const std::vector<Chart>& charts, const std::vector<uint8_t>& unlit,
+                           std::vector<ChartShape>& shapes, std::vector<Tri2>& corners, AtlasReport& report) {
+    double lit = 0.0, dark = 0.0;
+    for (size_t c = 0; c < charts.size(); ++c) {
+        double area = 0.0;
+        for (uint32_t t : charts[c].triangles) area += scene.triangle_area(t);
+        if (unlit.empty() || !unlit[c]) {
+            lit += area;
+            continue;
+        }
+        dark += area;
+        ++report.unlit_charts;
+        shapes[c].size *= kUnlitChartScale;
+        for (uint32_t t : charts[c].triangles)
+            for (glm::dvec2& corner : corners[t]) corner *= kUnlitChartScale;
+    }
+    report.unlit_area_fraction = lit + dark > 0.0 ? dark / (lit + dark) : 0.0;
+    return lit;
+}
+
 // ---------------------------------------------------------------------------
 // Writing UVs: a vertex has one UV1, so a vertex used by triangles of several
 // charts is split into one copy per chart.
@@ -723,9 +750,11 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     std::vector<ChartShape> shapes(charts.size());
     for (size_t c = 0; c < charts.size(); ++c) shapes[c] = lay_out_chart(scene, charts[c], corners);
 
-    const double border = chart_border_length(scene, shared, report.triangle_chart);
-    const Packing packing =
-        pack_atlas_for_scene(shapes, options, border, total_world_area(scene), report.density_from_scene);
+    std::vector<uint8_t> unlit;
+    if (options.find_unlit_charts) unlit = options.find_unlit_charts(report.triangle_chart, charts.size());
+    const double lit_area = shrink_unlit_charts(scene, charts, unlit, shapes, corners, report);
+    const double border = chart_border_length(scene, shared, report.triangle_chart, unlit);
+    const Packing packing = pack_atlas_for_scene(shapes, options, border, lit_area, report.density_from_scene);
     const double w = packing.size, h = packing.size;
     CornerUVs corner_uv(scene.triangles.size());
     for (size_t c = 0; c < charts.size(); ++c) {
@@ -745,7 +774,7 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
 
     report.width = report.height = packing.size;
     report.texel_density = float(packing.density);
-    report.border_fraction = border_fraction(border, total_world_area(scene), packing.density);
+    report.border_fraction = border_fraction(border, lit_area, packing.density);
     report.charts = charts.size();
     report.utilisation = utilisation(scene, report.width, report.height);
     return report;

@@ -23,6 +23,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace lf {
@@ -45,7 +46,16 @@ struct AtlasOptions {
     // 0: kDefaultAtlasResolution.
     float max_border_fraction = 0.0f;
     int auto_max_resolution = 4096;
+    // Generated atlases: called once the charts are made, with each
+    // triangle's chart (ids below chart_count); returns 1 for each chart no
+    // light can reach (gi/bake/unlit_charts.h). Those are packed at
+    // kUnlitChartScale of their size, and left out of the border fraction.
+    std::function<std::vector<uint8_t>(const std::vector<uint32_t>& triangle_chart, size_t chart_count)>
+        find_unlit_charts = nullptr;
 };
+
+// A chart no light reaches holds one value (black): 1/8 of the density, 1/64 of the texels.
+constexpr double kUnlitChartScale = 0.125;
 
 struct AtlasReport {
     int width = 0;
@@ -59,7 +69,9 @@ struct AtlasReport {
     // border length / (2 x area x texel_density): where texels straddle a
     // crease or a chart's edge and lookups blend across it.
     double border_fraction = 0.0;
-    bool density_from_scene = false;  // chosen for max_border_fraction
+    bool density_from_scene = false;   // chosen for max_border_fraction
+    size_t unlit_charts = 0;           // packed at kUnlitChartScale (AtlasOptions::find_unlit_charts)
+    double unlit_area_fraction = 0.0;  // their share of the surface
 };
 
 // Builds charts, packs them, splits vertices on chart borders and writes

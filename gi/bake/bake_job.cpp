@@ -2,6 +2,7 @@
 
 #include "atlas/atlas.h"
 #include "bake/double_sided.h"
+#include "bake/unlit_charts.h"
 #include "atlas/lightmapped_gltf.h"
 #include "bake/prepared_scene.h"
 #include "bake/probes_method.h"
@@ -80,10 +81,17 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
 }
 
 // The lightmap atlas on a copy of the scene (a generated atlas splits
-// vertices; per-vertex outputs keep the input's).
-void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings) {
+// vertices; per-vertex outputs keep the input's). Charts no light reaches
+// get few texels (gi/bake/unlit_charts.h), found with `geometry`, a tracer
+// of the scene's triangles.
+void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings, const Tracer& geometry) {
     const std::string name = p.file.filename().string();
-    const AtlasOptions options = atlas_options(settings);
+    AtlasOptions options = atlas_options(settings);
+    options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
+        const UnlitCharts unlit = find_unlit_charts(p.scene, geometry, chart, count, settings.env.sky.has_value());
+        p.unlit_chart_rays = unlit.rays;
+        return unlit.unlit;
+    };
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
@@ -97,14 +105,14 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings) {
 }
 
 // The atlas's texels: double-sided charts turned to face the scene first
-// (gi/bake/double_sided.h, with a BVH of their own: turning changes which
-// side the final one calls front), then the texels' sample points.
-void prepare_texels(PreparedScene& p, const protocol::AtlasSettings& settings) {
+// (gi/bake/double_sided.h, traced with `geometry`: the atlas moves no
+// triangle), then the texels' sample points.
+void prepare_texels(PreparedScene& p, const protocol::AtlasSettings& settings, const Tracer& geometry) {
     Scene& scene = *p.atlas_scene;
     const bool any_double_sided =
         std::any_of(scene.materials.begin(), scene.materials.end(), [](const Material& m) { return m.double_sided; });
     if (any_double_sided)
-        p.turned = p.timed("double_sided", [&] { return face_double_sided_charts_to_the_scene(scene, Tracer(scene)); });
+        p.turned = p.timed("double_sided", [&] { return face_double_sided_charts_to_the_scene(scene, geometry); });
     p.texels = p.timed("texel_samples", [&] {
         return rasterize_texel_samples(scene, p.atlas.width, p.atlas.height, settings.subsamples);
     });
@@ -120,10 +128,17 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
                              "environment was given (give a uniform sky with --env R,G,B)");
-    if (needs_atlas(s)) prepare_atlas(*p, s);
     p->gpu = p->timed("gpu", [&] { return std::make_unique<GpuContext>(job.device); });
-    if (p->atlas_scene) prepare_texels(*p, s.atlas);
-    p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->atlas_scene ? *p->atlas_scene : p->scene); });
+    // One BVH of the scene's triangles, for the per-chart decisions and then
+    // the passes; rebuilt only when double-sided charts were turned (their
+    // front changes).
+    p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->scene); });
+    if (needs_atlas(s)) {
+        prepare_atlas(*p, s, *p->tracer);
+        prepare_texels(*p, s.atlas, *p->tracer);
+        if (p->turned.charts > 0)
+            p->tracer = p->timed("bvh_turned", [&] { return std::make_unique<Tracer>(*p->atlas_scene); });
+    }
     return p;
 }
 
@@ -239,7 +254,9 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"atlas_generated", prepared->atlas.generated},
           {"double_sided_charts_turned", prepared->turned.charts},
           {"double_sided_triangles_turned", prepared->turned.triangles},
-          {"double_sided_rays", prepared->turned.rays}}},
+          {"double_sided_rays", prepared->turned.rays},
+          {"unlit_charts", prepared->atlas.unlit_charts},
+          {"unlit_chart_rays", prepared->unlit_chart_rays}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
     for (const auto& m : methods) {

@@ -1,6 +1,7 @@
 #include "bake/double_sided.h"
 
 #include "atlas/atlas.h"
+#include "bake/chart_rays.h"
 #include "trace/ray_reference.h"
 
 #include <glm/gtc/constants.hpp>
@@ -21,51 +22,30 @@ constexpr int kRaysPerSide = 4;     // cosine rays from each point, on each side
 // free-standing panel about the same on both sides, and keeps its front.
 constexpr float kClearMargin = 0.25f;
 
-glm::vec3 cosine_direction(const glm::vec3& n, float u1, float u2) {
-    const float r = std::sqrt(u1), phi = 2.0f * glm::pi<float>() * u2;
-    const glm::vec3 a = std::abs(n.x) > 0.9f ? glm::vec3(0, 1, 0) : glm::vec3(1, 0, 0);
-    const glm::vec3 t = glm::normalize(glm::cross(a, n)), b = glm::cross(n, t);
-    return glm::normalize(r * std::cos(phi) * t + r * std::sin(phi) * b + std::sqrt(std::max(0.0f, 1.0f - u1)) * n);
-}
-
 struct ChartRays {
     std::vector<uint32_t> charts;  // the double-sided charts, in first-triangle order
     std::vector<Ray> rays;         // per chart: kPointsPerChart * kRaysPerSide front rays, then as many back
 };
 
 ChartRays rays_of_double_sided_charts(const Scene& scene, const std::vector<uint32_t>& chart) {
-    std::vector<std::vector<uint32_t>> triangles_of(scene.positions.size());
-    std::vector<uint32_t> order;
-    for (size_t t = 0; t < scene.triangles.size(); ++t) {
-        if (!scene.materials[scene.triangle_material[t]].double_sided || scene.triangle_area(t) <= 0.0f) continue;
-        if (triangles_of[chart[t]].empty()) order.push_back(chart[t]);
-        triangles_of[chart[t]].push_back(uint32_t(t));
-    }
+    const auto triangles_of = triangles_by_chart(scene, chart, scene.positions.size(), [&](size_t t) {
+        return scene.materials[scene.triangle_material[t]].double_sided;
+    });
+    ChartRays out;
+    for (size_t t = 0; t < scene.triangles.size(); ++t)  // charts in first-triangle order
+        if (!triangles_of[chart[t]].empty() && triangles_of[chart[t]].front() == t) out.charts.push_back(chart[t]);
     const float far = 2.0f * glm::length(scene.bounds.hi - scene.bounds.lo);
     std::mt19937 rng(20261123u);
     std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
-    ChartRays out;
-    out.charts = order;
-    out.rays.reserve(order.size() * 2 * kPointsPerChart * kRaysPerSide);
-    for (uint32_t c : order) {
-        const std::vector<uint32_t>& tris = triangles_of[c];
-        std::vector<float> area(tris.size());
-        for (size_t k = 0; k < tris.size(); ++k) area[k] = scene.triangle_area(tris[k]);
-        std::discrete_distribution<size_t> pick(area.begin(), area.end());
+    out.rays.reserve(out.charts.size() * 2 * kPointsPerChart * kRaysPerSide);
+    for (uint32_t c : out.charts)
         for (const float side : {1.0f, -1.0f})
-            for (int p = 0; p < kPointsPerChart; ++p) {
-                const uint32_t t = tris[pick(rng)];
-                const glm::uvec3 v = scene.triangles[t];
-                float b1 = uniform(rng), b2 = uniform(rng);
-                if (b1 + b2 > 1.0f) b1 = 1.0f - b1, b2 = 1.0f - b2;
-                const glm::vec3 x =
-                    (1.0f - b1 - b2) * scene.positions[v.x] + b1 * scene.positions[v.y] + b2 * scene.positions[v.z];
-                const glm::vec3 n = side * scene.geometric_normal(t);
-                const glm::vec3 origin = offset_ray_origin(x, n);
+            for (const ChartPoint& p : random_chart_points(scene, triangles_of[c], kPointsPerChart, rng)) {
+                const glm::vec3 n = side * p.normal;
+                const glm::vec3 origin = offset_ray_origin(p.position, n);
                 for (int r = 0; r < kRaysPerSide; ++r)
                     out.rays.push_back({origin, far, cosine_direction(n, uniform(rng), uniform(rng)), 1u});
             }
-    }
     return out;
 }
 

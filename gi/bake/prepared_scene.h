@@ -29,11 +29,13 @@ struct PreparedScene {
     // triangles, their order and positions are the scene's): per-texel methods.
     std::optional<Scene> atlas_scene;
     AtlasReport atlas;
-    TurnedCharts turned;  // double-sided charts baked for their back, which faces the scene
+    TurnedCharts turned;            // double-sided charts baked for their back, which faces the scene
+    uint64_t unlit_chart_rays = 0;  // traced to find the charts no light reaches (AtlasReport::unlit_charts)
     TexelSamples texels;
     std::unique_ptr<GpuContext> gpu;
-    // One BVH for every method. Built from atlas_scene when there is one:
-    // triangle t is the same triangle at the same position in both scenes.
+    // One BVH for every method: triangle t is the same triangle at the same
+    // position in scene and atlas_scene, so it is built from the scene, and
+    // again from atlas_scene only where double-sided charts were turned.
     std::unique_ptr<Tracer> tracer;
     double prepare_seconds = 0.0;
     // Where preparation's time went, stage by stage (load, atlas,
@@ -66,6 +68,8 @@ inline nlohmann::json atlas_json(const AtlasReport& atlas) {
             {"border_fraction", atlas.border_fraction},
             {"generated", atlas.generated},
             {"charts", atlas.charts},
+            {"unlit_charts", atlas.unlit_charts},
+            {"unlit_area_fraction", atlas.unlit_area_fraction},
             {"utilisation", atlas.utilisation}};
 }
 

@@ -1,0 +1,91 @@
+#include "bake/unlit_charts.h"
+
+#include "bake/chart_rays.h"
+#include "trace/ray_reference.h"
+
+#include <algorithm>
+#include <random>
+
+namespace lf {
+
+namespace {
+
+constexpr int kPointsPerChart = 4;     // random points on the chart, area-weighted
+constexpr int kRaysPerPoint = 4;       // cosine rays from each point, on each side it is seen from
+constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
+constexpr size_t kRaysPerBatch = size_t(1) << 20;
+
+// One ray and what it says about its chart when traced.
+struct ChartRay {
+    Ray ray;
+    uint32_t chart;
+    bool shadow;  // to a punctual light: lit when nothing is hit
+};
+
+std::vector<ChartRay> rays_from_point(const Scene& scene, const ChartPoint& p, uint32_t chart, std::mt19937& rng) {
+    std::vector<ChartRay> rays;
+    std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
+    const float far = 2.0f * glm::length(scene.bounds.hi - scene.bounds.lo) + 1.0f;
+    const bool double_sided = scene.materials[scene.triangle_material[p.triangle]].double_sided;
+    for (const float side : {1.0f, -1.0f}) {
+        if (side < 0.0f && !double_sided) break;
+        const glm::vec3 n = side * p.normal, origin = offset_ray_origin(p.position, n);
+        for (int r = 0; r < kRaysPerPoint; ++r)
+            rays.push_back({{origin, far, cosine_direction(n, uniform(rng), uniform(rng)), 0u}, chart, false});
+        for (size_t l = 0; l < std::min(scene.lights.size(), kLightsPerPoint); ++l) {
+            const PunctualLight& light =
+                scene.lights[scene.lights.size() <= kLightsPerPoint
+                                 ? l
+                                 : size_t(uniform(rng) * float(scene.lights.size())) % scene.lights.size()];
+            const bool directional = light.type == PunctualLight::Type::Directional;
+            const glm::vec3 to = directional ? -glm::normalize(light.direction) : light.position - origin;
+            const float distance = directional ? far : glm::length(to);
+            if (distance <= 0.0f || glm::dot(to, n) <= 0.0f) continue;  // behind this side
+            rays.push_back({{origin, 0.999f * distance, to / glm::length(to), 1u}, chart, true});
+        }
+    }
+    return rays;
+}
+
+// What a traced ray says: light can come this way.
+bool brings_light(const Scene& scene, const ChartRay& r, const RayHit& hit) {
+    if (r.shadow) return hit.triangle == kNoHit;
+    if (hit.triangle == kNoHit) return false;  // escaped, and there is no sky
+    const bool front = glm::dot(r.ray.direction, scene.geometric_normal(hit.triangle)) < 0.0f;
+    return front || scene.materials[scene.triangle_material[hit.triangle]].double_sided;
+}
+
+}  // namespace
+
+UnlitCharts find_unlit_charts(const Scene& scene, const Tracer& tracer, const std::vector<uint32_t>& chart,
+                              size_t chart_count, bool sky) {
+    UnlitCharts out;
+    out.unlit.assign(chart_count, 0);
+    if (sky) return out;
+    const auto triangles_of = triangles_by_chart(scene, chart, chart_count, [](size_t) { return true; });
+    std::vector<uint8_t> lit(chart_count, 0);
+    std::mt19937 rng(20261124u);
+    std::vector<ChartRay> batch;
+    auto trace_batch = [&] {
+        std::vector<Ray> rays(batch.size());
+        for (size_t i = 0; i < batch.size(); ++i) rays[i] = batch[i].ray;
+        const std::vector<RayHit> hits = tracer.trace(rays);
+        for (size_t i = 0; i < batch.size(); ++i)
+            if (brings_light(scene, batch[i], hits[i])) lit[batch[i].chart] = 1;
+        out.rays += batch.size();
+        batch.clear();
+    };
+    for (uint32_t c = 0; c < chart_count; ++c) {
+        for (const ChartPoint& p : random_chart_points(scene, triangles_of[c], kPointsPerChart, rng)) {
+            const std::vector<ChartRay> rays = rays_from_point(scene, p, c, rng);
+            batch.insert(batch.end(), rays.begin(), rays.end());
+        }
+        if (batch.size() >= kRaysPerBatch) trace_batch();
+    }
+    if (!batch.empty()) trace_batch();
+    // A chart without area has no points: it counts as lit (it gets its one texel anyway).
+    for (uint32_t c = 0; c < chart_count; ++c) out.unlit[c] = !lit[c] && !triangles_of[c].empty();
+    return out;
+}
+
+}  // namespace lf
