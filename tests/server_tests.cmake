@@ -28,8 +28,9 @@ target_compile_definitions(test_server PRIVATE
   LIGHTFARM_OPENAPI="${LIGHTFARM_OPENAPI_DOC}")
 add_dependencies(test_server lightfarmd)
 
-# The store, the data directory and the upload checks under failure (issue #15).
-lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+# The store, the data directory and the upload checks under failure (issue #15);
+# the store tests against SQLite and a PostgreSQL the test starts (issue #9).
+lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
 target_link_libraries(test_store PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
 target_compile_definitions(test_store PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
 add_dependencies(test_store lightfarmd)
