@@ -4,9 +4,17 @@
 // loses its job to another after the lease, and nothing is lost; the database
 // restarted mid-run loses and duplicates nothing. PostgreSQL is started by
 // the test (postgres_server.h).
+//
+// The Figures tests measure what docs/BENCHMARKS.md reports ("Scale-out on
+// PostgreSQL"): small by default (they check that every job ran once and print
+// what they saw); LIGHTFARM_SCALE_OUT_BENCH=1 runs them at the size of the
+// published figures (1, 2 and 4 nodes; leases of 2, 5 and 10 s).
+#include "events.h"
+#include "metrics.h"
 #include "postgres_job_store.h"
 #include "postgres_server.h"
 #include "server_harness.h"
+#include "supervisor.h"
 
 #include <gtest/gtest.h>
 #include <netinet/in.h>
@@ -19,7 +27,9 @@
 #include <fcntl.h>
 
 #include <algorithm>
+#include <cstdlib>
 #include <map>
+#include <numeric>
 #include <set>
 #include <thread>
 
@@ -352,6 +362,225 @@ TEST_F(ScaleOut, AJobCancelledOnOneNodeStopsItsWorkerOnAnother) {
     const auto stream = read_events("127.0.0.1", a.port, kToken, id, -1, 0, 5s);
     ASSERT_FALSE(stream.empty());
     EXPECT_EQ(stream.back().type, "cancelled");
+}
+
+// ------------------------------------------------------------------ figures
+
+bool full_benchmark() {
+    const char* v = std::getenv("LIGHTFARM_SCALE_OUT_BENCH");
+    return v && std::string(v) == "1";
+}
+
+double percentile(std::vector<double> v, double q) {
+    if (v.empty()) return 0;
+    std::sort(v.begin(), v.end());
+    return v[std::min(v.size() - 1, size_t(q * double(v.size())))];
+}
+
+TEST_F(ScaleOut, FiguresJobsPerSecondByNodeCount) {
+    // Small jobs (the fake engine, one pass) queued up front on every node in
+    // turn: jobs/s from the first submit to the last finish, and each job's
+    // wait in the queue (started_at - created_at).
+    const int per_run = full_benchmark() ? 60 : 12;
+    const std::vector<int> counts = full_benchmark() ? std::vector<int>{1, 2, 4} : std::vector<int>{1, 2};
+    add_nodes(counts.back(), 30);
+    int seed = 1000;
+    const std::string scene = [&] {
+        nodes[0]->start();
+        return upload(*nodes[0], "figures");
+    }();
+    for (int count : counts) {
+        for (int i = 0; i < count; ++i) nodes[size_t(i)]->start();  // no-op for those running
+        std::vector<std::string> ids;
+        const auto begin = std::chrono::steady_clock::now();
+        for (int j = 0; j < per_run; ++j) ids.push_back(submit(*nodes[size_t(j % count)], scene, ++seed, 1));
+        std::vector<double> waits;
+        double first_created = 1e300, last_finished = 0;
+        std::set<std::string> ran_on;
+        for (const std::string& id : ids) {
+            const json s = wait_finished(*nodes[0], id, 60s);
+            ASSERT_EQ(s.value("state", ""), "succeeded") << s.dump();
+            EXPECT_EQ(s.value("attempts", 0), 1);
+            waits.push_back(s.value("started_at", 0.0) - s.value("created_at", 0.0));
+            first_created = std::min(first_created, s.value("created_at", 0.0));
+            last_finished = std::max(last_finished, s.value("finished_at", 0.0));
+            ran_on.insert(node_of(id));
+        }
+        const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
+        EXPECT_EQ(ran_on.size(), size_t(count)) << "every node took jobs";
+        std::cerr << "FIGURE nodes=" << count << " jobs=" << per_run
+                  << " jobs_per_second=" << per_run / (last_finished - first_created) << " wall_s=" << wall
+                  << " queue_wait_p50_s=" << percentile(waits, 0.5) << " queue_wait_p90_s=" << percentile(waits, 0.9)
+                  << "\n";
+        for (int i = 1; i < count; ++i) nodes[size_t(i)]->stop();  // the next round starts them again
+    }
+}
+
+TEST_F(ScaleOut, FiguresClaimLatencyByNodeCount) {
+    // The claim itself (one UPDATE over SELECT ... FOR UPDATE SKIP LOCKED),
+    // timed in `count` nodes claiming from one backlog at once.
+    const int backlog = full_benchmark() ? 2000 : 200;
+    const std::vector<int> counts = full_benchmark() ? std::vector<int>{1, 2, 4} : std::vector<int>{1, 2};
+    for (int count : counts) {
+        const std::string db = postgres().create_database();
+        {
+            server::PostgresJobStore filler(db, {"filler", 30});
+            for (int j = 0; j < backlog; ++j) {
+                server::JobRecord job;
+                job.status.id = "j" + std::to_string(j);
+                job.status.scene = "s";
+                job.status.state = server::JobState::Queued;
+                job.status.max_attempts = 1;
+                job.status.spec = json::object();
+                filler.insert_job(job, {});
+            }
+        }
+        std::mutex mutex;
+        std::vector<double> latencies;
+        std::set<std::string> claimed;
+        std::vector<std::thread> claimers;
+        const auto begin = std::chrono::steady_clock::now();
+        for (int i = 0; i < count; ++i)
+            claimers.emplace_back([&, i] {
+                server::PostgresJobStore node(db, {"node-" + std::to_string(i), 30});
+                for (;;) {
+                    const auto t0 = std::chrono::steady_clock::now();
+                    const auto job = node.claim_next();
+                    const double ms =
+                        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+                    if (!job) return;
+                    std::lock_guard lock(mutex);
+                    latencies.push_back(ms);
+                    EXPECT_TRUE(claimed.insert(job->status.id).second) << job->status.id << " claimed twice";
+                }
+            });
+        for (std::thread& t : claimers) t.join();
+        const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
+        EXPECT_EQ(claimed.size(), size_t(backlog));
+        std::cerr << "FIGURE claimers=" << count << " claims=" << backlog << " claims_per_second=" << backlog / wall
+                  << " claim_ms_p50=" << percentile(latencies, 0.5) << " claim_ms_p99=" << percentile(latencies, 0.99)
+                  << "\n";
+    }
+}
+
+TEST_F(ScaleOut, FiguresStatementsPerJob) {
+    // One node's supervisor, in this process, on PostgreSQL: the statements
+    // one small job costs the database (submit, claim, events, progress,
+    // finish), and what an idle node costs per second (queue polls,
+    // heartbeats, looking for lost nodes).
+    const int jobs = full_benchmark() ? 40 : 8;
+    server::ServerConfig config;
+    config.data_dir = (tmp.path / "data").string();
+    config.engine = engine.script.string();
+    config.workers = 1;
+    fs::create_directories(tmp.path / "data" / "jobs");
+    fs::create_directories(tmp.path / "data" / "scenes" / "scene-1");
+    write_text(tmp.path / "data" / "scenes" / "scene-1" / "scene.glb", "glTF");
+    server::PostgresJobStore store(uri, {"bench", 30});
+    server::PostgresJobStore reader(uri, {"reader", 30});  // the test's polls: not counted in `store`
+    store.add_scene({"scene-1", "scene.glb", {{"triangles", 12}, {"emissive_triangles", 2}}});
+    server::ChangeSignal changes;
+    server::Metrics metrics;
+    server::Supervisor supervisor(store, config, changes, metrics);
+    supervisor.start();
+    std::this_thread::sleep_for(3s);
+    const int64_t idle_from = store.statements_sent();
+    std::this_thread::sleep_for(5s);
+    const double idle_per_second = double(store.statements_sent() - idle_from) / 5.0;
+
+    const int64_t from = store.statements_sent();
+    const auto begin = std::chrono::steady_clock::now();
+    for (int j = 0; j < jobs; ++j) {
+        server::JobRecord job;
+        job.status.id = "job" + std::to_string(j);
+        job.status.scene = "scene-1";
+        job.status.state = server::JobState::Queued;
+        job.status.max_attempts = 3;
+        job.status.spec = {{"scene", "scene-1"}, {"seed", j}, {"outputs", {{"lightmap", {{"passes", 4}}}}}};
+        job.max_seconds = 60;
+        store.insert_job(job, {});
+        changes.notify();
+        for (const auto until = std::chrono::steady_clock::now() + 20s; std::chrono::steady_clock::now() < until;
+             std::this_thread::sleep_for(5ms))
+            if (protocol::is_final(reader.job(job.status.id)->status.state)) break;
+        ASSERT_EQ(reader.job(job.status.id)->status.state, server::JobState::Succeeded);
+    }
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
+    supervisor.stop();
+    // Less the idle load over the same time: what the jobs cost.
+    const double total = double(store.statements_sent() - from);
+    std::cerr << "FIGURE jobs=" << jobs << " statements=" << total << " wall_s=" << wall
+              << " idle_statements_per_second=" << idle_per_second
+              << " statements_per_job=" << (total - idle_per_second * wall) / jobs << "\n";
+
+    // The statements of one job as the supervisor issues them, counted on a
+    // store of their own: no polls.
+    server::PostgresJobStore alone(postgres().create_database(), {"alone", 30});
+    const auto t0 = std::chrono::steady_clock::now();
+    const int64_t before = alone.statements_sent();
+    alone.add_scene({"scene-1", "scene.glb", json::object()});
+    server::JobRecord job;
+    job.status.id = "one";
+    job.status.scene = "scene-1";
+    job.status.state = server::JobState::Queued;
+    job.status.max_attempts = 3;
+    job.status.spec = json::object();
+    alone.insert_job(job, {});
+    const int64_t submit = alone.statements_sent() - before;
+    ASSERT_TRUE(alone.claim_next());
+    alone.append_event("one", {0, "started", {{"attempt", 1}}});
+    for (int pass = 1; pass <= 4; ++pass) {
+        server::Progress p;
+        p.pass = pass;
+        alone.set_progress("one", p);
+        alone.append_event("one", {0, "progress", {{"output", "lightmap"}, {"pass", pass}}});
+        alone.set_latest("one", "lightmap", {"lightmap.pass-0001.exr", pass, false});
+        alone.append_event("one", {0, "snapshot", {{"output", "lightmap"}, {"pass", pass}}});
+    }
+    alone.set_progress("one", {});
+    alone.set_latest("one", "lightmap", {"lightmap.exr", 4, true});
+    ASSERT_TRUE(alone.renew_lease("one"));
+    ASSERT_TRUE(alone.finish("one", server::JobState::Succeeded, "", "", {0, "done", json::object()}));
+    const int64_t per_job = alone.statements_sent() - before;
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    std::cerr << "FIGURE one_job_4_passes_4_snapshots statements=" << per_job << " of_which_submit=" << submit
+              << " ms=" << ms << " ms_per_statement=" << ms / double(per_job) << "\n";
+    EXPECT_GT(per_job, 10);
+}
+
+TEST_F(ScaleOut, FiguresTakeOverWaitByLease) {
+    // The wait of a killed node's job until another node queues it again,
+    // against --lease-seconds: between 2/3 of the lease (renewed just before
+    // the kill) and 4/3 (the other node looks every third of a lease).
+    const std::vector<double> leases = full_benchmark() ? std::vector<double>{2, 5, 10} : std::vector<double>{1};
+    const int repeats = full_benchmark() ? 3 : 1;
+    engine.set("delay", "0.5");
+    for (double lease : leases) {
+        for (int r = 0; r < repeats; ++r) {
+            add_nodes(2, lease);
+            Node& a = *nodes[nodes.size() - 2];
+            Node& b = *nodes[nodes.size() - 1];
+            a.start();
+            const std::string id = submit(a, upload(a, "lease"), int(lease * 100) + r, 200);
+            auto ca = a.client();
+            ASSERT_EQ(wait_for_job(ca, id, [](const json& s) { return s.value("state", "") == "running"; })
+                          .value("state", ""),
+                      "running");
+            b.start();
+            a.kill9();
+            const auto killed = std::chrono::steady_clock::now();
+            auto cb = b.client();
+            const json again = wait_for_job(
+                cb, id, [](const json& s) { return s.value("attempts", 0) == 2; }, 60s);
+            const double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - killed).count();
+            EXPECT_EQ(again.value("attempts", 0), 2);
+            EXPECT_GE(waited, lease * 2 / 3 - 0.2);
+            EXPECT_LE(waited, lease * 4 / 3 + 1.5);
+            std::cerr << "FIGURE lease_seconds=" << lease << " take_over_wait_s=" << waited << "\n";
+            ASSERT_EQ(b.client().Post("/v1/jobs/" + id + "/cancel")->status, 200);
+            b.stop();
+        }
+    }
 }
 
 }  // namespace
