@@ -623,11 +623,14 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     if (status.success() && state.done) {
         json done = *state.done;
         done["cached"] = false;
+        bool still_ours = true;
         persist("job " + id + ": succeeded state", [&] {
-            // Not if the job was taken over meanwhile: the node that has it ends it.
-            if (store_.renew_lease(id)) store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
+            // Not if the job was cancelled or taken over meanwhile: the store's state stands.
+            still_ours = store_.renew_lease(id);
+            if (still_ours) store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
         });
-        log_line("job " + id + ": succeeded");
+        log_line("job " + id +
+                 (still_ours ? ": succeeded" : ": finished, but no longer runs on this node; not stored"));
         return;
     }
     const std::string scene_name =
