@@ -15,7 +15,8 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
 
   --listen HOST:PORT     address to serve on (default 127.0.0.1:8750; port 0 = any free port)
   --data DIR             jobs, scenes and artifacts (default $XDG_DATA_HOME/lightfarm,
-                         else ~/.local/share/lightfarm); one lightfarmd per DIR
+                         else ~/.local/share/lightfarm); one lightfarmd per DIR,
+                         except with --store (then every node may share it)
   --tokens FILE          bearer tokens, one per line (default DATA/tokens, created
                          with a new random token when missing)
   --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)

@@ -364,6 +364,22 @@ TEST_F(ScaleOut, AJobCancelledOnOneNodeStopsItsWorkerOnAnother) {
     EXPECT_EQ(stream.back().type, "cancelled");
 }
 
+TEST_F(ScaleOut, ANodeWhoseDatabaseCannotBeReachedStopsAtStartSayingWhich) {
+    write_text(tmp.path / "tokens", kToken + "\n");
+    Node node("lost",
+              {"--data", (tmp.path / "data").string(), "--tokens", (tmp.path / "tokens").string(), "--engine",
+               engine.script.string(), "--store", "postgresql://nobody@127.0.0.1:1/farm"},
+              tmp.path);
+    try {
+        node.start();
+        FAIL() << "started without its database";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find("cannot connect to PostgreSQL at nobody@127.0.0.1:1/farm"),
+                  std::string::npos)
+            << e.what();
+    }
+}
+
 // ------------------------------------------------------------------ figures
 
 bool full_benchmark() {

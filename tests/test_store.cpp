@@ -16,6 +16,7 @@
 #include "postgres_server.h"
 #include "server_harness.h"
 
+#include "config.h"
 #include "events.h"
 #include "hash.h"
 #include "http_error.h"
@@ -369,6 +370,28 @@ TEST_P(StoreTest, NodesReportTheirHeartbeats) {
     EXPECT_EQ(nodes[0].info["gpus"], 2);
     EXPECT_EQ(nodes[1].name, "node-b");
     EXPECT_LT(nodes[1].heartbeat_age, 5.0);
+}
+
+TEST(Config, TheScaleOutOptionsAreCheckedWithMessagesThatSayWhatToWrite) {
+    bool help = false;
+    const server::ServerConfig c = server::parse_server_args(
+        {"--store", "postgresql://lf@db:5432/lf", "--node-name", "gpu-07", "--lease-seconds", "12"}, help);
+    EXPECT_EQ(c.store, "postgresql://lf@db:5432/lf");
+    EXPECT_EQ(c.node_name, "gpu-07");
+    EXPECT_EQ(c.lease_seconds, 12);
+    EXPECT_EQ(server::parse_server_args({}, help).lease_seconds, 30) << "the default lease";
+    EXPECT_TRUE(server::parse_server_args({}, help).store.empty()) << "SQLite by default";
+    auto refused = [&](const std::vector<std::string>& args) {
+        try {
+            server::parse_server_args(args, help);
+        } catch (const std::invalid_argument& e) {
+            return std::string(e.what());
+        }
+        return std::string("accepted");
+    };
+    EXPECT_NE(refused({"--store", "mysql://db/lf"}).find("write postgresql://USER@HOST:PORT/DB"), std::string::npos);
+    EXPECT_NE(refused({"--lease-seconds", "0.5"}).find("--lease-seconds must be at least 1"), std::string::npos);
+    EXPECT_NE(refused({"--node-name", "two words"}).find("--node-name"), std::string::npos);
 }
 
 // ------------------------------------------------ what only PostgreSQL has
