@@ -256,6 +256,46 @@ TEST_F(ScaleOut, JobsSubmittedAcrossThreeNodesEachFinishOnceOnOneNode) {
     EXPECT_NE(metrics->body.find("lightfarm_node_up{node=\"n3\"} 1"), std::string::npos);
 }
 
+TEST_F(ScaleOut, AnEventStreamOnAnotherNodeFollowsARunningJobLiveAndResumesOnAThird) {
+    add_nodes(3, 5);
+    Node& runner = *nodes[0];
+    runner.start();
+    engine.set("delay", "0.25");
+    // ~7.5 s of passes; at most 32, whose progress events are all kept (no
+    // coalescing to tell apart from a lost event).
+    const std::string id = submit(runner, upload(runner, "live"), 1, 30);
+    nodes[1]->start();
+    nodes[2]->start();
+    auto c = nodes[1]->client();
+    const json before = wait_for_job(c, id, [](const json& s) { return s.value("state", "") == "running"; });
+    ASSERT_EQ(before.value("state", ""), "running");
+    const int pass_at_open = before.value("progress", json::object()).value("pass", 0);
+    // Node 2 follows the job node 1 runs for 4.5 s: the passes node 1 stores
+    // meanwhile reach it, live (a stream reads the store at least every 2 s).
+    const auto live = read_events("127.0.0.1", nodes[1]->port, kToken, id, -1, 0, 4500ms);
+    ASSERT_FALSE(live.empty());
+    int newest_pass = 0;
+    for (const auto& e : live) {
+        EXPECT_FALSE(protocol::is_final_event(e.type)) << "the job ended already: the test saw nothing live";
+        if (e.type == "progress") newest_pass = std::max(newest_pass, e.data.value("pass", 0));
+    }
+    EXPECT_GT(newest_pass, pass_at_open + 2) << "passes run after the stream opened came through another node";
+    // Node 3 takes the stream over where node 2 left it, as a client
+    // resuming with Last-Event-ID does.
+    const auto rest = read_events("127.0.0.1", nodes[2]->port, kToken, id, live.back().id, 0, 20s);
+    EXPECT_EQ(wait_finished(*nodes[2], id).value("state", ""), "succeeded");
+    std::vector<protocol::JobEvent> joined = live;
+    joined.insert(joined.end(), rest.begin(), rest.end());
+    expect_one_clean_stream(joined, id);
+    // The same events, ids and order as the runner's own stream from the start.
+    const auto whole = events(runner, id);
+    ASSERT_EQ(joined.size(), whole.size());
+    for (size_t i = 0; i < whole.size(); ++i) {
+        EXPECT_EQ(joined[i].id, whole[i].id);
+        EXPECT_EQ(joined[i].type, whole[i].type);
+    }
+}
+
 TEST_F(ScaleOut, AJobOfAKilledNodeIsFinishedByAnotherAfterTheLease) {
     constexpr double kLease = 2;
     add_nodes(2, kLease);
