@@ -8,7 +8,7 @@ LIGHTFARM_PACKAGES=(
   build-essential cmake pkg-config
   libegl-dev libgl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
   libtinygltf-dev nlohmann-json3-dev libstb-dev libglm-dev libopenexr-dev
-  libgtest-dev libcpp-httplib-dev libsqlite3-dev libssl-dev
+  libgtest-dev libcpp-httplib-dev libsqlite3-dev libssl-dev libpq-dev
 )
 
 # Installs only the packages that are not installed yet (apt-get only when needed).

@@ -15,7 +15,8 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
 
   --listen HOST:PORT     address to serve on (default 127.0.0.1:8750; port 0 = any free port)
   --data DIR             jobs, scenes and artifacts (default $XDG_DATA_HOME/lightfarm,
-                         else ~/.local/share/lightfarm); one lightfarmd per DIR
+                         else ~/.local/share/lightfarm); one lightfarmd per DIR,
+                         except with --store (then every node may share it)
   --tokens FILE          bearer tokens, one per line (default DATA/tokens, created
                          with a new random token when missing)
   --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)
@@ -26,6 +27,13 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
   --stall-timeout S      kill a worker silent for S seconds (default 300)
   --job-timeout S        kill an attempt running longer than S seconds (default 14400)
   --http-threads N       request threads; each event stream holds one (default 64)
+  --store URI            the job store shared by many nodes: postgresql://USER@HOST:PORT/DB
+                         (a libpq URI; default: DATA/jobs.sqlite, one lightfarmd per DIR);
+                         then --data DIR may be a filesystem every node mounts
+  --node-name NAME       this node's name, unique among the store's nodes (default: host name)
+  --lease-seconds S      a job claimed by a node is its for S seconds after each renewal
+                         (renewed every S/3); a killed node's job goes to another after
+                         at most S (default 30)
   --limit KEY=VALUE      upload_bytes, triangles, texture_size, queued_jobs,
                          res, passes, time_limit, max_seconds, max_attempts;
                          HTTP: header_seconds, request_seconds, keep_alive_seconds,
@@ -103,6 +111,9 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
         else if (a == "--max-inspects") c.max_inspects = int(parse_number(a, v));
         else if (a == "--inspect-memory-mb") c.inspect_memory_bytes = uint64_t(parse_number(a, v) * 1048576.0);
         else if (a == "--event-retention-days") c.event_retention_days = parse_number(a, v);
+        else if (a == "--store") c.store = v;
+        else if (a == "--node-name") c.node_name = v;
+        else if (a == "--lease-seconds") c.lease_seconds = parse_number(a, v);
         else throw std::invalid_argument("unknown option " + a);
     }
     if (c.workers < 0 || (c.workers == 0 && std::find(args.begin(), args.end(), "--workers") != args.end()))
@@ -112,6 +123,13 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
     if (c.max_inspects < 1) throw std::invalid_argument("--max-inspects must be at least 1");
     if (c.inspect_memory_bytes < (64ull << 20)) throw std::invalid_argument("--inspect-memory-mb must be at least 64");
     if (c.event_retention_days < 0) throw std::invalid_argument("--event-retention-days must be at least 0");
+    if (!c.store.empty() && c.store.rfind("postgresql://", 0) != 0 && c.store.rfind("postgres://", 0) != 0)
+        throw std::invalid_argument("--store: '" + c.store +
+                                    "' is not a PostgreSQL URI; write postgresql://USER@HOST:PORT/DB "
+                                    "(without --store, the job store is DATA/jobs.sqlite)");
+    if (!(c.lease_seconds >= 1)) throw std::invalid_argument("--lease-seconds must be at least 1");
+    if (c.node_name.find_first_of(" \t\n\"\\") != std::string::npos || c.node_name.size() > 128)
+        throw std::invalid_argument("--node-name: at most 128 characters, without spaces, quotes or backslashes");
     const ServerLimits& l = c.limits;
     if (!(l.header_seconds > 0) || !(l.request_seconds >= l.header_seconds) || !(l.keep_alive_seconds > 0))
         throw std::invalid_argument(

@@ -53,6 +53,11 @@ struct ServerConfig {
         2ull << 30;  // --inspect-memory-mb M: address-space limit (RLIMIT_AS) of an upload check
     double event_retention_days =
         7;  // --event-retention-days D: a finished job's progress events compacted after D days
+    // Scale-out (docs/scale-out.md): --store postgresql://USER@HOST:PORT/DB
+    // shares one database among many nodes; empty: DATA/jobs.sqlite, one node.
+    std::string store;
+    std::string node_name;      // --node-name NAME: unique among the store's nodes; empty: the host name
+    double lease_seconds = 30;  // --lease-seconds S: a dead node's job goes to another after at most S
 };
 
 // Parses argv (after the program name). Throws std::invalid_argument with a

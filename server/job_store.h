@@ -1,6 +1,14 @@
 // Where jobs, their events and scene ownership live. The routes and the
-// supervisor only see this interface; SqliteJobStore is the embedded default,
-// and a networked store can be added beside it without touching them.
+// supervisor only see this interface; SqliteJobStore is the embedded default
+// (one lightfarmd), PostgresJobStore the shared one (many lightfarmd nodes on
+// one database, docs/scale-out.md).
+//
+// Each store speaks for one node (NodeIdentity): a job it claims is leased to
+// that node, which renews the lease while the job runs; a job whose lease
+// expired (its node was killed or cut off) is taken over by another node. The
+// writes of a running attempt (events, progress, requeue) only land while the
+// job still runs on the store's node, so a node that lost its job cannot
+// write into the attempt that replaced it.
 //
 // Every method is safe to call from several threads at once.
 //
@@ -14,6 +22,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cstdint>
 #include <map>
 #include <optional>
 #include <stdexcept>
@@ -42,8 +51,25 @@ struct SceneRecord {
     nlohmann::json summary;  // `lightfarm inspect --json` of it
 };
 
+// Who a store speaks for, and how long its leases last.
+struct NodeIdentity {
+    std::string name;           // unique among the nodes sharing a store (default: the host name)
+    double lease_seconds = 30;  // a claimed job is this node's for this long after each renewal
+};
+std::string default_node_name();  // the host name, else "lightfarmd"
+
+// A node's last heartbeat (GET /v1/nodes).
+struct NodeRecord {
+    std::string name;
+    double started_at = 0;     // seconds since the epoch
+    double heartbeat_at = 0;   // the newest heartbeat
+    double heartbeat_age = 0;  // seconds since it, by the store's clock (the database's: one for all nodes)
+    nlohmann::json info;       // what the node said of itself: {"gpus", "workers", "url", "lease_seconds"}
+};
+
 struct JobRecord {
     JobStatus status;
+    std::string node;        // the node that runs it, or ran it last ("" never claimed)
     std::string owner;       // hash of the token that created it
     std::string cache_key;   // equal keys = equal bakes (scene bytes, outputs, seed)
     double max_seconds = 0;  // deadline of one attempt
@@ -71,21 +97,34 @@ public:
     // A succeeded job with this cache key, if any.
     virtual std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) = 0;
 
-    // The oldest queued job, now running with one more attempt counted.
+    // The oldest queued job, now running on this node with one more attempt
+    // counted and a lease of lease_seconds. Several nodes claiming at once
+    // each get a different job.
     virtual std::optional<JobRecord> claim_next() = 0;
+    // Extends the lease of a job running on this node. False when the job no
+    // longer runs here (cancelled, or taken over after the lease expired):
+    // its worker must stop, and its attempt writes nothing more.
+    virtual bool renew_lease(const std::string& id) = 0;
+    // Running jobs whose node is gone, now leased to this node as they were
+    // (their `node` the one that lost them), for the caller to requeue or
+    // fail: those whose lease expired and, with `at_start`, those this
+    // node's name held before (a previous lightfarmd of this node). Each
+    // such job goes to exactly one node.
+    virtual std::vector<JobRecord> take_over_abandoned(bool at_start) = 0;
     virtual void set_progress(const std::string& id, const Progress& p) = 0;
     // The newest file of one output (from a snapshot or done event), kept
     // across attempts until a newer event replaces it.
     virtual void set_latest(const std::string& id, const std::string& output, const LatestFile& file) = 0;
     // Running -> queued after a failed attempt (or, with refund, an
     // interruption that is not the job's fault). Appends `event` (a
-    // "retrying" event) in the same transaction. False if no longer running.
+    // "retrying" event) in the same transaction. False if no longer running
+    // on this node.
     virtual bool requeue(const std::string& id, const JobEvent& event, bool refund_attempt) = 0;
     // Queued/running -> a final state, with its final event, atomically: the
     // final event is always the job's last. False if it was already final.
     virtual bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
                         const JobEvent& event) = 0;
-    // Jobs left running by a previous lightfarmd (it stopped or was killed).
+    // Every running job, on any node.
     virtual std::vector<JobRecord> running_jobs() = 0;
     // True when the store holds no job and no scene (a new store, or one that
     // lost its records: lightfarmd checks this against the data directory).
@@ -93,8 +132,9 @@ public:
     virtual bool has_job(const std::string& id) = 0;
 
     // --- events: ids are assigned here, 1, 2, 3 ... per job, never reused
-    // Appends a non-final event while the job is running; returns its id, or
-    // 0 when the job is no longer running (the event is dropped).
+    // Appends a non-final event while the job is running on this node;
+    // returns its id, or 0 when it is not (the event is dropped).
+    // set_progress and set_latest likewise change nothing then.
     //
     // Progress events are coalesced so that the store grows with jobs, not
     // passes: of one output's progress events, those of passes 1..32 and of
@@ -108,6 +148,30 @@ public:
     // the epoch), keeps every event but progress, and of progress only the
     // newest per output. Returns the number of events removed.
     virtual int64_t compact_events(double finished_before) = 0;
+
+    // --- nodes
+    const NodeIdentity& node() const { return node_; }
+    // Records that this node is alive, with what it says of itself.
+    virtual void heartbeat(const nlohmann::json& info) = 0;
+    virtual std::vector<NodeRecord> nodes() = 0;  // by name
+
+protected:
+    // An empty name is the default one (default_node_name()).
+    explicit JobStore(NodeIdentity node);
+
+private:
+    NodeIdentity node_;
 };
+
+// ---- rules both stores keep, in one place
+
+// Progress events of passes 1..32 and of every power of two are kept; of the
+// others only the newest per output (append_event).
+bool permanent_progress(const nlohmann::json& data);
+// The output a progress event is about: what it replaces an older one of.
+std::string progress_key(const JobEvent& event);
+double now_seconds();  // since the epoch
+// The jobs table's columns as both stores read and write them.
+extern const char* const kJobColumns;
 
 }  // namespace lf::server

@@ -6,7 +6,6 @@
 #include "hash.h"
 #include "log.h"
 #include "service.h"
-#include "sqlite_job_store.h"
 
 #include <fcntl.h>
 #include <signal.h>
@@ -84,16 +83,21 @@ std::vector<fs::path> record_dirs(const std::string& data_dir) {
 // logged (a partial loss), not refused.
 void check_store_against_data_dir(const ServerConfig& config) {
     const fs::path data = config.data_dir;
-    SqliteJobStore store((data / "jobs.sqlite").string());
+    const std::unique_ptr<JobStore> opened = open_job_store(config);
+    JobStore& store = *opened;
     const std::vector<fs::path> dirs = record_dirs(config.data_dir);
     if (store.empty()) {
         if (dirs.empty()) return;
+        const std::string which = config.store.empty() ? (data / "jobs.sqlite").string() : "given by --store";
+        const std::string lost =
+            config.store.empty() ? "was jobs.sqlite or jobs.sqlite-wal lost?" : "a new or different database?";
+        const std::string restore = config.store.empty() ? "Restore jobs.sqlite with its -wal file from a backup"
+                                                         : "Give the database these directories belong to";
         if (!config.accept_empty_store)
             throw std::runtime_error(
-                "the job store " + (data / "jobs.sqlite").string() + " is empty, but " + std::to_string(dirs.size()) +
-                " job and scene directories are in " + data.string() +
-                " (was jobs.sqlite or jobs.sqlite-wal lost?). Restore jobs.sqlite with its -wal file from a backup, "
-                "or start with --accept-empty-store to begin with an empty store (the directories are moved to " +
+                "the job store " + which + " is empty, but " + std::to_string(dirs.size()) +
+                " job and scene directories are in " + data.string() + " (" + lost + "). " + restore +
+                ", or start with --accept-empty-store to begin with an empty store (the directories are moved to " +
                 (data / "orphaned-TIME").string() + ", not deleted)");
         char stamp[32];
         const std::time_t t = std::time(nullptr);
@@ -126,15 +130,21 @@ std::vector<std::string> load_tokens(ServerConfig& config, bool& created) {
     if (config.tokens_file.empty()) {
         config.tokens_file = (fs::path(config.data_dir) / "tokens").string();
         if (!fs::exists(config.tokens_file)) {
-            const std::string tmp = config.tokens_file + ".tmp";
+            // A name of its own, then link(), which never replaces: of nodes
+            // starting together on a shared data directory, the first one's
+            // file stays and every node reads it.
+            const std::string tmp = config.tokens_file + "." + random_hex(8) + ".tmp";
             {
                 std::ofstream out(tmp);
                 out << "# lightfarmd bearer tokens, one per line (created by lightfarmd)\n" << random_hex(24) << "\n";
                 if (!out) throw std::runtime_error("cannot write " + tmp);
             }
             chmod(tmp.c_str(), 0600);
-            fs::rename(tmp, config.tokens_file);
-            created = true;
+            created = ::link(tmp.c_str(), config.tokens_file.c_str()) == 0;
+            const int link_error = errno;
+            fs::remove(tmp);
+            if (!created && link_error != EEXIST)
+                throw std::runtime_error("cannot create " + config.tokens_file + ": " + strerror(link_error));
         }
     }
     std::vector<std::string> tokens = read_tokens(config.tokens_file);
@@ -147,7 +157,7 @@ std::vector<std::string> load_tokens(ServerConfig& config, bool& created) {
 // with --listen HOST:0 find the port.
 void write_url_file(const ServerConfig& config, const std::string& url) {
     const fs::path path = fs::path(config.data_dir) / "lightfarmd.url";
-    const fs::path tmp = path.string() + ".tmp";
+    const fs::path tmp = path.string() + "." + random_hex(8) + ".tmp";
     std::ofstream(tmp) << url << "\n";
     chmod(tmp.c_str(), 0600);
     fs::rename(tmp, path);
@@ -191,7 +201,10 @@ int main(int argc, char** argv) {
         if (struct stat st{}; ::stat(config.data_dir.c_str(), &st) == 0 && (st.st_mode & 0077) &&
                               ::chmod(config.data_dir.c_str(), 0700) == 0)
             log_line("made " + config.data_dir + " readable by its owner only (0700)");
-        lock_data_dir(config.data_dir);
+        // One lightfarmd per data directory with the embedded store; with a
+        // shared store (--store) every node may use the same one: the store
+        // arbitrates, and files are written under unique names and renamed.
+        if (config.store.empty()) lock_data_dir(config.data_dir);
         check_store_against_data_dir(config);
         bool created = false;
         const std::vector<std::string> tokens = load_tokens(config, created);

@@ -91,4 +91,21 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     return m.str();
 }
 
+std::string Metrics::render_nodes(const std::string& self, const std::vector<NodeGauge>& nodes) {
+    std::ostringstream m;
+    m << "# HELP lightfarm_node_info The node that answered this scrape.\n# TYPE lightfarm_node_info gauge\n";
+    m << "lightfarm_node_info{node=\"" << self << "\"} 1\n";
+    m << "# HELP lightfarm_node_up 1 while a node's heartbeat is younger than its lease.\n";
+    m << "# TYPE lightfarm_node_up gauge\n";
+    for (const NodeGauge& n : nodes) m << "lightfarm_node_up{node=\"" << n.name << "\"} " << (n.alive ? 1 : 0) << "\n";
+    m << "# HELP lightfarm_node_running_jobs Jobs running on each node.\n# TYPE lightfarm_node_running_jobs gauge\n";
+    for (const NodeGauge& n : nodes)
+        m << "lightfarm_node_running_jobs{node=\"" << n.name << "\"} " << n.running_jobs << "\n";
+    m << "# HELP lightfarm_node_heartbeat_age_seconds Seconds since each node's newest heartbeat.\n";
+    m << "# TYPE lightfarm_node_heartbeat_age_seconds gauge\n";
+    for (const NodeGauge& n : nodes)
+        m << "lightfarm_node_heartbeat_age_seconds{node=\"" << n.name << "\"} " << n.seconds_since_heartbeat << "\n";
+    return m.str();
+}
+
 }  // namespace lf::server

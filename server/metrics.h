@@ -34,6 +34,16 @@ public:
 
     std::string render(const std::map<protocol::JobState, int>& jobs_by_state) const;
 
+    // The nodes sharing the store (GET /v1/nodes), each labelled node="NAME",
+    // and which of them answered (lightfarm_node_info).
+    struct NodeGauge {
+        std::string name;
+        bool alive;
+        int running_jobs;
+        double seconds_since_heartbeat;
+    };
+    static std::string render_nodes(const std::string& self, const std::vector<NodeGauge>& nodes);
+
 private:
     struct Histogram {
         std::vector<uint64_t> buckets;  // cumulative counts per kBuckets bound

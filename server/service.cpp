@@ -3,6 +3,7 @@
 #include "hash.h"
 #include "http_error.h"
 #include "log.h"
+#include "postgres_job_store.h"
 #include "preview.h"
 #include "sqlite_job_store.h"
 #include "status_page.h"
@@ -31,10 +32,6 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace {
-
-double now_seconds() {
-    return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 
 // The store keys ownership by a hash of the token, never the token itself.
 std::string owner_of(const std::string& token) { return sha256_hex("lightfarm-token:" + token).substr(0, 32); }
@@ -669,6 +666,7 @@ const std::vector<Service::Route>& Service::routes() {
         {"GET", "/v1/scenes/{id}", Auth::Token, &Service::get_scene},
         {"POST", "/v1/jobs", Auth::Token, &Service::post_job},
         {"GET", "/v1/jobs", Auth::Token, &Service::list_jobs},
+        {"GET", "/v1/nodes", Auth::Token, &Service::list_nodes},
         {"GET", "/v1/jobs/{id}", Auth::Token, &Service::get_job},
         {"GET", "/v1/jobs/{id}/events", Auth::Token, &Service::job_events},
         {"GET", "/v1/jobs/{id}/artifacts", Auth::Token, &Service::list_artifacts},
@@ -694,7 +692,7 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     fs::create_directories(fs::path(config_.data_dir) / "jobs");
     fs::create_directories(fs::path(config_.data_dir) / "scenes");
     fs::create_directories(fs::path(config_.data_dir) / "tmp");
-    store_ = std::make_unique<SqliteJobStore>((fs::path(config_.data_dir) / "jobs.sqlite").string());
+    store_ = open_job_store(config_);
     scenes_ = std::make_unique<SceneStore>(config_, *store_);
     supervisor_ = std::make_unique<Supervisor>(*store_, config_, changes_, metrics_);
     http_ = std::make_unique<GatedServer>(config_.limits, config_.http_threads, metrics_);
@@ -1018,7 +1016,15 @@ void Service::healthz(const httplib::Request&, httplib::Response& res, const Cal
 }
 
 void Service::metrics(const httplib::Request&, httplib::Response& res, const Caller&) {
-    res.set_content(metrics_.render(store_->count_by_state()), "text/plain; version=0.0.4");
+    std::vector<Metrics::NodeGauge> nodes;
+    std::map<std::string, int> running;
+    for (const JobRecord& job : store_->running_jobs()) ++running[job.node];
+    for (const NodeRecord& n : store_->nodes()) {
+        const double lease = n.info.is_object() ? n.info.value("lease_seconds", 30.0) : 30.0;
+        nodes.push_back({n.name, n.heartbeat_age < lease, running[n.name], std::max(0.0, n.heartbeat_age)});
+    }
+    res.set_content(metrics_.render(store_->count_by_state()) + Metrics::render_nodes(store_->node().name, nodes),
+                    "text/plain; version=0.0.4");
 }
 
 void Service::status_page(const httplib::Request&, httplib::Response& res, const Caller& caller) {
@@ -1151,6 +1157,45 @@ json Service::jobs_json(const std::string& owner) const {
     std::map<std::string, json> briefs;
     for (const JobRecord& job : store_->jobs_of(owner)) jobs.push_back(status_json(job, &briefs));
     return {{"jobs", jobs}};
+}
+
+std::unique_ptr<JobStore> open_job_store(const ServerConfig& config) {
+    const NodeIdentity node{config.node_name, config.lease_seconds};
+    if (!config.store.empty()) return std::make_unique<PostgresJobStore>(config.store, node);
+    return std::make_unique<SqliteJobStore>((fs::path(config.data_dir) / "jobs.sqlite").string(), node);
+}
+
+json Service::nodes_json(const std::string& owner) const {
+    // How many jobs each node runs, and which of them are the caller's (the
+    // others' ids are not the caller's business).
+    std::map<std::string, json> running;
+    for (const JobRecord& job : store_->running_jobs()) {
+        json& r = running[job.node];
+        if (r.is_null()) r = {{"count", 0}, {"jobs", json::array()}};
+        r["count"] = r["count"].get<int>() + 1;
+        if (job.owner == owner) r["jobs"].push_back(job.status.id);
+    }
+    json nodes = json::array();
+    for (const NodeRecord& n : store_->nodes()) {
+        const double lease = n.info.is_object() ? n.info.value("lease_seconds", 30.0) : 30.0;
+        const json& r = running.count(n.name) ? running.at(n.name) : json{{"count", 0}, {"jobs", json::array()}};
+        nodes.push_back({{"name", n.name},
+                         {"alive", n.heartbeat_age < lease},
+                         {"self", n.name == store_->node().name},
+                         {"started_at", n.started_at},
+                         {"last_heartbeat", n.heartbeat_at},
+                         {"seconds_since_heartbeat", std::max(0.0, n.heartbeat_age)},
+                         {"gpus", n.info.is_object() ? n.info.value("gpus", 0) : 0},
+                         {"workers", n.info.is_object() ? n.info.value("workers", 0) : 0},
+                         {"lease_seconds", lease},
+                         {"running", r["count"]},
+                         {"jobs", r["jobs"]}});
+    }
+    return {{"nodes", nodes}};
+}
+
+void Service::list_nodes(const httplib::Request&, httplib::Response& res, const Caller& caller) {
+    send_json(res, 200, nodes_json(caller.owner));
 }
 
 void Service::list_jobs(const httplib::Request&, httplib::Response& res, const Caller& caller) {

@@ -32,6 +32,10 @@ class GatedServer;  // cpp-httplib's server behind lightfarmd's connection gate 
 // Short job ids: kMinJobIdPrefix or more lower-case hex digits.
 constexpr size_t kMinJobIdPrefix = 6;
 bool is_job_id_prefix(const std::string& id);
+
+// The job store `config` names: PostgreSQL for --store, else DATA/jobs.sqlite;
+// speaking for the node --node-name, with leases of --lease-seconds.
+std::unique_ptr<JobStore> open_job_store(const ServerConfig& config);
 // The one of `jobs` whose id starts with `prefix` (nullopt: none, or not a
 // prefix); throws HttpError 409 when several do.
 std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector<JobRecord> jobs);
@@ -95,6 +99,9 @@ private:
     void get_scene(const httplib::Request&, httplib::Response&, const Caller&);
     void post_job(const httplib::Request&, httplib::Response&, const Caller&);
     void list_jobs(const httplib::Request&, httplib::Response&, const Caller&);
+    void list_nodes(const httplib::Request&, httplib::Response&, const Caller&);
+    // GET /v1/nodes's body: every node of the store, and the caller's jobs on each.
+    nlohmann::json nodes_json(const std::string& owner) const;
     void get_job(const httplib::Request&, httplib::Response&, const Caller&);
     void job_events(const httplib::Request&, httplib::Response&, const Caller&);
     void list_artifacts(const httplib::Request&, httplib::Response&, const Caller&);

@@ -16,10 +16,6 @@ using protocol::parse_job_state;
 using protocol::to_string;
 
 namespace {
-double now_seconds() {
-    return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
-
 constexpr const char* kSchema = R"sql(
 CREATE TABLE IF NOT EXISTS scenes(
   id TEXT PRIMARY KEY, main_file TEXT NOT NULL, summary TEXT NOT NULL, created_at REAL NOT NULL);
@@ -31,24 +27,16 @@ CREATE TABLE IF NOT EXISTS jobs(
   state TEXT NOT NULL, progress TEXT NOT NULL, attempts INTEGER NOT NULL, max_attempts INTEGER NOT NULL,
   max_seconds REAL NOT NULL, error TEXT NOT NULL, cause TEXT NOT NULL, cache_key TEXT NOT NULL,
   cached INTEGER NOT NULL, created_at REAL NOT NULL, started_at REAL NOT NULL, finished_at REAL NOT NULL,
-  latest TEXT NOT NULL DEFAULT '{}');
+  latest TEXT NOT NULL DEFAULT '{}', node TEXT NOT NULL DEFAULT '', lease_expires REAL NOT NULL DEFAULT 0);
 CREATE INDEX IF NOT EXISTS jobs_by_owner ON jobs(owner, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_state ON jobs(state, seq);
 CREATE INDEX IF NOT EXISTS jobs_by_key ON jobs(cache_key, state);
 CREATE TABLE IF NOT EXISTS events(
   job TEXT NOT NULL, id INTEGER NOT NULL, type TEXT NOT NULL, data TEXT NOT NULL,
   coalesce_key TEXT, permanent INTEGER NOT NULL DEFAULT 1, PRIMARY KEY(job, id));
+CREATE TABLE IF NOT EXISTS nodes(
+  name TEXT PRIMARY KEY, started_at REAL NOT NULL, heartbeat_at REAL NOT NULL, info TEXT NOT NULL);
 )sql";
-
-// Progress events of passes 1..kKeepProgressUpTo and of every power of two
-// are kept; of the others only the newest per output (append_event).
-constexpr int kKeepProgressUpTo = 32;
-
-bool permanent_progress(const nlohmann::json& data) {
-    const int64_t pass =
-        data.is_object() && data.contains("pass") && data["pass"].is_number_integer() ? data["pass"].get<int64_t>() : 0;
-    return pass <= kKeepProgressUpTo || (pass & (pass - 1)) == 0;
-}
 
 [[noreturn]] void store_failed(sqlite3* db, const std::string& what) {
     throw StoreError("job store: " + what + ": " + sqlite3_errmsg(db));
@@ -167,10 +155,6 @@ void install_fault_vfs() {
     g_fault_vfs.xCurrentTimeInt64 = fault_time64;
     if (sqlite3_vfs_register(&g_fault_vfs, 1) != SQLITE_OK) throw std::runtime_error("cannot register the test VFS");
 }
-
-constexpr const char* kJobColumns =
-    "id, owner, scene, spec, state, progress, attempts, max_attempts, max_seconds, error, cause, "
-    "cache_key, cached, created_at, started_at, finished_at, latest";
 }  // namespace
 
 // A prepared statement: bind with `bind(...)`, then step() row by row.
@@ -254,7 +238,7 @@ void SqliteJobStore::simulate_full_disk_for_tests(bool fail) {
     g_full_disk = fail;
 }
 
-SqliteJobStore::SqliteJobStore(const std::string& path) : path_(path) {
+SqliteJobStore::SqliteJobStore(const std::string& path, NodeIdentity node) : JobStore(std::move(node)), path_(path) {
     if (sqlite3_open_v2(path.c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
                         nullptr) != SQLITE_OK) {
         const std::string why = db_ ? sqlite3_errmsg(db_) : "out of memory";
@@ -274,6 +258,17 @@ SqliteJobStore::SqliteJobStore(const std::string& path) : path_(path) {
         while (columns.step()) has_latest = has_latest || columns.text(1) == "latest";
     }
     if (!has_latest) exec("ALTER TABLE jobs ADD COLUMN latest TEXT NOT NULL DEFAULT '{}'");
+    // A store created before leases (scale-out): its running jobs are taken
+    // over at start like any other (take_over_abandoned).
+    bool has_node = false;
+    {
+        Statement columns(db_, "PRAGMA table_info(jobs)");
+        while (columns.step()) has_node = has_node || columns.text(1) == "node";
+    }
+    if (!has_node) {
+        exec("ALTER TABLE jobs ADD COLUMN node TEXT NOT NULL DEFAULT ''");
+        exec("ALTER TABLE jobs ADD COLUMN lease_expires REAL NOT NULL DEFAULT 0");
+    }
     // A store created before progress events were coalesced: its progress
     // rows are kept (permanent) until compact_events() reaches their jobs.
     bool has_coalesce = false;
@@ -347,9 +342,7 @@ int64_t SqliteJobStore::insert_event_locked(const std::string& id, const JobEven
     std::string key;
     bool permanent = true;
     if (progress) {
-        key = event.data.is_object() && event.data.contains("output") && event.data["output"].is_string()
-                  ? event.data["output"].get<std::string>()
-                  : "";
+        key = progress_key(event);
         permanent = permanent_progress(event.data);
         Statement replace(db_, "DELETE FROM events WHERE job = ? AND coalesce_key = ? AND permanent = 0");
         replace.bind(1, id).bind(2, key);
@@ -368,12 +361,15 @@ void SqliteJobStore::insert_job(const JobRecord& job, const std::vector<JobEvent
     Transaction t(db_);
     const JobStatus& s = job.status;
     Statement q(db_, std::string("INSERT INTO jobs(") + kJobColumns +
-                         ") VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                         ", lease_expires) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
     q.bind(1, s.id).bind(2, job.owner).bind(3, s.scene).bind(4, s.spec.dump()).bind(5, to_string(s.state));
     q.bind(6, protocol::to_json(s.progress).dump()).bind(7, s.attempts).bind(8, s.max_attempts);
     q.bind(9, job.max_seconds).bind(10, s.error).bind(11, s.cause).bind(12, job.cache_key);
     q.bind(13, int(s.cached)).bind(14, s.created_at > 0 ? s.created_at : now_seconds());
     q.bind(15, s.started_at).bind(16, s.finished_at).bind(17, protocol::to_json(s.latest).dump());
+    // A job born running (tests, imports) runs on this node.
+    const bool running = s.state == JobState::Running;
+    q.bind(18, running ? node().name : job.node).bind(19, running ? now_seconds() + node().lease_seconds : 0.0);
     q.step();
     for (const JobEvent& e : events) insert_event_locked(s.id, e);
     t.commit();
@@ -403,6 +399,7 @@ std::vector<JobRecord> SqliteJobStore::select_jobs(const std::string& where, con
         s.started_at = q.real(14);
         s.finished_at = q.real(15);
         s.latest = protocol::latest_from_json(json::parse(q.text(16), nullptr, false));
+        r.node = q.text(17);
         jobs.push_back(std::move(r));
     }
     return jobs;
@@ -455,26 +452,58 @@ std::optional<JobRecord> SqliteJobStore::claim_next() {
     job.status.attempts += 1;
     job.status.started_at = now_seconds();
     job.status.progress = Progress{};
-    Statement q(db_, "UPDATE jobs SET state = 'running', attempts = ?, started_at = ?, progress = ? WHERE id = ?");
+    job.node = node().name;
+    Statement q(db_,
+                "UPDATE jobs SET state = 'running', attempts = ?, started_at = ?, progress = ?, node = ?, "
+                "lease_expires = ? WHERE id = ?");
     q.bind(1, job.status.attempts).bind(2, job.status.started_at);
-    q.bind(3, protocol::to_json(job.status.progress).dump()).bind(4, job.status.id);
+    q.bind(3, protocol::to_json(job.status.progress).dump()).bind(4, job.node);
+    q.bind(5, job.status.started_at + node().lease_seconds).bind(6, job.status.id);
     q.step();
     t.commit();
     return job;
 }
 
+bool SqliteJobStore::renew_lease(const std::string& id) {
+    std::lock_guard lock(mutex_);
+    Statement q(db_, "UPDATE jobs SET lease_expires = ? WHERE id = ? AND state = 'running' AND node = ?");
+    q.bind(1, now_seconds() + node().lease_seconds).bind(2, id).bind(3, node().name);
+    q.step();
+    return q.changes() > 0;
+}
+
+std::vector<JobRecord> SqliteJobStore::take_over_abandoned(bool at_start) {
+    std::lock_guard lock(mutex_);
+    Transaction t(db_);
+    // One lightfarmd per SQLite file (the data directory's lock): at start,
+    // every running job was left by a previous lightfarmd; later, a job of
+    // another node (a store copied from elsewhere) only once its lease expired.
+    const double now = now_seconds();
+    auto jobs = at_start ? select_jobs("WHERE state = 'running' ORDER BY seq", {})
+                         : select_jobs("WHERE state = 'running' AND node <> ? AND lease_expires < " +
+                                           std::to_string(now) + " ORDER BY seq",
+                                       {node().name});
+    for (const JobRecord& job : jobs) {
+        Statement q(db_, "UPDATE jobs SET node = ?, lease_expires = ? WHERE id = ?");
+        q.bind(1, node().name).bind(2, now + node().lease_seconds).bind(3, job.status.id);
+        q.step();
+    }
+    t.commit();
+    return jobs;
+}
+
 void SqliteJobStore::set_progress(const std::string& id, const Progress& p) {
     std::lock_guard lock(mutex_);
-    Statement q(db_, "UPDATE jobs SET progress = ? WHERE id = ? AND state = 'running'");
-    q.bind(1, protocol::to_json(p).dump()).bind(2, id);
+    Statement q(db_, "UPDATE jobs SET progress = ? WHERE id = ? AND state = 'running' AND node = ?");
+    q.bind(1, protocol::to_json(p).dump()).bind(2, id).bind(3, node().name);
     q.step();
 }
 
 void SqliteJobStore::set_latest(const std::string& id, const std::string& output, const LatestFile& file) {
     std::lock_guard lock(mutex_);
     Transaction t(db_);
-    Statement read(db_, "SELECT latest FROM jobs WHERE id = ? AND state = 'running'");
-    read.bind(1, id);
+    Statement read(db_, "SELECT latest FROM jobs WHERE id = ? AND state = 'running' AND node = ?");
+    read.bind(1, id).bind(2, node().name);
     if (!read.step()) return;
     json latest = json::parse(read.text(0), nullptr, false);
     if (!latest.is_object()) latest = json::object();
@@ -488,8 +517,10 @@ void SqliteJobStore::set_latest(const std::string& id, const std::string& output
 bool SqliteJobStore::requeue(const std::string& id, const JobEvent& event, bool refund_attempt) {
     std::lock_guard lock(mutex_);
     Transaction t(db_);
-    Statement q(db_, "UPDATE jobs SET state = 'queued', attempts = attempts - ? WHERE id = ? AND state = 'running'");
-    q.bind(1, refund_attempt ? 1 : 0).bind(2, id);
+    Statement q(db_,
+                "UPDATE jobs SET state = 'queued', attempts = attempts - ?, lease_expires = 0 "
+                "WHERE id = ? AND state = 'running' AND node = ?");
+    q.bind(1, refund_attempt ? 1 : 0).bind(2, id).bind(3, node().name);
     q.step();
     if (q.changes() == 0) return false;
     insert_event_locked(id, event);
@@ -546,8 +577,8 @@ int64_t SqliteJobStore::compact_events(double finished_before) {
 int64_t SqliteJobStore::append_event(const std::string& id, const JobEvent& event) {
     std::lock_guard lock(mutex_);
     Transaction t(db_);
-    Statement check(db_, "SELECT 1 FROM jobs WHERE id = ? AND state = 'running'");
-    check.bind(1, id);
+    Statement check(db_, "SELECT 1 FROM jobs WHERE id = ? AND state = 'running' AND node = ?");
+    check.bind(1, id).bind(2, node().name);
     if (!check.step()) return 0;
     const int64_t event_id = insert_event_locked(id, event);
     t.commit();
@@ -561,6 +592,26 @@ std::vector<JobEvent> SqliteJobStore::events_after(const std::string& id, int64_
     std::vector<JobEvent> events;
     while (q.step()) events.push_back(JobEvent{q.integer(0), q.text(1), json::parse(q.text(2), nullptr, false)});
     return events;
+}
+
+void SqliteJobStore::heartbeat(const json& info) {
+    std::lock_guard lock(mutex_);
+    const double now = now_seconds();
+    Statement q(db_,
+                "INSERT INTO nodes(name, started_at, heartbeat_at, info) VALUES(?, ?, ?, ?) "
+                "ON CONFLICT(name) DO UPDATE SET heartbeat_at = excluded.heartbeat_at, info = excluded.info");
+    q.bind(1, node().name).bind(2, now).bind(3, now).bind(4, info.dump());
+    q.step();
+}
+
+std::vector<NodeRecord> SqliteJobStore::nodes() {
+    std::lock_guard lock(mutex_);
+    Statement q(db_, "SELECT name, started_at, heartbeat_at, info FROM nodes ORDER BY name");
+    std::vector<NodeRecord> nodes;
+    const double now = now_seconds();
+    while (q.step())
+        nodes.push_back({q.text(0), q.real(1), q.real(2), now - q.real(2), json::parse(q.text(3), nullptr, false)});
+    return nodes;
 }
 
 }  // namespace lf::server

@@ -15,7 +15,8 @@ namespace lf::server {
 
 class SqliteJobStore : public JobStore {
 public:
-    explicit SqliteJobStore(const std::string& path);  // creates the schema if needed
+    // Creates the schema if needed. `node`: who this lightfarmd is (one per file).
+    explicit SqliteJobStore(const std::string& path, NodeIdentity node = {});
     ~SqliteJobStore() override;
 
     std::optional<SceneRecord> scene(const std::string& id) override;
@@ -31,6 +32,8 @@ public:
     std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) override;
 
     std::optional<JobRecord> claim_next() override;
+    bool renew_lease(const std::string& id) override;
+    std::vector<JobRecord> take_over_abandoned(bool at_start) override;
     void set_progress(const std::string& id, const Progress& p) override;
     void set_latest(const std::string& id, const std::string& output, const LatestFile& file) override;
     bool requeue(const std::string& id, const JobEvent& event, bool refund_attempt) override;
@@ -43,6 +46,9 @@ public:
     int64_t append_event(const std::string& id, const JobEvent& event) override;
     std::vector<JobEvent> events_after(const std::string& id, int64_t after) override;
     int64_t compact_events(double finished_before) override;
+
+    void heartbeat(const nlohmann::json& info) override;
+    std::vector<NodeRecord> nodes() override;
 
     // Test hook: every SQLite database this process opens *after the first
     // call* goes through a VFS that, while `fail` is true, fails each write

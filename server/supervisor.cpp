@@ -4,6 +4,7 @@
 #include "subprocess.h"
 
 #include <signal.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -18,17 +19,21 @@ using nlohmann::json;
 using Clock = Supervisor::Clock;
 
 namespace {
-// A worker's pid, kept in its job directory (hidden from the artifacts by the
-// leading dot) so that a restarted lightfarmd can end a worker its
-// predecessor left behind before running the job again.
+// A worker's pid and its node's name ("PID NODE"), kept in its job directory
+// (hidden from the artifacts by the leading dot) so that a restarted
+// lightfarmd can end a worker its predecessor left behind before running the
+// job again. On a shared data directory a pid means something only on the
+// node that wrote it.
 constexpr const char* kPidFile = ".worker.pid";
 // The job's spec as the worker reads it (`--spec`), hidden the same way.
 constexpr const char* kSpecFile = ".spec.json";
 
-void kill_leftover_worker(const fs::path& dir) {
+void kill_leftover_worker(const fs::path& dir, const std::string& this_node) {
     std::ifstream in(dir / kPidFile);
     pid_t pid = 0;
     if (!(in >> pid) || pid <= 1) return;
+    std::string node;
+    if (in >> node && node != this_node) return;  // another machine's process
     // Only if that pid still runs a bake into this very directory.
     std::ifstream cmdline("/proc/" + std::to_string(pid) + "/cmdline");
     std::string args((std::istreambuf_iterator<char>(cmdline)), std::istreambuf_iterator<char>());
@@ -59,28 +64,84 @@ void Supervisor::start() {
     std::lock_guard lock(lifecycle_mutex_);
     if (stopping_) return;  // stopped before it started
     compact_events();
-    for (const JobRecord& job : store_.running_jobs()) {
-        const std::string& id = job.status.id;
-        kill_leftover_worker(job_dir(id));
-        const std::string cause = "lightfarmd stopped during attempt " + std::to_string(job.status.attempts);
-        if (job.status.attempts >= job.status.max_attempts) {
-            store_.finish(
-                id, JobState::Failed, "bake failed after " + std::to_string(job.status.attempts) + " attempts", cause,
-                {0, "failed", {{"error", "bake failed"}, {"cause", cause}, {"attempts", job.status.attempts}}});
-        } else {
-            store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", cause}}}, false);
-        }
-        log_line("job " + id + ": " + cause + ", " +
-                 (job.status.attempts >= job.status.max_attempts ? "no attempt left" : "queued again"));
-    }
+    end_abandoned_attempts(store_.take_over_abandoned(/*at_start=*/true));
     // One worker per GPU, each pinned to its own (--device gpu:N); one on a
     // machine without a GPU. --workers N overrides the count.
     const int gpus = count_gpus();
     const int workers = config_.workers > 0 ? config_.workers : std::max(1, gpus);
     log_line("engine: " + engine_ + ", " + std::to_string(gpus) + " GPU(s), " + std::to_string(workers) + " worker(s)");
+    node_info_ = {{"gpus", gpus}, {"workers", workers}, {"lease_seconds", store_.node().lease_seconds}};
+    heartbeat();
     for (int i = 0; i < workers; ++i) {
         const std::string device = gpus > 0 ? "gpu:" + std::to_string(i % gpus) : "";
         threads_.emplace_back([this, device] { worker_loop(device); });
+    }
+    threads_.emplace_back([this] { lease_loop(); });
+}
+
+void Supervisor::end_abandoned_attempts(const std::vector<JobRecord>& jobs) {
+    const std::string& self = store_.node().name;
+    for (const JobRecord& job : jobs) {
+        const std::string& id = job.status.id;
+        const std::string attempt = std::to_string(job.status.attempts);
+        const bool ours = job.node == self || job.node.empty();
+        if (ours) kill_leftover_worker(job_dir(id), self);
+        const std::string cause = ours ? "lightfarmd stopped during attempt " + attempt
+                                       : "node " + job.node + " stopped renewing its lease during attempt " + attempt;
+        const bool last = job.status.attempts >= job.status.max_attempts;
+        if (last) {
+            store_.finish(
+                id, JobState::Failed, "bake failed after " + attempt + " attempts", cause,
+                {0, "failed", {{"error", "bake failed"}, {"cause", cause}, {"attempts", job.status.attempts}}});
+        } else {
+            store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", cause}}}, false);
+        }
+        log_line("job " + id + ": " + cause + ", " + (last ? "no attempt left" : "queued again"));
+    }
+    if (!jobs.empty()) changes_.notify();
+}
+
+void Supervisor::heartbeat() {
+    try {
+        store_.heartbeat(node_info_);
+    } catch (const StoreError& e) {
+        store_trouble(std::string("node heartbeat: ") + e.what());
+    }
+}
+
+void Supervisor::keep_leases() {
+    heartbeat();
+    std::vector<std::string> running;
+    {
+        std::lock_guard lock(cancel_mutex_);
+        running.assign(running_here_.begin(), running_here_.end());
+    }
+    for (const std::string& id : running) {
+        try {
+            if (!store_.renew_lease(id)) {
+                std::lock_guard lock(cancel_mutex_);
+                lost_.insert(id);
+            }
+        } catch (const StoreError& e) {
+            // The worker bakes on: the lease is renewed when the store is back,
+            // unless it expired meanwhile and another node took the job.
+            store_trouble("job " + id + ": cannot renew its lease: " + e.what());
+        }
+    }
+    try {
+        end_abandoned_attempts(store_.take_over_abandoned(/*at_start=*/false));
+    } catch (const StoreError& e) {
+        store_trouble(std::string("cannot look for jobs of lost nodes: ") + e.what());
+    }
+}
+
+void Supervisor::lease_loop() {
+    // Three renewals per lease: a lease survives two missed ones.
+    const auto period = std::chrono::duration_cast<Clock::duration>(
+        std::chrono::duration<double>(std::max(0.05, store_.node().lease_seconds / 3)));
+    for (auto next = Clock::now() + period; !stopping_; next += period) {
+        while (!stopping_ && Clock::now() < next) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        if (!stopping_) keep_leases();
     }
 }
 
@@ -219,8 +280,9 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
             "bake failed after " + std::to_string(attempts) + " attempt" + (attempts == 1 ? "" : "s");
         log_line("job " + id + ": " + error + ": " + cause);
         persist("job " + id + ": failed state", [&] {
-            store_.finish(id, JobState::Failed, error, cause,
-                          {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", attempts}}});
+            if (store_.renew_lease(id))  // still ours: not cancelled or taken over meanwhile
+                store_.finish(id, JobState::Failed, error, cause,
+                              {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", attempts}}});
         });
     }
 }
@@ -228,8 +290,9 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
 void Supervisor::fail_now(const JobRecord& job, const std::string& error, const std::string& cause) {
     log_line("job " + job.status.id + ": " + error + (cause.empty() ? "" : ": " + cause));
     persist("job " + job.status.id + ": failed state", [&] {
-        store_.finish(job.status.id, JobState::Failed, error, cause,
-                      {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", job.status.attempts}}});
+        if (store_.renew_lease(job.status.id))  // still ours: not cancelled or taken over meanwhile
+            store_.finish(job.status.id, JobState::Failed, error, cause,
+                          {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", job.status.attempts}}});
     });
 }
 
@@ -351,7 +414,10 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
     // The worker reads the job's own spec: no translation into flags.
     const fs::path spec_file = dir / kSpecFile;
     {
-        const fs::path tmp = dir / (std::string(kSpecFile) + ".tmp");
+        // A name of this process's own: on a shared data directory a node
+        // that lost the job may still be writing beside the one that has it.
+        const fs::path tmp =
+            dir / (std::string(kSpecFile) + "." + store_.node().name + "." + std::to_string(::getpid()) + ".tmp");
         std::ofstream out(tmp);
         out << protocol::to_json(spec).dump() << "\n";
         if (!out) throw std::runtime_error("cannot write " + tmp.string());
@@ -366,7 +432,7 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
     }
     ++metrics_.worker_starts;
     auto child = std::make_unique<Subprocess>(argv);
-    std::ofstream(dir / kPidFile) << child->pid() << "\n";
+    std::ofstream(dir / kPidFile) << child->pid() << " " << store_.node().name << "\n";
     log_line("job " + job.status.id + ": attempt " + std::to_string(job.status.attempts) + ", worker " +
              std::to_string(child->pid()));
     return child;
@@ -410,6 +476,11 @@ bool Supervisor::cancel_requested(const std::string& job_id) {
     return cancelled_.count(job_id) > 0;
 }
 
+bool Supervisor::lease_lost(const std::string& job_id) {
+    std::lock_guard lock(cancel_mutex_);
+    return lost_.count(job_id) > 0;
+}
+
 void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     const std::string& id = job.status.id;
     // Validated once, at submit, against the limits of that day: a lower
@@ -430,6 +501,21 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         return;
     }
 
+    // Known to the lease loop while it runs here.
+    struct RunningHere {
+        Supervisor& s;
+        std::string id;
+        RunningHere(Supervisor& s, std::string id) : s(s), id(std::move(id)) {
+            std::lock_guard lock(s.cancel_mutex_);
+            s.running_here_.insert(this->id);
+        }
+        ~RunningHere() {
+            std::lock_guard lock(s.cancel_mutex_);
+            s.running_here_.erase(id);
+            s.lost_.erase(id);
+        }
+    } running_here{*this, id};
+
     std::unique_ptr<Subprocess> child;
     try {
         child = start_worker(job, spec, *scene, device);
@@ -445,6 +531,7 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     AttemptState state;
     std::string cause;  // set when we end the worker ourselves
     bool cancelled = false;
+    bool lost = false;  // the job no longer runs on this node
     // What the store could not take yet (a full disk): kept, in order, and
     // stored when it can again; the worker bakes on meanwhile. A progress
     // update replaces an unsaved one of the same output, so this stays small.
@@ -468,7 +555,7 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
             return;
         }
         if (!unsaved.empty()) flush_updates(id, unsaved);
-        if ((cancelled = cancel_requested(id))) {
+        if ((cancelled = cancel_requested(id)) || (lost = lease_lost(id))) {
             child->kill();
             break;
         }
@@ -521,6 +608,14 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         log_line("job " + id + ": cancelled, worker killed");
         return;  // the cancel route already recorded the final state
     }
+    if (lost) {
+        // Cancelled on another node, or taken over after this node could not
+        // renew its lease: the job's state is the store's, not this attempt's.
+        log_line("job " + id +
+                 ": no longer runs on this node (cancelled elsewhere, or taken over after its lease "
+                 "expired); worker killed");
+        return;
+    }
     if (!cause.empty()) {
         attempt_failed(job, cause);
         return;
@@ -528,10 +623,14 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     if (status.success() && state.done) {
         json done = *state.done;
         done["cached"] = false;
+        bool still_ours = true;
         persist("job " + id + ": succeeded state", [&] {
-            store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
+            // Not if the job was cancelled or taken over meanwhile: the store's state stands.
+            still_ours = store_.renew_lease(id);
+            if (still_ours) store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
         });
-        log_line("job " + id + ": succeeded");
+        log_line("job " + id +
+                 (still_ours ? ": succeeded" : ": finished, but no longer runs on this node; not stored"));
         return;
     }
     const std::string scene_name =

@@ -76,7 +76,8 @@ public:
     ~Supervisor();  // stop()
 
     // Requeues jobs a previous lightfarmd left running (one attempt counted;
-    // failed when none is left), then starts the worker threads.
+    // failed when none is left), then starts the worker threads and the
+    // lease thread (heartbeat, lease renewal, jobs of lost nodes).
     void start();
     // Kills running workers and puts their jobs back in the queue without
     // counting the attempt: a restart is not the job's fault.
@@ -118,6 +119,17 @@ private:
     std::string limit_exceeded(const JobRecord& job, Clock::time_point now, Clock::time_point deadline,
                                Clock::time_point last_output) const;
     bool cancel_requested(const std::string& job_id);
+    bool lease_lost(const std::string& job_id);
+    // Jobs taken over from a node that is gone (a previous lightfarmd of
+    // this node, or another whose lease expired): queued again with their
+    // attempt counted, or failed when none is left.
+    void end_abandoned_attempts(const std::vector<JobRecord>& jobs);
+    // Every lease_seconds / 3: heartbeat, renew the leases of the jobs
+    // running here (a job no longer ours is killed: lost_), take over the
+    // jobs of lost nodes.
+    void lease_loop();
+    void keep_leases();
+    void heartbeat();
     void attempt_failed(const JobRecord& job, const std::string& cause);
     // Ends the job now, without another attempt (input errors, a stored spec gone bad, a missing scene).
     void fail_now(const JobRecord& job, const std::string& error, const std::string& cause);
@@ -131,7 +143,10 @@ private:
     std::mutex lifecycle_mutex_;  // start() and stop()
     std::vector<std::thread> threads_;
     std::mutex cancel_mutex_;
-    std::set<std::string> cancelled_;  // running here, to be killed
+    std::set<std::string> cancelled_;     // running here, to be killed
+    std::set<std::string> running_here_;  // jobs whose lease this node renews
+    std::set<std::string> lost_;          // running here but no longer ours in the store: to be killed
+    nlohmann::json node_info_;            // what the heartbeat says of this node
     std::mutex trouble_mutex_;
     Clock::time_point last_trouble_log_{};
     int unlogged_trouble_ = 0;

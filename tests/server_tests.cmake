@@ -28,8 +28,9 @@ target_compile_definitions(test_server PRIVATE
   LIGHTFARM_OPENAPI="${LIGHTFARM_OPENAPI_DOC}")
 add_dependencies(test_server lightfarmd)
 
-# The store, the data directory and the upload checks under failure (issue #15).
-lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+# The store, the data directory and the upload checks under failure (issue #15);
+# the store tests against SQLite and a PostgreSQL the test starts (issue #9).
+lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
 target_link_libraries(test_store PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
 target_compile_definitions(test_store PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
 add_dependencies(test_store lightfarmd)
@@ -79,3 +80,11 @@ if(TARGET lightfarm)
     LIGHTFARM_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
   add_dependencies(test_server_e2e lightfarmd lightfarm)
 endif()
+
+# Many lightfarmd nodes on one PostgreSQL (started by the test) and one data
+# directory, with the fake engine: exactly-once across nodes, kill -9 of a
+# node, the database restarted mid-run (issue #9; about a minute).
+lightfarm_test(test_scale_out ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
+target_link_libraries(test_scale_out PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+target_compile_definitions(test_scale_out PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+add_dependencies(test_scale_out lightfarmd)

@@ -108,6 +108,28 @@ TEST_F(ServerTest, HealthzIsOpenEverythingElseNeedsAToken) {
     EXPECT_EQ(r->status, 404);
 }
 
+TEST_F(ServerTest, WithTheEmbeddedStoreNodesListsThisNodeAloneAndItsJobs) {
+    start({"--node-name", "solo", "--lease-seconds", "1"});
+    engine.set("delay", "0.3");
+    const std::string id = submit(upload(), {{"passes", 10}});  // 3 s: three leases
+    auto c = client();
+    ASSERT_EQ(wait_for_job(c, id, [](const json& s) { return s.value("state", "") == "running"; }).value("state", ""),
+              "running");
+    const json nodes = json::parse(c.Get("/v1/nodes")->body)["nodes"];
+    ASSERT_EQ(nodes.size(), 1u) << nodes.dump();
+    EXPECT_EQ(nodes[0]["name"], "solo");
+    EXPECT_EQ(nodes[0]["alive"], true);
+    EXPECT_EQ(nodes[0]["self"], true);
+    EXPECT_EQ(nodes[0]["lease_seconds"], 1.0);
+    EXPECT_EQ(nodes[0]["running"], 1);
+    EXPECT_EQ(nodes[0]["jobs"], json::array({id}));
+    EXPECT_EQ(json::parse(client(kBob).Get("/v1/nodes")->body)["nodes"][0]["jobs"], json::array())
+        << "another token's job ids are not shown";
+    EXPECT_NE(c.Get("/metrics")->body.find("lightfarm_node_running_jobs{node=\"solo\"} 1"), std::string::npos);
+    // Renewed every third of a second while it runs: its lease never runs out under it.
+    EXPECT_EQ(wait_finished(id).value("attempts", 0), 1);
+}
+
 TEST_F(ServerTest, ATokenSeesOnlyItsOwnScenesAndJobs) {
     start();
     const std::string scene = upload(kAlice);

@@ -8,12 +8,20 @@
 // A full disk is staged with SqliteJobStore::simulate_full_disk_for_tests (a
 // VFS whose writes fail with SQLITE_FULL): chmod cannot stop root, and CI runs
 // as root.
+//
+// The store's own rules (StoreTest) run against both stores: SQLite, and
+// PostgreSQL started by the test itself (postgres_server.h). So do leases and
+// concurrent claims by several nodes; PostgresStore adds what only a network
+// store has: a lost connection, schema versions.
+#include "postgres_server.h"
 #include "server_harness.h"
 
+#include "config.h"
 #include "events.h"
 #include "hash.h"
 #include "http_error.h"
 #include "metrics.h"
+#include "postgres_job_store.h"
 #include "scene_store.h"
 #include "service.h"
 #include "sqlite_job_store.h"
@@ -42,6 +50,9 @@ namespace {
 using nlohmann::json;
 using server::JobRecord;
 using server::JobState;
+using server::JobStore;
+using server::NodeIdentity;
+using server::PostgresJobStore;
 using server::SqliteJobStore;
 using server::StoreError;
 
@@ -134,8 +145,39 @@ TEST(Store, EveryTransactionFailsWholeOnAFullDisk) {
     EXPECT_EQ(events[1].type, "done");
 }
 
+// One PostgreSQL server for the whole program, started by the first test that
+// needs it, stopped at exit; each test gets a database of its own.
+PostgresServer& postgres() {
+    static PostgresServer server;
+    return server;
+}
+
+// The store a StoreTest runs against, and more nodes on the same one.
+class StoreTest : public testing::TestWithParam<std::string> {
+protected:
+    void SetUp() override {
+        if (GetParam() == "postgresql") location_ = postgres().create_database();
+        else location_ = (tmp_.path / "jobs.sqlite").string();
+        store_ = open(NodeIdentity{"node-a", 30});
+    }
+    // Another node (or the same one again) on this test's store.
+    std::unique_ptr<JobStore> open(const NodeIdentity& node) const {
+        if (GetParam() == "postgresql") return std::make_unique<PostgresJobStore>(location_, node);
+        return std::make_unique<SqliteJobStore>(location_, node);
+    }
+    JobStore& store() { return *store_; }
+
+private:
+    TempDir tmp_;
+    std::string location_;
+    std::unique_ptr<JobStore> store_;
+};
+
+INSTANTIATE_TEST_SUITE_P(BothStores, StoreTest, testing::Values("sqlite", "postgresql"),
+                         [](const testing::TestParamInfo<std::string>& p) { return p.param; });
+
 // A running job with `passes` progress events and a snapshot at each power of two.
-void run_progress(SqliteJobStore& store, const std::string& id, int passes, const std::string& output = "lightmap") {
+void run_progress(JobStore& store, const std::string& id, int passes, const std::string& output = "lightmap") {
     for (int p = 1; p <= passes; ++p) {
         ASSERT_GT(store.append_event(id, {0, "progress", progress_data(p, output)}), 0);
         if ((p & (p - 1)) == 0) {
@@ -144,9 +186,8 @@ void run_progress(SqliteJobStore& store, const std::string& id, int passes, cons
     }
 }
 
-TEST(Store, ProgressEventsAreCoalescedSoTheStoreGrowsWithJobsNotPasses) {
-    TempDir tmp;
-    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+TEST_P(StoreTest, ProgressEventsAreCoalescedSoTheStoreGrowsWithJobsNotPasses) {
+    JobStore& store = this->store();
     store.insert_job(queued_job("j1"), {});
     ASSERT_TRUE(store.claim_next());
     store.append_event("j1", {0, "started", {{"attempt", 1}}});
@@ -170,9 +211,8 @@ TEST(Store, ProgressEventsAreCoalescedSoTheStoreGrowsWithJobsNotPasses) {
     EXPECT_EQ(events.back().id, 1 + 5000 + 13);
 }
 
-TEST(Store, ResumingAfterAnyEventGetsEveryLaterEventOnceAndNoReplacedProgress) {
-    TempDir tmp;
-    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+TEST_P(StoreTest, ResumingAfterAnyEventGetsEveryLaterEventOnceAndNoReplacedProgress) {
+    JobStore& store = this->store();
     store.insert_job(queued_job("j1"), {});
     ASSERT_TRUE(store.claim_next());
     // A reader that resumes (Last-Event-ID) after every few appends, as a
@@ -211,9 +251,8 @@ TEST(Store, ResumingAfterAnyEventGetsEveryLaterEventOnceAndNoReplacedProgress) {
     EXPECT_EQ(all.back().id, 300 + 300 / 7 + 1);
 }
 
-TEST(Store, RetentionKeepsOnlyTheNewestProgressOfOldFinishedJobs) {
-    TempDir tmp;
-    SqliteJobStore store((tmp.path / "jobs.sqlite").string());
+TEST_P(StoreTest, RetentionKeepsOnlyTheNewestProgressOfOldFinishedJobs) {
+    JobStore& store = this->store();
     store.insert_job(queued_job("old"), {});
     store.insert_job(queued_job("running"), {});
     ASSERT_EQ(store.claim_next()->status.id, "old");
@@ -241,6 +280,168 @@ TEST(Store, RetentionKeepsOnlyTheNewestProgressOfOldFinishedJobs) {
     EXPECT_EQ(snapshots, 7 + 6) << "every other event is kept";
     EXPECT_EQ(old.back().type, "done");
     EXPECT_EQ(store.events_after("running", 0).size(), before_running) << "a running job is not compacted";
+}
+
+TEST_P(StoreTest, AJobIsTheClaimingNodesUntilItsLeaseExpiresThenAnotherTakesItOver) {
+    // Node a claims with a 1 s lease; node b shares the store.
+    std::unique_ptr<JobStore> a = open({"node-a", 1});
+    std::unique_ptr<JobStore> b = open({"node-b", 1});
+    a->insert_job(queued_job("j1"), {});
+    const std::optional<JobRecord> claimed = a->claim_next();
+    ASSERT_TRUE(claimed);
+    EXPECT_EQ(claimed->node, "node-a");
+    EXPECT_EQ(claimed->status.attempts, 1);
+    EXPECT_FALSE(b->claim_next()) << "a running job is not claimed twice";
+    // Only the running node writes into the attempt.
+    EXPECT_EQ(b->append_event("j1", {0, "started", {{"attempt", 1}}}), 0);
+    EXPECT_FALSE(b->renew_lease("j1"));
+    EXPECT_FALSE(b->requeue("j1", {0, "retrying", json::object()}, false));
+    EXPECT_EQ(a->append_event("j1", {0, "started", {{"attempt", 1}}}), 1);
+    EXPECT_TRUE(a->renew_lease("j1"));
+    EXPECT_TRUE(b->take_over_abandoned(false).empty()) << "a renewed lease is not taken over";
+
+    std::this_thread::sleep_for(std::chrono::milliseconds(1300));  // a stops renewing: its lease expires
+    const std::vector<JobRecord> taken = b->take_over_abandoned(false);
+    ASSERT_EQ(taken.size(), 1u);
+    EXPECT_EQ(taken[0].status.id, "j1");
+    EXPECT_EQ(taken[0].node, "node-a") << "the node that lost it, for the log";
+    EXPECT_TRUE(b->take_over_abandoned(false).empty()) << "taken over once";
+    EXPECT_FALSE(a->renew_lease("j1")) << "a learns the job is no longer its own";
+    EXPECT_EQ(a->append_event("j1", {0, "progress", progress_data(1)}), 0);
+    ASSERT_TRUE(b->requeue("j1", {0, "retrying", {{"attempt", 1}, {"cause", "node-a lost"}}}, false));
+    const std::optional<JobRecord> again = b->claim_next();
+    ASSERT_TRUE(again);
+    EXPECT_EQ(again->status.attempts, 2) << "the lost attempt counts";
+    EXPECT_EQ(again->node, "node-b");
+    const auto events = b->events_after("j1", 0);
+    ASSERT_EQ(events.size(), 2u);
+    EXPECT_EQ(events[1].type, "retrying");
+}
+
+TEST_P(StoreTest, AtStartANodeTakesOverTheJobsItsPreviousProcessHeld) {
+    std::unique_ptr<JobStore> before = open({"node-a", 30});
+    before->insert_job(queued_job("j1"), {});
+    ASSERT_TRUE(before->claim_next());
+    before.reset();  // lightfarmd killed: the lease has 30 s to go
+    if (GetParam() == "postgresql") {
+        // (With SQLite, one lightfarmd per file: at start, every running job is its predecessor's.)
+        std::unique_ptr<JobStore> other = open({"node-b", 30});
+        EXPECT_TRUE(other->take_over_abandoned(true).empty()) << "not before its lease expires, for another node";
+    }
+    std::unique_ptr<JobStore> after = open({"node-a", 30});
+    const auto taken = after->take_over_abandoned(true);
+    ASSERT_EQ(taken.size(), 1u);
+    EXPECT_TRUE(after->requeue("j1", {0, "retrying", json::object()}, false));
+}
+
+TEST_P(StoreTest, NodesClaimingAtOnceGetEachJobExactlyOnce) {
+    constexpr int kJobs = 60;
+    for (int i = 0; i < kJobs; ++i) store().insert_job(queued_job("j" + std::to_string(i)), {});
+    std::mutex mutex;
+    std::map<std::string, std::string> claimed_by;  // job -> node
+    int duplicates = 0;
+    std::vector<std::thread> nodes;
+    for (const std::string name : {"n1", "n2", "n3"}) {
+        nodes.emplace_back([&, name] {
+            std::unique_ptr<JobStore> node = open({name, 30});
+            while (std::optional<JobRecord> job = node->claim_next()) {
+                std::lock_guard lock(mutex);
+                duplicates += claimed_by.count(job->status.id) ? 1 : 0;
+                claimed_by[job->status.id] = name;
+            }
+        });
+    }
+    for (std::thread& t : nodes) t.join();
+    EXPECT_EQ(duplicates, 0);
+    EXPECT_EQ(claimed_by.size(), size_t(kJobs));
+    for (const JobRecord& job : store().running_jobs()) {
+        EXPECT_EQ(job.status.attempts, 1);
+        EXPECT_EQ(job.node, claimed_by[job.status.id]);
+    }
+}
+
+TEST_P(StoreTest, NodesReportTheirHeartbeats) {
+    std::unique_ptr<JobStore> b = open({"node-b", 30});
+    store().heartbeat({{"gpus", 2}, {"workers", 2}});
+    b->heartbeat({{"gpus", 0}, {"workers", 1}});
+    const auto nodes = store().nodes();
+    ASSERT_EQ(nodes.size(), 2u);
+    EXPECT_EQ(nodes[0].name, "node-a");
+    EXPECT_EQ(nodes[0].info["gpus"], 2);
+    EXPECT_EQ(nodes[1].name, "node-b");
+    EXPECT_LT(nodes[1].heartbeat_age, 5.0);
+}
+
+TEST(Config, TheScaleOutOptionsAreCheckedWithMessagesThatSayWhatToWrite) {
+    bool help = false;
+    const server::ServerConfig c = server::parse_server_args(
+        {"--store", "postgresql://lf@db:5432/lf", "--node-name", "gpu-07", "--lease-seconds", "12"}, help);
+    EXPECT_EQ(c.store, "postgresql://lf@db:5432/lf");
+    EXPECT_EQ(c.node_name, "gpu-07");
+    EXPECT_EQ(c.lease_seconds, 12);
+    EXPECT_EQ(server::parse_server_args({}, help).lease_seconds, 30) << "the default lease";
+    EXPECT_TRUE(server::parse_server_args({}, help).store.empty()) << "SQLite by default";
+    auto refused = [&](const std::vector<std::string>& args) {
+        try {
+            server::parse_server_args(args, help);
+        } catch (const std::invalid_argument& e) {
+            return std::string(e.what());
+        }
+        return std::string("accepted");
+    };
+    EXPECT_NE(refused({"--store", "mysql://db/lf"}).find("write postgresql://USER@HOST:PORT/DB"), std::string::npos);
+    EXPECT_NE(refused({"--lease-seconds", "0.5"}).find("--lease-seconds must be at least 1"), std::string::npos);
+    EXPECT_NE(refused({"--node-name", "two words"}).find("--node-name"), std::string::npos);
+}
+
+// ------------------------------------------------ what only PostgreSQL has
+
+TEST(PostgresStore, ANewerSchemaIsRefusedWithAClearMessage) {
+    const std::string uri = postgres().create_database();
+    { PostgresJobStore migrated(uri); }
+    { PostgresJobStore again(uri); }  // a known version: nothing to do
+    postgres().sql(uri, "INSERT INTO schema_version(version) VALUES(" +
+                            std::to_string(PostgresJobStore::kSchemaVersion + 1) + ")");
+    try {
+        PostgresJobStore newer(uri);
+        FAIL() << "a newer schema was accepted";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find("schema version " + std::to_string(PostgresJobStore::kSchemaVersion + 1)),
+                  std::string::npos)
+            << e.what();
+        EXPECT_NE(std::string(e.what()).find("newer than this lightfarmd knows"), std::string::npos) << e.what();
+    }
+}
+
+TEST(PostgresStore, AnUnreachableDatabaseOrABadUriIsAnErrorThatNamesIt) {
+    try {
+        PostgresJobStore store("postgresql://nobody@127.0.0.1:1/none");
+        FAIL() << "connected to nothing";
+    } catch (const StoreError& e) {
+        EXPECT_NE(std::string(e.what()).find("cannot connect to PostgreSQL at nobody@127.0.0.1:1/none"),
+                  std::string::npos)
+            << e.what();
+    }
+    EXPECT_THROW(PostgresJobStore("postgresql://[oops"), std::invalid_argument);
+}
+
+TEST(PostgresStore, ALostConnectionFailsTheCallAndTheNextCallReconnects) {
+    const std::string uri = postgres().create_database();
+    PostgresJobStore store(uri);
+    store.insert_job(queued_job("j1"), {});
+    postgres().stop();
+    try {
+        store.job("j1");
+        ADD_FAILURE() << "read from a stopped database";
+    } catch (const StoreError& e) {
+        EXPECT_NE(std::string(e.what()).find("cannot read a job"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(store.insert_job(queued_job("j2"), {}), StoreError);
+    postgres().start();
+    ASSERT_TRUE(store.job("j1")) << "the store reconnected";
+    EXPECT_FALSE(store.job("j2")) << "nothing of the failed call was stored";
+    store.insert_job(queued_job("j2"), {});
+    EXPECT_TRUE(store.has_job("j2"));
 }
 
 // ----------------------------------------------------------- the supervisor

@@ -1,0 +1,39 @@
+// A throwaway PostgreSQL server for tests: initdb into a temporary directory,
+// started with pg_ctl on a free loopback port (as the postgres user when the
+// test runs as root: PostgreSQL refuses root), deleted at the end. No test
+// skips when PostgreSQL is missing: the constructor throws, naming what to
+// install.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace lf::test {
+
+class PostgresServer {
+public:
+    PostgresServer();   // initdb + start; throws std::runtime_error saying what failed or is missing
+    ~PostgresServer();  // stops it (immediately) and deletes its directory
+
+    // A new, empty database; returns its URI (postgresql://postgres@127.0.0.1:PORT/NAME).
+    std::string create_database();
+    // Runs one SQL command in the database `uri` names (psql); throws on failure.
+    void sql(const std::string& uri, const std::string& command) const;
+
+    void stop();   // fast shutdown: clients lose their connections
+    void start();  // again, on the same port
+    int port() const { return port_; }
+
+private:
+    // Runs a PostgreSQL program as the server's user; throws with its output on failure.
+    std::string run(const std::vector<std::string>& argv) const;
+    std::filesystem::path dir_;
+    std::string bin_;           // the directory of initdb, pg_ctl, createdb, psql
+    bool as_postgres_ = false;  // running as root: the programs run as user postgres
+    int port_ = 0;
+    int databases_ = 0;
+    bool running_ = false;
+};
+
+}  // namespace lf::test
