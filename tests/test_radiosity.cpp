@@ -533,6 +533,55 @@ TEST(UnlitCharts, AClosedRoomsOuterWallsGetFewTexels) {
     EXPECT_EQ(generate_lightmap_uvs(outside_light, options).unlit_charts, 5u) << "the sun lights the shell's top";
 }
 
+// A double-sided panel lit on one side and baked for the other: its texels
+// hold the side facing a large black wall (the side that sees more of the
+// scene), while a small receiver on the other side sees the lit side. Where
+// the receiver's rays land on the panel's unbaked side, the light is
+// gathered there rather than read from the map (which holds the dark side:
+// 11% darkness on grey_white_room). The receiver then agrees with the path
+// tracer, and the panel's reflection is a sixth of its light, so reading
+// the wrong side would fail the bound.
+TEST(RadiosityMap, LightOnTheUnbakedSideOfADoubleSidedPanelIsGathered) {
+    gpu();
+    Scene s;
+    const int res = 64;
+    const uint32_t panel = test::add_material(s, glm::vec3(0.8f), glm::vec3(0.0f), true);
+    const uint32_t black = test::add_material(s, glm::vec3(0.0f));
+    test::add_quad(s, {0, -1, -1}, {0, 0, 2}, {0, 2, 0}, panel, grid_cell(0, 3, res));     // x = 0, front -x
+    test::add_quad(s, {0.3f, -2, -2}, {0, 4, 0}, {0, 0, 4}, black, grid_cell(1, 3, res));  // x = 0.3, facing -x
+    test::add_quad(s, {-1, -0.3f, -0.3f}, {0, 0.6f, 0}, {0, 0, 0.6f}, black, grid_cell(2, 3, res));  // receiver, +x
+    PunctualLight light;
+    light.position = {-0.5f, 0.0f, 0.0f};
+    light.intensity = glm::vec3(1.0f);
+    s.lights.push_back(light);
+    ASSERT_EQ(face_double_sided_charts_to_the_scene(s, Tracer(s)).charts, 1u) << "baked for the black wall's side";
+
+    auto receiver_mean = [&](const BakeResult& r, double* direct) {
+        double sum = 0.0, closed_form = 0.0;
+        size_t n = 0;
+        for (size_t i = 0; i < r.texels.covered_count(); ++i) {
+            const glm::vec3 q = r.texels.samples[r.texels.first_sample[i]].position;
+            if (q.x > -0.9f) continue;
+            sum += r.image.at("R")[r.texels.texels[i]];
+            for (uint32_t k = r.texels.first_sample[i]; k < r.texels.first_sample[i + 1]; ++k) {
+                const glm::vec3 d = light.position - r.texels.samples[k].position;
+                closed_form += d.x / std::pow(double(glm::length(d)), 3.0) / M_PI / r.texels.sample_count(i);
+            }
+            ++n;
+        }
+        if (direct) *direct = closed_form / double(n);
+        return sum / double(n);
+    };
+    RadiosityMapSettings path_tracing;
+    path_tracing.scheme = RadiosityScheme::PathTracing;
+    double direct = 0.0;
+    const double reference = receiver_mean(bake(s, res, 512, path_tracing), &direct);
+    const double map = receiver_mean(bake(s, res, 256), nullptr);
+    std::printf("receiver: path tracer %.4f (direct %.4f), epochs %.4f\n", reference, direct, map);
+    ASSERT_GT((reference - direct) / reference, 0.12) << "the panel's reflection must matter";
+    EXPECT_NEAR(map, reference, 0.03 * reference);
+}
+
 // A room of double-sided walls exported with their fronts facing out (as the
 // staircase's back rooms are): baked as given, every wall is black inside
 // (its texels face the void); turned to face the scene

@@ -43,6 +43,29 @@ vec3 final_gather(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
 }
 
 
+// The radiance the back of a double-sided surface reflects towards the
+// texel. A texel holds one side's light, the side its chart was baked for
+// (gi/bake/double_sided.h); where a ray lands on the other side (a wall's
+// outside lit by the sky, seen through a window), reading the map would
+// return the wrong side's light: grey_white_room was 11% dark for it. So that
+// side's light is gathered where the ray landed, one level deep: its direct
+// light (emitter sampling alone, no MIS: the cosine ray below does not count
+// emission) and one cosine ray reading the map, or the sky, where it lands.
+vec3 back_side_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
+    vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
+    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
+    Hit next = trace_closest(y, dir, far);
+    rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
+    vec3 incoming = vec3(0.0);
+    if (next.triangle == LF_NO_HIT) {
+        incoming = background;
+    } else if (next.front || hit_is_double_sided(next)) {
+        vec3 n_next = normalize(next.front ? next.normal : -next.normal);
+        incoming = reflected_radiance_at(hit_lightmap_uv(next), offset_ray_origin(y + next.t * dir, n_next));
+    }
+    return hit_texel_albedo(hit) * (e * (1.0 / PI) + incoming);
+}
+
 void main() {
     uint i = covered_index();
     if (i >= covered_count) return;
@@ -79,7 +102,7 @@ void main() {
     vec2 u = fract(rotation + float(pass_in_epoch) * vec2(0.7548776662, 0.5698402910));
     vec3 dir = sample_cosine_hemisphere(n, u);
     vec3 indirect;
-    uint path_rays = 0u;  // rays beyond the pass's fixed ones (path tracing only)
+    uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final and back-side gathers)
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
@@ -92,10 +115,16 @@ void main() {
             vec3 y = offset_ray_origin(origin + hit.t * dir, n_hit);
 #if defined(LF_PATH_TRACE)
             indirect = path_radiance(hit, origin, dir, rng, path_rays);
-#elif defined(LF_FINAL_GATHER)
-            indirect = final_gather(hit, y, n_hit, rng, path_rays);
 #else
-            indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
+            if (!hit.front) {
+                indirect = back_side_radiance(hit, y, n_hit, rng, path_rays);
+            } else {
+#if defined(LF_FINAL_GATHER)
+                indirect = final_gather(hit, y, n_hit, rng, path_rays);
+#else
+                indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
+#endif
+            }
 #endif
             // Landing on an emitter: its light, MIS-weighted against emitter
             // sampling (which alone counts emitters when LF_LIGHT_SAMPLING != 0).
