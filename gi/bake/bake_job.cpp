@@ -87,11 +87,13 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
 void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings, const Tracer& geometry) {
     const std::string name = p.file.filename().string();
     AtlasOptions options = atlas_options(settings);
-    options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
-        const UnlitCharts unlit = find_unlit_charts(p.scene, geometry, chart, count, settings.env.sky.has_value());
-        p.unlit_chart_rays = unlit.rays;
-        return unlit.unlit;
-    };
+    // Per-texel SH transfer is lit later, by any environment: every chart may receive light.
+    if (!(settings.sh && settings.sh->per_texel))
+        options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
+            const UnlitCharts unlit = find_unlit_charts(p.scene, geometry, chart, count, settings.env.sky.has_value());
+            p.unlit_chart_rays = unlit.rays;
+            return unlit.unlit;
+        };
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
