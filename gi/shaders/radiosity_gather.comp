@@ -61,7 +61,12 @@ vec3 back_side_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays
         incoming = background;
     } else if (next.front || hit_is_double_sided(next)) {
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
-        incoming = reflected_radiance_at(hit_lightmap_uv(next), offset_ray_origin(y + next.t * dir, n_next));
+        vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
+#ifdef LF_FINAL_GATHER
+        incoming = final_gather(next, y_next, n_next, rng, rays);  // the map holds only light beyond the first bounce
+#else
+        incoming = reflected_radiance_at(hit_lightmap_uv(next), y_next);
+#endif
     }
     return hit_texel_albedo(hit) * (e * (1.0 / PI) + incoming);
 }
