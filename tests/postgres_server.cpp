@@ -33,6 +33,8 @@ std::string find_postgres_bin() {
     return found.back().string();
 }
 
+}  // namespace
+
 int free_loopback_port() {
     const int s = ::socket(AF_INET, SOCK_STREAM, 0);
     sockaddr_in a{};
@@ -45,8 +47,6 @@ int free_loopback_port() {
     ::close(s);
     return ntohs(a.sin_port);
 }
-
-}  // namespace
 
 PostgresServer::PostgresServer() : bin_(find_postgres_bin()), as_postgres_(::geteuid() == 0) {
     std::random_device rd;

@@ -11,6 +11,9 @@
 
 namespace lf::test {
 
+// A loopback TCP port no one listens on now (for a server a test starts); throws if there is none.
+int free_loopback_port();
+
 class PostgresServer {
 public:
     PostgresServer();   // initdb + start; throws std::runtime_error saying what failed or is missing

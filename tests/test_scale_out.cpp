@@ -51,18 +51,6 @@ PostgresServer& postgres() {
     return server;
 }
 
-int free_port() {
-    const int s = ::socket(AF_INET, SOCK_STREAM, 0);
-    sockaddr_in a{};
-    a.sin_family = AF_INET;
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    socklen_t n = sizeof a;
-    ::bind(s, reinterpret_cast<sockaddr*>(&a), sizeof a);
-    ::getsockname(s, reinterpret_cast<sockaddr*>(&a), &n);
-    ::close(s);
-    return ntohs(a.sin_port);
-}
-
 // One lightfarmd node: its own name, port and log; the store and the data
 // directory shared. (Harness's Lightfarmd keeps its URL and log in the data
 // directory, one per directory.)
@@ -73,7 +61,7 @@ public:
     ~Node() { stop(); }
 
     void start() {
-        port = free_port();
+        port = free_loopback_port();
         std::vector<std::string> args = {LIGHTFARMD, "--listen", "127.0.0.1:" + std::to_string(port), "--node-name",
                                          name};
         args.insert(args.end(), args_.begin(), args_.end());
