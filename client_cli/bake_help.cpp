@@ -22,7 +22,9 @@ std::string bake_settings_help() {
 
 std::string bake_help() {
     return "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh] [--probes]\n"
-           "                      [--device auto|gpu|gpu:N|cpu] [--json] [settings]\n\n" +
+           "                      [--device auto|gpu|gpu:N|cpu] [--json] [--resume] [settings]\n\n"
+           "  --resume  continue an interrupted bake into the same DIR from its last snapshot\n"
+           "            (an output whose saved state is another bake's starts from pass 0)\n\n" +
            bake_settings_help();
 }
 

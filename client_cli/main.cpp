@@ -39,7 +39,7 @@ commands:
   raybench SCENE [--device auto|gpu|cpu] [--seconds S]
                                      ray throughput of the tracer (JSON)
   bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh] [--device auto|gpu|gpu:N|cpu] [--json]
-       [bake settings: `lightfarm bake --help`, or the README's table]
+       [--resume] [bake settings: `lightfarm bake --help`, or the README's table]
                                      bake a radiosity-map lightmap and/or SH transfer
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
@@ -235,6 +235,10 @@ public:
                                   ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
                                   : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
             std::cerr << " on " << start->renderer << ", prepared in " << start->prepare_seconds << " s\n";
+            for (const auto& [output, at] : start->resumed)
+                std::cerr << output << ": resumed after pass " << at.pass << "\n";
+            for (const auto& [output, why] : start->not_resumed)
+                std::cerr << output << ": not resumed, from pass 0: " << why << "\n";
         } else if (const auto* progress = std::get_if<p::ProgressEvent>(&e); progress && terminal_) {
             if (progress->output != drawing_ && !drawing_.empty()) std::cerr << "\n";
             drawing_ = progress->output;
@@ -283,7 +287,7 @@ lf::protocol::BakeSettings bake_settings(const Args& args, const std::string& sc
 }
 
 int bake(int argc, char** argv) {
-    std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json"};
+    std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json", "--resume"};
     for (const auto& [flag, takes_value] : lf::protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
     Args args(argc, argv, 2, valued, flags);
     lf::BakeJob job;
@@ -292,6 +296,7 @@ int bake(int argc, char** argv) {
     job.out = args.get("--out");
     job.device = lf::parse_device_choice(args.get("--device", "auto"));
     job.settings = bake_settings(args, job.scene.string());
+    job.resume = args.flag("--resume");
 
     BakeReporter report(args.flag("--json"), job.settings);
     const lf::protocol::DoneEvent done = lf::run_bake_job(job, std::ref(report));

@@ -93,13 +93,17 @@ uint64_t count_field(const json& j, const char* key) {
 }  // namespace
 
 json to_json(const WorkerEvent& e) {
-    if (const auto* s = std::get_if<StartEvent>(&e))
-        return {{"event", "start"},
-                {"vendor", s->vendor},
-                {"renderer", s->renderer},
-                {"triangles", s->triangles},
-                {"prepare_seconds", s->prepare_seconds},
-                {"outputs", s->outputs}};
+    if (const auto* s = std::get_if<StartEvent>(&e)) {
+        json j = {{"event", "start"},
+                  {"vendor", s->vendor},
+                  {"renderer", s->renderer},
+                  {"triangles", s->triangles},
+                  {"prepare_seconds", s->prepare_seconds},
+                  {"outputs", s->outputs}};
+        for (const auto& [output, at] : s->resumed) j["resumed"][output] = progress_fields(at);
+        for (const auto& [output, why] : s->not_resumed) j["not_resumed"][output] = why;
+        return j;
+    }
     if (const auto* p = std::get_if<ProgressEvent>(&e)) {
         json j = progress_fields(p->progress);
         j["event"] = "progress";
@@ -126,6 +130,12 @@ WorkerEvent parse_worker_event(const json& j) {
         s.triangles = count_field(j, "triangles");
         if (j.contains("prepare_seconds") && j["prepare_seconds"].is_number()) s.prepare_seconds = j["prepare_seconds"];
         if (j.contains("outputs") && j["outputs"].is_object()) s.outputs = j["outputs"];
+        if (j.contains("resumed") && j["resumed"].is_object())
+            for (auto it = j["resumed"].begin(); it != j["resumed"].end(); ++it)
+                s.resumed[it.key()] = progress_from_json(it.value());
+        if (j.contains("not_resumed") && j["not_resumed"].is_object())
+            for (auto it = j["not_resumed"].begin(); it != j["not_resumed"].end(); ++it)
+                if (it.value().is_string()) s.not_resumed[it.key()] = it.value().get<std::string>();
         return s;
     }
     if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j)};

@@ -3,7 +3,8 @@
 // what a worker's exit status means. The engine encodes these types and the
 // server decodes them; neither side writes or reads the JSON by hand.
 //
-//   {"event":"start", "vendor", "renderer", "triangles", "prepare_seconds", "outputs": {NAME: {...}}}
+//   {"event":"start", "vendor", "renderer", "triangles", "prepare_seconds", "outputs": {NAME: {...}},
+//    "resumed": {NAME: {"pass", "rays", "seconds", "error_estimate"}}, "not_resumed": {NAME: "why"}}
 //   {"event":"progress", "output":"lightmap", "pass", "rays", "seconds", "error_estimate"}
 //   {"event":"snapshot", "output":"lightmap", "file":"lightmap.pass-0004.exr", "pass":4}
 //   {"event":"done", "pass", "rays", "seconds", "error_estimate", "files":[...], "final":{NAME: FILE}}
@@ -30,6 +31,11 @@ enum WorkerExit : int {
     kExitInputError = 3,  // the scene or the settings cannot be baked (no light, atlas cannot fit, bad file)
 };
 inline bool is_input_error_exit(int code) { return code == kExitUsage || code == kExitInputError; }
+
+// In a job's output directory: what a worker saves with its snapshots so that
+// a later run with --resume continues from there (the engine's
+// bake/method_state.h), removed once the job is done.
+inline constexpr const char* kResumeDir = ".resume";
 
 // "<stem>.pass-NNNN.<extension>": an intermediate snapshot's file name (a
 // final file never has ".pass-" in it). Clients tell snapshots from final
@@ -59,6 +65,11 @@ struct StartEvent {
     uint64_t triangles = 0;
     double prepare_seconds = 0.0;                       // load, atlas, BVH, methods: once for the whole job
     nlohmann::json outputs = nlohmann::json::object();  // output name -> what it bakes (texels, vertices, settings)
+    // A resumed bake (`lightfarm bake --resume`, a retried job): where each
+    // output's passes continue from (its totals so far; absent: pass 0),
+    // and why an output could not resume (no state saved, another bake's).
+    std::map<std::string, Progress> resumed;
+    std::map<std::string, std::string> not_resumed;
 };
 struct ProgressEvent {
     std::string output;

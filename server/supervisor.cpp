@@ -325,6 +325,8 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         data.erase("event");
         data["attempt"] = attempt;
         u.state.prepare_seconds = start->prepare_seconds;
+        // A resumed output's rays so far were counted by the attempt that traced them.
+        for (const auto& [output, at] : start->resumed) u.state.rays[output] = at.rays;
         u.event = JobEvent{0, "started", data};
     } else if (const auto* progress = std::get_if<protocol::ProgressEvent>(&event)) {
         const std::string output = output_or_only(progress->output, bake);
@@ -430,6 +432,10 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
         argv.push_back("--device");
         argv.push_back(device);
     }
+    // A retry (a crashed worker, a node that died or was stopped) continues
+    // from the states an earlier attempt saved with its snapshots, on any
+    // node: the job's directory is on the shared data dir.
+    if (fs::exists(dir / protocol::kResumeDir)) argv.push_back("--resume");
     ++metrics_.worker_starts;
     auto child = std::make_unique<Subprocess>(argv);
     std::ofstream(dir / kPidFile) << child->pid() << " " << store_.node().name << "\n";

@@ -72,10 +72,11 @@ fi
 echo "$@" > "$state/last_args"
 echo "$@" >> "$state/all_args"
 scene="$1"; shift
-out=""; passes=4; spec=""
+out=""; passes=4; spec=""; resume=no
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out="$2"; shift 2;;
+    --resume) resume=yes; shift;;
     --passes) passes="$2"; shift 2;;
     --spec) spec="$2"; shift 2;;
     *) shift;;
@@ -93,7 +94,12 @@ runs=$(( $(cat "$state/runs" 2>/dev/null || echo 0) + 1 ))
 echo $runs > "$state/runs.tmp" && mv "$state/runs.tmp" "$state/runs"
 mode=$(cat "$state/mode" 2>/dev/null || echo ok)
 delay=$(cat "$state/delay" 2>/dev/null || echo 0)
-echo '{"event":"start","renderer":"fake","vendor":"tests","triangles":12,"prepare_seconds":0,"outputs":{}}'
+# As the engine does: a state saved with each snapshot, which --resume continues from.
+from=0
+[ $resume = yes ] && [ -f "$out/.resume/lightmap.state" ] && from=$(cat "$out/.resume/lightmap.state")
+resumed=""
+[ "$from" -gt 0 ] && resumed=",\"resumed\":{\"lightmap\":{\"pass\":$from,\"rays\":$((from * 1000))}}"
+echo "{\"event\":\"start\",\"renderer\":\"fake\",\"vendor\":\"tests\",\"triangles\":12,\"prepare_seconds\":0,\"outputs\":{}$resumed}"
 case "$mode" in
   crash_first) if [ $runs -eq 1 ]; then echo "lightfarm bake: error: lost the GPU context" >&2; exit 1; fi;;
   always_crash) echo "lightfarm bake: error: about to die" >&2; kill -KILL $$;;
@@ -103,6 +109,9 @@ case "$mode" in
 esac
 snap() {  # snap OUTPUT FILE PASS
   cp "$state/snapshot.exr" "$out/.$2.tmp" && mv "$out/.$2.tmp" "$out/$2"
+  if [ "$1" = lightmap ]; then
+    mkdir -p "$out/.resume" && echo "$3" > "$out/.resume/.state.tmp" && mv "$out/.resume/.state.tmp" "$out/.resume/lightmap.state"
+  fi
   echo "{\"event\":\"snapshot\",\"output\":\"$1\",\"file\":\"$2\",\"pass\":$3}"
 }
 progress() {  # progress OUTPUT PASS
@@ -116,7 +125,7 @@ if [ -f "$state/snapshot_passes" ]; then
     passes=$p
   done
 else
-  p=1
+  p=$((from + 1))
   while [ $p -le $passes ]; do
     [ "$delay" = 0 ] || sleep "$delay"
     progress lightmap $p
@@ -129,6 +138,7 @@ if [ $with_sh = yes ]; then
   snap sh sh_transfer.pass-0001.bin 1
 fi
 [ "$mode" = no_done ] && exit 0
+rm -rf "$out/.resume"
 cp "$state/snapshot.exr" "$out/.lightmap.exr.tmp" && mv "$out/.lightmap.exr.tmp" "$out/lightmap.exr"
 echo "{\"passes\": $passes}" > "$out/.manifest.json.tmp" && mv "$out/.manifest.json.tmp" "$out/manifest.json"
 final="\"lightmap\":\"lightmap.exr\""

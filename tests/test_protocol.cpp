@@ -659,6 +659,8 @@ TEST(WorkerEvents, RoundTripEachType) {
     start.triangles = 123456;
     start.prepare_seconds = 0.75;
     start.outputs = {{"lightmap", {{"texels", 65536}}}, {"sh", {{"vertices", 100}}}};
+    start.resumed["lightmap"] = some_progress();
+    start.not_resumed["sh"] = "no state was saved";
     const WorkerEvent s = through_a_line(start);
     ASSERT_TRUE(std::holds_alternative<StartEvent>(s));
     const auto& s2 = std::get<StartEvent>(s);
@@ -667,7 +669,11 @@ TEST(WorkerEvents, RoundTripEachType) {
     EXPECT_EQ(s2.triangles, start.triangles);
     EXPECT_DOUBLE_EQ(s2.prepare_seconds, start.prepare_seconds);
     EXPECT_EQ(s2.outputs, start.outputs);
+    ASSERT_EQ(s2.resumed.size(), 1u);
+    expect_same(s2.resumed.at("lightmap"), start.resumed.at("lightmap"));
+    EXPECT_EQ(s2.not_resumed, start.not_resumed);
     EXPECT_EQ(to_json(s)["event"], "start");
+    EXPECT_FALSE(to_json(WorkerEvent(StartEvent{})).contains("resumed")) << "a fresh bake says nothing of resuming";
 
     ProgressEvent progress{"sh", some_progress()};
     progress.progress.eta_seconds = 9.0;  // the server's business: not on the worker's line

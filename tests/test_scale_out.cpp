@@ -326,6 +326,23 @@ TEST_F(ScaleOut, AJobOfAKilledNodeIsFinishedByAnotherAfterTheLease) {
         if (e.type == "retrying")
             retried = e.data.value("cause", "").find("node n1 stopped renewing its lease") != std::string::npos;
     EXPECT_TRUE(retried) << "the stream says why the job ran again";
+    // b's worker continued from the state a's saved with its last snapshot
+    // on the shared data dir, not from pass 0.
+    std::vector<json> started;
+    for (const auto& e : stream)
+        if (e.type == "started") started.push_back(e.data);
+    ASSERT_EQ(started.size(), 2u);
+    EXPECT_FALSE(started[0].contains("resumed"));
+    const int resumed_after =
+        started[1].value("resumed", json::object()).value("lightmap", json::object()).value("pass", 0);
+    EXPECT_GE(resumed_after, 1) << started[1].dump();
+    int first_pass_of_b = 0;
+    for (auto e = stream.rbegin(); e != stream.rend() && e->type != "retrying"; ++e)
+        if (e->type == "progress") first_pass_of_b = e->data.value("pass", 0);
+    EXPECT_EQ(first_pass_of_b, resumed_after + 1) << "b's first pass follows the resumed one";
+    const std::string args = read_text(engine.dir / "all_args");
+    EXPECT_EQ(args.find("--resume"), args.rfind("--resume")) << "only the second run resumes: " << args;
+    EXPECT_NE(args.find("--resume"), std::string::npos) << args;
     auto artifacts = cb.Get("/v1/jobs/" + id + "/artifacts");
     ASSERT_TRUE(artifacts && artifacts->status == 200);
     EXPECT_NE(artifacts->body.find("lightmap.exr"), std::string::npos) << artifacts->body;

@@ -3,7 +3,8 @@
 // in a separate process; a bake of the Cornell box through the service equals,
 // bit for bit, the same bake run by `lightfarm bake` with the same seed; and
 // a job whose worker, or whose server, is killed with SIGKILL mid-bake still
-// completes with whole artifacts that again equal the CLI's bake.
+// completes with whole artifacts that again equal the CLI's bake, resumed
+// from its last snapshot.
 #include "server_harness.h"
 
 #include "io/image_files.h"
@@ -156,12 +157,25 @@ protected:
             b.passes *= 4;
         }
     }
-    // Waits until the job is running past pass `pass` (its worker busy baking).
-    json wait_running_past(const std::string& id, int pass) {
+    // Waits until the job is running with a snapshot (and so a saved state) of pass `pass` or later.
+    json wait_snapshot_past(const std::string& id, int pass) {
         auto c = client();
         return wait_for_job(
-            c, id, [&](const json& s) { return s["state"] == "running" && s["progress"].value("pass", 0) >= pass; },
+            c, id,
+            [&](const json& s) {
+                return s["state"] == "running" &&
+                       s.value("latest", json::object()).value("lightmap", json::object()).value("pass", 0) >= pass;
+            },
             std::chrono::seconds(60));
+    }
+    // The pass each attempt's worker resumed after (0: from the start), in order.
+    std::vector<int> resumed_after(const std::string& id) {
+        std::vector<int> passes;
+        for (const auto& e : read_events(server->host, server->port, kToken, id))
+            if (e.type == "started")
+                passes.push_back(
+                    e.data.value("resumed", json::object()).value("lightmap", json::object()).value("pass", 0));
+        return passes;
     }
     json wait_finished(const std::string& id) {
         auto c = client();
@@ -370,8 +384,9 @@ TEST_F(EndToEnd, AWorkerKilledMidBakeIsRetriedAndTheResultStillEqualsTheCli) {
     const Bake bake = long_bake();
     const std::string id = submit(bake.spec(upload_cornell_box()));
     ASSERT_FALSE(id.empty());
-    const json mid = wait_running_past(id, 8);
+    const json mid = wait_snapshot_past(id, 4);
     ASSERT_EQ(mid["state"], "running") << "the bake ended before it could be interrupted: " << mid.dump();
+    const int snapshot_pass = mid["latest"]["lightmap"]["pass"];
     const pid_t pid = worker_pid(job_dir(id));
     ASSERT_GT(pid, 1);
     ASSERT_TRUE(bakes_into(pid, job_dir(id)));
@@ -391,6 +406,14 @@ TEST_F(EndToEnd, AWorkerKilledMidBakeIsRetriedAndTheResultStillEqualsTheCli) {
     }
     EXPECT_EQ(types.back(), "done");
 
+    // The retry continued from the state saved with the last snapshot, and
+    // traced exactly the rays the uninterrupted bake did after it.
+    const std::vector<int> resumed = resumed_after(id);
+    ASSERT_EQ(resumed.size(), 2u);
+    EXPECT_EQ(resumed[0], 0);
+    EXPECT_GE(resumed[1], snapshot_pass);
+    EXPECT_FALSE(fs::exists(job_dir(id) / ".resume")) << "a finished job keeps no state";
+
     expect_whole_artifacts(id);
     EXPECT_TRUE(same_pixels(download(id, "lightmap.exr", "served"), tmp.path / "local" / "lightmap.exr"))
         << "the retried bake and `lightfarm bake` with the same seed";
@@ -400,8 +423,9 @@ TEST_F(EndToEnd, AServerKilledMidBakeFinishesTheJobAfterARestartWithWholeArtifac
     const Bake bake = long_bake();
     const std::string id = submit(bake.spec(upload_cornell_box()));
     ASSERT_FALSE(id.empty());
-    const json mid = wait_running_past(id, 8);
+    const json mid = wait_snapshot_past(id, 4);
     ASSERT_EQ(mid["state"], "running") << "the bake ended before it could be interrupted: " << mid.dump();
+    const int snapshot_pass = mid["latest"]["lightmap"]["pass"];
     const pid_t orphan = worker_pid(job_dir(id));
     ASSERT_GT(orphan, 1);
 
@@ -418,6 +442,10 @@ TEST_F(EndToEnd, AServerKilledMidBakeFinishesTheJobAfterARestartWithWholeArtifac
     const auto types = types_of(read_events(server->host, server->port, kToken, id));
     EXPECT_TRUE(contains(types, "retrying"));
     EXPECT_EQ(types.back(), "done");
+
+    const std::vector<int> resumed = resumed_after(id);
+    ASSERT_EQ(resumed.size(), 2u);
+    EXPECT_GE(resumed[1], snapshot_pass) << "the restarted server's worker resumed from the last snapshot";
 
     expect_whole_artifacts(id);
     EXPECT_TRUE(same_pixels(download(id, "lightmap.exr", "served"), tmp.path / "local" / "lightmap.exr"))

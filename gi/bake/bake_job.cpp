@@ -2,6 +2,7 @@
 
 #include "atlas/atlas.h"
 #include "bake/double_sided.h"
+#include "bake/method_state.h"
 #include "bake/unlit_charts.h"
 #include "atlas/lightmapped_gltf.h"
 #include "bake/prepared_scene.h"
@@ -174,17 +175,91 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
     return out;
 }
 
-// Runs one method through the progressive loop: progress after every pass;
-// snapshots when the schedule says, read back here and built and written on
-// the writer thread while the passes go on, announced once written (their
-// names appended to `files`).
+// Where a method's saved state and its finished result live (bake/method_state.h).
+fs::path resume_dir(const fs::path& out) { return out / protocol::kResumeDir; }
+fs::path state_path(const fs::path& out, const std::string& output) { return resume_dir(out) / (output + ".state"); }
+fs::path finished_path(const fs::path& out, const std::string& output) {
+    return resume_dir(out) / (output + ".done.json");
+}
+
+// Where one output of the job starts: from pass 0, from a saved state, or
+// already finished by an earlier run.
+struct ResumePoint {
+    PassStats stats;
+    std::vector<std::string> snapshots;    // written by earlier runs
+    std::optional<MethodResult> finished;  // the output was done: its files are there
+};
+
+// An output an earlier run finished: its result, if it is this bake's and its files are all there.
+ResumePoint finished_output(const fs::path& out, const fs::path& path, const std::string& key) {
+    std::ifstream in(path);
+    const nlohmann::json done = nlohmann::json::parse(in, nullptr, false);
+    if (done.is_discarded() || !done.is_object() || done.value("key", "") != key)
+        throw MethodStateMismatch(path.filename().string() + ": another bake's, or damaged");
+    ResumePoint point;
+    point.stats = protocol::progress_from_json(done["stats"]);
+    point.snapshots = done.value("snapshots", std::vector<std::string>{});
+    MethodResult result{done.value("files", std::vector<std::string>{}), done.value("manifest", nlohmann::json{})};
+    for (const std::string& f : result.files)
+        if (!fs::exists(out / f)) throw MethodStateMismatch(f + ", which it finished, is missing");
+    if (result.files.empty()) throw MethodStateMismatch(path.filename().string() + ": names no file");
+    point.finished = std::move(result);
+    return point;
+}
+
+// Where `method` resumes from, restored into it; recorded in the start event.
+ResumePoint resume_point(const fs::path& out, ProgressiveMethod& method, protocol::StartEvent& started) {
+    const std::string output = method.output(), key = method.description().dump();
+    try {
+        ResumePoint point;
+        if (fs::exists(finished_path(out, output))) {
+            point = finished_output(out, finished_path(out, output), key);
+        } else if (fs::exists(state_path(out, output))) {
+            MethodState state = read_method_state(state_path(out, output));
+            if (state.key != key)
+                throw MethodStateMismatch(state_path(out, output).filename().string() +
+                                          " is another bake's (its settings, scene or texels differ)");
+            method.restore(state);
+            point.stats = state.stats;
+            point.snapshots = std::move(state.files);
+        } else {
+            throw MethodStateMismatch("no state was saved (the earlier run stopped before its first snapshot)");
+        }
+        started.resumed[output] = point.stats;
+        return point;
+    } catch (const MethodStateMismatch& e) {
+        started.not_resumed[output] = e.what();
+        return {};
+    }
+}
+
+// The snapshot's write, then the method's state beside it (naming every
+// snapshot so far), on the writer thread: a run resumed from it starts after
+// that snapshot's pass.
+SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state,
+                         std::shared_ptr<std::vector<std::string>> snapshots, fs::path path) {
+    return
+        [write = std::move(write), state = std::move(state), snapshots = std::move(snapshots), path = std::move(path)] {
+            std::vector<std::string> names = write();
+            snapshots->insert(snapshots->end(), names.begin(), names.end());
+            state->files = *snapshots;
+            write_method_state(path, *state);
+            return names;
+        };
+}
+
+// Runs one method through the progressive loop from `from`: progress after
+// every pass; snapshots when the schedule says, read back here (with the
+// method's state) and built and written on the writer thread while the
+// passes go on, announced once written (their names appended to `files`).
 PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeEventSink& emit,
-                     std::vector<std::string>& files) {
-    const std::string output = method.output();
+                     std::vector<std::string>& files, const ResumePoint& from) {
+    const std::string output = method.output(), key = method.description().dump();
     const auto start = Clock::now();
     SnapshotSchedule schedule;
     SnapshotWriter writer;
-    double read_seconds = 0.0;  // of the snapshot being written
+    auto snapshots = std::make_shared<std::vector<std::string>>(from.snapshots);  // the writer thread's
+    double read_seconds = 0.0;                                                    // of the snapshot being written
     const auto announce = [&](const std::vector<SnapshotWriter::Written>& written) {
         for (const SnapshotWriter::Written& w : written) {
             schedule.record_cost(read_seconds + w.seconds);
@@ -200,12 +275,49 @@ PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeE
         if (!schedule.due(stats.pass, seconds_since(start), writer.idle())) return;
         const auto read_start = Clock::now();
         SnapshotWrite write = method.snapshot(out, stats);
+        auto state = std::make_shared<MethodState>(method.state());
+        state->key = key;
         read_seconds = seconds_since(read_start);
-        writer.submit(output, stats.pass, std::move(write));
+        writer.submit(output, stats.pass, with_state(std::move(write), state, snapshots, state_path(out, output)));
     };
-    const PassStats last = run_progressive([&] { return method.step(); }, method.stop_rule(), on_pass);
+    if (from.stats.pass > 0) emit(protocol::ProgressEvent{output, from.stats});
+    const PassStats last = run_progressive([&] { return method.step(); }, method.stop_rule(), on_pass, from.stats);
     announce(writer.drain());
     return last;
+}
+
+// An output's result, kept until the job is done so that a resumed run
+// reuses it rather than baking the output again.
+void save_finished(const fs::path& out, const ProgressiveMethod& method, const PassStats& stats,
+                   const std::vector<std::string>& snapshots, const MethodResult& result) {
+    const nlohmann::json done = {{"key", method.description().dump()},
+                                 {"stats", protocol::to_json(stats)},
+                                 {"snapshots", snapshots},
+                                 {"files", result.files},
+                                 {"manifest", result.manifest}};
+    fs::create_directories(resume_dir(out));
+    write_file_atomic(finished_path(out, method.output()), done.dump() + "\n");
+}
+
+// One output from where it resumes: its passes (unless an earlier run
+// finished it) and its final files, added to `done`; returns its manifest section.
+nlohmann::json bake_output(ProgressiveMethod& m, const ResumePoint& from, const fs::path& out,
+                           const BakeEventSink& emit, protocol::DoneEvent& done) {
+    std::vector<std::string> snapshots = from.snapshots;
+    PassStats last = from.stats;
+    std::optional<MethodResult> result = from.finished;
+    if (result) {
+        emit(protocol::ProgressEvent{m.output(), last});
+    } else {
+        last = run_method(m, out, emit, snapshots, from);
+        result = m.finish(out, last);
+        save_finished(out, m, last, snapshots, *result);
+    }
+    done.files.insert(done.files.end(), snapshots.begin(), snapshots.end());
+    done.final_files[m.output()] = result->files.front();
+    done.files.insert(done.files.end(), result->files.begin(), result->files.end());
+    done.progress = last;
+    return std::move(result->manifest);
 }
 
 // scene.lit.glb from the final lightmap: its RGB (irradiance/pi), RGBM-encoded.
@@ -238,6 +350,12 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     started.triangles = prepared->scene.triangle_count();
     started.prepare_seconds = prepared->prepare_seconds;
     for (const auto& m : methods) started.outputs[m->output()] = m->description();
+    // Each output from where an interrupted run of this job left it; a
+    // fresh run first drops any state an older run left behind.
+    std::vector<ResumePoint> resumed(methods.size());
+    if (job.resume)
+        for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], started);
+    else fs::remove_all(resume_dir(job.out));
     emit(started);
     // The geometry a viewer needs to show the lightmap's snapshots on the
     // scene (the status page's 3D view), there before the first snapshot.
@@ -262,15 +380,9 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"unlit_chart_rays", prepared->unlit_chart_rays}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
-    for (const auto& m : methods) {
-        const std::string output = m->output();
-        manifest["prepared"]["outputs"].push_back(output);
-        const PassStats last = run_method(*m, job.out, emit, done.files);
-        MethodResult result = m->finish(job.out, last);
-        done.final_files[output] = result.files.front();
-        done.files.insert(done.files.end(), result.files.begin(), result.files.end());
-        done.progress = last;
-        manifest[output] = std::move(result.manifest);
+    for (size_t i = 0; i < methods.size(); ++i) {
+        manifest["prepared"]["outputs"].push_back(methods[i]->output());
+        manifest[methods[i]->output()] = bake_output(*methods[i], resumed[i], job.out, emit, done);
     }
     if (prepared->atlas_scene) {
         done.files.push_back("scene.lightmapped.glb");
@@ -288,6 +400,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         manifest["files"]["scene.lit.glb"] =
             "scene.lightmapped.glb with the final lightmap embedded (MOZ_lightmap, RGBM PNG; see README)";
     write_file_atomic(job.out / "manifest.json", manifest.dump(2) + "\n");
+    fs::remove_all(resume_dir(job.out));  // the job is done: nothing to resume
     emit(done);
     return done;
 }

@@ -21,6 +21,10 @@ struct BakeJob {
     std::filesystem::path out;    // the output directory (created)
     protocol::BakeSettings settings;
     DeviceChoice device = DeviceChoice::Auto;
+    // Continue from the method states an interrupted run of the same job
+    // left in `out` (bake/method_state.h) instead of from pass 0; an output
+    // whose state does not fit starts again, and the start event says why.
+    bool resume = false;
 };
 
 // The job's input cannot be baked as asked (no light, an atlas that cannot
@@ -35,7 +39,8 @@ public:
 using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;
 
 // Runs the job and returns its "done" event (also emitted). Throws on any
-// failure; no file is ever left half-written under its final name.
+// failure; no file is ever left half-written under its final name. Each
+// output's state is saved with its snapshots, for a run with `resume`.
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit);
 
 }  // namespace lf

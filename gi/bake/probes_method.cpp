@@ -129,6 +129,20 @@ PassStats ProbesMethod::step() {
     return stats_;
 }
 
+MethodState ProbesMethod::state() const {
+    MethodState s;
+    s.layout = state_layout();
+    s.stats = stats_;
+    s.buffers = {buffer_bytes(texels_)};
+    return s;
+}
+
+void ProbesMethod::restore(const MethodState& s) {
+    if (s.layout != state_layout()) throw MethodStateMismatch("the probes are placed differently");
+    restore_buffers({{&texels_, "the probes' capture texels"}}, s.buffers);
+    stats_ = s.stats;
+}
+
 ProbeSet ProbesMethod::probe_set(const std::vector<glm::vec4>& acc) const {
     const int r = settings_.res, m = settings_.m;
     const size_t per_probe = size_t(6) * r * r;

@@ -13,6 +13,7 @@
 #pragma once
 
 #include "bake/prepared_scene.h"
+#include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "bake/scene_shading.h"
 #include "bake/surface_textures.h"
@@ -43,6 +44,9 @@ public:
     PassStats step() override;
     SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
+    // The capture texels' running sums (the ray counter is 0 between passes).
+    MethodState state() const override;
+    void restore(const MethodState& state) override;
 
     // The reference points a job's settings place in a scene (explicit, or
     // the grid), before validity is known. Public for tests.
@@ -55,6 +59,7 @@ private:
     // The set from read-back accumulators (any thread: reads only what the
     // constructor set).
     ProbeSet probe_set(const std::vector<glm::vec4>& accumulators) const;
+    uint64_t state_layout() const { return hash_vector(positions_, uint64_t(settings_.res)); }
     const PreparedScene& prepared_;
     protocol::ProbesSettings settings_;
     StopRule stop_;

@@ -10,16 +10,19 @@ StopRule stop_rule_from(const protocol::StopSettings& stop) {
     return rule;
 }
 
+bool stop_reached(const StopRule& stop, const PassStats& stats) {
+    const bool converged = stop.target_error > 0.0 && stats.pass >= stop.min_passes &&
+                           stats.error_estimate.value_or(1e30) <= stop.target_error;
+    const bool out_of_time = stop.time_limit > 0.0 && stats.seconds >= stop.time_limit;
+    return stats.pass >= stop.max_passes || converged || out_of_time;
+}
+
 PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
-                          const std::function<void(const PassStats&)>& on_pass) {
-    PassStats stats;
-    while (stats.pass < stop.max_passes) {
+                          const std::function<void(const PassStats&)>& on_pass, const PassStats& from) {
+    PassStats stats = from;
+    while (!stop_reached(stop, stats)) {
         stats = step();
-        const bool converged = stop.target_error > 0.0 && stats.pass >= stop.min_passes &&
-                               stats.error_estimate.value_or(1e30) <= stop.target_error;
-        const bool out_of_time = stop.time_limit > 0.0 && stats.seconds >= stop.time_limit;
         if (on_pass) on_pass(stats);
-        if (converged || out_of_time) break;
     }
     return stats;
 }

@@ -16,6 +16,8 @@
 
 namespace lf {
 
+struct MethodState;  // bake/method_state.h
+
 // Totals after a pass (pass, rays, seconds, error estimate): the worker
 // protocol's Progress, so the engine and the server count the same thing.
 using PassStats = protocol::Progress;
@@ -61,14 +63,25 @@ public:
     virtual SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) = 0;
     // Writes the final files.
     virtual MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) = 0;
+    // Resuming an interrupted bake (bake/method_state.h): what the passes
+    // carry from one pass to the next (read on the GL thread, between
+    // passes; the driver fills in the key and the files), and continuing
+    // from it. restore() throws MethodStateMismatch, changing nothing, for a
+    // state this method cannot take.
+    virtual MethodState state() const = 0;
+    virtual void restore(const MethodState& state) = 0;
 };
 
 // "<stem>.pass-NNNN.<extension>": the name of an intermediate snapshot.
 using protocol::snapshot_file_name;
 
-// Runs passes until `stop` says so; on_pass(stats) after every pass.
+// Whether a bake with these totals is done.
+bool stop_reached(const StopRule& stop, const PassStats& stats);
+
+// Runs passes from `from` (a resumed bake's totals; none: pass 0) until
+// `stop` says so; on_pass(stats) after every pass.
 PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
-                          const std::function<void(const PassStats&)>& on_pass);
+                          const std::function<void(const PassStats&)>& on_pass, const PassStats& from = {});
 
 // When a snapshot is taken: at passes 1, 2, 4, 8 … and whenever `interval`
 // seconds have passed since the last one; but never while the last one is

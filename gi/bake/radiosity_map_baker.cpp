@@ -99,6 +99,7 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     std::vector<glm::uvec4> covered(covered_count_);
     std::vector<glm::vec4> accumulators(kAccumulatorVec4s * covered_count_, glm::vec4(0.0f));
     covered_atlas_index_ = texels.texels;
+    layout_ = hash_vector(texels.first_sample, hash_vector(texels.texels));
     for (size_t i = 0; i < covered_count_; ++i) {
         covered[i] = glm::uvec4(texels.first_sample[i], texels.sample_count(i), texels.texels[i], 0u);
         accumulators[kAccumulatorVec4s * i + 4] = glm::vec4(texels.albedo[i], 0.0f);
@@ -190,8 +191,7 @@ void RadiosityMapBaker::copy_to_dilated_texels(const GpuBuffer& atlas_buffer) {
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 }
 
-PassStats RadiosityMapBaker::step() {
-    const auto start = std::chrono::steady_clock::now();
+void RadiosityMapBaker::bind_buffers() const {
     tracer_.bind();
     sample_points_.bind(2);
     covered_.bind(3);
@@ -203,7 +203,11 @@ PassStats RadiosityMapBaker::step() {
     texel_albedo_.bind(15);
     if (settings_.directional) directional_.bind(16);
     if (surface_textures_) surface_textures_->bind();
+}
 
+PassStats RadiosityMapBaker::step() {
+    const auto start = std::chrono::steady_clock::now();
+    bind_buffers();
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
     glUniform1ui(gather_.uniform("covered_count"), GLuint(covered_count_));
@@ -220,32 +224,11 @@ PassStats RadiosityMapBaker::step() {
 
     ++pass_in_epoch_;
     const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
-    resolve_.use();
-    glUniform1ui(resolve_.uniform("covered_count"), GLuint(covered_count_));
-    glUniform1ui(resolve_.uniform("end_epoch"), end_epoch ? 1u : 0u);
-    glUniform1f(resolve_.uniform("converged_error"), float(settings_.converged_texel_error));
-    glUniform1ui(resolve_.uniform("min_samples"), 16u);
-    glUniform2ui(resolve_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
-    resolve_.dispatch_1d(covered_count_);
-    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-
-    copy_to_dilated_texels(reflected_);
-
-    // Totals of the error estimate; reading them back also waits for the pass.
-    const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();
-    double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0, unknown = 0.0;
-    for (size_t g = 0; g + 1 < partials.size(); g += 2) {
-        variance += partials[g].x;
-        level += partials[g].y;
-        active_next += partials[g].z;
-        covered += partials[g].w;
-        extra_rays += partials[g + 1].x;
-        unknown += partials[g + 1].y;
-    }
+    const ResolveTotals totals = resolve(end_epoch);
     // Rays of this pass: every texel that was active when it began, plus
     // path continuations (path tracing).
-    stats_.rays += rays_per_texel_ * uint64_t(active_texels_) + uint64_t(extra_rays);
-    active_texels_ = size_t(active_next);
+    stats_.rays += rays_per_texel_ * uint64_t(active_texels_) + uint64_t(totals.extra_rays);
+    active_texels_ = size_t(totals.active_next);
     if (end_epoch) {
         pass_in_epoch_ = 0;
         epoch_length_ = stats_.pass + 1;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
@@ -255,8 +238,61 @@ PassStats RadiosityMapBaker::step() {
     // Unknown while any texel's delivered estimate rests on one sample (its
     // variance would read 0, not small): passes 1 to 3 with epochs.
     stats_.error_estimate.reset();
-    if (unknown == 0.0 && level > 0.0) stats_.error_estimate = std::sqrt(variance / covered) / (level / covered);
+    if (totals.unknown == 0.0 && totals.level > 0.0)
+        stats_.error_estimate = std::sqrt(totals.variance / totals.covered) / (totals.level / totals.covered);
     return stats_;
+}
+
+RadiosityMapBaker::ResolveTotals RadiosityMapBaker::resolve(bool end_epoch) {
+    resolve_.use();
+    glUniform1ui(resolve_.uniform("covered_count"), GLuint(covered_count_));
+    glUniform1ui(resolve_.uniform("end_epoch"), end_epoch ? 1u : 0u);
+    glUniform1f(resolve_.uniform("converged_error"), float(settings_.converged_texel_error));
+    glUniform1ui(resolve_.uniform("min_samples"), 16u);
+    glUniform2ui(resolve_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
+    resolve_.dispatch_1d(covered_count_);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    copy_to_dilated_texels(reflected_);
+
+    // Reading the totals back also waits for the pass.
+    ResolveTotals t;
+    const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();
+    for (size_t g = 0; g + 1 < partials.size(); g += 2) {
+        t.variance += partials[g].x;
+        t.level += partials[g].y;
+        t.active_next += partials[g].z;
+        t.covered += partials[g].w;
+        t.extra_rays += partials[g + 1].x;
+        t.unknown += partials[g + 1].y;
+    }
+    return t;
+}
+
+MethodState RadiosityMapBaker::state() const {
+    MethodState s;
+    s.layout = layout_;
+    s.stats = stats_;
+    s.counters = {pass_in_epoch_, epoch_length_, int64_t(active_texels_)};
+    s.buffers.push_back(buffer_bytes(accumulators_));
+    if (settings_.directional) s.buffers.push_back(buffer_bytes(directional_));
+    return s;
+}
+
+void RadiosityMapBaker::restore(const MethodState& s) {
+    if (s.layout != layout_) throw MethodStateMismatch("the lightmap's texels are laid out differently");
+    if (s.counters.size() != 3) throw MethodStateMismatch("not a lightmap's state");
+    std::vector<std::pair<GpuBuffer*, std::string>> buffers = {{&accumulators_, "the texels' accumulators"}};
+    if (settings_.directional) buffers.emplace_back(&directional_, "the texels' L1 sums");
+    restore_buffers(buffers, s.buffers);
+    pass_in_epoch_ = int(s.counters[0]);
+    epoch_length_ = int(s.counters[1]);
+    active_texels_ = size_t(s.counters[2]);
+    stats_ = s.stats;
+    // The resolve without an epoch's end changes no accumulator (the rays
+    // counter it clears is already 0 between passes): it publishes the
+    // reflected radiance exactly as the last pass before the state did.
+    bind_buffers();
+    resolve(false);
 }
 
 // L1x.*, L1y.*, L1z.*: the mean of each texel's L1 sums over its passes.

@@ -4,6 +4,7 @@
 #pragma once
 
 #include "atlas/texel_samples.h"
+#include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "bake/scene_shading.h"
 #include "bake/surface_textures.h"
@@ -103,6 +104,12 @@ public:
     Readback read_back() const;
     FloatImage image(const Readback& readback) const;
 
+    // Resuming (bake/method_state.h): the accumulators, the L1 sums and the
+    // epoch's position; restore() publishes again what the next pass's
+    // indirect rays read, from the restored accumulators.
+    MethodState state() const;
+    void restore(const MethodState& state);
+
     size_t covered_texels() const { return covered_count_; }
     // Texels next to intersecting geometry (a shelf through a wall, a stair
     // against one): those with a sample point moved out from inside or
@@ -115,6 +122,14 @@ public:
 
 private:
     void upload_texels(const TexelSamples& texels);
+    void bind_buffers() const;
+    // The resolve pass: turns the accumulators into this pass's values and
+    // publishes them to the next (radiosity_resolve.comp); returns the
+    // error totals of its work groups.
+    struct ResolveTotals {
+        double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0, unknown = 0.0;
+    };
+    ResolveTotals resolve(bool end_epoch);
     void relocate_samples_inside_geometry(size_t sample_count);
     void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
     void count_texels_by_geometry();
@@ -124,6 +139,7 @@ private:
     RadiosityMapSettings settings_;
     int width_ = 0, height_ = 0;
     size_t covered_count_ = 0;
+    uint64_t layout_ = 0;  // hash of which atlas texel, which samples each covered texel is
     size_t moved_texels_ = 0, cut_texels_ = 0;
     std::vector<uint32_t> covered_atlas_index_;
     std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices

@@ -26,6 +26,8 @@ public:
     PassStats step() override { return baker_.step(); }
     SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
+    MethodState state() const override { return baker_.state(); }
+    void restore(const MethodState& state) override { baker_.restore(state); }
 
 private:
     // The baker's image with the job's attributes, seams stitched; with

@@ -218,6 +218,25 @@ PassStats ShTransferBaker::step() {
     return stats_;
 }
 
+uint64_t ShTransferBaker::layout() const {
+    const std::vector<uint64_t> counts = {unique_count_, receiver_count_, receiver_vertex_count_, point_count_};
+    return hash_vector(counts, hash_vector(unique_of_vertex_));
+}
+
+MethodState ShTransferBaker::state() const {
+    MethodState s;
+    s.layout = layout();
+    s.stats = stats_;
+    s.buffers = {buffer_bytes(accum_), buffer_bytes(resolved_)};
+    return s;
+}
+
+void ShTransferBaker::restore(const MethodState& s) {
+    if (s.layout != layout()) throw MethodStateMismatch("the SH receivers are laid out differently");
+    restore_buffers({{&accum_, "the receivers' running sums"}, {&resolved_, "the receivers' transfer"}}, s.buffers);
+    stats_ = s.stats;
+}
+
 ShVertexTransfer ShTransferBaker::snapshot() const {
     const size_t blocks = size_t(settings_.bounces) + 1;
     const std::vector<float> resolved = resolved_.read<float>();

@@ -7,6 +7,7 @@
 // (Sloan, Kautz & Snyder 2002) on request.
 #pragma once
 
+#include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "gpu/shader.h"
 #include "scene/scene.h"
@@ -77,11 +78,16 @@ public:
     size_t unique_vertices() const { return unique_count_ - point_count_; }
     size_t receiver_vertices() const { return receiver_vertex_count_; }
     size_t receiver_points() const { return point_count_; }
+    // Resuming (bake/method_state.h): the running sums and their resolved means.
+    MethodState state() const;
+    void restore(const MethodState& state);
+
     uint64_t samples_per_vertex() const { return uint64_t(stats_.pass) * uint64_t(settings_.samples_per_pass); }
 
 private:
     void build_receivers(const Scene& scene, const std::vector<ShReceiverPoint>& points);
     void build_occluders(const Scene& scene);
+    uint64_t layout() const;  // which vertex or point each receiver entry is
 
     const Scene& scene_;
     ShTransferSettings settings_;

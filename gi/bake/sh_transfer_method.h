@@ -70,6 +70,8 @@ public:
     PassStats step() override;
     SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
+    MethodState state() const override { return baker_->state(); }
+    void restore(const MethodState& state) override { baker_->restore(state); }
 
 private:
     FloatImage texel_image(const ShVertexTransfer& t, int bands, const PassStats& s) const;

@@ -35,12 +35,12 @@ const std::vector<float>& FloatImage::at(const std::string& name) const {
     return it->second;
 }
 
-void write_file_atomic(const fs::path& path, const std::string& bytes) {
+void write_file_atomic(const fs::path& path, const std::function<void(std::ostream&)>& write) {
     const fs::path tmp = temp_path_for(path);
     {
         std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
         if (!out) throw std::runtime_error(tmp.string() + ": cannot open for writing");
-        out.write(bytes.data(), std::streamsize(bytes.size()));
+        write(out);
         out.flush();
         if (!out) {
             std::error_code ignored;
@@ -49,6 +49,10 @@ void write_file_atomic(const fs::path& path, const std::string& bytes) {
         }
     }
     fs::rename(tmp, path);
+}
+
+void write_file_atomic(const fs::path& path, const std::string& bytes) {
+    write_file_atomic(path, [&](std::ostream& out) { out.write(bytes.data(), std::streamsize(bytes.size())); });
 }
 
 void write_exr(const fs::path& path, const FloatImage& image) {

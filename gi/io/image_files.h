@@ -4,7 +4,9 @@
 #pragma once
 
 #include <filesystem>
+#include <functional>
 #include <map>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -35,7 +37,9 @@ FloatImage read_exr(const std::filesystem::path& path);
 // (PFM stores them bottom to top), 3 channels R, G, B (or "Y").
 FloatImage read_pfm(const std::filesystem::path& path);
 
-// Writes `bytes` to path atomically: a temp file in the same directory, then rename.
+// Writes a file atomically: `write` fills a temp file in the same directory,
+// which is renamed to `path` once complete (a reader sees all or nothing).
+void write_file_atomic(const std::filesystem::path& path, const std::function<void(std::ostream&)>& write);
 void write_file_atomic(const std::filesystem::path& path, const std::string& bytes);
 
 }  // namespace lf
