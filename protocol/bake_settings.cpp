@@ -1,5 +1,6 @@
 #include "bake_settings.h"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <iterator>
@@ -116,6 +117,9 @@ std::vector<Setting> build_catalog() {
         with_auto(
             number("atlas", "texel_density", 0, 0, true, 1e4, "", "texels per metre of surface (auto: from res)")),
         integer("atlas", "subsamples", 2, 1, 8, "", "sample points per texel along each axis"),
+        with_auto(integer("atlas", "max_res", 0, 256, 16384, "res",
+                          "the largest atlas side when res is auto or follows texel_density (the density shrinks to "
+                          "fit; auto: 4096, or the server's res limit where lower)")),
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
         typed("", "env", T::Environment, nullptr,
@@ -372,6 +376,9 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     b.atlas.res = int_or_auto(atlas["res"]);
     if (!atlas["texel_density"].is_string()) b.atlas.texel_density = atlas["texel_density"].get<double>();
     b.atlas.subsamples = atlas["subsamples"].get<int>();
+    b.atlas.max_res = int_or_auto(atlas["max_res"]);
+    if (!b.atlas.max_res && limits.cap("res") < kAutoMaxAtlasRes)
+        b.atlas.max_res = int(std::max(256.0, limits.cap("res")));  // the smallest max_res: the default atlas
     if (outputs.contains("lightmap")) {
         const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
         b.lightmap = LightmapSettings{stop_from(l, ""), l["scheme"],  l["light_samples"], l["light_sampling"],
@@ -410,7 +417,8 @@ json to_json(const BakeSettings& b) {
     json j = {{"outputs", json::object()}, {"seed", b.seed}};
     j["atlas"] = {{"res", or_auto(b.atlas.res)},
                   {"texel_density", or_auto(b.atlas.texel_density)},
-                  {"subsamples", b.atlas.subsamples}};
+                  {"subsamples", b.atlas.subsamples},
+                  {"max_res", or_auto(b.atlas.max_res)}};
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
     if (const auto& l = b.lightmap)

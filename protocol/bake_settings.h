@@ -94,10 +94,18 @@ struct StopSettings {
     double time_limit = 0.0;    // seconds, 0: none
 };
 
+// The largest atlas side the engine chooses by itself (atlas.max_res auto).
+inline constexpr int kAutoMaxAtlasRes = 4096;
+
 struct AtlasSettings {
     std::optional<int> res;               // empty: auto (the file's TEXCOORD_1 size, or the engine's default)
     std::optional<double> texel_density;  // texels per metre; empty: from res
     int subsamples = 2;                   // sample points per texel = this squared
+    // The largest side of an atlas the engine sizes (res auto, or from
+    // texel_density); empty: auto, kAutoMaxAtlasRes. A server's res limit
+    // below that is written in here when the spec is parsed, so that the
+    // worker keeps to the limit of the server that took the job.
+    std::optional<int> max_res;
 };
 
 struct LightmapSettings {

@@ -114,6 +114,20 @@ TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
     fs::remove_all(out);
 }
 
+// --max-res bounds an atlas the engine sizes: a texel density that would
+// need a larger atlas shrinks to fit (a service's res limit arrives so).
+TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
+    const fs::path out = fresh_dir("max_res");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
+                                   " --texel-density 2000 --max-res 256 --passes 1");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    std::ifstream manifest_in(out / "manifest.json");
+    const nlohmann::json atlas = nlohmann::json::parse(manifest_in)["lightmap"]["settings"]["atlas"];
+    EXPECT_EQ(atlas["width"], 256) << atlas.dump();
+    EXPECT_LT(atlas["texel_density"].get<double>(), 2000.0) << "the density shrank to fit";
+    fs::remove_all(out);
+}
+
 // What is printed works as printed: every command answers --help, and a
 // mistyped option names the one that was meant.
 TEST(CliUsage, EveryCommandAnswersHelpAndTyposGetASuggestion) {

@@ -270,6 +270,32 @@ TEST(JobSpec, AutoIsAValueOfItsOwn) {
     EXPECT_EQ(field_of(j), "lightmap.passes");
 }
 
+// An atlas the engine sizes (res auto, or from texel_density) keeps to a
+// server's res limit too: the limit below the engine's own 4096 is written
+// into the spec the worker receives, and a larger max_res is refused.
+TEST(JobSpec, AServersResLimitBoundsTheAtlasesTheEngineSizes) {
+    json j = valid_spec();
+    j["atlas"] = json::object();
+    SpecLimits limits;
+    limits.caps["res"] = 1024;
+    const JobSpec capped = parse_job_spec(j, limits);
+    EXPECT_EQ(capped.bake.atlas.max_res, 1024);
+    EXPECT_EQ(to_json(capped)["atlas"]["max_res"], 1024) << "the worker reads it from the stored spec";
+    EXPECT_EQ(parse_job_spec(to_json(capped)).bake.atlas.max_res, 1024);
+    j["atlas"]["max_res"] = 512;
+    EXPECT_EQ(parse_job_spec(j, limits).bake.atlas.max_res, 512) << "a lower one of the job's own stays";
+    j["atlas"]["max_res"] = 2048;
+    EXPECT_EQ(error_of(j, limits), "atlas.max_res: 2048 exceeds this server's limit 1024");
+    j["atlas"]["max_res"] = 128;
+    EXPECT_EQ(error_of(j), "atlas.max_res: 128 is below the minimum 256");
+    // Without a limit below 4096 it stays auto: the engine's own bound.
+    j["atlas"].erase("max_res");
+    EXPECT_FALSE(parse_job_spec(j).bake.atlas.max_res);
+    EXPECT_EQ(to_json(parse_job_spec(j))["atlas"]["max_res"], "auto");
+    limits.caps["res"] = 100;  // below the default atlas: that atlas, no smaller
+    EXPECT_EQ(parse_job_spec(j, limits).bake.atlas.max_res, 256);
+}
+
 TEST(JobSpec, ResAndTexelDensityTogetherAreRefused) {
     json j = valid_spec();
     j["atlas"] = {{"res", 256}, {"texel_density", 10}};

@@ -76,6 +76,7 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
     AtlasOptions options;
     options.resolution = s.atlas.res.value_or(0);
     options.texel_density = float(s.atlas.texel_density.value_or(0.0));
+    options.max_resolution = options.auto_max_resolution = s.atlas.max_res.value_or(protocol::kAutoMaxAtlasRes);
     const double target =
         s.lightmap && s.lightmap->stop.target_error > 0.0 ? s.lightmap->stop.target_error : kDefaultResolutionBias;
     options.max_border_fraction = float(target / kBiasPerBorderFraction);
