@@ -21,6 +21,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <thread>
 
 namespace fs = std::filesystem;
@@ -81,6 +82,33 @@ std::vector<fs::path> record_dirs(const std::string& data_dir) {
 // DATA/orphaned-<time>/ (kept for the operator, invisible to the service).
 // With a store that holds records, job directories it does not know are
 // logged (a partial loss), not refused.
+// Two live nodes of one name on a shared store would renew, and take over,
+// each other's leases: a node refuses a name whose heartbeat still
+// advances. A recent heartbeat alone may be this node's own from before a
+// crash, so it is watched for one renewal period (a third of that node's
+// lease) before the name is taken.
+void check_node_name_is_free(const ServerConfig& config) {
+    const std::unique_ptr<JobStore> store = open_job_store(config);
+    const std::string& name = store->node().name;
+    const auto record = [&]() -> std::optional<NodeRecord> {
+        for (const NodeRecord& n : store->nodes())
+            if (n.name == name) return n;
+        return std::nullopt;
+    };
+    const std::optional<NodeRecord> before = record();
+    if (!before) return;
+    const double lease = before->info.value("lease_seconds", config.lease_seconds);
+    if (before->heartbeat_age >= lease) return;  // that node stopped renewing: the name is free
+    log_line("a node named " + name + " renewed its heartbeat " + std::to_string(int(before->heartbeat_age)) +
+             " s ago: watching it for " + std::to_string(int(lease / 3 + 1)) + " s (alive, or this node before a restart?)");
+    std::this_thread::sleep_for(std::chrono::duration<double>(lease / 3 + 1.0));
+    const std::optional<NodeRecord> after = record();
+    if (after && after->heartbeat_at > before->heartbeat_at)
+        throw std::runtime_error("--node-name " + name +
+                                 " is taken: another lightfarmd of that name is alive on this store (its heartbeat "
+                                 "advanced while this one watched it); give every node its own --node-name");
+}
+
 void check_store_against_data_dir(const ServerConfig& config) {
     const fs::path data = config.data_dir;
     const std::unique_ptr<JobStore> opened = open_job_store(config);
@@ -205,6 +233,7 @@ int main(int argc, char** argv) {
         // shared store (--store) every node may use the same one: the store
         // arbitrates, and files are written under unique names and renamed.
         if (config.store.empty()) lock_data_dir(config.data_dir);
+        else check_node_name_is_free(config);
         check_store_against_data_dir(config);
         bool created = false;
         const std::vector<std::string> tokens = load_tokens(config, created);

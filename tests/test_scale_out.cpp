@@ -348,6 +348,37 @@ TEST_F(ScaleOut, AJobOfAKilledNodeIsFinishedByAnotherAfterTheLease) {
     EXPECT_NE(artifacts->body.find("lightmap.exr"), std::string::npos) << artifacts->body;
 }
 
+// A second node with a live node's name is refused (it would renew and take
+// over that node's leases); the same name comes back at once after a crash,
+// once its heartbeat is seen to have stopped.
+TEST_F(ScaleOut, ANameALiveNodeHasIsRefusedAndFreeAgainAfterItsCrash) {
+    add_nodes(1, 2);
+    Node& a = *nodes[0];
+    a.start();
+    Node twin("n1",
+              {"--data", (tmp.path / "data").string(), "--tokens", (tmp.path / "tokens").string(), "--engine",
+               engine.script.string(), "--store", uri, "--lease-seconds", "2"},
+              tmp.path / "twin");
+    fs::create_directories(tmp.path / "twin");
+    try {
+        twin.start();
+        ADD_FAILURE() << "a second node named n1 started";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find("--node-name n1 is taken"), std::string::npos) << e.what();
+    }
+    auto r = a.client().Get("/healthz");
+    EXPECT_TRUE(r && r->status == 200) << "the first n1 is untouched";
+
+    a.kill9();
+    const auto restarted = std::chrono::steady_clock::now();
+    a.start();  // its own last heartbeat is recent: watched for a third of the lease, then taken
+    const double waited = std::chrono::duration<double>(std::chrono::steady_clock::now() - restarted).count();
+    EXPECT_LT(waited, 2.0 / 3 + 1 + 3) << "one renewal period, not a whole lease or more";
+    auto listed = a.client().Get("/v1/nodes");
+    ASSERT_TRUE(listed && listed->status == 200);
+    EXPECT_EQ(json::parse(listed->body)["nodes"].size(), 1u);
+}
+
 TEST_F(ScaleOut, ADatabaseRestartedMidRunLosesAndDuplicatesNothing) {
     add_nodes(2, 10);
     for (auto& n : nodes) n->start();
