@@ -100,7 +100,8 @@ void check_node_name_is_free(const ServerConfig& config) {
     const double lease = before->info.value("lease_seconds", config.lease_seconds);
     if (before->heartbeat_age >= lease) return;  // that node stopped renewing: the name is free
     log_line("a node named " + name + " renewed its heartbeat " + std::to_string(int(before->heartbeat_age)) +
-             " s ago: watching it for " + std::to_string(int(lease / 3 + 1)) + " s (alive, or this node before a restart?)");
+             " s ago: watching it for " + std::to_string(int(lease / 3 + 1)) +
+             " s (alive, or this node before a restart?)");
     std::this_thread::sleep_for(std::chrono::duration<double>(lease / 3 + 1.0));
     const std::optional<NodeRecord> after = record();
     if (after && after->heartbeat_at > before->heartbeat_at)
