@@ -9,6 +9,7 @@
 #include "probes/probe_eval.h"
 #include "probes/probe_set.h"
 #include "sh/sh_basis.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -559,8 +560,8 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
     const auto run = [&](unsigned mode, const std::vector<glm::vec4>& cases, size_t items) {
         GpuBuffer in(cases), out(items * sizeof(glm::vec4));
         program.use();
-        in.bind(1);
-        out.bind(2);
+        in.bind(LF_BINDING_CHECK_CASES);
+        out.bind(LF_BINDING_CHECK_RESULTS);
         glUniform1ui(program.uniform("item_count"), GLuint(items));
         glUniform1ui(program.uniform("mode"), mode);
         program.dispatch_1d(items);
@@ -572,7 +573,7 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
         std::vector<glm::vec4> cases;
         for (int i = 0; i < 600; ++i) cases.push_back({float(i % 6), 0.5f + 0.5f * u(rng), 0.5f + 0.5f * u(rng), 0});
         GpuBuffer dummy(std::vector<glm::vec4>(1));
-        dummy.bind(0);
+        dummy.bind(LF_BINDING_PROBE_SET);
         const auto got = run(2, cases, cases.size());
         for (size_t i = 0; i < cases.size(); ++i) {
             const glm::vec3 want = cube_direction(int(cases[i].x), cases[i].y, cases[i].z);
@@ -591,7 +592,7 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
                 cases.push_back(glm::vec4(v, 0));
         }
         GpuBuffer dummy(std::vector<glm::vec4>(1));
-        dummy.bind(0);
+        dummy.bind(LF_BINDING_PROBE_SET);
         const auto got = run(0, cases, count);
         double worst = 0.0;
         for (size_t i = 0; i < count; ++i) {
@@ -612,7 +613,7 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
         set.m = 4;
         set.probes = {capture(scene, {0.3f, 0, 0}, 16, 4), capture(scene, {-0.2f, 0.1f, 0.2f}, 16, 4)};
         GpuBuffer probes(pack_probe_buffer(set));
-        probes.bind(0);
+        probes.bind(LF_BINDING_PROBE_SET);
         std::vector<glm::vec4> cases;
         const size_t count = 300;
         for (size_t i = 0; i < count; ++i) {
@@ -665,7 +666,7 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
         const ProbeEvaluator cpu(set);
         ASSERT_TRUE(cpu.is_grid());
         GpuBuffer probes(pack_probe_buffer(set));
-        probes.bind(0);
+        probes.bind(LF_BINDING_PROBE_SET);
         std::vector<glm::vec4> cases;
         const size_t count = 400;
         for (size_t i = 0; i < count; ++i) {

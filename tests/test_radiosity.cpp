@@ -15,6 +15,7 @@
 #include "io/reference_error.h"
 #include "scene/gltf_loader.h"
 #include "trace/tracer.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <gtest/gtest.h>
 
@@ -988,8 +989,8 @@ TEST(SurfaceTextures, GlslMatchesTheSceneOnTheCpu) {
         }
         GpuBuffer in(cases), out(2 * cases.size() * sizeof(glm::vec4));
         textures.bind();
-        in.bind(1);
-        out.bind(2);
+        in.bind(LF_BINDING_CHECK_CASES);
+        out.bind(LF_BINDING_CHECK_RESULTS);
         program.use();
         glUniform1ui(program.uniform("item_count"), GLuint(cases.size()));
         program.dispatch_1d(cases.size());

@@ -9,6 +9,7 @@
 #include "trace/bvh.h"
 #include "trace/ray_reference.h"
 #include "trace/tracer.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <gtest/gtest.h>
 
@@ -303,8 +304,8 @@ TEST(GpuDispatch, CoversEveryItemOnceBeyond65535Groups) {
         // One extra slot past the end: nothing may write it.
         GpuBuffer visits(std::vector<uint32_t>(n, 0u)), slots(std::vector<uint32_t>(groups + 1, 0u));
         program.use();
-        visits.bind(0);
-        slots.bind(1);
+        visits.bind(LF_BINDING_ITEM_VISITS);
+        slots.bind(LF_BINDING_GROUP_SLOTS);
         glUniform1ui(program.uniform("item_count"), GLuint(n));
         program.dispatch_1d(n);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);

@@ -1,6 +1,7 @@
 #include "bake/lightmap_denoiser.h"
 
 #include "atlas/atlas.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <glm/glm.hpp>
 
@@ -54,11 +55,11 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
     program_.use();
     glUniform1ui(program_.uniform("width"), GLuint(image.width));
     glUniform1ui(program_.uniform("height"), GLuint(image.height));
-    guide_.bind(0);
+    guide_.bind(LF_BINDING_DENOISE_GUIDE);
     for (int s = 0; s < kSteps; ++s) {
         glUniform1i(program_.uniform("step_size"), 1 << s);
-        ping.bind(1);
-        pong.bind(2);
+        ping.bind(LF_BINDING_DENOISE_IN);
+        pong.bind(LF_BINDING_DENOISE_OUT);
         program_.dispatch_1d(pixels);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
         std::swap(ping, pong);

@@ -5,6 +5,7 @@
 #include "gpu/shader.h"
 #include "probes/probe_eval.h"
 #include "probes/probe_set.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <chrono>
 #include <cmath>
@@ -138,9 +139,9 @@ double gpu_polygon_throughput(const Probe& probe, int m, const std::vector<EvalP
     const ComputeProgram program("probe_eval_check.comp");
     GpuBuffer probes(pack_probe_buffer(one)), in(cases), out(count * sizeof(glm::vec4));
     program.use();
-    probes.bind(0);
-    in.bind(1);
-    out.bind(2);
+    probes.bind(LF_BINDING_PROBE_SET);
+    in.bind(LF_BINDING_CHECK_CASES);
+    out.bind(LF_BINDING_CHECK_RESULTS);
     glUniform1ui(program.uniform("item_count"), GLuint(count));
     glUniform1ui(program.uniform("mode"), 1u);
     glUniform1i(program.uniform("m"), m);

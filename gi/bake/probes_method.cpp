@@ -2,6 +2,7 @@
 
 #include "bake/bake_job.h"
 #include "probes/probe_eval.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <algorithm>
 #include <chrono>
@@ -94,9 +95,9 @@ PassStats ProbesMethod::step() {
     prepared_.tracer->bind();
     shading_.bind();
     surface_textures_.bind();
-    positions_buffer_.bind(12);
-    texels_.bind(13);
-    rays_.bind(14);
+    positions_buffer_.bind(LF_BINDING_PROBE_POSITIONS);
+    texels_.bind(LF_BINDING_PROBE_TEXELS);
+    rays_.bind(LF_BINDING_PROBE_RAYS);
     capture_.use();
     shading_.set_uniforms(capture_);
     glUniform1ui(capture_.uniform("texel_count"), GLuint(texels));

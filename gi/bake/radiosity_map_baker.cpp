@@ -1,6 +1,7 @@
 #include "bake/radiosity_map_baker.h"
 
 #include "gpu/context.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <chrono>
 #include <cmath>
@@ -144,7 +145,7 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     ComputeProgram relocate("texel_relocate.comp");
     relocate.use();
     tracer_.bind();
-    sample_points_.bind(2);
+    sample_points_.bind(LF_BINDING_TEXEL_SAMPLE_POINTS);
     glUniform1ui(relocate.uniform("sample_count"), GLuint(sample_count));
     relocate.dispatch_1d(sample_count);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -153,8 +154,8 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     texel_anchors_.clear_zero();
     ComputeProgram anchor("texel_anchor.comp");
     anchor.use();  // the tracer and the sample points are still bound
-    covered_.bind(3);
-    texel_anchors_.bind(11);
+    covered_.bind(LF_BINDING_COVERED_TEXELS);
+    texel_anchors_.bind(LF_BINDING_TEXEL_ANCHORS);
     glUniform1ui(anchor.uniform("covered_count"), GLuint(covered_count_));
     anchor.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -184,8 +185,8 @@ void RadiosityMapBaker::count_texels_by_geometry() {
 
 void RadiosityMapBaker::copy_to_dilated_texels(const GpuBuffer& atlas_buffer) {
     copy_.use();
-    atlas_buffer.bind(5);
-    dilation_pairs_.bind(10);
+    atlas_buffer.bind(LF_BINDING_ATLAS_TEXELS);
+    dilation_pairs_.bind(LF_BINDING_COPY_PAIRS);
     glUniform1ui(copy_.uniform("pair_count"), GLuint(dilation_.size()));
     copy_.dispatch_1d(dilation_.size());
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -193,15 +194,15 @@ void RadiosityMapBaker::copy_to_dilated_texels(const GpuBuffer& atlas_buffer) {
 
 void RadiosityMapBaker::bind_buffers() const {
     tracer_.bind();
-    sample_points_.bind(2);
-    covered_.bind(3);
-    accumulators_.bind(4);
-    reflected_.bind(5);
+    sample_points_.bind(LF_BINDING_TEXEL_SAMPLE_POINTS);
+    covered_.bind(LF_BINDING_COVERED_TEXELS);
+    accumulators_.bind(LF_BINDING_TEXEL_ACCUMULATORS);
+    reflected_.bind(LF_BINDING_REFLECTED_RADIANCE);
     shading_.bind();
-    error_partials_.bind(9);
-    texel_anchors_.bind(11);
-    texel_albedo_.bind(15);
-    if (settings_.directional) directional_.bind(16);
+    error_partials_.bind(LF_BINDING_ERROR_PARTIALS);
+    texel_anchors_.bind(LF_BINDING_TEXEL_ANCHORS);
+    texel_albedo_.bind(LF_BINDING_TEXEL_ALBEDO);
+    if (settings_.directional) directional_.bind(LF_BINDING_DIRECTIONAL_ACCUMULATORS);
     if (surface_textures_) surface_textures_->bind();
 }
 

@@ -1,4 +1,5 @@
 #include "bake/scene_shading.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <cmath>
 
@@ -75,9 +76,9 @@ SceneShading::SceneShading(const Scene& scene) {
 }
 
 void SceneShading::bind() const {
-    surface_triangles_.bind(6);
-    emitters_.bind(7);
-    punctual_lights_.bind(8);
+    surface_triangles_.bind(LF_BINDING_SURFACE_TRIANGLES);
+    emitters_.bind(LF_BINDING_EMITTERS);
+    punctual_lights_.bind(LF_BINDING_PUNCTUAL_LIGHTS);
 }
 
 void SceneShading::set_uniforms(const ComputeProgram& program) const {

@@ -1,9 +1,9 @@
 // What a ray needs where it lands, on the GPU, for every method that shades
 // hits (the radiosity map, the probes): per triangle its lightmap UVs,
 // sidedness, emission and emitter-sampling density, and albedo
-// (lightmap_lookup.glsl's SurfaceTriangles, binding 6); the emissive
-// triangles chosen in proportion to their power (direct_light.glsl's
-// Emitters, binding 7); and the punctual lights (binding 8).
+// (lightmap_lookup.glsl's SurfaceTriangles); the emissive triangles chosen
+// in proportion to their power (direct_light.glsl's Emitters); and the
+// punctual lights (bindings in shaders/buffer_bindings.glsl).
 #pragma once
 
 #include "gpu/shader.h"

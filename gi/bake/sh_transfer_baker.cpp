@@ -1,6 +1,7 @@
 #include "bake/sh_transfer_baker.h"
 
 #include "gpu/context.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <glm/gtc/type_ptr.hpp>
 
@@ -166,14 +167,14 @@ void ShTransferBaker::build_occluders(const Scene& scene) {
 PassStats ShTransferBaker::step() {
     const auto start = std::chrono::steady_clock::now();
     tracer_->bind();
-    vertices_.bind(2);
-    accum_.bind(3);
-    resolved_.bind(4);
+    vertices_.bind(LF_BINDING_SH_VERTICES);
+    accum_.bind(LF_BINDING_SH_ACCUMULATORS);
+    resolved_.bind(LF_BINDING_SH_RESOLVED);
     if (settings_.bounces > 0) {
-        triangle_ids_.bind(5);
-        triangle_albedo_.bind(6);
+        triangle_ids_.bind(LF_BINDING_SH_TRIANGLE_IDS);
+        triangle_albedo_.bind(LF_BINDING_SH_TRIANGLE_ALBEDO);
     }
-    error_partials_.bind(7);
+    error_partials_.bind(LF_BINDING_SH_ERROR_PARTIALS);
 
     transfer_.use();
     glUniform1ui(transfer_.uniform("vertex_count"), GLuint(receiver_count_));

@@ -1,4 +1,5 @@
 #include "bake/surface_textures.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <glm/gtc/packing.hpp>
 
@@ -76,8 +77,8 @@ SurfaceTextures::SurfaceTextures(const Scene& scene) {
 }
 
 void SurfaceTextures::bind() const {
-    texcoords_.bind(17);
-    materials_.bind(18);
+    texcoords_.bind(LF_BINDING_SURFACE_TEXCOORDS);
+    materials_.bind(LF_BINDING_MATERIAL_TEXTURES);
 }
 
 }  // namespace lf

@@ -2,6 +2,7 @@
 
 #include "gpu/context.h"
 #include "gpu/shader.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <algorithm>
 #include <cmath>
@@ -29,9 +30,9 @@ std::vector<glm::vec3> reference_irradiance(const Scene& scene, const Tracer& tr
     ComputeProgram program("sh_reference.comp");
     program.use();
     tracer.bind();
-    vertex_buffer.bind(2);
-    env_buffer.bind(3);
-    out.bind(4);
+    vertex_buffer.bind(LF_BINDING_SH_VERTICES);
+    env_buffer.bind(LF_BINDING_ENV_TEXELS);
+    out.bind(LF_BINDING_IRRADIANCE);
     glUniform1ui(program.uniform("vertex_count"), GLuint(scene.positions.size()));
     glUniform1ui(program.uniform("seed"), seed);
     glUniform2ui(program.uniform("env_size"), GLuint(env.width), GLuint(env.height));

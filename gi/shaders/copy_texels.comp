@@ -3,10 +3,11 @@
 // texel anchors) from a chart's border texels to the texels just outside it,
 // so bilinear lookups near a border stay in the chart.
 layout(local_size_x = 64) in;
+#include "buffer_bindings.glsl"
 
-layout(std430, binding = 5) buffer AtlasTexels { vec4 atlas_texels[]; };
+layout(std430, binding = LF_BINDING_ATLAS_TEXELS) buffer AtlasTexels { vec4 atlas_texels[]; };
 // (destination atlas index, source atlas index)
-layout(std430, binding = 10) readonly buffer CopyPairs { uvec2 copy_pairs[]; };
+layout(std430, binding = LF_BINDING_COPY_PAIRS) readonly buffer CopyPairs { uvec2 copy_pairs[]; };
 
 uniform uint pair_count;
 

@@ -4,6 +4,7 @@
 #ifndef LF_DIRECT_LIGHT_GLSL
 #define LF_DIRECT_LIGHT_GLSL
 
+#include "buffer_bindings.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -13,9 +14,9 @@
 
 // Emissive triangle e: (v0, cdf), (v1, pdf of choosing it), (v2, area),
 // (mean radiance, bits: scene triangle index << 1 | double-sided).
-layout(std430, binding = 7) readonly buffer Emitters { vec4 emitters[]; };
+layout(std430, binding = LF_BINDING_EMITTERS) readonly buffer Emitters { vec4 emitters[]; };
 // Punctual light l: (position, type), (direction of travel, range), (intensity rgb, cos inner), (cos outer, 0, 0, 0).
-layout(std430, binding = 8) readonly buffer PunctualLights { vec4 punctual_lights[]; };
+layout(std430, binding = LF_BINDING_PUNCTUAL_LIGHTS) readonly buffer PunctualLights { vec4 punctual_lights[]; };
 
 uniform uint emitter_count;
 uniform uint punctual_count;

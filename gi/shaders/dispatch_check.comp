@@ -3,9 +3,10 @@
 // item_count is visited exactly once, and every dispatched group writes its
 // own slot of a per-group buffer sized by groups_1d.
 layout(local_size_x = 64) in;
+#include "buffer_bindings.glsl"
 
-layout(std430, binding = 0) buffer ItemVisits { uint item_visits[]; };
-layout(std430, binding = 1) buffer GroupSlots { uint group_slots[]; };
+layout(std430, binding = LF_BINDING_ITEM_VISITS) buffer ItemVisits { uint item_visits[]; };
+layout(std430, binding = LF_BINDING_GROUP_SLOTS) buffer GroupSlots { uint group_slots[]; };
 
 uniform uint item_count;
 

@@ -14,12 +14,13 @@
 // so flat, alike, noisy texels average and edges the noise cannot explain
 // (a shadow's border, where the error is small against the step) stay.
 layout(local_size_x = 64) in;
+#include "buffer_bindings.glsl"
 
 // Per atlas texel: (position, chart as uint bits; 0xffffffff = no texel), (normal, world size).
-layout(std430, binding = 0) readonly buffer Guide { vec4 guide[]; };
+layout(std430, binding = LF_BINDING_DENOISE_GUIDE) readonly buffer Guide { vec4 guide[]; };
 // Per atlas texel: (rgb, variance of the luminance estimate).
-layout(std430, binding = 1) readonly buffer ColourIn { vec4 colour_in[]; };
-layout(std430, binding = 2) writeonly buffer ColourOut { vec4 colour_out[]; };
+layout(std430, binding = LF_BINDING_DENOISE_IN) readonly buffer ColourIn { vec4 colour_in[]; };
+layout(std430, binding = LF_BINDING_DENOISE_OUT) writeonly buffer ColourOut { vec4 colour_out[]; };
 
 uniform uint width;
 uniform uint height;

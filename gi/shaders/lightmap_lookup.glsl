@@ -4,6 +4,7 @@
 #ifndef LF_LIGHTMAP_LOOKUP_GLSL
 #define LF_LIGHTMAP_LOOKUP_GLSL
 
+#include "buffer_bindings.glsl"
 #include "trace.glsl"
 #ifdef LF_EXACT_TEXTURES
 #include "surface_textures.glsl"
@@ -11,23 +12,23 @@
 
 // Reflected radiance per atlas texel (rgb; w = 1 where a chart's texel or its
 // dilation holds a value, 0 elsewhere), width x height, row 0 at the top.
-layout(std430, binding = 5) buffer ReflectedRadiance { vec4 reflected_radiance[]; };
+layout(std430, binding = LF_BINDING_REFLECTED_RADIANCE) buffer ReflectedRadiance { vec4 reflected_radiance[]; };
 // Per scene triangle, what a ray that lands on it needs:
 //   (uv1 of vertex 0, uv1 of vertex 1),
 //   (uv1 of vertex 2, flags bits, area density with which emitter sampling picks its points (0: not an emitter)),
 //   (emitted radiance rgb, emitter index bits (if it emits)),
 //   (albedo rgb: its mean over the triangle, 0).
-layout(std430, binding = 6) readonly buffer SurfaceTriangles { vec4 surface_triangles[]; };
+layout(std430, binding = LF_BINDING_SURFACE_TRIANGLES) readonly buffer SurfaceTriangles { vec4 surface_triangles[]; };
 
 const uint SURFACE_VEC4S = 4u;
 
 // Per atlas texel: where its light was gathered; w = 0 uncovered, 1 covered,
 // 2 next to a wall (texel_anchor.comp, texel_wall_check.comp).
-layout(std430, binding = 11) buffer TexelAnchors { vec4 texel_anchors[]; };
+layout(std430, binding = LF_BINDING_TEXEL_ANCHORS) buffer TexelAnchors { vec4 texel_anchors[]; };
 
 // Per atlas texel, dilated: the albedo its samples averaged (rgb), what a
 // final gather's hit reflects (radiosity_gather.comp with LF_FINAL_GATHER).
-layout(std430, binding = 15) readonly buffer TexelAlbedo { vec4 texel_albedo[]; };
+layout(std430, binding = LF_BINDING_TEXEL_ALBEDO) readonly buffer TexelAlbedo { vec4 texel_albedo[]; };
 
 uniform uvec2 atlas_size;
 

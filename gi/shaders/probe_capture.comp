@@ -10,6 +10,7 @@
 // its bias; it costs a path per texel per pass.
 layout(local_size_x = 64) in;
 
+#include "buffer_bindings.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -19,12 +20,12 @@ layout(local_size_x = 64) in;
 #include "probe_cube.glsl"
 
 // Probe k: (reference point, 0).
-layout(std430, binding = 12) readonly buffer ProbePositions { vec4 probe_positions[]; };
+layout(std430, binding = LF_BINDING_PROBE_POSITIONS) readonly buffer ProbePositions { vec4 probe_positions[]; };
 // Per cube texel (probe-major, then face, row, column): two vec4,
 //   (radiance sum rgb, rays), (distance sum over hits, hits, back-face hits, sum of radiance mean²).
-layout(std430, binding = 13) buffer ProbeTexels { vec4 probe_texels[]; };
+layout(std430, binding = LF_BINDING_PROBE_TEXELS) buffer ProbeTexels { vec4 probe_texels[]; };
 // Rays traced so far (the pass's primary rays and every path's).
-layout(std430, binding = 14) buffer ProbeRays { uint probe_rays; };
+layout(std430, binding = LF_BINDING_PROBE_RAYS) buffer ProbeRays { uint probe_rays; };
 
 uniform uint texel_count;  // probes x 6 x resolution²
 uniform uint resolution;   // R: texels per face side

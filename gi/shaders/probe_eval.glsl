@@ -8,19 +8,15 @@
 // rows from the top (texel (f, i, j) at (f·M + j)·M + i), then the 6·(M+1)²
 // corner distances (corner (f, a, b) at (f·(M+1) + b)·(M+1) + a) packed four
 // to a vec4, then the probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
-// k · lf_probe_stride(M). Define LF_PROBE_BINDING before the #include to
-// choose the binding (default 6).
+// k · lf_probe_stride(M), at binding LF_BINDING_PROBE_SET.
 #ifndef LF_PROBE_EVAL_GLSL
 #define LF_PROBE_EVAL_GLSL
 
+#include "buffer_bindings.glsl"
 #include "probe_cube.glsl"
 #include "sh_basis.glsl"
 
-#ifndef LF_PROBE_BINDING
-#define LF_PROBE_BINDING 6
-#endif
-
-layout(std430, binding = LF_PROBE_BINDING) readonly buffer LfProbeTexels { vec4 lf_probe_texels[]; };
+layout(std430, binding = LF_BINDING_PROBE_SET) readonly buffer LfProbeTexels { vec4 lf_probe_texels[]; };
 
 const float LF_TWO_PI = 6.283185307179586;
 

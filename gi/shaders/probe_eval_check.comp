@@ -8,11 +8,11 @@
 //   mode 3: the grid (grid_counts, grid_origin, grid_spacing) at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 layout(local_size_x = 64) in;
 
-#define LF_PROBE_BINDING 0
+#include "buffer_bindings.glsl"
 #include "probe_eval.glsl"
 
-layout(std430, binding = 1) readonly buffer Cases { vec4 cases[]; };
-layout(std430, binding = 2) writeonly buffer Results { vec4 results[]; };
+layout(std430, binding = LF_BINDING_CHECK_CASES) readonly buffer Cases { vec4 cases[]; };
+layout(std430, binding = LF_BINDING_CHECK_RESULTS) writeonly buffer Results { vec4 results[]; };
 
 uniform uint item_count;
 uniform uint mode;

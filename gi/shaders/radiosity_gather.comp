@@ -9,6 +9,7 @@
 // vertex, Russian roulette) and reads no map.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
+#include "buffer_bindings.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -26,7 +27,7 @@ uniform uint light_samples;   // emitter samples per texel per pass
 #ifdef LF_DIRECTIONAL
 // Per covered texel: the running sum of its L1 vector's x, y, z (RGB each;
 // the pass count in the first's w). See lf_add_directional.
-layout(std430, binding = 16) buffer DirectionalAccumulators { vec4 directional_accumulators[]; };
+layout(std430, binding = LF_BINDING_DIRECTIONAL_ACCUMULATORS) buffer DirectionalAccumulators { vec4 directional_accumulators[]; };
 #endif
 
 // The radiance the hit point y (geometric normal ny, on the ray's side)

@@ -4,6 +4,7 @@
 // next pass's indirect rays read, and estimate the error.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
+#include "buffer_bindings.glsl"
 #include "lightmap_lookup.glsl"
 #include "radiosity_texels.glsl"
 
@@ -11,7 +12,7 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 // Per workgroup, two vec4: (sum of the variance of the mean, sum of the value,
 // active texels, covered texels), (extra rays traced this pass, texels whose
 // delivered estimate has fewer than two samples (its variance unknown), 0, 0).
-layout(std430, binding = 9) writeonly buffer ErrorPartials { vec4 error_partials[]; };
+layout(std430, binding = LF_BINDING_ERROR_PARTIALS) writeonly buffer ErrorPartials { vec4 error_partials[]; };
 
 uniform uint end_epoch;        // 1 after the last pass of an epoch: the current indirect estimate becomes "previous"
 uniform float converged_error; // > 0: texels whose relative standard error is below this stop tracing

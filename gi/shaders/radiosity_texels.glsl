@@ -1,15 +1,16 @@
 // The per-texel state of a radiosity-map bake, shared by its passes.
 #ifndef LF_RADIOSITY_TEXELS_GLSL
 #define LF_RADIOSITY_TEXELS_GLSL
+#include "buffer_bindings.glsl"
 
 // Sample points inside texel footprints: (position, world texel size),
 // (shading normal, 0), (geometric normal on the shading normal's side, 0).
 #ifndef LF_SAMPLE_POINTS_ACCESS
 #define LF_SAMPLE_POINTS_ACCESS readonly
 #endif
-layout(std430, binding = 2) LF_SAMPLE_POINTS_ACCESS buffer TexelSamplePoints { vec4 sample_points[]; };
+layout(std430, binding = LF_BINDING_TEXEL_SAMPLE_POINTS) LF_SAMPLE_POINTS_ACCESS buffer TexelSamplePoints { vec4 sample_points[]; };
 // Per covered texel: (first sample point, sample count, atlas index, 0).
-layout(std430, binding = 3) readonly buffer CoveredTexels { uvec4 covered_texels[]; };
+layout(std430, binding = LF_BINDING_COVERED_TEXELS) readonly buffer CoveredTexels { uvec4 covered_texels[]; };
 
 // Per covered texel, five vec4 of running sums (thesis Algorithm 4.1's
 // accumulators Eu_e, Eu_i, with second moments for the error estimate):
@@ -18,7 +19,7 @@ layout(std430, binding = 3) readonly buffer CoveredTexels { uvec4 covered_texels
 //   [2] indirect, current epoch: sum (rgb), sample count
 //   [3] indirect, previous epoch: mean (rgb), sample count
 //   [4] albedo (rgb), rays this pass traced beyond the fixed ones (path tracing)
-layout(std430, binding = 4) buffer TexelAccumulators { vec4 accumulators[]; };
+layout(std430, binding = LF_BINDING_TEXEL_ACCUMULATORS) buffer TexelAccumulators { vec4 accumulators[]; };
 
 uniform uint covered_count;
 

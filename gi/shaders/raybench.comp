@@ -1,6 +1,7 @@
 #version 450 core
 // Ray throughput: rays generated, traced and counted in one dispatch, as the
 // bake methods do (their rays never leave the GPU).
+#include "buffer_bindings.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -8,9 +9,9 @@
 layout(local_size_x = 64) in;
 
 // Surface points for incoherent rays: (position, 0), (geometric normal, 0).
-layout(std430, binding = 2) readonly buffer SurfacePoints { vec4 surface_points[]; };
+layout(std430, binding = LF_BINDING_SURFACE_POINTS) readonly buffer SurfacePoints { vec4 surface_points[]; };
 // One counter per workgroup-ish slot; summed on the CPU.
-layout(std430, binding = 3) buffer HitCounts { uint hit_counts[]; };
+layout(std430, binding = LF_BINDING_HIT_COUNTS) buffer HitCounts { uint hit_counts[]; };
 
 uniform uint ray_count;
 uniform uint point_count;

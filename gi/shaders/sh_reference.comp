@@ -5,13 +5,14 @@
 // (gi/sh/environment.h's convention), nearest texel, or a constant colour.
 layout(local_size_x = 64) in;
 
+#include "buffer_bindings.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
 
-layout(std430, binding = 2) readonly buffer ShVertices { vec4 sh_vertices[]; };
-layout(std430, binding = 3) readonly buffer EnvTexels { vec4 env_texels[]; };
-layout(std430, binding = 4) buffer Irradiance { vec4 irradiance[]; };
+layout(std430, binding = LF_BINDING_SH_VERTICES) readonly buffer ShVertices { vec4 sh_vertices[]; };
+layout(std430, binding = LF_BINDING_ENV_TEXELS) readonly buffer EnvTexels { vec4 env_texels[]; };
+layout(std430, binding = LF_BINDING_IRRADIANCE) buffer Irradiance { vec4 irradiance[]; };
 
 uniform uint vertex_count;
 uniform uint samples;        // in this dispatch

@@ -3,15 +3,16 @@
 // pass's bounces and the snapshot, and per work group the totals of the error
 // estimate: Σ over coefficients of the variance of the mean, and Σ T_i².
 layout(local_size_x = 64) in;
+#include "buffer_bindings.glsl"
 
 #ifndef LF_SH_BOUNCES
 #define LF_SH_BOUNCES 0
 #endif
 #define LF_SH_BLOCKS (LF_SH_BOUNCES + 1)
 
-layout(std430, binding = 3) readonly buffer ShAccum { vec4 sh_accum[]; };
-layout(std430, binding = 4) writeonly buffer ShResolved { vec4 sh_resolved[]; };
-layout(std430, binding = 7) writeonly buffer ShErrorPartials { vec4 sh_error_partials[]; };
+layout(std430, binding = LF_BINDING_SH_ACCUMULATORS) readonly buffer ShAccum { vec4 sh_accum[]; };
+layout(std430, binding = LF_BINDING_SH_RESOLVED) writeonly buffer ShResolved { vec4 sh_resolved[]; };
+layout(std430, binding = LF_BINDING_SH_ERROR_PARTIALS) writeonly buffer ShErrorPartials { vec4 sh_error_partials[]; };
 
 uniform uint vertex_count;
 uniform float block_samples[LF_SH_BLOCKS];  // rays behind block k (0 before it starts)

@@ -11,6 +11,7 @@
 //   triangle's vertices as the previous pass resolved it.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
+#include "buffer_bindings.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -23,17 +24,17 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 // Per receiver (unique vertex or extra point, e.g. a texel sample; see
 // ShTransferBaker): (position, 0), (unit normal, 0).
-layout(std430, binding = 2) readonly buffer ShVertices { vec4 sh_vertices[]; };
+layout(std430, binding = LF_BINDING_SH_VERTICES) readonly buffer ShVertices { vec4 sh_vertices[]; };
 // Per unique vertex: LF_SH_BLOCKS x 4 vec4 sums (T^0, T^1 …), then 4 vec4
 // sums of squares of the per-ray estimate (all blocks together).
-layout(std430, binding = 3) buffer ShAccum { vec4 sh_accum[]; };
+layout(std430, binding = LF_BINDING_SH_ACCUMULATORS) buffer ShAccum { vec4 sh_accum[]; };
 #if LF_SH_BOUNCES > 0
 // Per unique vertex: LF_SH_BLOCKS x 4 vec4, the current mean of each block.
-layout(std430, binding = 4) readonly buffer ShResolved { vec4 sh_resolved[]; };
+layout(std430, binding = LF_BINDING_SH_RESOLVED) readonly buffer ShResolved { vec4 sh_resolved[]; };
 // Per occluder triangle: unique vertex ids of its corners, w = 0.
-layout(std430, binding = 5) readonly buffer ShTriangleIds { uvec4 sh_triangle_ids[]; };
+layout(std430, binding = LF_BINDING_SH_TRIANGLE_IDS) readonly buffer ShTriangleIds { uvec4 sh_triangle_ids[]; };
 // Per occluder triangle: albedo (RGB channel mean) at its three corners.
-layout(std430, binding = 6) readonly buffer ShTriangleAlbedo { vec4 sh_triangle_albedo[]; };
+layout(std430, binding = LF_BINDING_SH_TRIANGLE_ALBEDO) readonly buffer ShTriangleAlbedo { vec4 sh_triangle_albedo[]; };
 #endif
 
 uniform uint vertex_count;      // receivers: unique vertices 0 .. vertex_count-1

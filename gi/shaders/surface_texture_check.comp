@@ -5,10 +5,11 @@
 // results[2i] = albedo, results[2i + 1] = emission.
 layout(local_size_x = 64) in;
 
+#include "buffer_bindings.glsl"
 #include "surface_textures.glsl"
 
-layout(std430, binding = 1) readonly buffer Cases { vec4 cases[]; };
-layout(std430, binding = 2) writeonly buffer Results { vec4 results[]; };
+layout(std430, binding = LF_BINDING_CHECK_CASES) readonly buffer Cases { vec4 cases[]; };
+layout(std430, binding = LF_BINDING_CHECK_RESULTS) writeonly buffer Results { vec4 results[]; };
 
 uniform uint item_count;
 

@@ -8,15 +8,16 @@
 // gi/bake/surface_textures.cpp.
 #ifndef LF_SURFACE_TEXTURES_GLSL
 #define LF_SURFACE_TEXTURES_GLSL
+#include "buffer_bindings.glsl"
 
 // Per scene triangle, two vec4: (uv0 of vertex 0, uv0 of vertex 1), (uv0 of vertex 2, material index bits, 0).
-layout(std430, binding = 17) readonly buffer SurfaceTexCoords { vec4 surface_texcoords[]; };
+layout(std430, binding = LF_BINDING_SURFACE_TEXCOORDS) readonly buffer SurfaceTexCoords { vec4 surface_texcoords[]; };
 // material_textures[0] = M materials, [1] = where the texture table starts;
 // material m at 2 + 8m: base colour rgb, emission rgb (float bits), then
 // base-colour texture + 1 and emissive texture + 1 (0: none);
 // texture k in the table: first texel, width, height, 0;
 // a texel: two uints, packHalf2x16(r, g) and packHalf2x16(b, a).
-layout(std430, binding = 18) readonly buffer MaterialTextures { uint material_textures[]; };
+layout(std430, binding = LF_BINDING_MATERIAL_TEXTURES) readonly buffer MaterialTextures { uint material_textures[]; };
 
 const uint MATERIAL_UINTS = 8u;
 

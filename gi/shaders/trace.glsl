@@ -1,19 +1,18 @@
 // The one ray tracer: BVH traversal and watertight ray/triangle tests.
 // Every method includes this file and traces from its own shader; the
-// scene's BVH is bound at the two binding points below.
+// scene's BVH is bound at its two binding points (buffer_bindings.glsl).
 #ifndef LF_TRACE_GLSL
 #define LF_TRACE_GLSL
 
-#define LF_BVH_NODES_BINDING 0
-#define LF_BVH_TRIANGLES_BINDING 1
+#include "buffer_bindings.glsl"
 #ifndef LF_BVH_STACK_SIZE
 #define LF_BVH_STACK_SIZE 48  // = kBvhMaxDepth in trace/bvh.h
 #endif
 
 // BvhNode (64 bytes): left box, right box; child index/count in the w's.
-layout(std430, binding = LF_BVH_NODES_BINDING) readonly buffer LfBvhNodes { vec4 lf_bvh_nodes[]; };
+layout(std430, binding = LF_BINDING_BVH_NODES) readonly buffer LfBvhNodes { vec4 lf_bvh_nodes[]; };
 // BvhTriangle (48 bytes): v0 (w = scene triangle index bits), v1, v2.
-layout(std430, binding = LF_BVH_TRIANGLES_BINDING) readonly buffer LfBvhTriangles { vec4 lf_bvh_tris[]; };
+layout(std430, binding = LF_BINDING_BVH_TRIANGLES) readonly buffer LfBvhTriangles { vec4 lf_bvh_tris[]; };
 
 const uint LF_NO_HIT = 0xffffffffu;
 

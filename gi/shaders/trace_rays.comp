@@ -1,14 +1,15 @@
 #version 450 core
 // Batched tracing: rays in, hits out. For tools, tests and any caller that
 // has its rays on the CPU; the bake methods trace from their own shaders.
+#include "buffer_bindings.glsl"
 #include "trace.glsl"
 
 layout(local_size_x = 64) in;
 
 // Ray: (origin, t_max), (direction, any-hit flag as uint bits: nonzero = occlusion query).
-layout(std430, binding = 2) readonly buffer Rays { vec4 rays[]; };
+layout(std430, binding = LF_BINDING_RAYS) readonly buffer Rays { vec4 rays[]; };
 // Hit: (t, triangle bits, b1, b2); triangle = LF_NO_HIT on a miss.
-layout(std430, binding = 3) writeonly buffer Hits { vec4 hits[]; };
+layout(std430, binding = LF_BINDING_HITS) writeonly buffer Hits { vec4 hits[]; };
 
 uniform uint ray_count;
 

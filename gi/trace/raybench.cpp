@@ -2,6 +2,7 @@
 
 #include "gpu/shader.h"
 #include "trace/tracer.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <chrono>
 #include <numeric>
@@ -61,8 +62,8 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
     ComputeProgram program("raybench.comp");
     program.use();
     tracer.bind();
-    point_buffer.bind(2);
-    counts.bind(3);
+    point_buffer.bind(LF_BINDING_SURFACE_POINTS);
+    counts.bind(LF_BINDING_HIT_COUNTS);
     const uint32_t image_width = 2048;  // coherent rays: a 2048² image per 4M rays
     const size_t n = std::min(options.rays_per_dispatch, size_t(image_width) * image_width);
     const float diagonal = glm::length(scene.bounds.extent());

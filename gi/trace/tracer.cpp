@@ -1,6 +1,7 @@
 #include "trace/tracer.h"
 
 #include "gpu/context.h"
+#include "shaders/buffer_bindings.glsl"
 
 namespace lf {
 
@@ -12,8 +13,8 @@ Tracer::Tracer(const Scene& scene) {
 }
 
 void Tracer::bind() const {
-    nodes_.bind(0);
-    triangles_.bind(1);
+    nodes_.bind(LF_BINDING_BVH_NODES);
+    triangles_.bind(LF_BINDING_BVH_TRIANGLES);
 }
 
 std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
@@ -23,8 +24,8 @@ std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
     GpuBuffer ray_buffer(rays);
     GpuBuffer hit_buffer(rays.size() * sizeof(RayHit));
     bind();
-    ray_buffer.bind(2);
-    hit_buffer.bind(3);
+    ray_buffer.bind(LF_BINDING_RAYS);
+    hit_buffer.bind(LF_BINDING_HITS);
     trace_program_->use();
     glUniform1ui(trace_program_->uniform("ray_count"), GLuint(rays.size()));
     trace_program_->dispatch_1d(rays.size());

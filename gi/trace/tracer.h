@@ -39,7 +39,7 @@ struct RayHit {
 class Tracer {
 public:
     explicit Tracer(const Scene& scene);
-    // Binds the BVH at the binding points trace.glsl declares (0 and 1).
+    // Binds the BVH at LF_BINDING_BVH_NODES and LF_BINDING_BVH_TRIANGLES (shaders/buffer_bindings.glsl).
     void bind() const;
     std::vector<RayHit> trace(const std::vector<Ray>& rays) const;
     const BvhStats& bvh_stats() const { return stats_; }

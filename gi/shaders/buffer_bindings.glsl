@@ -1,0 +1,70 @@
+// Every shader storage buffer's binding point, for GLSL and C++ alike: a
+// shader declares `layout(std430, binding = LF_BINDING_X)` and the C++ that
+// runs it binds `buffer.bind(LF_BINDING_X)`, so each number is written once.
+// Only #defines: C++ includes it as "shaders/buffer_bindings.glsl".
+//
+// Numbers are reused between programs that never run together: each group
+// below is one family of programs (a group's comment names its shaders).
+#ifndef LF_BUFFER_BINDINGS_GLSL
+#define LF_BUFFER_BINDINGS_GLSL
+
+// The scene's BVH (trace.glsl), bound by Tracer::bind() for every program that traces.
+#define LF_BINDING_BVH_NODES 0
+#define LF_BINDING_BVH_TRIANGLES 1
+
+// A radiosity-map bake's texels (radiosity_texels.glsl, lightmap_lookup.glsl,
+// radiosity_gather.comp, radiosity_resolve.comp, texel_*.comp, copy_texels.comp).
+#define LF_BINDING_TEXEL_SAMPLE_POINTS 2
+#define LF_BINDING_COVERED_TEXELS 3
+#define LF_BINDING_TEXEL_ACCUMULATORS 4
+#define LF_BINDING_REFLECTED_RADIANCE 5  // per atlas texel
+#define LF_BINDING_ATLAS_TEXELS 5        // copy_texels.comp: whichever per-atlas-texel buffer is dilated
+#define LF_BINDING_ERROR_PARTIALS 9
+#define LF_BINDING_COPY_PAIRS 10
+#define LF_BINDING_TEXEL_ANCHORS 11
+#define LF_BINDING_TEXEL_ALBEDO 15
+#define LF_BINDING_DIRECTIONAL_ACCUMULATORS 16
+
+// The scene's surfaces and lights (SceneShading: lightmap_lookup.glsl,
+// direct_light.glsl) and their textures (SurfaceTextures: surface_textures.glsl).
+#define LF_BINDING_SURFACE_TRIANGLES 6
+#define LF_BINDING_EMITTERS 7
+#define LF_BINDING_PUNCTUAL_LIGHTS 8
+#define LF_BINDING_SURFACE_TEXCOORDS 17
+#define LF_BINDING_MATERIAL_TEXTURES 18
+
+// The probes' capture (probe_capture.comp), beside the scene's shading.
+#define LF_BINDING_PROBE_POSITIONS 12
+#define LF_BINDING_PROBE_TEXELS 13
+#define LF_BINDING_PROBE_RAYS 14
+
+// SH transfer (sh_transfer.comp, sh_resolve.comp) and its reference (sh_reference.comp).
+#define LF_BINDING_SH_VERTICES 2
+#define LF_BINDING_SH_ACCUMULATORS 3
+#define LF_BINDING_SH_RESOLVED 4
+#define LF_BINDING_SH_TRIANGLE_IDS 5
+#define LF_BINDING_SH_TRIANGLE_ALBEDO 6
+#define LF_BINDING_SH_ERROR_PARTIALS 7
+#define LF_BINDING_ENV_TEXELS 3  // sh_reference.comp
+#define LF_BINDING_IRRADIANCE 4  // sh_reference.comp
+
+// Rays and hits through the tracer (trace_rays.comp, raybench.comp).
+#define LF_BINDING_RAYS 2
+#define LF_BINDING_HITS 3
+#define LF_BINDING_SURFACE_POINTS 2  // raybench.comp
+#define LF_BINDING_HIT_COUNTS 3      // raybench.comp
+
+// The lightmap denoiser (lightmap_denoise.comp).
+#define LF_BINDING_DENOISE_GUIDE 0
+#define LF_BINDING_DENOISE_IN 1
+#define LF_BINDING_DENOISE_OUT 2
+
+// Checks that run GLSL on inputs from C++ (probe_eval_check.comp,
+// surface_texture_check.comp, dispatch_check.comp): cases in, results out.
+#define LF_BINDING_PROBE_SET 0  // probe_eval.glsl's probe texels
+#define LF_BINDING_CHECK_CASES 1
+#define LF_BINDING_CHECK_RESULTS 2
+#define LF_BINDING_ITEM_VISITS 0  // dispatch_check.comp
+#define LF_BINDING_GROUP_SLOTS 1  // dispatch_check.comp
+
+#endif
