@@ -9,7 +9,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cstring>
 #include <fstream>
+#include <functional>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -168,68 +170,87 @@ Lightfarmd::Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vec
 
 Lightfarmd::~Lightfarmd() { stop(); }
 
+pid_t spawn_lightfarmd(std::vector<std::string> args, const fs::path& log) {
+    args.insert(args.begin(), LIGHTFARMD);
+    std::vector<char*> argv;
+    for (std::string& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_adddup2(&actions, 1, 2);
+    pid_t pid = -1;
+    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    if (rc != 0) throw std::runtime_error(std::string("cannot start ") + LIGHTFARMD + ": " + std::strerror(rc));
+    return pid;
+}
+
+void wait_until_ready(pid_t& pid, const fs::path& log, const std::function<bool()>& ready) {
+    for (const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(15);
+         std::chrono::steady_clock::now() < deadline; std::this_thread::sleep_for(std::chrono::milliseconds(20))) {
+        if (ready()) return;
+        int status = 0;
+        if (waitpid(pid, &status, WNOHANG) == pid) {
+            pid = -1;
+            throw std::runtime_error("lightfarmd exited at start:\n" + read_text(log));
+        }
+    }
+    throw std::runtime_error("lightfarmd did not come up in 15 s:\n" + read_text(log));
+}
+
+void stop_process(pid_t& pid) {
+    if (pid <= 0) return;
+    ::kill(pid, SIGTERM);
+    for (int i = 0; i < 500; ++i) {
+        int status = 0;
+        if (waitpid(pid, &status, WNOHANG) == pid) {
+            pid = -1;
+            return;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    kill_process(pid);
+}
+
+void kill_process(pid_t& pid) {
+    if (pid <= 0) return;
+    ::kill(pid, SIGKILL);
+    int status = 0;
+    waitpid(pid, &status, 0);
+    pid = -1;
+}
+
+bool answers_health(int port) {
+    httplib::Client c("127.0.0.1", port);
+    c.set_connection_timeout(1);
+    auto r = c.Get("/healthz");
+    return r && r->status == 200;
+}
+
 void Lightfarmd::start() {
     if (pid_ > 0) throw std::runtime_error("lightfarmd already running");
     fs::create_directories(data_);
     std::error_code ec;
     fs::remove(data_ / "lightfarmd.url", ec);
-    std::vector<std::string> args = {LIGHTFARMD, "--listen",       "127.0.0.1:0", "--data",        data_.string(),
-                                     "--tokens", tokens_.string(), "--engine",    engine_.string()};
+    std::vector<std::string> args = {"--listen", "127.0.0.1:0",    "--data",   data_.string(),
+                                     "--tokens", tokens_.string(), "--engine", engine_.string()};
     args.insert(args.end(), extra_.begin(), extra_.end());
-    std::vector<char*> argv;
-    for (std::string& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    const std::string log_path = (data_.parent_path() / ("lightfarmd-" + std::to_string(++starts_) + ".log")).string();
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 1, log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_adddup2(&actions, 1, 2);
-    const int rc = posix_spawn(&pid_, argv[0], &actions, nullptr, argv.data(), environ);
-    posix_spawn_file_actions_destroy(&actions);
-    if (rc != 0) throw std::runtime_error("cannot start " + args[0]);
-
-    // Bounded wait for the URL file, then for /healthz.
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(15);
-    while (std::chrono::steady_clock::now() < deadline) {
-        std::string text = read_text(data_ / "lightfarmd.url");
-        if (!text.empty()) {
-            url = text.substr(0, text.find('\n'));
-            port = std::stoi(url.substr(url.rfind(':') + 1));
-            httplib::Client c(host, port);
-            c.set_connection_timeout(1);
-            if (auto r = c.Get("/healthz"); r && r->status == 200) return;
-        }
-        int status = 0;
-        if (waitpid(pid_, &status, WNOHANG) == pid_) {
-            pid_ = -1;
-            throw std::runtime_error("lightfarmd exited at start:\n" + read_text(log_path));
-        }
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    throw std::runtime_error("lightfarmd did not come up in 15 s:\n" + read_text(log_path));
+    const fs::path log = data_.parent_path() / ("lightfarmd-" + std::to_string(++starts_) + ".log");
+    pid_ = spawn_lightfarmd(args, log);
+    // The URL file, then /healthz.
+    wait_until_ready(pid_, log, [&] {
+        const std::string text = read_text(data_ / "lightfarmd.url");
+        if (text.empty()) return false;
+        url = text.substr(0, text.find('\n'));
+        port = std::stoi(url.substr(url.rfind(':') + 1));
+        return answers_health(port);
+    });
 }
 
-void Lightfarmd::stop() {
-    if (pid_ <= 0) return;
-    ::kill(pid_, SIGTERM);
-    for (int i = 0; i < 500; ++i) {
-        int status = 0;
-        if (waitpid(pid_, &status, WNOHANG) == pid_) {
-            pid_ = -1;
-            return;
-        }
-        std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-    kill9();
-}
+void Lightfarmd::stop() { stop_process(pid_); }
 
-void Lightfarmd::kill9() {
-    if (pid_ <= 0) return;
-    ::kill(pid_, SIGKILL);
-    int status = 0;
-    waitpid(pid_, &status, 0);
-    pid_ = -1;
-}
+void Lightfarmd::kill9() { kill_process(pid_); }
 
 std::string Lightfarmd::log() const {
     std::string all;

@@ -11,6 +11,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -54,6 +55,18 @@ struct FakeEngine {
     fs::path dir;
     fs::path script;
 };
+
+// A lightfarmd process, for any harness that runs one: started with `args`
+// (after the binary) and its output in `log`; ready once `ready()` holds
+// (polled for up to 15 s; throws with the log when the process exits first
+// or never gets there); stopped with SIGTERM, then SIGKILL after 5 s; or
+// killed at once, as a crash. The pid is -1 once it is gone.
+pid_t spawn_lightfarmd(std::vector<std::string> args, const fs::path& log);
+void wait_until_ready(pid_t& pid, const fs::path& log, const std::function<bool()>& ready);
+void stop_process(pid_t& pid);
+void kill_process(pid_t& pid);
+// GET /healthz on 127.0.0.1:port answers 200.
+bool answers_health(int port);
 
 // lightfarmd on 127.0.0.1 with a free port, its log in DATA/../lightfarmd-N.log.
 class Lightfarmd {

@@ -20,14 +20,7 @@
 #include "supervisor.h"
 
 #include <gtest/gtest.h>
-#include <netinet/in.h>
-#include <signal.h>
-#include <spawn.h>
-#include <sys/socket.h>
-#include <sys/wait.h>
 #include <unistd.h>
-
-#include <fcntl.h>
 
 #include <algorithm>
 #include <cstdlib>
@@ -35,8 +28,6 @@
 #include <numeric>
 #include <set>
 #include <thread>
-
-extern char** environ;
 
 namespace lf::test {
 namespace {
@@ -62,48 +53,18 @@ public:
 
     void start() {
         port = free_loopback_port();
-        std::vector<std::string> args = {LIGHTFARMD, "--listen", "127.0.0.1:" + std::to_string(port), "--node-name",
-                                         name};
+        std::vector<std::string> args = {"--listen", "127.0.0.1:" + std::to_string(port), "--node-name", name};
         args.insert(args.end(), args_.begin(), args_.end());
-        std::vector<char*> argv;
-        for (std::string& a : args) argv.push_back(a.data());
-        argv.push_back(nullptr);
-        const std::string log = log_path(++starts_);
-        posix_spawn_file_actions_t actions;
-        posix_spawn_file_actions_init(&actions);
-        posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-        posix_spawn_file_actions_adddup2(&actions, 1, 2);
-        const int rc = posix_spawn(&pid_, argv[0], &actions, nullptr, argv.data(), environ);
-        posix_spawn_file_actions_destroy(&actions);
-        if (rc != 0) throw std::runtime_error("cannot start lightfarmd");
-        for (const auto deadline = std::chrono::steady_clock::now() + 15s; std::chrono::steady_clock::now() < deadline;
-             std::this_thread::sleep_for(20ms)) {
-            httplib::Client c("127.0.0.1", port);
-            c.set_connection_timeout(1);
-            if (auto r = c.Get("/healthz"); r && r->status == 200) return;
-            int status = 0;
-            if (waitpid(pid_, &status, WNOHANG) == pid_) {
-                pid_ = -1;
-                throw std::runtime_error("node " + name + " exited at start:\n" + read_text(log));
-            }
+        const fs::path log = log_path(++starts_);
+        pid_ = spawn_lightfarmd(args, log);
+        try {
+            wait_until_ready(pid_, log, [&] { return answers_health(port); });
+        } catch (const std::runtime_error& e) {
+            throw std::runtime_error("node " + name + ": " + e.what());
         }
-        throw std::runtime_error("node " + name + " did not come up in 15 s:\n" + read_text(log));
     }
-    void kill9() {
-        if (pid_ <= 0) return;
-        ::kill(pid_, SIGKILL);
-        waitpid(pid_, nullptr, 0);
-        pid_ = -1;
-    }
-    void stop() {
-        if (pid_ <= 0) return;
-        ::kill(pid_, SIGTERM);
-        for (int i = 0; i < 500 && pid_ > 0; ++i) {
-            if (waitpid(pid_, nullptr, WNOHANG) == pid_) pid_ = -1;
-            else std::this_thread::sleep_for(10ms);
-        }
-        kill9();
-    }
+    void kill9() { kill_process(pid_); }
+    void stop() { stop_process(pid_); }
     httplib::Client client() const {
         httplib::Client c("127.0.0.1", port);
         c.set_connection_timeout(2);
