@@ -583,6 +583,55 @@ TEST(RadiosityMap, LightOnTheUnbakedSideOfADoubleSidedPanelIsGathered) {
     EXPECT_NEAR(map, reference, 0.03 * reference);
 }
 
+// Light that reaches a receiver only across two unbaked sides in a row: a
+// spot lights the top of a double-sided floor panel B, whose top's light
+// reaches the receiver only by way of the unbaked side of a double-sided
+// wall A (both baked for their other sides, which face black walls). Where a
+// ray gathering at A's unbaked side lands on B's unbaked side, the light is
+// gathered there too (radiosity_gather.comp's back_side_radiance); reading
+// B's map there would return the dark side's light and the receiver would
+// be nearly black (grey_white_room was 2.3% dark for it).
+TEST(RadiosityMap, LightAcrossTwoUnbakedSidesInARowIsGathered) {
+    gpu();
+    Scene s;
+    const int res = 64;
+    const uint32_t panel = test::add_material(s, glm::vec3(0.8f), glm::vec3(0.0f), true);
+    const uint32_t black = test::add_material(s, glm::vec3(0.0f));
+    test::add_quad(s, {0, 0, -0.5f}, {0, 1, 0}, {0, 0, 1}, panel, grid_cell(0, 3, res));       // A: x = 0, front +x
+    test::add_quad(s, {0.3f, 0, -0.5f}, {0, 0, 1}, {1, 0, 0}, panel, grid_cell(1, 3, res));    // B: y = 0, front +y
+    test::add_quad(s, {-0.2f, -1, -1.5f}, {0, 3, 0}, {0, 0, 3}, black, grid_cell(2, 3, res));  // behind A
+    test::add_quad(s, {-1, -0.2f, -1.5f}, {0, 0, 3}, {3, 0, 0}, black, grid_cell(3, 3, res));  // below B
+    test::add_quad(s, {0.3f, 0.6f, -0.15f}, {0, 0, 0.3f}, {0, 0.3f, 0}, black, grid_cell(4, 3, res));  // receiver, -x
+    PunctualLight spot;
+    spot.type = PunctualLight::Type::Spot;
+    spot.position = {0.8f, 0.6f, 0.0f};
+    spot.direction = {0.0f, -1.0f, 0.0f};  // onto B's top alone (A is more than 53 degrees off its axis)
+    spot.intensity = glm::vec3(4.0f);
+    spot.inner_cone = 0.4f;
+    spot.outer_cone = 0.5f;
+    s.lights.push_back(spot);
+    ASSERT_EQ(face_double_sided_charts_to_the_scene(s, Tracer(s)).charts, 2u) << "A and B baked for their dark sides";
+
+    auto receiver_mean = [&](const BakeResult& r) {
+        double sum = 0.0;
+        size_t n = 0;
+        for (size_t i = 0; i < r.texels.covered_count(); ++i) {
+            const glm::vec3 q = r.texels.samples[r.texels.first_sample[i]].position;
+            if (std::abs(q.x - 0.3f) > 1e-3f || q.y < 0.59f) continue;
+            sum += r.image.at("R")[r.texels.texels[i]];
+            ++n;
+        }
+        return n ? sum / double(n) : 0.0;
+    };
+    RadiosityMapSettings path_tracing;
+    path_tracing.scheme = RadiosityScheme::PathTracing;
+    const double reference = receiver_mean(bake(s, res, 512, path_tracing));
+    const double map = receiver_mean(bake(s, res, 256));
+    std::printf("receiver: path tracer %.5f, epochs %.5f\n", reference, map);
+    ASSERT_GT(reference, 1e-3) << "light reaches the receiver across A and B";
+    EXPECT_NEAR(map, reference, 0.05 * reference);
+}
+
 // A room of double-sided walls exported with their fronts facing out (as the
 // staircase's back rooms are): baked as given, every wall is black inside
 // (its texels face the void); turned to face the scene

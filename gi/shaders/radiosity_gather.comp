@@ -49,27 +49,38 @@ vec3 final_gather(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
 // (gi/bake/double_sided.h); where a ray lands on the other side (a wall's
 // outside lit by the sky, seen through a window), reading the map would
 // return the wrong side's light: grey_white_room was 11% dark for it. So that
-// side's light is gathered where the ray landed, one level deep: its direct
-// light (emitter sampling alone, no MIS: the cosine ray below does not count
-// emission) and one cosine ray reading the map, or the sky, where it lands.
+// side's light is gathered where the ray landed: its direct light (emitter
+// sampling alone, no MIS: the cosine ray below does not count emission) and
+// one cosine ray, which reads the map, or the sky, where it lands; and where
+// that ray lands on the back of a double-sided surface again, the same is
+// done there (up to LF_BACK_SIDE_DEPTH backs in a row, then the map is read
+// as it is): reading the wrong side one bounce later left grey_white_room
+// 2.3% dark.
+#define LF_BACK_SIDE_DEPTH 4u
 vec3 back_side_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
-    vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
-    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
-    Hit next = trace_closest(y, dir, far);
-    rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
-    vec3 incoming = vec3(0.0);
-    if (next.triangle == LF_NO_HIT) {
-        incoming = background;
-    } else if (next.front || hit_is_double_sided(next)) {
+    vec3 radiance = vec3(0.0), throughput = vec3(1.0);
+    for (uint depth = 1u;; ++depth) {
+        throughput *= hit_texel_albedo(hit);
+        vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
+        radiance += throughput * e * (1.0 / PI);
+        vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
+        Hit next = trace_closest(y, dir, far);
+        rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
+        if (next.triangle == LF_NO_HIT) return radiance + throughput * background;
+        if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
+        if (next.front || depth == LF_BACK_SIDE_DEPTH) {
 #ifdef LF_FINAL_GATHER
-        incoming = final_gather(next, y_next, n_next, rng, rays);  // the map holds only light beyond the first bounce
+            return radiance + throughput * final_gather(next, y_next, n_next, rng, rays);  // the map: beyond the first bounce
 #else
-        incoming = reflected_radiance_at(hit_lightmap_uv(next), y_next);
+            return radiance + throughput * reflected_radiance_at(hit_lightmap_uv(next), y_next);
 #endif
+        }
+        hit = next;  // another back: gather there too
+        y = y_next;
+        ny = n_next;
     }
-    return hit_texel_albedo(hit) * (e * (1.0 / PI) + incoming);
 }
 
 void main() {
