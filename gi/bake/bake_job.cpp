@@ -183,6 +183,13 @@ fs::path finished_path(const fs::path& out, const std::string& output) {
     return resume_dir(out) / (output + ".done.json");
 }
 
+// What a saved state must match to be restored into `method`: its settings
+// (the atlas's included). Not the rest of its description: counts the GPU
+// makes there (texels moved out of geometry) may differ by a few from one
+// device to another; which texel, vertex or probe each entry is, is the
+// state's layout hash, which restore() checks.
+std::string state_key(const ProgressiveMethod& method) { return method.description().at("settings").dump(); }
+
 // Where one output of the job starts: from pass 0, from a saved state, or
 // already finished by an earlier run.
 struct ResumePoint {
@@ -210,7 +217,7 @@ ResumePoint finished_output(const fs::path& out, const fs::path& path, const std
 
 // Where `method` resumes from, restored into it; recorded in the start event.
 ResumePoint resume_point(const fs::path& out, ProgressiveMethod& method, protocol::StartEvent& started) {
-    const std::string output = method.output(), key = method.description().dump();
+    const std::string output = method.output(), key = state_key(method);
     try {
         ResumePoint point;
         if (fs::exists(finished_path(out, output))) {
@@ -255,7 +262,7 @@ SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state
 // passes go on, announced once written (their names appended to `files`).
 PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeEventSink& emit,
                      std::vector<std::string>& files, const ResumePoint& from) {
-    const std::string output = method.output(), key = method.description().dump();
+    const std::string output = method.output(), key = state_key(method);
     const auto start = Clock::now();
     SnapshotSchedule schedule;
     SnapshotWriter writer;
@@ -291,7 +298,7 @@ PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeE
 // reuses it rather than baking the output again.
 void save_finished(const fs::path& out, const ProgressiveMethod& method, const PassStats& stats,
                    const std::vector<std::string>& snapshots, const MethodResult& result) {
-    const nlohmann::json done = {{"key", method.description().dump()},
+    const nlohmann::json done = {{"key", state_key(method)},
                                  {"stats", protocol::to_json(stats)},
                                  {"snapshots", snapshots},
                                  {"files", result.files},

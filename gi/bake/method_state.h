@@ -28,8 +28,8 @@
 namespace lf {
 
 struct MethodState {
-    // What the state belongs to: the method's description (its settings,
-    // texels, atlas), so that a state is never restored into a different bake.
+    // What the state belongs to: the method's settings (the atlas's
+    // included), so that a state is never restored into a different bake.
     std::string key;
     // A hash of the method's element layout (which atlas texel, vertex or
     // probe each buffer entry is): the same description could in principle
