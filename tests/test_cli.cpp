@@ -125,6 +125,15 @@ TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
     const nlohmann::json atlas = nlohmann::json::parse(manifest_in)["lightmap"]["settings"]["atlas"];
     EXPECT_EQ(atlas["width"], 256) << atlas.dump();
     EXPECT_LT(atlas["texel_density"].get<double>(), 2000.0) << "the density shrank to fit";
+    // Charts that cannot fit within max_res: refused, naming what would fit.
+    const CliRun small = run_lightfarm("bake " + test::shared_scene("real/wooden_staircase/wooden_staircase.gltf") +
+                                       " --out " + out.string() + " --max-res 256 --passes 1");
+    EXPECT_EQ(small.exit_code, 3) << small.err;
+    const size_t at = small.err.find("smallest resolution that fits is ");
+    ASSERT_NE(at, std::string::npos) << small.err;
+    const int smallest = std::stoi(small.err.substr(at + 33));
+    EXPECT_GT(smallest, 256);
+    EXPECT_NE(small.err.find("--max-res " + std::to_string(smallest)), std::string::npos) << small.err;
     fs::remove_all(out);
 }
 

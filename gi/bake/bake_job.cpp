@@ -100,11 +100,15 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings, con
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
-    } catch (const std::runtime_error& e) {  // the charts do not fit: say what would
-        const int smallest = smallest_atlas_resolution(p.scene, options);
-        throw BakeInputError(
-            name + ": " + e.what() +
-            (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) + ")" : ""));
+    } catch (const std::runtime_error& e) {  // the charts do not fit: say what would, beyond max_res too
+        AtlasOptions uncapped = options;
+        uncapped.max_resolution = AtlasOptions{}.max_resolution;
+        const int smallest = smallest_atlas_resolution(p.scene, uncapped);
+        const std::string flag = settings.atlas.res ? "--res" : "--max-res";
+        throw BakeInputError(name + ": " + e.what() +
+                             (smallest > 0 ? " (the smallest resolution that fits is " + std::to_string(smallest) +
+                                                 ": " + flag + " " + std::to_string(smallest) + ")"
+                                           : ""));
     }
     check_bake_memory(name, p.atlas.width, p.atlas.height);
 }
