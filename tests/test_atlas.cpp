@@ -283,13 +283,29 @@ TEST(Atlas, SmallestResolutionIsTheSmallestThatPacks) {
     ASSERT_GT(smallest, 1);
     Scene fits = s, too_small = s;
     EXPECT_NO_THROW(generate_lightmap_uvs(fits, {.resolution = smallest}));
-    EXPECT_THROW(generate_lightmap_uvs(too_small, {.resolution = smallest - 1}), std::runtime_error);
+    EXPECT_THROW(generate_lightmap_uvs(too_small, {.resolution = smallest - 1}), AtlasDoesNotFit);
+    // Any other failure during the atlas is not "does not fit" (the bake
+    // answers that one with a hint to raise the resolution; a GL error while
+    // finding unlit charts once got the hint, and was called bad input).
+    Scene failing = s;
+    AtlasOptions options{.resolution = smallest};
+    options.find_unlit_charts = [](const std::vector<uint32_t>&, size_t) -> std::vector<uint8_t> {
+        throw std::runtime_error("the tracer failed");
+    };
+    try {
+        generate_lightmap_uvs(failing, options);
+        ADD_FAILURE() << "the callback's error was swallowed";
+    } catch (const AtlasDoesNotFit&) {
+        ADD_FAILURE() << "another error was reported as charts that do not fit";
+    } catch (const std::runtime_error& e) {
+        EXPECT_STREQ(e.what(), "the tracer failed");
+    }
 
     Scene huge;
     test::add_mesh(huge, {{0, 0, 0}, {1e30f, 0, 0}, {0, 0, 1e30f}}, {{0, 1, 2}},
                    test::add_material(huge, glm::vec3(0.5f)));
     EXPECT_EQ(smallest_atlas_resolution(huge, {.max_resolution = 512}), 0);
-    EXPECT_THROW(generate_lightmap_uvs(huge, {.resolution = 256}), std::runtime_error);
+    EXPECT_THROW(generate_lightmap_uvs(huge, {.resolution = 256}), AtlasDoesNotFit);
 }
 
 TEST(Atlas, SplitVerticesKeepPositionsAndMapBack) {

@@ -553,9 +553,9 @@ std::optional<Packing> pack_at_resolution(const std::vector<ChartShape>& shapes,
 Packing pack_atlas(const std::vector<ChartShape>& shapes, const AtlasOptions& options) {
     const int padding = std::max(0, options.padding);
     auto too_small = [&](int size) {
-        return std::runtime_error("atlas: " + std::to_string(shapes.size()) + " charts do not fit a " +
-                                  std::to_string(size) + "x" + std::to_string(size) +
-                                  " atlas even at one texel each; raise the resolution");
+        return AtlasDoesNotFit("atlas: " + std::to_string(shapes.size()) + " charts do not fit a " +
+                               std::to_string(size) + "x" + std::to_string(size) +
+                               " atlas even at one texel each; raise the resolution");
     };
     if (options.resolution > 0 || options.texel_density <= 0.0f) {
         const int size = options.resolution > 0 ? options.resolution : kDefaultResolution;

@@ -24,6 +24,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <stdexcept>
 #include <vector>
 
 namespace lf {
@@ -85,6 +86,13 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options);
 // or derived from the density and the ratio of the UV-mapped area to the
 // world area (capped at max_resolution), or kDefaultAtlasResolution when neither is set.
 AtlasReport use_existing_lightmap_uvs(const Scene& scene, const AtlasOptions& options);
+
+// The charts do not fit the atlas's resolution (or max_resolution) even at
+// one texel each: what prepare_lightmap_atlas throws for a resolution that
+// is too small, apart from every other failure.
+struct AtlasDoesNotFit : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
 
 // The smallest square side that a generated atlas of `scene` fits in at one
 // texel per chart (with options.padding): smaller resolutions fail with

@@ -100,7 +100,7 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings, con
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
-    } catch (const std::runtime_error& e) {  // the charts do not fit: say what would, beyond max_res too
+    } catch (const AtlasDoesNotFit& e) {  // say what would fit, beyond max_res too
         AtlasOptions uncapped = options;
         uncapped.max_resolution = AtlasOptions{}.max_resolution;
         const int smallest = smallest_atlas_resolution(p.scene, uncapped);
