@@ -626,7 +626,11 @@ TEST(RadiosityMap, LightAcrossTwoUnbakedSidesInARowIsGathered) {
     RadiosityMapSettings path_tracing;
     path_tracing.scheme = RadiosityScheme::PathTracing;
     const double reference = receiver_mean(bake(s, res, 512, path_tracing));
-    const double map = receiver_mean(bake(s, res, 256));
+    // 1024 passes: at 256 the map's receiver mean spread from -8% to +10% of
+    // the path tracer's over seeds 1-5 (the light arrives by rare two-back
+    // paths), so the 5% bound held by the seed's luck; at 1024 seeds 1-7 lie
+    // within 2.5% of it.
+    const double map = receiver_mean(bake(s, res, 1024));
     std::printf("receiver: path tracer %.5f, epochs %.5f\n", reference, map);
     ASSERT_GT(reference, 1e-3) << "light reaches the receiver across A and B";
     EXPECT_NEAR(map, reference, 0.05 * reference);

@@ -99,13 +99,19 @@ void main() {
     vec3 origin = offset_ray_origin(x, ng);
 
     // Direct: eq. 3.12 for the emitters (MIS with the indirect ray below),
-    // punctual lights exactly. Stored as E / pi.
+    // punctual lights exactly. Stored as E / pi. The emitter samples (which
+    // emitter, where on it) follow an R3 sequence over the whole bake,
+    // rotated per texel: stratified across passes, they converge faster than
+    // independent samples wherever a texel sees its lights unoccluded.
+    uvec3 light_rotation = uvec3(pcg_hash(i ^ pcg_hash(seed + 1u)), pcg_hash(i * 5u + seed), pcg_hash(i * 11u + seed));
     vec3 direct = vec3(0.0);
 #ifdef LF_DIRECTIONAL
     lf_directional_on = true;  // the texel's own light only, not the hit points' of the final gather
 #endif
-    for (uint k = 0u; k < light_samples; ++k)
-        direct += sample_emitters(x, n, origin, rng_next2(rng), rng_next2(rng), float(light_samples), true);
+    for (uint k = 0u; k < light_samples; ++k) {
+        vec3 u = r3_sample(light_rotation, pass * light_samples + k);
+        direct += sample_emitters(x, n, origin, u.xx, u.yz, float(light_samples), true);
+    }
     direct += punctual_irradiance(x, n, origin, far);
 #ifdef LF_DIRECTIONAL
     lf_directional_on = false;

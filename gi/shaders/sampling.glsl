@@ -29,6 +29,18 @@ vec3 sample_cosine_hemisphere(vec3 n, vec2 u) {
     return normalize(disk.x * t + disk.y * b + z * n);
 }
 
+// A low-discrepancy sequence for samples taken one per pass: R3 (Roberts
+// 2018), the additive recurrence by the inverse powers of 1.2207440846...,
+// the real root of x^4 = x + 1, shifted by a per-texel `rotation`
+// (Cranley-Patterson). In 0.32 fixed point, where the wrap-around of
+// unsigned arithmetic is the fract(), so the millionth point is as exact as
+// the first. A coordinate that picks something discrete (an emitter) stays
+// stratified jointly with the continuous ones.
+vec3 r3_sample(uvec3 rotation, uint n) {
+    const uvec3 alpha = uvec3(3518319155u, 2882110345u, 2360945575u);  // 1.2207440846...
+    return vec3((rotation + n * alpha) >> 8u) * (1.0 / 16777216.0);
+}
+
 // Uniform barycentrics (b1, b2) on a triangle from u in [0,1)^2.
 vec2 sample_triangle(vec2 u) {
     float s = sqrt(u.x);
