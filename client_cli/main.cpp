@@ -44,7 +44,7 @@ commands:
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
-  compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr]
+  compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr] [--layer direct|indirect|raw]
   compare TRANSFER.bin REFERENCE.bin error against a reference (JSON)
   probe-eval PROBES.json POINTS.json irradiance/pi at points from baked probes, four estimators (JSON)
   probebench SCENE [--at X,Y,Z] [--toward X,Y,Z] [--res-list 32,64,128,256] [--m-list 1,2,4,8]
@@ -171,14 +171,30 @@ int compare_sh_transfer(const std::string& bake_path, const std::string& referen
     return 0;
 }
 
+// The layer `prefix` ("direct.", "indirect.", "raw.") of `image` as its R, G, B.
+lf::FloatImage layer_of(const lf::FloatImage& image, const std::string& prefix, const std::string& file) {
+    lf::FloatImage layer = image;
+    for (const char* c : {"R", "G", "B"}) {
+        const auto it = image.channels.find(prefix + c);
+        if (it == image.channels.end()) throw std::runtime_error(file + ": no channel " + prefix + c);
+        layer.channels[c] = it->second;
+    }
+    return layer;
+}
+
 int compare(int argc, char** argv) {
-    Args args(argc, argv, 2, {"--mask"}, {});
+    Args args(argc, argv, 2, {"--mask", "--layer"}, {});
     if (args.positional().size() != 2)
         throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
     const auto is_bin = [](const std::string& f) { return f.size() > 4 && f.substr(f.size() - 4) == ".bin"; };
     if (is_bin(args.positional()[0])) return compare_sh_transfer(args.positional()[0], args.positional()[1]);
-    const lf::FloatImage bake = lf::read_exr(args.positional()[0]);
-    const lf::FloatImage reference = lf::read_exr(args.positional()[1]);
+    lf::FloatImage bake = lf::read_exr(args.positional()[0]);
+    lf::FloatImage reference = lf::read_exr(args.positional()[1]);
+    if (args.has("--layer")) {  // "direct", "indirect", "raw": that layer of both files
+        const std::string prefix = args.get("--layer") + ".";
+        bake = layer_of(bake, prefix, args.positional()[0]);
+        reference = layer_of(reference, prefix, args.positional()[1]);
+    }
     lf::FloatImage mask;
     if (args.has("--mask")) {
         const std::string m = args.get("--mask");

@@ -4,6 +4,7 @@
 #include "gpu_fixture.h"
 
 #include "io/image_files.h"
+#include "io/reference_error.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -357,6 +358,40 @@ TEST(CliBake, DenoiseKeepsTheRawBake) {
     EXPECT_GT(b.number_attributes.at("lightfarm.denoiseSeconds"), 0.0);
     EXPECT_FALSE(a.channels.count("raw.R"));
     for (const fs::path& d : {raw, denoised}) fs::remove_all(d);
+}
+
+// compare --layer: the error of one layer of two bakes, the same number as
+// the layer's own relative RMSE computed here; a layer a file lacks is named.
+TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {
+    const fs::path a = fresh_dir("layer-a"), b = fresh_dir("layer-b");
+    for (const auto& [dir, seed] : {std::pair{a, "3"}, std::pair{b, "4"}})
+        ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + dir.string() +
+                                " --res 64 --passes 8 --seed " + seed)
+                      .exit_code,
+                  0);
+    const std::string files = " " + (a / "lightmap.exr").string() + " " + (b / "lightmap.exr").string();
+    const FloatImage ia = read_exr(a / "lightmap.exr"), ib = read_exr(b / "lightmap.exr");
+    auto as_rgb = [](const FloatImage& image, const std::string& layer) {
+        FloatImage rgb = image;
+        for (const char* c : {"R", "G", "B"}) rgb.channels[c] = image.at(layer + "." + c);
+        return rgb;
+    };
+    const double whole = nlohmann::json::parse(run_lightfarm("compare" + files).out)["relative_rmse"];
+    for (const std::string layer : {"direct", "indirect"}) {
+        const CliRun r = run_lightfarm("compare" + files + " --layer " + layer);
+        ASSERT_EQ(r.exit_code, 0) << r.err;
+        const double rel = nlohmann::json::parse(r.out)["relative_rmse"];
+        EXPECT_NEAR(rel, compare_to_reference(as_rgb(ia, layer), as_rgb(ib, layer), nullptr).relative_rmse, 1e-9);
+        EXPECT_GT(rel, 0.0) << layer << ": two seeds differ";
+        EXPECT_NE(rel, whole) << layer;
+    }
+    const CliRun same = run_lightfarm("compare " + (a / "lightmap.exr").string() + " " + (a / "lightmap.exr").string() +
+                                      " --layer indirect");
+    EXPECT_EQ(nlohmann::json::parse(same.out)["relative_rmse"], 0.0);
+    const CliRun missing = run_lightfarm("compare" + files + " --layer L1x");
+    EXPECT_NE(missing.exit_code, 0);
+    EXPECT_NE(missing.err.find("no channel L1x.R"), std::string::npos) << missing.err;
+    for (const fs::path& d : {a, b}) fs::remove_all(d);
 }
 
 // --directional: the L1 layers in lightmap.exr, and the manifest says so.
