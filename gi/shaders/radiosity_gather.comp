@@ -121,9 +121,8 @@ void main() {
     // is left out (the direct term already counts it); what it reflects is
     // albedo x its current lightmap value. Directions follow an R2 sequence
     // (Roberts 2018) rotated per texel, stratified across the epoch's passes.
-    vec2 rotation = vec2(float(pcg_hash(i ^ seed)), float(pcg_hash(i * 7u + seed))) * (1.0 / 4294967296.0);
-    vec2 u = fract(rotation + float(pass_in_epoch) * vec2(0.7548776662, 0.5698402910));
-    vec3 dir = sample_cosine_hemisphere(n, u);
+    uvec2 rotation = uvec2(pcg_hash(i ^ seed), pcg_hash(i * 7u + seed));
+    vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass_in_epoch));
     vec3 indirect;
     uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final and back-side gathers)
     if (dot(dir, ng) <= 0.0) {

@@ -29,13 +29,20 @@ vec3 sample_cosine_hemisphere(vec3 n, vec2 u) {
     return normalize(disk.x * t + disk.y * b + z * n);
 }
 
-// A low-discrepancy sequence for samples taken one per pass: R3 (Roberts
-// 2018), the additive recurrence by the inverse powers of 1.2207440846...,
-// the real root of x^4 = x + 1, shifted by a per-texel `rotation`
-// (Cranley-Patterson). In 0.32 fixed point, where the wrap-around of
-// unsigned arithmetic is the fract(), so the millionth point is as exact as
-// the first. A coordinate that picks something discrete (an emitter) stays
-// stratified jointly with the continuous ones.
+// Low-discrepancy sequences for samples taken one per pass: R2 and R3
+// (Roberts 2018), the additive recurrences by the inverse powers of the
+// plastic number 1.3247179572... (x^3 = x + 1) and of 1.2207440846...
+// (x^4 = x + 1), shifted by a per-texel `rotation` (Cranley-Patterson). In
+// 0.32 fixed point, where the wrap-around of unsigned arithmetic is the
+// fract(), so the millionth point is as exact as the first (a float
+// `fract(rotation + n * alpha)` keeps fewer bits of it as n grows). A
+// coordinate that picks something discrete (an emitter) stays stratified
+// jointly with the continuous ones.
+vec2 r2_sample(uvec2 rotation, uint n) {
+    const uvec2 alpha = uvec2(3242174889u, 2447445414u);  // 2^32 x (0.7548776662, 0.5698402910)
+    return vec2((rotation + n * alpha) >> 8u) * (1.0 / 16777216.0);
+}
+
 vec3 r3_sample(uvec3 rotation, uint n) {
     const uvec3 alpha = uvec3(3518319155u, 2882110345u, 2360945575u);  // 1.2207440846...
     return vec3((rotation + n * alpha) >> 8u) * (1.0 / 16777216.0);

@@ -60,16 +60,13 @@ void main() {
     // per vertex (Cranley-Patterson), continued across passes so every pass
     // adds points to one low-discrepancy set.
     uvec2 rotation = uvec2(pcg_hash(i ^ pcg_hash(seed)), pcg_hash(i * 7u + 1u + pcg_hash(seed + 1u)));
-    const uvec2 alpha = uvec2(3242174889u, 2447445414u);  // 2^32 x (0.7548776662, 0.5698402910)
 
     vec4 sum[4 * LF_SH_BLOCKS];
     for (int k = 0; k < 4 * LF_SH_BLOCKS; ++k) sum[k] = vec4(0.0);
     vec4 squares[4] = vec4[4](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
 
     for (uint s = 0u; s < sample_count; ++s) {
-        uvec2 fixed_point = rotation + (pass * samples_per_pass + sample_first + s) * alpha;
-        vec2 u = vec2(fixed_point >> 8u) * (1.0 / 16777216.0);
-        vec3 dir = sample_cosine_hemisphere(n, u);
+        vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass * samples_per_pass + sample_first + s));
         vec3 o = origin + near_dist * dir;
         vec4 f[4] = vec4[4](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
 #if LF_SH_BOUNCES == 0
