@@ -92,8 +92,21 @@ TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
 
     const FloatImage image = read_exr(out / "lightmap.exr");
     EXPECT_EQ(image.width, 64);
-    for (const char* c : {"R", "G", "B", "direct.R", "indirect.B", "samples", "error"})
+    for (const char* c : {"R", "G", "B", "direct.R", "indirect.B", "samples", "error", "covered"})
         EXPECT_NO_THROW(image.at(c)) << c;
+    // `covered` marks the surface's texels, each once; the dilated ring copies
+    // every layer but that one (compare counts `covered` texels).
+    std::ifstream manifest_in(out / "manifest.json");
+    const nlohmann::json manifest = nlohmann::json::parse(manifest_in);
+    const auto &covered = image.at("covered"), &samples = image.at("samples");
+    size_t surface = 0, ring = 0;
+    for (size_t k = 0; k < covered.size(); ++k) {
+        ASSERT_TRUE(covered[k] == 0.0f || covered[k] == 1.0f);
+        surface += covered[k] == 1.0f ? 1 : 0;
+        ring += covered[k] == 0.0f && samples[k] > 0.0f ? 1 : 0;
+    }
+    EXPECT_EQ(surface, manifest["lightmap"]["texels"]["covered"].get<size_t>());
+    EXPECT_GT(ring, 0u) << "the dilated ring holds copies";
     EXPECT_EQ(image.number_attributes.at("lightfarm.pass"), 9.0);
     EXPECT_EQ(image.number_attributes.at("lightfarm.rays"), double(done["rays"].get<uint64_t>()));
     EXPECT_FALSE(image.string_attributes.at("lightfarm.renderer").empty());
@@ -362,6 +375,35 @@ TEST(CliBake, DenoiseKeepsTheRawBake) {
 
 // compare --layer: the error of one layer of two bakes, the same number as
 // the layer's own relative RMSE computed here; a layer a file lacks is named.
+// A bake's `covered` channel decides what is compared: each surface texel
+// once, not again for each dilated copy of it (the ring around a chart), nor
+// empty atlas space. Texels where the reference is 0 count (light where the
+// reference has none is an error); a mask, when given, wins.
+TEST(ReferenceError, EachSurfaceTexelCountsOnceNotItsDilatedCopies) {
+    auto image = [](std::vector<float> values) {
+        FloatImage im;
+        im.width = int(values.size());
+        im.height = 1;
+        for (const char* c : {"R", "G", "B"}) im.channel(c) = values;
+        return im;
+    };
+    FloatImage bake = image({2.0f, 1.0f, 5.0f, 5.0f, 0.0f}), reference = image({1.0f, 0.0f, 1.0f, 1.0f, 0.0f});
+    // Without the channel: every texel whose reference is non-zero (3 of them).
+    ReferenceError e = compare_to_reference(bake, reference, nullptr);
+    EXPECT_EQ(e.texels, 3u);
+    EXPECT_NEAR(e.bias, 12.0 / 3.0 - 1.0, 1e-12);
+    // Texels 0 and 1 are the surface; 2 and 3 copy texel 0 (the ring).
+    bake.channel(kCoveredChannel) = {1.0f, 1.0f, 0.0f, 0.0f, 0.0f};
+    e = compare_to_reference(bake, reference, nullptr);
+    EXPECT_EQ(e.texels, 2u);
+    EXPECT_NEAR(e.bias, 3.0 / 1.0 - 1.0, 1e-12);
+    EXPECT_NEAR(e.rmse, std::sqrt((1.0 + 1.0) / 2.0), 1e-12);
+    FloatImage mask = image({0.0f, 0.0f, 1.0f, 0.0f, 0.0f});
+    e = compare_to_reference(bake, reference, &mask);
+    EXPECT_EQ(e.texels, 1u);
+    EXPECT_NEAR(e.bias, 4.0, 1e-12);
+}
+
 TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {
     const fs::path a = fresh_dir("layer-a"), b = fresh_dir("layer-b");
     for (const auto& [dir, seed] : {std::pair{a, "3"}, std::pair{b, "4"}})

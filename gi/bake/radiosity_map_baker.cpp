@@ -1,6 +1,7 @@
 #include "bake/radiosity_map_baker.h"
 
 #include "gpu/context.h"
+#include "io/reference_error.h"
 #include "shaders/buffer_bindings.glsl"
 
 #include <chrono>
@@ -328,6 +329,9 @@ FloatImage RadiosityMapBaker::image(const Readback& readback) const {
                                        &image.channel("indirect.B")};
     std::vector<float>& samples = image.channel("samples");
     std::vector<float>& error = image.channel("error");
+    // 1 on the surface's texels, 0 on the dilated ring that only copies them
+    // (and everywhere else): what a comparison counts (gi/io/reference_error.h).
+    std::vector<float>& covered = image.channel(kCoveredChannel);
     for (size_t i = 0; i < covered_count_; ++i) {
         const glm::vec4 d = acc[kAccumulatorVec4s * i], moments = acc[kAccumulatorVec4s * i + 1];
         const glm::vec4 cur = acc[kAccumulatorVec4s * i + 2], prev = acc[kAccumulatorVec4s * i + 3];
@@ -352,10 +356,12 @@ FloatImage RadiosityMapBaker::image(const Readback& readback) const {
         }
         samples[a] = n;
         error[a] = std::sqrt(var);
+        covered[a] = 1.0f;
     }
     if (!readback.directional.empty()) add_directional_layers(image, readback.directional);
     for (auto& [name, data] : image.channels)
-        for (const auto& [to, from] : dilation_) data[to] = data[from];
+        if (name != kCoveredChannel)
+            for (const auto& [to, from] : dilation_) data[to] = data[from];
     image.number_attributes["lightfarm.pass"] = stats.pass;
     image.number_attributes["lightfarm.rays"] = double(stats.rays);
     image.number_attributes["lightfarm.seconds"] = stats.seconds;

@@ -135,7 +135,7 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
         {"files",
          {{"lightmap.exr", std::string("final lightmap: RGB = irradiance/pi") + (denoiser_ ? ", denoised" : "") +
                                "; layers " + (denoiser_ ? "raw (as baked), " : "") +
-                               "direct, indirect, samples, error" +
+                               "direct, indirect, samples, error, covered (1: a surface texel, 0: its dilated copies)" +
                                (image.channels.count("L1x.R") ? ", L1x, L1y, L1z (directional)" : "")},
           {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
     };

@@ -51,6 +51,7 @@ ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& fu
         throw std::runtime_error("the mask's size differs from the bake's");
     const char* names[3] = {"R", "G", "B"};
     const std::vector<float>* mask_channel = mask ? &mask->channels.begin()->second : nullptr;
+    if (!mask_channel && bake.channels.count(kCoveredChannel)) mask_channel = &bake.channels.at(kCoveredChannel);
     double sum_sq = 0.0, sum_bake = 0.0, sum_ref = 0.0;
     size_t texels = 0;
     for (size_t i = 0; i < size_t(bake.width) * size_t(bake.height); ++i) {
