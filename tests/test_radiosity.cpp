@@ -1075,9 +1075,16 @@ TEST(RadiosityMap, CornellBoxAgreesWithCyclesReference) {
     EXPECT_LT(std::abs(e.bias), 0.02);
     EXPECT_LT(e.relative_rmse, kCornellRelativeRmseBound256);
     // The error estimate the bake reports should be honest: within a factor
-    // of two of the measured error (the reference's own 0.39% noise aside).
+    // of two of the measured error (the reference's own 0.39% noise aside)
+    // below, and of 2.5 above. The estimate takes each texel's samples as
+    // independent; they are stratified across passes (R3 emitter samples, R2
+    // directions over the whole bake), which makes the true error of their
+    // mean smaller than their variance says: 1.94x at 256 passes when the
+    // directions restarted with each epoch, 2.1x since they run over the
+    // bake (error 2.38% -> 2.18%, estimate unchanged). Over-stating is the
+    // safe side for --target-error; the bound says by how much at most.
     EXPECT_GT(r.stats.error_estimate.value_or(0.0), 0.5 * (e.relative_rmse - 0.004));
-    EXPECT_LT(r.stats.error_estimate.value_or(0.0), 2.0 * e.relative_rmse);
+    EXPECT_LT(r.stats.error_estimate.value_or(0.0), 2.5 * e.relative_rmse);
 }
 
 // The path-tracing scheme is the project's reference on scenes without an

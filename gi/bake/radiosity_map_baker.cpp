@@ -214,7 +214,6 @@ PassStats RadiosityMapBaker::step() {
     gather_.use();
     glUniform1ui(gather_.uniform("covered_count"), GLuint(covered_count_));
     glUniform1ui(gather_.uniform("pass"), GLuint(stats_.pass));
-    glUniform1ui(gather_.uniform("pass_in_epoch"), GLuint(pass_in_epoch_));
     glUniform1ui(gather_.uniform("seed"), settings_.seed);
     glUniform1ui(gather_.uniform("light_samples"), GLuint(std::max(1, settings_.light_samples)));
     glUniform3fv(gather_.uniform("background"), 1, &settings_.background.x);

@@ -20,7 +20,6 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 
 uniform uint pass;            // 0-based pass count since the bake began
-uniform uint pass_in_epoch;   // 0-based; the stratification restarts with each epoch
 uniform uint seed;
 uniform uint light_samples;   // emitter samples per texel per pass
 
@@ -30,17 +29,25 @@ uniform uint light_samples;   // emitter samples per texel per pass
 layout(std430, binding = LF_BINDING_DIRECTIONAL_ACCUMULATORS) buffer DirectionalAccumulators { vec4 directional_accumulators[]; };
 #endif
 
+// The sky's irradiance at y over pi, by one cosine ray: the sky's radiance
+// where the ray escapes (0 without a sky: no ray).
+vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
+    if (background == vec3(0.0)) return vec3(0.0);
+    rays += 1u;
+    return trace_occluded(y, sample_cosine_hemisphere(ny, rng_next2(rng)), far) ? vec3(0.0) : background;
+}
+
 // The radiance the hit point y (geometric normal ny, on the ray's side)
 // reflects towards the texel, its emission aside: its direct light sampled
-// as the texels' is (one emitter sample, the punctual lights), times the
-// albedo there, plus albedo x the map's indirect layer for the light that
-// reaches y after bouncing at least once (the resolve pass publishes that
-// under LF_FINAL_GATHER). E/pi units, as reflected_radiance_at.
+// as the texels' is (one emitter sample, the punctual lights, the sky),
+// times the albedo there, plus albedo x the map's indirect layer for the
+// light that reaches y after bouncing at least once (the resolve pass
+// publishes that under LF_FINAL_GATHER). E/pi units, as reflected_radiance_at.
 vec3 final_gather(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
     vec2 uv = hit_lightmap_uv(hit);
     vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
     rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
-    return hit_texel_albedo(hit) * e * (1.0 / PI) + reflected_radiance_at(uv, y);
+    return hit_texel_albedo(hit) * (e * (1.0 / PI) + sky_light(y, ny, rng, rays)) + reflected_radiance_at(uv, y);
 }
 
 
@@ -119,18 +126,25 @@ void main() {
 
     // Indirect: eq. 3.7, one cosine-distributed ray. The hit point's emission
     // is left out (the direct term already counts it); what it reflects is
-    // albedo x its current lightmap value. Directions follow an R2 sequence
-    // (Roberts 2018) rotated per texel, stratified across the epoch's passes.
+    // albedo x its current lightmap value. Where the ray escapes to the sky,
+    // that is direct light (the sky is a light source) and goes to the direct
+    // sum, which is never restarted: the sky's estimate averages every pass,
+    // and a final gather can tell the sky from the light beyond one bounce.
+    // Directions follow an R2 sequence (Roberts 2018) rotated per texel, over
+    // the whole bake: any run of consecutive passes, such as an epoch's, is
+    // itself a rotated R2 set, so each epoch stays stratified.
     uvec2 rotation = uvec2(pcg_hash(i ^ seed), pcg_hash(i * 7u + seed));
-    vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass_in_epoch));
+    vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass));
     vec3 indirect;
+    vec3 sky = vec3(0.0);  // E/pi of the sky by this cosine ray
     uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final and back-side gathers)
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
         Hit hit = trace_closest(origin, dir, far);
         if (hit.triangle == LF_NO_HIT) {
-            indirect = background;
+            indirect = vec3(0.0);
+            sky = background;
         } else if (hit.front || hit_is_double_sided(hit)) {
             // The hit point, lifted off its surface on the ray's side.
             vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);
@@ -167,11 +181,11 @@ void main() {
             indirect = vec3(0.0);  // the back of a one-sided surface is the inside of something
         }
     }
-    direct *= 1.0 / PI;
+    direct = direct * (1.0 / PI) + sky;
 #ifdef LF_DIRECTIONAL
-    // The indirect sample: E/pi = L for a cosine ray, so its irradiance is pi L.
+    // The cosine ray's sample: E/pi = L for a cosine ray, so its irradiance is pi L.
     lf_directional_on = true;
-    lf_add_directional(PI * indirect, dir, n);
+    lf_add_directional(PI * (indirect + sky), dir, n);
     lf_directional_on = false;
     directional_accumulators[3u * i] += vec4(lf_directional[0], 1.0);
     directional_accumulators[3u * i + 1u] += vec4(lf_directional[1], 0.0);
