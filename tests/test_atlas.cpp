@@ -13,6 +13,7 @@
 #include <tiny_gltf.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -189,6 +190,83 @@ TEST(Atlas, TexelDensityIsTheSameForEveryChart) {
     for (size_t c = 0; c < report.charts; ++c) {
         if (world[c] * 20.0 * 20.0 < 1.0) continue;  // charts under one texel take the minimum size
         EXPECT_NEAR(std::sqrt(uv[c] / world[c]), 20.0, 0.02) << "chart " << c;
+    }
+}
+
+// Separate triangles (obtuse, standing on their longest edge, all facing
+// the same way): one chart each, each filling half its rectangle.
+Scene triangles_scene(int count) {
+    Scene s;
+    const uint32_t white = test::add_material(s, glm::vec3(0.8f));
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (int i = 0; i < count; ++i) {
+        const float base = 0.3f + 0.7f * u(rng), height = base * (0.3f + 0.4f * u(rng)), apex = 0.3f * base * u(rng);
+        const glm::vec3 at(float(i % 20) * 2.0f, 0.0f, float(i / 20) * 2.0f);
+        test::add_mesh(s, {at, at + glm::vec3(base, 0, 0), at + glm::vec3(apex, 0, height)}, {{0, 2, 1}}, white);
+    }
+    return s;
+}
+
+// Packed as whole rectangles, charts that each fill half of theirs cover at
+// most about half the atlas (these 100 triangles: 42.2% at 256², 92.9
+// texels/m at 512², measured before charts were packed by their texels).
+// Packed by texel shape and turned to nest they cover well over half, at a
+// density where their padded rectangles alone would not fit the atlas.
+TEST(Atlas, PackingByTexelShapeFillsMoreThanRectanglesCan) {
+    Scene s = triangles_scene(100);
+    const int res = 256;
+    const AtlasReport report = generate_lightmap_uvs(s, {.resolution = res});
+    ASSERT_EQ(report.charts, 100u);
+    double rectangles = 0.0;          // each chart's bounding rectangle in whole texels, 2 texels of padding added
+    std::array<int, 4> directions{};  // of each triangle's base in the atlas: +u, -u, +v, -v
+    for (const glm::uvec3& t : s.triangles) {
+        glm::vec2 lo(1e9f), hi(-1e9f);
+        for (int k = 0; k < 3; ++k) {
+            lo = glm::min(lo, s.uv1[t[k]] * float(res));
+            hi = glm::max(hi, s.uv1[t[k]] * float(res));
+        }
+        rectangles += (std::ceil(hi.x - lo.x - 1e-3) + 2.0) * (std::ceil(hi.y - lo.y - 1e-3) + 2.0);
+        const glm::vec2 base = s.uv1[t.z] - s.uv1[t.x];  // the mesh's corners 0 and 1 (triangle {0, 2, 1})
+        ++directions[std::abs(base.x) > std::abs(base.y) ? (base.x > 0 ? 0 : 1) : (base.y > 0 ? 2 : 3)];
+    }
+    std::printf(
+        "100 triangles at %d²: %.1f texels/m, utilisation %.1f%%, padded rectangles %.2f of the atlas, "
+        "bases +u %d, -u %d, +v %d, -v %d\n",
+        res, report.texel_density, 100.0 * report.utilisation, rectangles / ((res + 2.0) * (res + 2.0)), directions[0],
+        directions[1], directions[2], directions[3]);
+    EXPECT_GT(report.utilisation, 0.55);
+    EXPECT_GT(rectangles, 1.15 * (res + 2.0) * (res + 2.0));
+    // The charts were turned: their bases point more than one way.
+    EXPECT_LT(*std::max_element(directions.begin(), directions.end()), 90);
+
+    Scene at512 = triangles_scene(100);
+    EXPECT_GT(generate_lightmap_uvs(at512, {.resolution = 512}).texel_density, 1.15f * 92.9f);
+}
+
+// Every invariant holds on turned, nested charts, whatever the padding:
+// charts apart, every triangle with a texel, one density, UVs in the atlas,
+// the same atlas every time.
+TEST(Atlas, TurnedChartsKeepEveryInvariant) {
+    for (int padding : {1, 2, 3}) {
+        Scene s = triangles_scene(100);
+        const AtlasReport report = generate_lightmap_uvs(s, {.resolution = 192, .padding = padding});
+        const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height);
+        expect_charts_apart(chart_per_texel(s, report, texels), report.width, report.height, padding);
+        std::vector<int> samples_of(s.triangles.size(), 0);
+        for (const TexelSample& sample : texels.samples) ++samples_of[sample.triangle];
+        for (size_t t = 0; t < s.triangles.size(); ++t) {
+            EXPECT_GT(samples_of[t], 0) << "triangle " << t << ", padding " << padding;
+            const double density = std::sqrt(uv_pixel_area(s, t, report.width, report.height) / s.triangle_area(t));
+            EXPECT_NEAR(density, report.texel_density, 1e-3 * report.texel_density) << "triangle " << t;
+        }
+        for (const glm::vec2& uv : s.uv1) {
+            EXPECT_GE(std::min(uv.x, uv.y), 0.0f);
+            EXPECT_LE(std::max(uv.x, uv.y), 1.0f);
+        }
+        Scene again = triangles_scene(100);
+        generate_lightmap_uvs(again, {.resolution = 192, .padding = padding});
+        EXPECT_EQ(again.uv1, s.uv1) << "padding " << padding;
     }
 }
 
@@ -846,6 +924,34 @@ TEST(AtlasSpeed, BigScenesAt1024) {
             seconds(t1, t2), seconds(t2, t3));
         for (size_t t = 0; t < scene.triangles.size(); ++t) ASSERT_NE(report.triangle_chart[t], UINT32_MAX);
         EXPECT_LT(seconds(t0, t2), 60.0);
+    }
+}
+
+// The figures of docs/BENCHMARKS.md's "Packing by texel shape" (run with
+// --gtest_also_run_disabled_tests): per scene, the auto atlas (a border
+// fraction of 0.5, gi/bake/bake_job.cpp's default; the fastest of 3) and
+// the density a 512² atlas reaches. The Cornell box's own TEXCOORD_1 is
+// ignored: every atlas here is generated.
+TEST(AtlasSpeed, DISABLED_AutoAndFixedResolution) {
+    for (const char* name :
+         {"cornell_box.gltf", "monkey.glb", "spheres.glb", "real/wooden_staircase/wooden_staircase.gltf",
+          "real/grey_white_room/grey_white_room.gltf", "real/breakfast_room/breakfast_room.gltf"}) {
+        const Scene scene = load_scene(kScenes / name);
+        AtlasReport automatic;
+        double seconds = 1e30;
+        for (int run = 0; run < 3; ++run) {
+            Scene s = scene;
+            const auto t0 = std::chrono::steady_clock::now();
+            automatic = generate_lightmap_uvs(s, {.max_border_fraction = 0.5f});
+            seconds = std::min(seconds, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+        }
+        Scene s = scene;
+        const AtlasReport fixed = generate_lightmap_uvs(s, {.resolution = 512});
+        std::printf(
+            "%-44s %5zu charts | auto %4d², %6.2f texels/m, utilisation %5.1f%%, %.2f s | 512²: %7.2f texels/m, "
+            "utilisation %5.1f%%\n",
+            name, automatic.charts, automatic.width, automatic.texel_density, 100.0 * automatic.utilisation, seconds,
+            fixed.texel_density, 100.0 * fixed.utilisation);
     }
 }
 

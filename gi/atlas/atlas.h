@@ -13,9 +13,14 @@
 //   2. each chart projected to that plane, turned to its minimum-area
 //      bounding rectangle, and scaled so its UV area is exactly its world area
 //      x density² (one texel density for the whole scene);
-//   3. charts packed (skyline, tallest first) into whole-texel rectangles with
-//      `padding` empty texels between any two, so bilinear lookups and
-//      dilation never mix charts; if they do not fit, the density shrinks;
+//   3. charts packed by texel shape: each rasterized to the texels its
+//      triangles touch (at the density and the sub-texel offset it gets),
+//      and placed, tallest first, in a bitmap of the atlas at the lowest
+//      (then leftmost) place where it keeps `padding` empty texels to every
+//      other chart, so bilinear lookups and dilation never mix charts; turned
+//      by 180° (and 90°, 270° for larger charts) where that places it lower,
+//      so charts nest and small ones fill the gaps beside large ones; if they
+//      do not fit, the density shrinks;
 //   4. vertices on chart borders split (one copy per chart), UV1 written.
 #pragma once
 
@@ -97,7 +102,8 @@ struct AtlasDoesNotFit : std::runtime_error {
 // The smallest square side that a generated atlas of `scene` fits in at one
 // texel per chart (with options.padding): smaller resolutions fail with
 // "charts do not fit". 0 when even options.max_resolution is too small.
-// Builds the charts (about a second for 260k triangles), packs ~14 times.
+// Builds the charts (about a second for 260k triangles), then packs a few
+// times, up from a lower bound on the side (the charts' padded texels).
 int smallest_atlas_resolution(const Scene& scene, const AtlasOptions& options = {});
 
 // Islands of triangles connected through shared vertex indices, per
