@@ -51,7 +51,7 @@ std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityM
 }
 
 // The resolve pass publishes what indirect rays read: albedo x the whole
-// value, or albedo x the indirect layer alone under a final gather.
+// value, and under a final gather albedo x the indirect layer too.
 std::vector<std::pair<std::string, std::string>> resolve_defines(const RadiosityMapSettings& s) {
     if (s.scheme == RadiosityScheme::FinalGather) return {{"LF_FINAL_GATHER", "1"}};
     return {};
@@ -120,6 +120,10 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     accumulators_ = GpuBuffer(accumulators);
     reflected_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
     reflected_.clear_zero();
+    if (settings_.scheme == RadiosityScheme::FinalGather) {
+        reflected_indirect_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
+        reflected_indirect_.clear_zero();
+    }
     dilation_ = texels.dilation;
     std::vector<glm::uvec2> pairs;
     for (const auto& [to, from] : dilation_) pairs.emplace_back(to, from);
@@ -180,7 +184,7 @@ void RadiosityMapBaker::count_texels_by_geometry() {
         bool moved = false;
         for (uint32_t s = texel.x; s < texel.x + texel.y; ++s) moved = moved || points[3 * size_t(s) + 1].w != 0.0f;
         moved_texels_ += moved ? 1 : 0;
-        cut_texels_ += anchors[texel.z].w == 2.0f ? 1 : 0;
+        cut_texels_ += anchors[texel.z].w >= 2.0f ? 1 : 0;  // LF_ANCHOR_CUT or LF_ANCHOR_NEXT_TO_CUT
     }
 }
 
@@ -199,6 +203,7 @@ void RadiosityMapBaker::bind_buffers() const {
     covered_.bind(LF_BINDING_COVERED_TEXELS);
     accumulators_.bind(LF_BINDING_TEXEL_ACCUMULATORS);
     reflected_.bind(LF_BINDING_REFLECTED_RADIANCE);
+    if (settings_.scheme == RadiosityScheme::FinalGather) reflected_indirect_.bind(LF_BINDING_REFLECTED_INDIRECT);
     shading_.bind();
     error_partials_.bind(LF_BINDING_ERROR_PARTIALS);
     texel_anchors_.bind(LF_BINDING_TEXEL_ANCHORS);
@@ -254,6 +259,10 @@ RadiosityMapBaker::ResolveTotals RadiosityMapBaker::resolve(bool end_epoch) {
     resolve_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     copy_to_dilated_texels(reflected_);
+    if (settings_.scheme == RadiosityScheme::FinalGather) {
+        copy_to_dilated_texels(reflected_indirect_);
+        reflected_.bind(LF_BINDING_REFLECTED_RADIANCE);  // the copy bound the other to its point
+    }
 
     // Reading the totals back also waits for the pass.
     ResolveTotals t;

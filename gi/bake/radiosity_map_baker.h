@@ -151,8 +151,9 @@ private:
     std::optional<SurfaceTextures> surface_textures_;  // the path-tracing scheme's exact textures
     GpuBuffer sample_points_, covered_, accumulators_, reflected_;
     GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
-    GpuBuffer texel_albedo_;  // per atlas texel, dilated: what a final gather's hit reflects
-    GpuBuffer directional_;   // 3 vec4 per covered texel: L1 sums (settings.directional)
+    GpuBuffer texel_albedo_;        // per atlas texel, dilated: what a final gather's hit reflects
+    GpuBuffer reflected_indirect_;  // per atlas texel: albedo x the indirect layer (final gather only)
+    GpuBuffer directional_;         // 3 vec4 per covered texel: L1 sums (settings.directional)
 
     PassStats stats_;
     int pass_in_epoch_ = 0;

@@ -24,6 +24,7 @@
 #define LF_BINDING_TEXEL_ANCHORS 11
 #define LF_BINDING_TEXEL_ALBEDO 15
 #define LF_BINDING_DIRECTIONAL_ACCUMULATORS 16
+#define LF_BINDING_REFLECTED_INDIRECT 19  // per atlas texel, under a final gather
 
 // The scene's surfaces and lights (SceneShading: lightmap_lookup.glsl,
 // direct_light.glsl) and their textures (SurfaceTextures: surface_textures.glsl).

@@ -13,6 +13,12 @@
 // Reflected radiance per atlas texel (rgb; w = 1 where a chart's texel or its
 // dilation holds a value, 0 elsewhere), width x height, row 0 at the top.
 layout(std430, binding = LF_BINDING_REFLECTED_RADIANCE) buffer ReflectedRadiance { vec4 reflected_radiance[]; };
+#ifdef LF_FINAL_GATHER
+// The same for the light that has bounced at least once before reaching the
+// texel (albedo x its indirect layer): what a final gather reads beyond the
+// bounce it computes.
+layout(std430, binding = LF_BINDING_REFLECTED_INDIRECT) buffer ReflectedIndirect { vec4 reflected_indirect[]; };
+#endif
 // Per scene triangle, what a ray that lands on it needs:
 //   (uv1 of vertex 0, uv1 of vertex 1),
 //   (uv1 of vertex 2, flags bits, area density with which emitter sampling picks its points (0: not an emitter)),
@@ -22,9 +28,12 @@ layout(std430, binding = LF_BINDING_SURFACE_TRIANGLES) readonly buffer SurfaceTr
 
 const uint SURFACE_VEC4S = 4u;
 
-// Per atlas texel: where its light was gathered; w = 0 uncovered, 1 covered,
-// 2 next to a wall (texel_anchor.comp, texel_wall_check.comp).
+// Per atlas texel: where its light was gathered, and in w what it is.
 layout(std430, binding = LF_BINDING_TEXEL_ANCHORS) buffer TexelAnchors { vec4 texel_anchors[]; };
+const float LF_ANCHOR_UNCOVERED = 0.0;
+const float LF_ANCHOR_COVERED = 1.0;
+const float LF_ANCHOR_CUT = 2.0;        // its samples were on both sides of geometry (texel_anchor.comp)
+const float LF_ANCHOR_NEXT_TO_CUT = 3.0;  // a wall between it and a neighbour's anchor (texel_wall_check.comp)
 
 // Per atlas texel, dilated: the albedo its samples averaged (rgb), what a
 // final gather's hit reflects (radiosity_gather.comp with LF_FINAL_GATHER).
@@ -95,17 +104,29 @@ void bilinear_taps(vec2 uv, out uint a[4], out float w[4]) {
     }
 }
 
-vec3 reflected_radiance_at(vec2 uv, vec3 y) {
+// Whether the texel holding uv was cut by geometry (texel_anchor.comp).
+bool texel_cut_at(vec2 uv) {
+    ivec2 texel = ivec2(floor(uv * vec2(atlas_size)));
+    return texel_anchors[atlas_index(texel.x, texel.y)].w == LF_ANCHOR_CUT;
+}
+
+// The lookup, of reflected_radiance or (indirect_only, under a final
+// gather) reflected_indirect.
+vec3 reflected_lookup(vec2 uv, vec3 y, bool indirect_only) {
     uint a[4];
     float w[4];
     bilinear_taps(uv, a, w);
     bool near_wall = false;
-    for (int k = 0; k < 4; ++k) near_wall = near_wall || (texel_anchors[a[k]].w == 2.0 && w[k] > 0.0);
+    for (int k = 0; k < 4; ++k) near_wall = near_wall || (texel_anchors[a[k]].w >= LF_ANCHOR_CUT && w[k] > 0.0);
     vec4 r[4];
     vec3 sum = vec3(0.0);
     float weight_sum = 0.0;
     for (int k = 0; k < 4; ++k) {
+#ifdef LF_FINAL_GATHER
+        r[k] = indirect_only ? reflected_indirect[a[k]] : reflected_radiance[a[k]];
+#else
         r[k] = reflected_radiance[a[k]];
+#endif
         sum += w[k] * r[k].w * r[k].rgb;
         weight_sum += w[k] * r[k].w;
     }
@@ -114,7 +135,7 @@ vec3 reflected_radiance_at(vec2 uv, vec3 y) {
         float visible_weight = 0.0;
         for (int k = 0; k < 4; ++k) {
             vec4 anchor = texel_anchors[a[k]];
-            if (anchor.w == 2.0 && w[k] > 0.0 && trace_occluded(y, anchor.xyz - y, 0.999)) continue;
+            if (anchor.w >= LF_ANCHOR_CUT && w[k] > 0.0 && trace_occluded(y, anchor.xyz - y, 0.999)) continue;
             visible_sum += w[k] * r[k].w * r[k].rgb;
             visible_weight += w[k] * r[k].w;
         }
@@ -122,6 +143,8 @@ vec3 reflected_radiance_at(vec2 uv, vec3 y) {
     }
     return weight_sum > 0.0 ? sum / weight_sum : vec3(0.0);
 }
+
+vec3 reflected_radiance_at(vec2 uv, vec3 y) { return reflected_lookup(uv, y, false); }
 
 // Bilinear lookup of the texels' albedo at the hit (the weights of
 // reflected_radiance_at, taps without a value left out); the triangle's own

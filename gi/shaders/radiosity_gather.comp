@@ -43,11 +43,23 @@ vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
 // times the albedo there, plus albedo x the map's indirect layer for the
 // light that reaches y after bouncing at least once (the resolve pass
 // publishes that under LF_FINAL_GATHER). E/pi units, as reflected_radiance_at.
+//
+// Where the texel holding y was cut by geometry (texel_anchor.comp), the
+// map's whole value is read instead, as without a final gather: such a
+// texel averages points in a crease with points in the open, and while its
+// whole irradiance varies little between them (the open ones get more
+// direct light, the creased ones more bounced light), its split does not:
+// the creased points' indirect layer, added to the open hit point's exact
+// direct light, counted the bounced light twice (grey_white_room's wall
+// mouldings: +12% indirect light against the path tracer; BENCHMARKS.md).
+// (Falling back wherever any of the lookup's four texels is next to a cut
+// one too gave the same bias there and a noisier staircase.)
 vec3 final_gather(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
     vec2 uv = hit_lightmap_uv(hit);
+    if (texel_cut_at(uv)) return reflected_radiance_at(uv, y);
     vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
     rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
-    return hit_texel_albedo(hit) * (e * (1.0 / PI) + sky_light(y, ny, rng, rays)) + reflected_radiance_at(uv, y);
+    return hit_texel_albedo(hit) * (e * (1.0 / PI) + sky_light(y, ny, rng, rays)) + reflected_lookup(uv, y, true);
 }
 
 

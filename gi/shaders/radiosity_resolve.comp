@@ -62,12 +62,11 @@ void main() {
         bool use_current = current.w > 0.0;
         vec3 indirect = use_current ? current.rgb / current.w : previous.rgb;
         vec3 value = direct_mean + indirect;
+        reflected_radiance[covered_texels[i].z] = vec4(albedo * value, 1.0);
 #ifdef LF_FINAL_GATHER
         // A final gather computes the first bounce where its ray lands: the
-        // map supplies the light beyond it only.
-        reflected_radiance[covered_texels[i].z] = vec4(albedo * indirect, 1.0);
-#else
-        reflected_radiance[covered_texels[i].z] = vec4(albedo * value, 1.0);
+        // map supplies the light beyond it only (where the texel is whole).
+        reflected_indirect[covered_texels[i].z] = vec4(albedo * indirect, 1.0);
 #endif
 
         // The error and convergence are those of what a snapshot delivers

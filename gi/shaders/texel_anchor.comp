@@ -6,10 +6,11 @@
 // sides; averaged, it would be half lit on the dark side. The sample that
 // sees most of the others (short rays between points lifted a tenth of a
 // texel off the surface) becomes the reference; samples it cannot see take
-// its place. The anchor is where the texel now gathers; w = 1 for a covered
-// texel, 2 for one that was moved or cut (texel_wall_check.comp marks more),
-// which reflected_radiance_at checks for visibility before a ray on the other
-// side of the wall reads it.
+// its place. The anchor is where the texel now gathers; w is LF_ANCHOR_CUT
+// for a texel that was moved or cut (texel_wall_check.comp marks its
+// neighbours LF_ANCHOR_NEXT_TO_CUT), which reflected_radiance_at checks for
+// visibility before a ray on the other side of the wall reads it, else
+// LF_ANCHOR_COVERED.
 layout(local_size_x = 64) in;
 
 #define LF_SAMPLE_POINTS_ACCESS
@@ -55,5 +56,5 @@ void main() {
         }
         marked = true;
     }
-    texel_anchors[texel.z] = vec4(sample_points[3u * reference].xyz, marked ? 2.0 : 1.0);
+    texel_anchors[texel.z] = vec4(sample_points[3u * reference].xyz, marked ? LF_ANCHOR_CUT : LF_ANCHOR_COVERED);
 }

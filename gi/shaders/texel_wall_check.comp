@@ -2,8 +2,9 @@
 // After texel_anchor.comp, per covered texel: a texel whose neighbour in the
 // atlas gathers behind a wall (the line between their anchors, lifted off
 // the surface, is blocked) sits next to that wall. A bilinear lookup near it
-// would blend light from both sides, so both are marked (w = 2) and
-// reflected_radiance_at checks visibility before blending them.
+// would blend light from both sides, so it is marked (LF_ANCHOR_NEXT_TO_CUT;
+// its neighbour marks itself the same way) and reflected_radiance_at checks
+// visibility before blending them.
 layout(local_size_x = 64) in;
 
 #include "lightmap_lookup.glsl"
@@ -14,7 +15,7 @@ void main() {
     if (i >= covered_count) return;
     uvec4 texel = covered_texels[i];
     vec4 self = texel_anchors[texel.z];
-    if (self.w == 2.0) return;
+    if (self.w >= LF_ANCHOR_CUT) return;
     vec3 lift = 0.1 * sample_points[3u * texel.x].w * sample_points[3u * texel.x + 2u].xyz;
     int x = int(texel.z % atlas_size.x), y = int(texel.z / atlas_size.x);
     const ivec2 offsets[4] = ivec2[4](ivec2(1, 0), ivec2(-1, 0), ivec2(0, 1), ivec2(0, -1));
@@ -22,10 +23,10 @@ void main() {
         ivec2 n = ivec2(x, y) + offsets[k];
         if (n.x < 0 || n.y < 0 || n.x >= int(atlas_size.x) || n.y >= int(atlas_size.y)) continue;
         vec4 other = texel_anchors[uint(n.y) * atlas_size.x + uint(n.x)];
-        if (other.w == 0.0) continue;  // not covered
+        if (other.w == LF_ANCHOR_UNCOVERED) continue;
         vec3 from = self.xyz + lift;
         if (trace_occluded(from, other.xyz + lift - from, 1.0)) {
-            texel_anchors[texel.z].w = 2.0;
+            texel_anchors[texel.z].w = LF_ANCHOR_NEXT_TO_CUT;
             return;
         }
     }
