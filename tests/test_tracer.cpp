@@ -116,6 +116,31 @@ TEST(Tracer, MatchesBruteForceOnRealStaircase) {
     expect_matches_brute_force(load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf")), 600);
 }
 
+// A tracer that takes a scene's winding after every other triangle was
+// turned round (as double-sided charts are before a bake) hits what a tracer
+// built from the turned scene hits: the same triangles at the same t, with
+// the turned triangles' barycentrics (their 2nd and 3rd vertices swapped).
+TEST(Tracer, RewoundTrianglesHitAsARebuiltTree) {
+    gpu();
+    const Scene scene = load_scene(test::shared_scene("monkey.glb"));
+    Scene turned = scene;
+    for (size_t t = 0; t < turned.triangles.size(); t += 2) std::swap(turned.triangles[t].y, turned.triangles[t].z);
+    Tracer rewound(scene);
+    rewound.rewind(turned);
+    const std::vector<Ray> rays = random_rays(scene, 4000, 7);
+    const std::vector<RayHit> got = rewound.trace(rays), want = Tracer(turned).trace(rays);
+    const std::vector<RayHit> before = Tracer(scene).trace(rays);
+    size_t turned_hits = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+        ASSERT_EQ(got[i].triangle, want[i].triangle) << "ray " << i;
+        if (got[i].triangle == kNoHit) continue;
+        EXPECT_EQ(got[i].t, want[i].t) << "ray " << i;
+        EXPECT_EQ(got[i].bary, want[i].bary) << "ray " << i;
+        if (got[i].triangle % 2 == 0 && got[i].bary != before[i].bary) ++turned_hits;
+    }
+    EXPECT_GT(turned_hits, rays.size() / 10) << "the turned triangles' winding was not taken";
+}
+
 // Rays aimed exactly at the vertices and edge midpoints of a closed mesh, from
 // inside and from outside, must hit it: no ray slips between two triangles.
 TEST(Tracer, WatertightOnSharedEdgesAndVertices) {

@@ -139,14 +139,13 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
                              "environment was given (give a uniform sky with --env R,G,B)");
     p->gpu = p->timed("gpu", [&] { return std::make_unique<GpuContext>(job.device); });
     // One BVH of the scene's triangles, for the per-chart decisions and then
-    // the passes; rebuilt only when double-sided charts were turned (their
-    // front changes).
+    // the passes; where double-sided charts were turned, their triangles'
+    // winding (which side is the front) is re-read into the same tree.
     p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->scene); });
     if (needs_atlas(s)) {
         prepare_atlas(*p, s, *p->tracer);
         prepare_texels(*p, s.atlas, *p->tracer);
-        if (p->turned.charts > 0)
-            p->tracer = p->timed("bvh_turned", [&] { return std::make_unique<Tracer>(*p->atlas_scene); });
+        if (p->turned.charts > 0) p->timed("bvh_turned", [&] { p->tracer->rewind(*p->atlas_scene); });
     }
     return p;
 }

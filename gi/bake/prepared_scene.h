@@ -35,7 +35,8 @@ struct PreparedScene {
     std::unique_ptr<GpuContext> gpu;
     // One BVH for every method: triangle t is the same triangle at the same
     // position in scene and atlas_scene, so it is built from the scene, and
-    // again from atlas_scene only where double-sided charts were turned.
+    // takes atlas_scene's winding (Tracer::rewind) where double-sided charts
+    // were turned.
     std::unique_ptr<Tracer> tracer;
     double prepare_seconds = 0.0;
     // Where preparation's time went, stage by stage (load, atlas,

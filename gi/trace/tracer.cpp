@@ -12,6 +12,17 @@ Tracer::Tracer(const Scene& scene) {
     triangles_ = GpuBuffer(bvh.triangles);
 }
 
+void Tracer::rewind(const Scene& scene) {
+    std::vector<BvhTriangle> triangles = triangles_.read<BvhTriangle>();
+    for (BvhTriangle& t : triangles) {
+        const glm::uvec3 tri = scene.triangles.at(t.scene_triangle);
+        t.v0 = scene.positions[tri[0]];
+        t.v1 = scene.positions[tri[1]];
+        t.v2 = scene.positions[tri[2]];
+    }
+    triangles_.upload(triangles.data(), triangles.size() * sizeof(BvhTriangle));
+}
+
 void Tracer::bind() const {
     nodes_.bind(LF_BINDING_BVH_NODES);
     triangles_.bind(LF_BINDING_BVH_TRIANGLES);
