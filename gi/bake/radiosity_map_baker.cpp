@@ -184,7 +184,7 @@ void RadiosityMapBaker::count_texels_by_geometry() {
         bool moved = false;
         for (uint32_t s = texel.x; s < texel.x + texel.y; ++s) moved = moved || points[3 * size_t(s) + 1].w != 0.0f;
         moved_texels_ += moved ? 1 : 0;
-        cut_texels_ += anchors[texel.z].w >= 2.0f ? 1 : 0;  // LF_ANCHOR_CUT or LF_ANCHOR_NEXT_TO_CUT
+        cut_texels_ += anchors[texel.z].w >= float(LF_ANCHOR_CUT) ? 1 : 0;  // or LF_ANCHOR_NEXT_TO_CUT
     }
 }
 
@@ -258,11 +258,8 @@ RadiosityMapBaker::ResolveTotals RadiosityMapBaker::resolve(bool end_epoch) {
     glUniform2ui(resolve_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
     resolve_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-    copy_to_dilated_texels(reflected_);
-    if (settings_.scheme == RadiosityScheme::FinalGather) {
-        copy_to_dilated_texels(reflected_indirect_);
-        reflected_.bind(LF_BINDING_REFLECTED_RADIANCE);  // the copy bound the other to its point
-    }
+    if (settings_.scheme == RadiosityScheme::FinalGather) copy_to_dilated_texels(reflected_indirect_);
+    copy_to_dilated_texels(reflected_);  // last: the copy leaves its buffer bound where the gather reads it
 
     // Reading the totals back also waits for the pass.
     ResolveTotals t;

@@ -25,6 +25,12 @@
 #define LF_BINDING_TEXEL_ALBEDO 15
 #define LF_BINDING_DIRECTIONAL_ACCUMULATORS 16
 #define LF_BINDING_REFLECTED_INDIRECT 19  // per atlas texel, under a final gather
+// What an atlas texel is, in w of LF_BINDING_TEXEL_ANCHORS (read back by
+// RadiosityMapBaker to count the texels geometry touched).
+#define LF_ANCHOR_UNCOVERED 0.0
+#define LF_ANCHOR_COVERED 1.0
+#define LF_ANCHOR_CUT 2.0          // its samples were on both sides of geometry (texel_anchor.comp)
+#define LF_ANCHOR_NEXT_TO_CUT 3.0  // a wall between it and a neighbour's anchor (texel_wall_check.comp)
 
 // The scene's surfaces and lights (SceneShading: lightmap_lookup.glsl,
 // direct_light.glsl) and their textures (SurfaceTextures: surface_textures.glsl).

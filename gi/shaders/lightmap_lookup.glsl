@@ -28,12 +28,9 @@ layout(std430, binding = LF_BINDING_SURFACE_TRIANGLES) readonly buffer SurfaceTr
 
 const uint SURFACE_VEC4S = 4u;
 
-// Per atlas texel: where its light was gathered, and in w what it is.
+// Per atlas texel: where its light was gathered, and in w what it is
+// (LF_ANCHOR_*, buffer_bindings.glsl).
 layout(std430, binding = LF_BINDING_TEXEL_ANCHORS) buffer TexelAnchors { vec4 texel_anchors[]; };
-const float LF_ANCHOR_UNCOVERED = 0.0;
-const float LF_ANCHOR_COVERED = 1.0;
-const float LF_ANCHOR_CUT = 2.0;        // its samples were on both sides of geometry (texel_anchor.comp)
-const float LF_ANCHOR_NEXT_TO_CUT = 3.0;  // a wall between it and a neighbour's anchor (texel_wall_check.comp)
 
 // Per atlas texel, dilated: the albedo its samples averaged (rgb), what a
 // final gather's hit reflects (radiosity_gather.comp with LF_FINAL_GATHER).
