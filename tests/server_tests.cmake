@@ -71,7 +71,7 @@ gtest_discover_tests(test_server_load DISCOVERY_TIMEOUT 60
 # box bake through the service against `lightfarm bake` (bit for bit); SIGKILL
 # of a worker, and of lightfarmd, mid-bake (about 15 s in all on llvmpipe).
 if(TARGET lightfarm)
-  lightfarm_test(test_server_e2e ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+  lightfarm_test(test_server_e2e GL ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
   # lightfarm_gi for its EXR reader only: the test compares pixels, the server stays GL-free.
   target_link_libraries(test_server_e2e PRIVATE lightfarm_server lightfarm_gi PkgConfig::CPP_HTTPLIB)
   target_compile_definitions(test_server_e2e PRIVATE
