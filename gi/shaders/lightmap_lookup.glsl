@@ -79,17 +79,6 @@ uint atlas_index(int x, int y) {
     return uint(clamp(y, 0, int(atlas_size.y) - 1)) * atlas_size.x + uint(clamp(x, 0, int(atlas_size.x) - 1));
 }
 
-// Bilinear lookup of the reflected radiance at a hit point y; uv (0,0) is
-// the atlas's top-left corner and texel centres sit at half-integers
-// (DESIGN.md). Charts are dilated, so the four texels read near a chart's
-// border hold that chart's values; where a chart is smaller than the lookup's
-// footprint, taps that hold no value (w = 0) are left out rather than read as
-// black. A texel that straddles a wall gathered on one side of it only; it is
-// left out when the wall stands between it and y (one short shadow ray, only
-// next to walls), so light does not leak through. Where that leaves no tap
-// (y in a crease all four texels' anchors are hidden from), the plain lookup
-// stands: reading black there made small-charted scenes 8% dark
-// (monkey.glb at 64²).
 // The four atlas texels a bilinear lookup at uv reads, and their weights.
 void bilinear_taps(vec2 uv, out uint a[4], out float w[4]) {
     vec2 p = uv * vec2(atlas_size) - 0.5;
@@ -101,50 +90,50 @@ void bilinear_taps(vec2 uv, out uint a[4], out float w[4]) {
     }
 }
 
-// Whether the texel holding uv was cut by geometry (texel_anchor.comp).
-bool texel_cut_at(vec2 uv) {
-    ivec2 texel = ivec2(floor(uv * vec2(atlas_size)));
-    return texel_anchors[atlas_index(texel.x, texel.y)].w == LF_ANCHOR_CUT;
-}
-
-// The lookup, of reflected_radiance or (indirect_only, under a final
-// gather) reflected_indirect.
-vec3 reflected_lookup(vec2 uv, vec3 y, bool indirect_only) {
+// Bilinear lookup of the reflected radiance where a ray landed, into
+// `radiance`: of reflected_radiance, or (indirect_only, under a final gather)
+// of reflected_indirect. uv (0,0) is the atlas's top-left corner and texel
+// centres sit at half-integers (DESIGN.md). Charts are dilated, so the four
+// texels read near a chart's border hold that chart's values; where a chart
+// is smaller than the lookup's footprint, taps that hold no value (w = 0) are
+// left out rather than read as black.
+//
+// False where the map cannot say what the landing point reflects, and the
+// caller gathers there instead (radiosity_gather.comp's gather_at_hit):
+//  * where a tap was cut by geometry or is next to one that was
+//    (LF_ANCHOR_CUT, LF_ANCHOR_NEXT_TO_CUT). Such a texel gathered on one
+//    side of the surface through it, at points kept out of it, in the
+//    crease: its value is not the open part's that a ray lands on (the
+//    staircase's lit walls read 3% dark through its cut texels), nor the
+//    sealed side's (its cavities read light no path brings them: a fifth of
+//    its squared error; BENCHMARKS.md). Reading such texels only where their
+//    anchor was in sight of the landing point left both; reading black
+//    there made small-charted scenes 8% dark (monkey.glb at 64²).
+//  * where no tap holds a value (a chart smaller than a texel).
+bool reflected_lookup(vec2 uv, bool indirect_only, out vec3 radiance) {
     uint a[4];
     float w[4];
     bilinear_taps(uv, a, w);
-    bool near_wall = false;
-    for (int k = 0; k < 4; ++k) near_wall = near_wall || (texel_anchors[a[k]].w >= LF_ANCHOR_CUT && w[k] > 0.0);
-    vec4 r[4];
     vec3 sum = vec3(0.0);
     float weight_sum = 0.0;
+    bool near_cut = false;
     for (int k = 0; k < 4; ++k) {
+        if (w[k] == 0.0) continue;
+        near_cut = near_cut || texel_anchors[a[k]].w >= LF_ANCHOR_CUT;
 #ifdef LF_FINAL_GATHER
-        r[k] = indirect_only ? reflected_indirect[a[k]] : reflected_radiance[a[k]];
+        vec4 r = indirect_only ? reflected_indirect[a[k]] : reflected_radiance[a[k]];
 #else
-        r[k] = reflected_radiance[a[k]];
+        vec4 r = reflected_radiance[a[k]];
 #endif
-        sum += w[k] * r[k].w * r[k].rgb;
-        weight_sum += w[k] * r[k].w;
+        sum += w[k] * r.w * r.rgb;
+        weight_sum += w[k] * r.w;
     }
-    if (near_wall) {
-        vec3 visible_sum = vec3(0.0);
-        float visible_weight = 0.0;
-        for (int k = 0; k < 4; ++k) {
-            vec4 anchor = texel_anchors[a[k]];
-            if (anchor.w >= LF_ANCHOR_CUT && w[k] > 0.0 && trace_occluded(y, anchor.xyz - y, 0.999)) continue;
-            visible_sum += w[k] * r[k].w * r[k].rgb;
-            visible_weight += w[k] * r[k].w;
-        }
-        if (visible_weight > 0.0) return visible_sum / visible_weight;
-    }
-    return weight_sum > 0.0 ? sum / weight_sum : vec3(0.0);
+    radiance = weight_sum > 0.0 ? sum / weight_sum : vec3(0.0);
+    return !near_cut && weight_sum > 0.0;
 }
 
-vec3 reflected_radiance_at(vec2 uv, vec3 y) { return reflected_lookup(uv, y, false); }
-
 // Bilinear lookup of the texels' albedo at the hit (the weights of
-// reflected_radiance_at, taps without a value left out); the triangle's own
+// reflected_lookup, taps without a value left out); the triangle's own
 // albedo where no tap has one (a chart smaller than a texel).
 vec3 hit_texel_albedo(Hit hit) {
     uint a[4];

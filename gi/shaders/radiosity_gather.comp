@@ -37,46 +37,58 @@ vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
     return trace_occluded(y, sample_cosine_hemisphere(ny, rng_next2(rng)), far) ? vec3(0.0) : background;
 }
 
-// The radiance the hit point y (geometric normal ny, on the ray's side)
-// reflects towards the texel, its emission aside: its direct light sampled
-// as the texels' is (one emitter sample, the punctual lights, the sky),
-// times the albedo there, plus albedo x the map's indirect layer for the
-// light that reaches y after bouncing at least once (the resolve pass
-// publishes that under LF_FINAL_GATHER). E/pi units, as reflected_radiance_at.
-//
-// Where the texel holding y was cut by geometry (texel_anchor.comp), the
-// map's whole value is read instead, as without a final gather: such a
-// texel averages points in a crease with points in the open, and while its
-// whole irradiance varies little between them (the open ones get more
-// direct light, the creased ones more bounced light), its split does not:
-// the creased points' indirect layer, added to the open hit point's exact
-// direct light, counted the bounced light twice (grey_white_room's wall
-// mouldings: +12% indirect light against the path tracer; BENCHMARKS.md).
-// (Falling back wherever any of the lookup's four texels is next to a cut
-// one too gave the same bias there and a noisier staircase.)
-vec3 final_gather(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
+// The radiance the front of a surface reflects towards the texel at the
+// point y (geometric normal ny) where a ray landed, its emission aside, as
+// the map says: albedo x the map's value there (E/pi units). Under
+// LF_FINAL_GATHER its first bounce is computed at y instead: y's direct
+// light sampled as the texels' is (one emitter sample, the punctual lights,
+// the sky), times the albedo there, plus albedo x the map's indirect layer
+// for the light that reaches y after bouncing at least once (the resolve
+// pass publishes that under LF_FINAL_GATHER). False where the map cannot
+// say (reflected_lookup).
+bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out vec3 radiance) {
     vec2 uv = hit_lightmap_uv(hit);
-    if (texel_cut_at(uv)) return reflected_radiance_at(uv, y);
+#ifdef LF_FINAL_GATHER
+    vec3 beyond;
+    if (!reflected_lookup(uv, true, beyond)) {
+        reflected_lookup(uv, false, radiance);  // the whole value, for gather_at_hit's last point
+        return false;
+    }
     vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
     rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
-    return hit_texel_albedo(hit) * (e * (1.0 / PI) + sky_light(y, ny, rng, rays)) + reflected_lookup(uv, y, true);
+    radiance = hit_texel_albedo(hit) * (e * (1.0 / PI) + sky_light(y, ny, rng, rays)) + beyond;
+    return true;
+#else
+    return reflected_lookup(uv, false, radiance);
+#endif
 }
 
-
-// The radiance the back of a double-sided surface reflects towards the
-// texel. A texel holds one side's light, the side its chart was baked for
-// (gi/bake/double_sided.h); where a ray lands on the other side (a wall's
-// outside lit by the sky, seen through a window), reading the map would
-// return the wrong side's light: grey_white_room was 11% dark for it. So that
-// side's light is gathered where the ray landed: its direct light (emitter
+// The radiance a hit point reflects towards the texel where the map cannot
+// say, gathered where the ray landed instead: its direct light (emitter
 // sampling alone, no MIS: the cosine ray below does not count emission) and
-// one cosine ray, which reads the map, or the sky, where it lands; and where
-// that ray lands on the back of a double-sided surface again, the same is
-// done there (up to LF_BACK_SIDE_DEPTH backs in a row, then the map is read
-// as it is): reading the wrong side one bounce later left grey_white_room
-// 2.3% dark.
-#define LF_BACK_SIDE_DEPTH 4u
-vec3 back_side_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
+// one cosine ray, which reads the map, or the sky, where it lands; where the
+// map cannot say there either, the same is done there (up to
+// LF_GATHER_DEPTH points in a row, then the map is read as it is; but
+// LF_GATHER_DEPTH unbaked sides in a row are the inside of something closed,
+// grey_white_room's panelling boxes with a side authored facing in, and
+// the wrong side read there lit them: +2% on that room).
+// The map cannot say
+//  * on the back of a double-sided surface: a texel holds one side's light,
+//    the side its chart was baked for (gi/bake/double_sided.h), and where a
+//    ray lands on the other (a wall's outside lit by the sky, seen through a
+//    window) the map holds the wrong side's: grey_white_room was 11% dark
+//    for it, and 2.3% dark while a back met one bounce later read the map;
+//  * closer than `near` (the gathering texel's size) to where the ray left:
+//    light changes there within a texel, in the crease between the two
+//    surfaces, or in the gap between a surface and a layer laid over it
+//    (the staircase's paint a millimetre behind its wallpaper), and the
+//    texel there averages it with its open side (photon mapping's final
+//    gather traces its short rays on, in corners, for the same reason:
+//    Jensen 1996, "Global Illumination using Photon Maps");
+//  * next to geometry that cuts through the texels, or where no texel holds
+//    a value (reflected_lookup).
+#define LF_GATHER_DEPTH 4u
+vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout uint rays) {
     vec3 radiance = vec3(0.0), throughput = vec3(1.0);
     for (uint depth = 1u;; ++depth) {
         throughput *= hit_texel_albedo(hit);
@@ -89,14 +101,13 @@ vec3 back_side_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays
         if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
-        if (next.front || depth == LF_BACK_SIDE_DEPTH) {
-#ifdef LF_FINAL_GATHER
-            return radiance + throughput * final_gather(next, y_next, n_next, rng, rays);  // the map: beyond the first bounce
-#else
-            return radiance + throughput * reflected_radiance_at(hit_lightmap_uv(next), y_next);
-#endif
+        if (depth == LF_GATHER_DEPTH && !next.front) return radiance;  // inside something closed: dark
+        if ((next.front && next.t > near) || depth == LF_GATHER_DEPTH) {
+            vec3 beyond;
+            bool answered = map_radiance(next, y_next, n_next, rng, rays, beyond);
+            if (answered || depth == LF_GATHER_DEPTH) return radiance + throughput * beyond;
         }
-        hit = next;  // another back: gather there too
+        hit = next;  // the map cannot say here either: gather there too
         y = y_next;
         ny = n_next;
     }
@@ -149,7 +160,7 @@ void main() {
     vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass));
     vec3 indirect;
     vec3 sky = vec3(0.0);  // E/pi of the sky by this cosine ray
-    uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final and back-side gathers)
+    uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final gathers, gathers where the map cannot say)
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
@@ -164,15 +175,9 @@ void main() {
 #if defined(LF_PATH_TRACE)
             indirect = path_radiance(hit, origin, dir, rng, path_rays);
 #else
-            if (!hit.front) {
-                indirect = back_side_radiance(hit, y, n_hit, rng, path_rays);
-            } else {
-#if defined(LF_FINAL_GATHER)
-                indirect = final_gather(hit, y, n_hit, rng, path_rays);
-#else
-                indirect = reflected_radiance_at(hit_lightmap_uv(hit), y);
-#endif
-            }
+            float near = sample_points[3u * s].w;  // the texel's size
+            bool answered = hit.front && hit.t > near && map_radiance(hit, y, n_hit, rng, path_rays, indirect);
+            if (!answered) indirect = gather_at_hit(hit, y, n_hit, near, rng, path_rays);
 #endif
             // Landing on an emitter: its light, MIS-weighted against emitter
             // sampling (which alone counts emitters when LF_LIGHT_SAMPLING != 0).

@@ -8,9 +8,8 @@
 // texel off the surface) becomes the reference; samples it cannot see take
 // its place. The anchor is where the texel now gathers; w is LF_ANCHOR_CUT
 // for a texel that was moved or cut (texel_wall_check.comp marks its
-// neighbours LF_ANCHOR_NEXT_TO_CUT), which reflected_radiance_at checks for
-// visibility before a ray on the other side of the wall reads it, else
-// LF_ANCHOR_COVERED.
+// neighbours LF_ANCHOR_NEXT_TO_CUT), where reflected_lookup does not read
+// the map but has the ray gather where it landed, else LF_ANCHOR_COVERED.
 layout(local_size_x = 64) in;
 
 #define LF_SAMPLE_POINTS_ACCESS

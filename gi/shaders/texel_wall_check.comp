@@ -3,8 +3,8 @@
 // atlas gathers behind a wall (the line between their anchors, lifted off
 // the surface, is blocked) sits next to that wall. A bilinear lookup near it
 // would blend light from both sides, so it is marked (LF_ANCHOR_NEXT_TO_CUT;
-// its neighbour marks itself the same way) and reflected_radiance_at checks
-// visibility before blending them.
+// its neighbour marks itself the same way), and a ray landing there gathers
+// where it landed instead (reflected_lookup).
 layout(local_size_x = 64) in;
 
 #include "lightmap_lookup.glsl"
