@@ -88,6 +88,7 @@ bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out 
 //  * next to geometry that cuts through the texels, or where no texel holds
 //    a value (reflected_lookup).
 #define LF_GATHER_DEPTH 4u
+bool map_may_say(Hit hit, float near) { return hit.front && hit.t > near; }  // the rest is reflected_lookup's
 vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout uint rays) {
     vec3 radiance = vec3(0.0), throughput = vec3(1.0);
     for (uint depth = 1u;; ++depth) {
@@ -101,11 +102,11 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
         if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
-        if (depth == LF_GATHER_DEPTH && !next.front) return radiance;  // inside something closed: dark
-        if ((next.front && next.t > near) || depth == LF_GATHER_DEPTH) {
+        bool last = depth == LF_GATHER_DEPTH;
+        if (last && !next.front) return radiance;  // inside something closed: dark
+        if (last || map_may_say(next, near)) {
             vec3 beyond;
-            bool answered = map_radiance(next, y_next, n_next, rng, rays, beyond);
-            if (answered || depth == LF_GATHER_DEPTH) return radiance + throughput * beyond;
+            if (map_radiance(next, y_next, n_next, rng, rays, beyond) || last) return radiance + throughput * beyond;
         }
         hit = next;  // the map cannot say here either: gather there too
         y = y_next;
@@ -176,7 +177,7 @@ void main() {
             indirect = path_radiance(hit, origin, dir, rng, path_rays);
 #else
             float near = sample_points[3u * s].w;  // the texel's size
-            bool answered = hit.front && hit.t > near && map_radiance(hit, y, n_hit, rng, path_rays, indirect);
+            bool answered = map_may_say(hit, near) && map_radiance(hit, y, n_hit, rng, path_rays, indirect);
             if (!answered) indirect = gather_at_hit(hit, y, n_hit, near, rng, path_rays);
 #endif
             // Landing on an emitter: its light, MIS-weighted against emitter
