@@ -1,10 +1,12 @@
 // The progressive loop's snapshot schedule and the writer thread that takes
 // snapshots off the passes (issue #12): pure logic, no GL.
+#include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "bake/snapshot_writer.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <future>
@@ -56,6 +58,79 @@ TEST(SnapshotSchedule, EveryIntervalSecondsBetweenDoublings) {
     // Passes of 1 s: doublings at 1, 2, 4, 8, 16, 32 and, between 16 and 32,
     // one at 26 (10 s after 16).
     EXPECT_EQ(taken(schedule, 40, 1.0, 0.0), (std::vector<int>{1, 2, 4, 8, 16, 26, 32}));
+}
+
+TEST(PassBatcher, DoublesWhileBatchesAreShortAndHalvesWhenLong) {
+    PassBatcher batcher(8, 0.02);
+    EXPECT_EQ(batcher.next(100), 1);
+    std::vector<int> sizes;
+    for (int i = 0; i < 5; ++i) {
+        sizes.push_back(batcher.next(100));
+        batcher.record(sizes.back(), 0.001 * sizes.back());  // 1 ms a pass
+    }
+    EXPECT_EQ(sizes, (std::vector<int>{1, 2, 4, 8, 8})) << "up to the method's most";
+    batcher.record(8, 0.05);  // the passes got slower: 6 ms each
+    EXPECT_EQ(batcher.next(100), 4);
+    batcher.record(2, 0.001);  // a batch cut short by a limit says nothing of the size
+    EXPECT_EQ(batcher.next(100), 4);
+    EXPECT_EQ(batcher.next(3), 3) << "never past the limit";
+    EXPECT_EQ(batcher.next(0), 1) << "a pass is always run";
+    PassBatcher slow(64, 0.02);
+    slow.record(1, 0.5);
+    EXPECT_EQ(slow.next(100), 1) << "passes longer than the target run one at a time";
+}
+
+// A method whose passes are instant and count themselves.
+class CountingMethod : public ProgressiveMethod {
+public:
+    explicit CountingMethod(int passes) { stop_.max_passes = passes; }
+    std::string output() const override { return "counting"; }
+    StopRule stop_rule() const override { return stop_; }
+    nlohmann::json description() const override { return {}; }
+    PassStats step() override { return run_passes(1).back(); }
+    std::vector<PassStats> run_passes(int count) override {
+        batches.push_back(count);
+        std::vector<PassStats> out;
+        for (int k = 0; k < count; ++k) {
+            ++stats_.pass;
+            stats_.rays += 10;
+            out.push_back(stats_);
+        }
+        return out;
+    }
+    int max_batch() const override { return 16; }
+    SnapshotWrite snapshot(const std::filesystem::path&, const PassStats&) override { return {}; }
+    MethodResult finish(const std::filesystem::path&, const PassStats&) override { return {}; }
+    MethodState state() const override { throw std::logic_error("not used"); }
+    void restore(const MethodState&) override {}
+
+    std::vector<int> batches;
+
+private:
+    StopRule stop_;
+    PassStats stats_;
+};
+
+TEST(RunProgressive, BatchesEndAtTheWantedPassesAndReportEveryPass) {
+    CountingMethod method(100);
+    std::vector<int> reported, batch_ends;
+    int next_doubling = 1;
+    const PassStats last = run_progressive(
+        method,
+        [&](const std::vector<PassStats>& passes) {
+            for (const PassStats& p : passes) reported.push_back(p.pass);
+            batch_ends.push_back(passes.back().pass);
+            while (next_doubling <= passes.back().pass) next_doubling *= 2;
+        },
+        {}, [&] { return next_doubling; });
+    EXPECT_EQ(last.pass, 100);
+    EXPECT_EQ(last.rays, 1000u);
+    ASSERT_EQ(reported.size(), 100u);
+    for (int p = 0; p < 100; ++p) EXPECT_EQ(reported[size_t(p)], p + 1);
+    for (int doubling : {1, 2, 4, 8, 16, 32, 64, 100})
+        EXPECT_NE(std::find(batch_ends.begin(), batch_ends.end(), doubling), batch_ends.end())
+            << "no batch ends on pass " << doubling;
+    EXPECT_EQ(*std::max_element(method.batches.begin(), method.batches.end()), 16) << "instant passes batch up";
 }
 
 TEST(SnapshotWriter, WritesOffTheCallersThreadInOrderAndReportsWhenIdle) {

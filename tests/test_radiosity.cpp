@@ -995,6 +995,45 @@ TEST(RadiosityMap, ConvergedTexelsStopTracing) {
     EXPECT_NEAR(sum / double(texels.covered_count()), 2.0, 0.02 * 2.0) << "Le / (1 - rho) with rho = 0.5";
 }
 
+// Passes run in a batch (one read-back at its end) are the same passes as
+// one at a time: the same pixels, and for every pass the same rays and error
+// estimate, read from that pass's own slot of partial sums. The furnace with
+// a convergence threshold changes which texels trace from pass to pass, and
+// the final gather adds rays that vary per pass, so both counts are exercised.
+TEST(RadiosityMap, BatchedPassesAreThePassesOneAtATime) {
+    const int res = 48;
+    const Scene s = furnace(0.5f, 1.0f, res);
+    RadiosityMapSettings settings;
+    settings.converged_texel_error = 0.05;
+    settings.scheme = RadiosityScheme::FinalGather;
+    gpu();
+    const TexelSamples texels = rasterize_texel_samples(s, res, res, 2);
+    Tracer tracer(s);
+    RadiosityMapBaker single(s, texels, tracer, settings), batched(s, texels, tracer, settings);
+    ASSERT_GE(batched.max_batch(), 16);
+    std::vector<PassStats> one_at_a_time, in_batches;
+    for (int p = 0; p < 60; ++p) one_at_a_time.push_back(single.step());
+    for (int count : {1, 3, 16, 7, 1, 32}) {
+        const std::vector<PassStats> batch = batched.run_passes(count);
+        ASSERT_EQ(batch.size(), size_t(count));
+        in_batches.insert(in_batches.end(), batch.begin(), batch.end());
+    }
+    ASSERT_EQ(in_batches.size(), one_at_a_time.size());
+    for (size_t p = 0; p < in_batches.size(); ++p) {
+        EXPECT_EQ(in_batches[p].pass, int(p) + 1);
+        EXPECT_EQ(in_batches[p].rays, one_at_a_time[p].rays) << "pass " << p + 1;
+        EXPECT_EQ(in_batches[p].error_estimate, one_at_a_time[p].error_estimate) << "pass " << p + 1;
+        if (p > 0) {
+            EXPECT_GE(in_batches[p].seconds, in_batches[p - 1].seconds);
+        }
+    }
+    EXPECT_LT(in_batches.back().rays - in_batches[in_batches.size() - 2].rays, in_batches[1].rays - in_batches[0].rays)
+        << "texels converged: the counts must have changed within the batches";
+    const FloatImage a = single.snapshot(), b = batched.snapshot();
+    for (const auto& [name, data] : a.channels) EXPECT_EQ(data, b.at(name)) << name;
+    EXPECT_THROW(batched.run_passes(batched.max_batch() + 1), std::invalid_argument);
+}
+
 // A curved mesh cut into many charts, lit from above: after stitching, the
 // two sides of every smooth seam agree to the noise floor, and better than
 // without stitching.

@@ -261,8 +261,9 @@ SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state
 
 // Runs one method through the progressive loop from `from`: progress after
 // every pass; snapshots when the schedule says, read back here (with the
-// method's state) and built and written on the writer thread while the
-// passes go on, announced once written (their names appended to `files`).
+// method's state) after a batch of passes and built and written on the
+// writer thread while the passes go on, announced once written (their names
+// appended to `files`).
 PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeEventSink& emit,
                      std::vector<std::string>& files, const ResumePoint& from) {
     const std::string output = method.output(), key = state_key(method);
@@ -280,9 +281,11 @@ PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeE
             }
         }
     };
-    const auto on_pass = [&](const PassStats& stats) {
-        emit(protocol::ProgressEvent{output, stats});
+    // The device holds the state after a batch's last pass: only there can a snapshot be read.
+    const auto on_batch = [&](const std::vector<PassStats>& passes) {
+        for (const PassStats& stats : passes) emit(protocol::ProgressEvent{output, stats});
         announce(writer.take_written());
+        const PassStats& stats = passes.back();
         if (!schedule.due(stats.pass, seconds_since(start), writer.idle())) return;
         const auto read_start = Clock::now();
         SnapshotWrite write = method.snapshot(out, stats);
@@ -292,7 +295,7 @@ PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeE
         writer.submit(output, stats.pass, with_state(std::move(write), state, snapshots, state_path(out, output)));
     };
     if (from.stats.pass > 0) emit(protocol::ProgressEvent{output, from.stats});
-    const PassStats last = run_progressive([&] { return method.step(); }, method.stop_rule(), on_pass, from.stats);
+    const PassStats last = run_progressive(method, on_batch, from.stats, [&] { return schedule.next_pass(); });
     announce(writer.drain());
     return last;
 }

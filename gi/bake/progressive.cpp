@@ -1,5 +1,7 @@
 #include "bake/progressive.h"
 
+#include <chrono>
+
 namespace lf {
 
 StopRule stop_rule_from(const protocol::StopSettings& stop) {
@@ -17,12 +19,25 @@ bool stop_reached(const StopRule& stop, const PassStats& stats) {
     return stats.pass >= stop.max_passes || converged || out_of_time;
 }
 
-PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
-                          const std::function<void(const PassStats&)>& on_pass, const PassStats& from) {
+void PassBatcher::record(int passes, double seconds) {
+    if (passes == size_ && seconds < seconds_) size_ = std::min(max_, 2 * size_);
+    else if (seconds > 2.0 * seconds_) size_ = std::max(1, size_ / 2);
+}
+
+PassStats run_progressive(ProgressiveMethod& method, const std::function<void(const std::vector<PassStats>&)>& on_batch,
+                          const PassStats& from, const std::function<int()>& wanted_pass) {
+    const StopRule stop = method.stop_rule();
+    PassBatcher batcher(method.max_batch());
     PassStats stats = from;
     while (!stop_reached(stop, stats)) {
-        stats = step();
-        if (on_pass) on_pass(stats);
+        int limit = stop.max_passes - stats.pass;
+        if (wanted_pass) limit = std::min(limit, wanted_pass() - stats.pass);
+        const int count = batcher.next(limit);
+        const auto start = std::chrono::steady_clock::now();
+        const std::vector<PassStats> passes = method.run_passes(count);
+        batcher.record(count, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+        stats = passes.back();
+        if (on_batch) on_batch(passes);
     }
     return stats;
 }

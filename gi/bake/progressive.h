@@ -1,7 +1,8 @@
 // The one progressive loop every method runs in, for the CLI and the worker
-// alike: step() a pass at a time until a pass count, a target error or a time
-// limit is reached, reporting each pass; and when to snapshot (passes 1, 2,
-// 4, 8 … and on a time schedule, within a budget of the wall time).
+// alike: passes in batches (one read-back each) until a pass count, a target
+// error or a time limit is reached, reporting each pass; and when to
+// snapshot (passes 1, 2, 4, 8 … and on a time schedule, within a budget of
+// the wall time).
 #pragma once
 
 #include "bake_settings.h"
@@ -10,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include <filesystem>
+#include <algorithm>
 #include <functional>
 #include <string>
 #include <vector>
@@ -55,6 +57,16 @@ public:
     virtual nlohmann::json description() const = 0;
     // Runs one pass and returns the totals after it.
     virtual PassStats step() = 0;
+    // Runs `count` passes back to back (1 <= count <= max_batch()) and
+    // returns the totals after each. A method whose passes need nothing read
+    // back between them waits for the device once, after the last: on a GPU
+    // a pass can be shorter than the round trip.
+    virtual std::vector<PassStats> run_passes(int count) {
+        std::vector<PassStats> stats;
+        for (int p = 0; p < count; ++p) stats.push_back(step());
+        return stats;
+    }
+    virtual int max_batch() const { return 1; }
     // Reads the current result back (on the GL thread, between passes) and
     // returns the work that writes it as intermediate files of pass
     // `stats.pass` (names from snapshot_file_name). The driver runs that work
@@ -78,10 +90,34 @@ using protocol::snapshot_file_name;
 // Whether a bake with these totals is done.
 bool stop_reached(const StopRule& stop, const PassStats& stats);
 
-// Runs passes from `from` (a resumed bake's totals; none: pass 0) until
-// `stop` says so; on_pass(stats) after every pass.
-PassStats run_progressive(const std::function<PassStats()>& step, const StopRule& stop,
-                          const std::function<void(const PassStats&)>& on_pass, const PassStats& from = {});
+// How many passes a method runs between read-backs
+// (ProgressiveMethod::run_passes). Each read-back waits for the device;
+// while batches take less than `seconds` the next one doubles, so that the
+// wait is a small part of the time, and it halves when one takes more than
+// twice that. A batch never goes past `limit` (the pass count, a snapshot
+// due at a pass), so every stop and snapshot by pass lands where it would
+// one pass at a time; a target error or a time limit is checked after each
+// batch, which may run a few passes past it.
+class PassBatcher {
+public:
+    explicit PassBatcher(int max_batch, double seconds = 0.02) : max_(std::max(1, max_batch)), seconds_(seconds) {}
+    int next(int limit) const { return std::max(1, std::min(size_, limit)); }
+    void record(int passes, double seconds);
+    int size() const { return size_; }
+
+private:
+    int max_;
+    double seconds_;
+    int size_ = 1;
+};
+
+// Runs `method`'s passes from `from` (a resumed bake's totals; none: pass 0)
+// until its stop rule says so, in batches (PassBatcher) that end at
+// `wanted_pass()` when given (the next pass someone wants to see, such as
+// SnapshotSchedule::next_pass); on_batch(stats) after each batch, one
+// PassStats per pass.
+PassStats run_progressive(ProgressiveMethod& method, const std::function<void(const std::vector<PassStats>&)>& on_batch,
+                          const PassStats& from = {}, const std::function<int()>& wanted_pass = {});
 
 // When a snapshot is taken: at passes 1, 2, 4, 8 … and whenever `interval`
 // seconds have passed since the last one; but never while the last one is
@@ -97,6 +133,8 @@ public:
     bool due(int pass, double now, bool writer_idle);
     // What the last snapshot cost (reading back plus writing), in seconds.
     void record_cost(double seconds) { last_cost_ = seconds; }
+    // The next pass due by the doublings (a batch of passes ends there).
+    int next_pass() const { return next_pass_; }
 
 private:
     double budget_, interval_;

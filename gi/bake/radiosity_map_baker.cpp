@@ -4,6 +4,7 @@
 #include "io/reference_error.h"
 #include "shaders/buffer_bindings.glsl"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -136,8 +137,15 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
         directional_ = GpuBuffer(3 * covered_count_ * sizeof(glm::vec4));
         directional_.clear_zero();
     }
-    // Two vec4 per work group of the resolve pass, however it is dispatched.
-    error_partials_ = GpuBuffer(2 * std::max<size_t>(1, resolve_.groups_1d(covered_count_)) * sizeof(glm::vec4));
+    // Two vec4 per work group of the resolve pass, however it is dispatched,
+    // in one slot per pass of a batch: as many passes as fit 64 MiB, at most
+    // 64 (a batch is at most what a GPU does in a few milliseconds).
+    const size_t alignment = storage_offset_alignment();
+    const size_t group_bytes = 2 * sizeof(glm::vec4) * std::max<size_t>(1, resolve_.groups_1d(covered_count_));
+    partials_slot_bytes_ = (group_bytes + alignment - 1) / alignment * alignment;
+    max_batch_ = int(std::clamp<size_t>((size_t(64) << 20) / partials_slot_bytes_, 1, 64));
+    error_partials_ = GpuBuffer(size_t(max_batch_) * partials_slot_bytes_);
+    pass_ends_ = GpuTimestamps(max_batch_ + 1);
     active_texels_ = covered_count_;
     rays_per_texel_ =
         uint64_t(1 + shading_.punctual_count() + (shading_.emitter_count() ? settings_.light_samples : 0));
@@ -205,20 +213,17 @@ void RadiosityMapBaker::bind_buffers() const {
     reflected_.bind(LF_BINDING_REFLECTED_RADIANCE);
     if (settings_.scheme == RadiosityScheme::FinalGather) reflected_indirect_.bind(LF_BINDING_REFLECTED_INDIRECT);
     shading_.bind();
-    error_partials_.bind(LF_BINDING_ERROR_PARTIALS);
     texel_anchors_.bind(LF_BINDING_TEXEL_ANCHORS);
     texel_albedo_.bind(LF_BINDING_TEXEL_ALBEDO);
     if (settings_.directional) directional_.bind(LF_BINDING_DIRECTIONAL_ACCUMULATORS);
     if (surface_textures_) surface_textures_->bind();
 }
 
-PassStats RadiosityMapBaker::step() {
-    const auto start = std::chrono::steady_clock::now();
-    bind_buffers();
+void RadiosityMapBaker::gather(int pass) {
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
     glUniform1ui(gather_.uniform("covered_count"), GLuint(covered_count_));
-    glUniform1ui(gather_.uniform("pass"), GLuint(stats_.pass));
+    glUniform1ui(gather_.uniform("pass"), GLuint(pass));
     glUniform1ui(gather_.uniform("seed"), settings_.seed);
     glUniform1ui(gather_.uniform("light_samples"), GLuint(std::max(1, settings_.light_samples)));
     glUniform3fv(gather_.uniform("background"), 1, &settings_.background.x);
@@ -227,30 +232,58 @@ PassStats RadiosityMapBaker::step() {
     shading_.set_uniforms(gather_);
     gather_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+}
 
-    ++pass_in_epoch_;
-    const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
-    const ResolveTotals totals = resolve(end_epoch);
+std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
+    if (count < 1 || count > max_batch_)
+        throw std::invalid_argument("a batch of " + std::to_string(count) + " passes (1 to " +
+                                    std::to_string(max_batch_) + " here)");
+    const auto start = std::chrono::steady_clock::now();
+    const double seconds_before = stats_.seconds;
+    pass_ends_.mark(0);
+    for (int k = 0; k < count; ++k) {
+        bind_buffers();
+        gather(stats_.pass + k);
+        ++pass_in_epoch_;
+        const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
+        resolve(end_epoch, k);
+        if (end_epoch) {
+            pass_in_epoch_ = 0;
+            epoch_length_ = stats_.pass + k + 1;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
+        }
+        pass_ends_.mark(k + 1);
+    }
+    // The batch's one wait: its passes' partial sums, read back together.
+    std::vector<glm::vec4> partials(size_t(count) * partials_slot_bytes_ / sizeof(glm::vec4));
+    error_partials_.download(partials.data(), partials.size() * sizeof(glm::vec4));
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+    std::vector<PassStats> passes;
+    for (int k = 0; k < count; ++k) {
+        count_pass(totals_of(partials, k));
+        // The batch's wall time at its end, the device's clock within it.
+        stats_.seconds = seconds_before + (k + 1 < count ? std::min(wall, pass_ends_.seconds(k + 1)) : wall);
+        passes.push_back(stats_);
+    }
+    return passes;
+}
+
+void RadiosityMapBaker::count_pass(const ResolveTotals& totals) {
     // Rays of this pass: every texel that was active when it began, plus
-    // path continuations (path tracing).
+    // path continuations (path tracing) and gathers.
     stats_.rays += rays_per_texel_ * uint64_t(active_texels_) + uint64_t(totals.extra_rays);
     active_texels_ = size_t(totals.active_next);
-    if (end_epoch) {
-        pass_in_epoch_ = 0;
-        epoch_length_ = stats_.pass + 1;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
-    }
     ++stats_.pass;
-    stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     // Unknown while any texel's delivered estimate rests on one sample (its
     // variance would read 0, not small): passes 1 to 3 with epochs.
     stats_.error_estimate.reset();
     if (totals.unknown == 0.0 && totals.level > 0.0)
         stats_.error_estimate = std::sqrt(totals.variance / totals.covered) / (totals.level / totals.covered);
-    return stats_;
 }
 
-RadiosityMapBaker::ResolveTotals RadiosityMapBaker::resolve(bool end_epoch) {
+void RadiosityMapBaker::resolve(bool end_epoch, int slot) {
     resolve_.use();
+    error_partials_.bind_range(LF_BINDING_ERROR_PARTIALS, size_t(slot) * partials_slot_bytes_, partials_slot_bytes_);
     glUniform1ui(resolve_.uniform("covered_count"), GLuint(covered_count_));
     glUniform1ui(resolve_.uniform("end_epoch"), end_epoch ? 1u : 0u);
     glUniform1f(resolve_.uniform("converged_error"), float(settings_.converged_texel_error));
@@ -260,17 +293,20 @@ RadiosityMapBaker::ResolveTotals RadiosityMapBaker::resolve(bool end_epoch) {
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     if (settings_.scheme == RadiosityScheme::FinalGather) copy_to_dilated_texels(reflected_indirect_);
     copy_to_dilated_texels(reflected_);  // last: the copy leaves its buffer bound where the gather reads it
+}
 
-    // Reading the totals back also waits for the pass.
+RadiosityMapBaker::ResolveTotals RadiosityMapBaker::totals_of(const std::vector<glm::vec4>& partials, int slot) const {
     ResolveTotals t;
-    const std::vector<glm::vec4> partials = error_partials_.read<glm::vec4>();
-    for (size_t g = 0; g + 1 < partials.size(); g += 2) {
-        t.variance += partials[g].x;
-        t.level += partials[g].y;
-        t.active_next += partials[g].z;
-        t.covered += partials[g].w;
-        t.extra_rays += partials[g + 1].x;
-        t.unknown += partials[g + 1].y;
+    const size_t begin = size_t(slot) * partials_slot_bytes_ / sizeof(glm::vec4);
+    const size_t groups = resolve_.groups_1d(covered_count_);
+    for (size_t g = 0; g < groups; ++g) {
+        const glm::vec4 a = partials[begin + 2 * g], b = partials[begin + 2 * g + 1];
+        t.variance += a.x;
+        t.level += a.y;
+        t.active_next += a.z;
+        t.covered += a.w;
+        t.extra_rays += b.x;
+        t.unknown += b.y;
     }
     return t;
 }
@@ -299,7 +335,7 @@ void RadiosityMapBaker::restore(const MethodState& s) {
     // counter it clears is already 0 between passes): it publishes the
     // reflected radiance exactly as the last pass before the state did.
     bind_buffers();
-    resolve(false);
+    resolve(false, 0);
 }
 
 // L1x.*, L1y.*, L1z.*: the mean of each texel's L1 sums over its passes.

@@ -84,7 +84,14 @@ public:
     RadiosityMapBaker(const Scene& scene, const TexelSamples& texels, const Tracer& tracer,
                       const RadiosityMapSettings& settings);
 
-    PassStats step();
+    // Runs `count` passes (1 <= count <= max_batch()) back to back and
+    // returns the totals after each. Nothing is read back between them: the
+    // device is waited for once, after the last, and each pass's totals
+    // (rays, error) come from its own slot of the resolve's partial sums.
+    // The pixels do not depend on how passes are batched.
+    std::vector<PassStats> run_passes(int count);
+    PassStats step() { return run_passes(1).back(); }
+    int max_batch() const { return max_batch_; }
 
     // The current lightmap: RGB = combined, direct.* and indirect.* layers,
     // "samples" (indirect samples behind the value), "error" (standard error
@@ -123,13 +130,19 @@ public:
 private:
     void upload_texels(const TexelSamples& texels);
     void bind_buffers() const;
+    // One pass's indirect and direct rays (radiosity_gather.comp).
+    void gather(int pass);
     // The resolve pass: turns the accumulators into this pass's values and
-    // publishes them to the next (radiosity_resolve.comp); returns the
-    // error totals of its work groups.
+    // publishes them to the next (radiosity_resolve.comp); its work groups'
+    // error totals go to partials slot `slot`.
+    void resolve(bool end_epoch, int slot);
     struct ResolveTotals {
         double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0, unknown = 0.0;
     };
-    ResolveTotals resolve(bool end_epoch);
+    // Sums one slot of partials read back (error_partials_).
+    ResolveTotals totals_of(const std::vector<glm::vec4>& partials, int slot) const;
+    // Counts a resolved pass into stats_ (rays, active texels, error).
+    void count_pass(const ResolveTotals& totals);
     void relocate_samples_inside_geometry(size_t sample_count);
     void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
     void count_texels_by_geometry();
@@ -151,6 +164,10 @@ private:
     std::optional<SurfaceTextures> surface_textures_;  // the path-tracing scheme's exact textures
     GpuBuffer sample_points_, covered_, accumulators_, reflected_;
     GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
+    // error_partials_ holds max_batch_ slots of partials_slot_bytes_ each, one per pass of a batch.
+    size_t partials_slot_bytes_ = 0;
+    int max_batch_ = 1;
+    GpuTimestamps pass_ends_{0};    // mark 0 before a batch, mark k after its pass k
     GpuBuffer texel_albedo_;        // per atlas texel, dilated: what a final gather's hit reflects
     GpuBuffer reflected_indirect_;  // per atlas texel: albedo x the indirect layer (final gather only)
     GpuBuffer directional_;         // 3 vec4 per covered texel: L1 sums (settings.directional)

@@ -24,6 +24,8 @@ public:
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
     PassStats step() override { return baker_.step(); }
+    std::vector<PassStats> run_passes(int count) override { return baker_.run_passes(count); }
+    int max_batch() const override { return baker_.max_batch(); }
     SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodState state() const override { return baker_.state(); }

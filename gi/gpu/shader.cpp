@@ -170,4 +170,33 @@ void GpuBuffer::download(void* data, size_t bytes, size_t offset) const {
 
 void GpuBuffer::clear_zero() { glClearNamedBufferData(id_, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, nullptr); }
 
+size_t storage_offset_alignment() {
+    GLint alignment = 0;
+    glGetIntegerv(GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, &alignment);
+    return size_t(std::max(alignment, 1));
+}
+
+GpuTimestamps::GpuTimestamps(int count) : ids_(size_t(std::max(count, 0))) {
+    if (!ids_.empty()) glGenQueries(GLsizei(ids_.size()), ids_.data());
+}
+
+GpuTimestamps::~GpuTimestamps() {
+    if (!ids_.empty()) glDeleteQueries(GLsizei(ids_.size()), ids_.data());
+}
+
+GpuTimestamps& GpuTimestamps::operator=(GpuTimestamps&& o) noexcept {
+    if (this != &o) {
+        if (!ids_.empty()) glDeleteQueries(GLsizei(ids_.size()), ids_.data());
+        ids_ = std::exchange(o.ids_, {});
+    }
+    return *this;
+}
+
+double GpuTimestamps::seconds(int i) const {
+    GLuint64 from = 0, to = 0;
+    glGetQueryObjectui64v(ids_[0], GL_QUERY_RESULT, &from);
+    glGetQueryObjectui64v(ids_[size_t(i)], GL_QUERY_RESULT, &to);
+    return to > from ? double(to - from) * 1e-9 : 0.0;
+}
+
 }  // namespace lf

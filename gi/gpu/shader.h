@@ -72,6 +72,10 @@ public:
     GpuBuffer& operator=(const GpuBuffer&) = delete;
 
     void bind(GLuint binding) const { glBindBufferBase(GL_SHADER_STORAGE_BUFFER, binding, id_); }
+    // Binds `bytes` from `offset`, which must be a multiple of storage_offset_alignment().
+    void bind_range(GLuint binding, size_t offset, size_t bytes) const {
+        glBindBufferRange(GL_SHADER_STORAGE_BUFFER, binding, id_, GLintptr(offset), GLsizeiptr(bytes));
+    }
     void upload(const void* data, size_t bytes, size_t offset = 0);
     void download(void* data, size_t bytes, size_t offset = 0) const;
     template <class T>
@@ -87,6 +91,30 @@ public:
 private:
     GLuint id_ = 0;
     size_t bytes_ = 0;
+};
+
+// What bind_range's offsets must be multiples of (GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT).
+size_t storage_offset_alignment();
+
+// Timestamps the device takes where it reaches them in the command stream
+// (GL_TIMESTAMP queries): the times of the passes of a batch that the CPU
+// waits for only at its end.
+class GpuTimestamps {
+public:
+    explicit GpuTimestamps(int count);
+    ~GpuTimestamps();
+    GpuTimestamps(GpuTimestamps&& o) noexcept : ids_(std::exchange(o.ids_, {})) {}
+    GpuTimestamps& operator=(GpuTimestamps&& o) noexcept;
+    GpuTimestamps(const GpuTimestamps&) = delete;
+    GpuTimestamps& operator=(const GpuTimestamps&) = delete;
+
+    int size() const { return int(ids_.size()); }
+    void mark(int i) const { glQueryCounter(ids_[size_t(i)], GL_TIMESTAMP); }
+    // Seconds from mark 0 to mark i; waits until the device has passed mark i.
+    double seconds(int i) const;
+
+private:
+    std::vector<GLuint> ids_;
 };
 
 }  // namespace lf
