@@ -22,6 +22,7 @@
 #include <fstream>
 #include <random>
 #include <set>
+#include <thread>
 #include <unistd.h>
 
 namespace lf {
@@ -145,6 +146,31 @@ TEST(Seams, SignedDataIsStitchedWithoutTheNonNegativeConstraint) {
     stitch_seams(seams, clamped, w, h);
     EXPECT_GT(std::count_if(clamped.begin(), clamped.end(), [](const glm::vec4& p) { return p.x == 0.0f; }), 0)
         << "the default (irradiance) stitch holds negative components at 0";
+}
+
+// A bake builds the seam system once and stitches every layer of every
+// snapshot with it, the layers on threads of their own: each image comes out
+// exactly as a stitch of its own would make it.
+TEST(Seams, OneSystemStitchesManyImagesAtOnceAsEachAlone) {
+    const int w = 32, h = 32;
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::vector<SeamEdge> seams;
+    for (int k = 0; k < 80; ++k) {
+        const glm::vec2 a0(u(rng), u(rng)), b0(u(rng), u(rng));
+        seams.push_back({a0, a0 + glm::vec2(0.06f, 0.02f), b0, b0 + glm::vec2(-0.02f, 0.06f), true});
+    }
+    std::vector<std::vector<glm::vec4>> images(6, std::vector<glm::vec4>(size_t(w) * h));
+    for (auto& image : images)
+        for (glm::vec4& p : image) p = glm::vec4(u(rng), u(rng), u(rng), 0.0f) * 4.0f;
+    std::vector<std::vector<glm::vec4>> alone = images;
+    for (auto& image : alone) stitch_seams(seams, image, w, h);
+    const SeamStitcher stitcher(seams, w, h);
+    std::vector<std::thread> threads;
+    for (auto& image : images) threads.emplace_back([&stitcher, &image] { stitcher.stitch(image); });
+    for (std::thread& t : threads) t.join();
+    for (size_t i = 0; i < images.size(); ++i) EXPECT_EQ(images[i], alone[i]) << "image " << i;
+    EXPECT_NE(images[0], images[1]);
 }
 
 TEST(Atlas, GeneratedChartsNeitherOverlapNorTouch) {

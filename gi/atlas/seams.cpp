@@ -103,11 +103,8 @@ double seam_metric(const std::vector<SeamEdge>& seams, const std::vector<glm::ve
 
 namespace {
 
-struct RowTap {
-    uint32_t unknown;
-    float weight;
-};
-using SeamRow = std::array<RowTap, 8>;  // +bilinear weights on side A, -bilinear weights on side B
+using SeamRow = SeamStitcher::Row;
+using RowTap = SeamStitcher::RowTap;
 
 // Rounds of the active-set solve below; after the first, each starts from the
 // last solution and needs few steps (it only moves the texels around the
@@ -161,20 +158,17 @@ void solve_normal_equations(const std::vector<SeamRow>& rows, const std::vector<
 
 }  // namespace
 
-void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
-                  int samples_per_edge, float lambda, int iterations, bool non_negative) {
-    check_image(image, width, height);
-    if (seams.empty() || samples_per_edge <= 0) return;
-
+SeamStitcher::SeamStitcher(const std::vector<SeamEdge>& seams, int width, int height, int samples_per_edge)
+    : width_(width), height_(height) {
+    if (width <= 0 || height <= 0) throw std::invalid_argument("seams: an atlas of no texels");
+    if (samples_per_edge <= 0) return;
     // Unknowns: the texels some seam lookup reads. Each seam point is one
     // row: +bilinear weights on side A, -bilinear weights on side B.
     std::unordered_map<uint32_t, uint32_t> unknown_of_pixel;
-    std::vector<uint32_t> pixel_of_unknown;
-    std::vector<SeamRow> rows;
-    rows.reserve(seams.size() * size_t(samples_per_edge));
+    rows_.reserve(seams.size() * size_t(samples_per_edge));
     auto unknown = [&](uint32_t pixel) {
-        auto [it, inserted] = unknown_of_pixel.try_emplace(pixel, uint32_t(pixel_of_unknown.size()));
-        if (inserted) pixel_of_unknown.push_back(pixel);
+        auto [it, inserted] = unknown_of_pixel.try_emplace(pixel, uint32_t(pixel_of_unknown_.size()));
+        if (inserted) pixel_of_unknown_.push_back(pixel);
         return it->second;
     };
     for (const SeamEdge& seam : seams)
@@ -186,9 +180,13 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
                 row[i] = {unknown(a[i].pixel), a[i].weight};
                 row[4 + i] = {unknown(b[i].pixel), -b[i].weight};
             }
-            rows.push_back(row);
+            rows_.push_back(row);
         }
+}
 
+void SeamStitcher::stitch(std::vector<glm::vec4>& image, float lambda, int iterations, bool non_negative) const {
+    check_image(image, width_, height_);
+    if (rows_.empty()) return;
     // Normal equations (MᵀM + λI) x = λ x0, solved by conjugate gradients
     // from x0; the matrix is symmetric positive definite for λ > 0.
     // Irradiance is never negative, and the unconstrained least-squares
@@ -197,11 +195,11 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
     // on the free components only, those that went negative held at 0 (an
     // active-set method; `free_mask` is 1 for a free component, 0 for a held one),
     // until none does; anything still negative after kMaxRounds is clamped.
-    const size_t n = pixel_of_unknown.size();
+    const size_t n = pixel_of_unknown_.size();
     std::vector<glm::vec4> original(n), x(n), free_mask(n, glm::vec4(1.0f));
-    for (size_t i = 0; i < n; ++i) original[i] = x[i] = image[pixel_of_unknown[i]];
+    for (size_t i = 0; i < n; ++i) original[i] = x[i] = image[pixel_of_unknown_[i]];
     for (int round = 0; round < kMaxRounds; ++round) {
-        solve_normal_equations(rows, original, free_mask, lambda,
+        solve_normal_equations(rows_, original, free_mask, lambda,
                                round == 0 ? iterations : std::max(1, iterations / kLaterRoundDivisor), x);
         if (!non_negative) break;  // signed data: the unconstrained solution is the answer
         bool held_more = false;
@@ -216,7 +214,14 @@ void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& im
     }
     if (non_negative)
         for (size_t i = 0; i < n; ++i) x[i] = glm::max(x[i], glm::vec4(0.0f));
-    for (size_t i = 0; i < n; ++i) image[pixel_of_unknown[i]] = x[i];
+    for (size_t i = 0; i < n; ++i) image[pixel_of_unknown_[i]] = x[i];
+}
+
+void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
+                  int samples_per_edge, float lambda, int iterations, bool non_negative) {
+    check_image(image, width, height);
+    if (seams.empty() || samples_per_edge <= 0) return;
+    SeamStitcher(seams, width, height, samples_per_edge).stitch(image, lambda, iterations, non_negative);
 }
 
 }  // namespace lf

@@ -10,6 +10,8 @@
 
 #include <glm/glm.hpp>
 
+#include <array>
+#include <cstdint>
 #include <vector>
 
 namespace lf {
@@ -55,6 +57,29 @@ double seam_metric(const std::vector<SeamEdge>& seams, const std::vector<glm::ve
 // and the rest solved again); signed data (a directional lightmap's L1
 // vectors) is stitched without it. Only texels the lookups touch change. Run
 // it after dilation (dilation would overwrite stitched padding texels).
+//
+// The system (which texels, which rows) depends on the seams and the atlas
+// size only: a bake builds it once and stitches every layer of every
+// snapshot with it, from any thread (stitch() changes nothing of it).
+class SeamStitcher {
+public:
+    SeamStitcher(const std::vector<SeamEdge>& seams, int width, int height, int samples_per_edge = 8);
+    void stitch(std::vector<glm::vec4>& image, float lambda = 0.1f, int iterations = 64,
+                bool non_negative = true) const;
+
+    struct RowTap {
+        uint32_t unknown;
+        float weight;
+    };
+    using Row = std::array<RowTap, 8>;  // +bilinear weights on side A, -bilinear weights on side B
+
+private:
+    int width_, height_;
+    std::vector<uint32_t> pixel_of_unknown_;
+    std::vector<Row> rows_;  // one per seam point
+};
+
+// SeamStitcher(seams, width, height, samples_per_edge).stitch(image, …), for one image.
 void stitch_seams(const std::vector<SeamEdge>& seams, std::vector<glm::vec4>& image, int width, int height,
                   int samples_per_edge = 8, float lambda = 0.1f, int iterations = 64, bool non_negative = true);
 

@@ -2,11 +2,14 @@
 
 #include "io/image_files.h"
 
+#include <future>
 #include <memory>
 
 namespace lf {
 
 namespace {
+
+constexpr int kSeamSamplesPerEdge = 8;  // rows of the stitch per seam edge (seams.h)
 
 // The R, G, B channels of a layer ("" = combined, "direct.", "indirect.") as vec4 texels.
 std::vector<glm::vec4> image_layer(const FloatImage& image, const std::string& layer) {
@@ -57,6 +60,8 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
       baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer, radiosity_settings(settings)),
       seams_(smooth_seams(*prepared.atlas_scene)),
       stitch_(settings.lightmap->stitch) {
+    if (stitch_ && !seams_.empty())
+        stitcher_.emplace(seams_, prepared.atlas.width, prepared.atlas.height, kSeamSamplesPerEdge);
     if (settings.lightmap->denoise) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
     const RadiosityMapSettings r = radiosity_settings(settings);
     settings_json_ = {
@@ -89,14 +94,19 @@ FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback&
     if (denoiser) denoiser->denoise(image);
     image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;
     image.string_attributes["lightfarm.settings"] = settings_json_.dump();
-    if (stitch_ && !seams_.empty()) {
-        for (const char* layer : {"", "direct.", "indirect.", "raw.", "L1x.", "L1y.", "L1z."}) {
-            if (!image.channels.count(std::string(layer) + "R")) continue;
+    if (stitcher_) {
+        // Each layer is its own solve of the same system: one thread each.
+        std::vector<std::pair<std::string, std::vector<glm::vec4>>> layers;
+        for (const char* layer : {"", "direct.", "indirect.", "raw.", "L1x.", "L1y.", "L1z."})
+            if (image.channels.count(std::string(layer) + "R")) layers.emplace_back(layer, image_layer(image, layer));
+        std::vector<std::future<void>> solves;
+        for (auto& [layer, rgb] : layers) {
             const bool irradiance = layer[0] != 'L';  // the L1 vectors' components are signed
-            std::vector<glm::vec4> rgb = image_layer(image, layer);
-            stitch_seams(seams_, rgb, image.width, image.height, 8, 0.1f, 64, irradiance);
-            set_image_layer(image, layer, rgb);
+            solves.push_back(std::async(
+                std::launch::async, [this, &rgb = rgb, irradiance] { stitcher_->stitch(rgb, 0.1f, 64, irradiance); }));
         }
+        for (std::future<void>& solve : solves) solve.get();
+        for (const auto& [layer, rgb] : layers) set_image_layer(image, layer, rgb);
     }
     return image;
 }

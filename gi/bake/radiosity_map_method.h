@@ -43,6 +43,7 @@ private:
     RadiosityMapBaker baker_;
     std::vector<SeamEdge> seams_;  // smooth seams only (measured even when not stitched)
     bool stitch_ = true;
+    std::optional<SeamStitcher> stitcher_;      // built once: the same system for every image (with stitch_)
     std::optional<LightmapDenoiser> denoiser_;  // with --denoise
     // The last snapshot's image (set on the writer thread; finish() runs
     // after the writer drained): the final image when the bake stops on a
