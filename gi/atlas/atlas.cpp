@@ -149,18 +149,26 @@ public:
         if (cells_.bucket_count() > 4096) cells_ = {};  // clear() would walk every old bucket per chart
         else cells_.clear();
         triangles_.clear();
+        boxes_.clear();
         wide_.clear();
     }
     bool overlaps_any(const Tri2& tri) const {
+        const Box box = box_of(tri);
+        // Boxes apart (touching included) are triangles apart: the separating
+        // axis test would find an edge that separates them too, so this
+        // only skips the work, never changes the answer.
+        const auto overlaps = [&](uint32_t i) {
+            return boxes_overlap(box, boxes_[i]) && interiors_overlap(tri, triangles_[i]);
+        };
         for (uint32_t i : wide_)
-            if (interiors_overlap(tri, triangles_[i])) return true;
+            if (overlaps(i)) return true;
         bool hit = false;
         for_cells(tri, [&](uint64_t key) {
             if (hit) return;
             auto it = cells_.find(key);
             if (it == cells_.end()) return;
             for (uint32_t i : it->second)
-                if (interiors_overlap(tri, triangles_[i])) {
+                if (overlaps(i)) {
                     hit = true;
                     return;
                 }
@@ -170,6 +178,7 @@ public:
     void insert(const Tri2& tri) {
         const auto id = uint32_t(triangles_.size());
         triangles_.push_back(tri);
+        boxes_.push_back(box_of(tri));
         // A long sliver would fill thousands of cells; such triangles are few
         // and are tested against every candidate instead.
         if (cell_span(tri) > 1024) {
@@ -180,6 +189,16 @@ public:
     }
 
 private:
+    struct Box {
+        glm::dvec2 lo, hi;
+    };
+    static Box box_of(const Tri2& t) {
+        return {glm::min(glm::min(t[0], t[1]), t[2]), glm::max(glm::max(t[0], t[1]), t[2])};
+    }
+    static bool boxes_overlap(const Box& a, const Box& b) {
+        return a.lo.x < b.hi.x && b.lo.x < a.hi.x && a.lo.y < b.hi.y && b.lo.y < a.hi.y;
+    }
+
     glm::i64vec4 cell_range(const Tri2& tri) const {
         glm::dvec2 lo = glm::min(glm::min(tri[0], tri[1]), tri[2]);
         glm::dvec2 hi = glm::max(glm::max(tri[0], tri[1]), tri[2]);
@@ -212,6 +231,7 @@ private:
     double cell_ = 1.0;
     std::unordered_map<uint64_t, std::vector<uint32_t>> cells_;
     std::vector<Tri2> triangles_;
+    std::vector<Box> boxes_;  // of each triangle
     std::vector<uint32_t> wide_;
 };
 

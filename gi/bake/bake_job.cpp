@@ -17,6 +17,8 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <functional>
+#include <future>
 #include <memory>
 #include <regex>
 
@@ -85,15 +87,17 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
 
 // The lightmap atlas on a copy of the scene (a generated atlas splits
 // vertices; per-vertex outputs keep the input's). Charts no light reaches
-// get few texels (gi/bake/unlit_charts.h), found with `geometry`, a tracer
-// of the scene's triangles.
-void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings, const Tracer& geometry) {
+// get few texels (gi/bake/unlit_charts.h), found with `geometry()`, a
+// tracer of the scene's triangles (asked for once the charts are made).
+void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
+                   const std::function<const Tracer&()>& geometry) {
     const std::string name = p.file.filename().string();
     AtlasOptions options = atlas_options(settings);
     // Per-texel SH transfer is lit later, by any environment: every chart may receive light.
     if (!(settings.sh && settings.sh->per_texel))
         options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
-            const UnlitCharts unlit = find_unlit_charts(p.scene, geometry, chart, count, settings.env.sky.has_value());
+            const UnlitCharts unlit =
+                find_unlit_charts(p.scene, geometry(), chart, count, settings.env.sky.has_value());
             p.unlit_chart_rays = unlit.rays;
             return unlit.unlit;
         };
@@ -140,13 +144,20 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
     p->gpu = p->timed("gpu", [&] { return std::make_unique<GpuContext>(job.device); });
     // One BVH of the scene's triangles, for the per-chart decisions and then
     // the passes; where double-sided charts were turned, their triangles'
-    // winding (which side is the front) is re-read into the same tree.
-    p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(p->scene); });
+    // winding (which side is the front) is re-read into the same tree. It
+    // builds on a thread of its own while the atlas makes its charts; the
+    // first to trace waits for it ("bvh": that wait and the upload).
+    std::future<Bvh> bvh = std::async(std::launch::async, [&scene = p->scene] { return build_bvh(scene); });
+    const auto tracer = [&]() -> const Tracer& {
+        if (!p->tracer) p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(bvh.get()); });
+        return *p->tracer;
+    };
     if (needs_atlas(s)) {
-        prepare_atlas(*p, s, *p->tracer);
-        prepare_texels(*p, s.atlas, *p->tracer);
+        prepare_atlas(*p, s, tracer);
+        prepare_texels(*p, s.atlas, tracer());
         if (p->turned.charts > 0) p->timed("bvh_turned", [&] { p->tracer->rewind(*p->atlas_scene); });
     }
+    tracer();
     return p;
 }
 

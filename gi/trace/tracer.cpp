@@ -5,8 +5,7 @@
 
 namespace lf {
 
-Tracer::Tracer(const Scene& scene) {
-    Bvh bvh = build_bvh(scene);
+Tracer::Tracer(const Bvh& bvh) {
     stats_ = bvh.stats;
     nodes_ = GpuBuffer(bvh.nodes);
     triangles_ = GpuBuffer(bvh.triangles);

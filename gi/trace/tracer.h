@@ -38,7 +38,9 @@ struct RayHit {
 
 class Tracer {
 public:
-    explicit Tracer(const Scene& scene);
+    explicit Tracer(const Scene& scene) : Tracer(build_bvh(scene)) {}
+    // A tree built elsewhere (build_bvh runs on any thread; this uploads it).
+    explicit Tracer(const Bvh& bvh);
     // Binds the BVH at LF_BINDING_BVH_NODES and LF_BINDING_BVH_TRIANGLES (shaders/buffer_bindings.glsl).
     void bind() const;
     std::vector<RayHit> trace(const std::vector<Ray>& rays) const;
