@@ -22,7 +22,7 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
   --engine PATH          the lightfarm CLI that bakes (default: beside lightfarmd, else PATH)
   --web-dir DIR          where npm installed the status page's three.js (DIR/node_modules/three;
                          default: the source tree's web/)
-  --workers N            concurrent bakes (default: one per GPU, one without a GPU)
+  --workers N            concurrent bakes (default: two per GPU, one without a GPU)
   --attempts N           worker runs per job before it fails (default 3)
   --stall-timeout S      kill a worker silent for S seconds (default 300)
   --job-timeout S        kill an attempt running longer than S seconds (default 14400)
@@ -170,6 +170,11 @@ std::vector<std::string> read_tokens(const std::string& path) {
         tokens.push_back(line.substr(b, e - b + 1));
     }
     return tokens;
+}
+
+int worker_count(const ServerConfig& config, int gpus) {
+    if (config.workers > 0) return config.workers;
+    return gpus > 0 ? 2 * gpus : 1;
 }
 
 }  // namespace lf::server

@@ -39,7 +39,7 @@ struct ServerConfig {
     std::string tokens_file;  // empty: DATA/tokens, created with a random token if missing
     std::string engine;       // empty: found beside lightfarmd, else in PATH
     std::string web_dir = LIGHTFARM_WEB_DIR;  // web/ with node_modules/three (scripts/common.sh installs it)
-    int workers = 0;                          // 0: one per GPU (the engine's `devices`), one without a GPU
+    int workers = 0;                          // 0: worker_count(): two per GPU, one without a GPU
     int http_threads = 64;                    // SSE readers hold a thread each
     int default_attempts = 3;
     double default_max_seconds = 4 * 3600;  // one attempt's wall-clock deadline
@@ -63,6 +63,12 @@ struct ServerConfig {
 // Parses argv (after the program name). Throws std::invalid_argument with a
 // readable message; `--help` sets `help`.
 ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help);
+
+// How many bakes run at once on a machine with `gpus` GPUs: --workers, or
+// two per GPU, so that one job's preparation (load, atlas, BVH on the CPU)
+// and file writing overlap another's passes and a queue keeps each GPU busy;
+// one without a GPU, where preparation and passes share the same cores.
+int worker_count(const ServerConfig& config, int gpus);
 extern const char* const kServerUsage;
 
 // The engine CLI: `configured` if set, else `lightfarm` beside this executable

@@ -65,10 +65,10 @@ void Supervisor::start() {
     if (stopping_) return;  // stopped before it started
     compact_events();
     end_abandoned_attempts(store_.take_over_abandoned(/*at_start=*/true));
-    // One worker per GPU, each pinned to its own (--device gpu:N); one on a
-    // machine without a GPU. --workers N overrides the count.
+    // Workers take the GPUs in turn (--device gpu:N): two per GPU, one on a
+    // machine without a GPU (worker_count).
     const int gpus = count_gpus();
-    const int workers = config_.workers > 0 ? config_.workers : std::max(1, gpus);
+    const int workers = worker_count(config_, gpus);
     log_line("engine: " + engine_ + ", " + std::to_string(gpus) + " GPU(s), " + std::to_string(workers) + " worker(s)");
     node_info_ = {{"gpus", gpus}, {"workers", workers}, {"lease_seconds", store_.node().lease_seconds}};
     heartbeat();

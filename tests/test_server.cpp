@@ -307,20 +307,35 @@ TEST_F(ServerTest, QueuedJobsPerTokenAreLimited) {
 }
 
 // With no --workers, lightfarmd asks the engine how many GPUs there are and
-// runs one worker on each: two jobs at once land on gpu:0 and gpu:1.
-TEST_F(ServerTest, OneWorkerPerGpuEachOnItsOwnDevice) {
+// runs two workers on each (one job's preparation overlaps another's
+// passes): four jobs at once land two on gpu:0 and two on gpu:1.
+TEST_F(ServerTest, TwoWorkersPerGpuEachPinnedToItsDevice) {
     engine.set("gpus", "2");
     engine.set("delay", "0.3");
     start();
     const std::string scene = upload();
-    const std::string a = submit(scene, {{"passes", 3}, {"res", 64}}, 1);
-    const std::string b = submit(scene, {{"passes", 3}, {"res", 64}}, 2);
-    EXPECT_EQ(wait_finished(a)["state"], "succeeded");
-    EXPECT_EQ(wait_finished(b)["state"], "succeeded");
+    std::vector<std::string> jobs;
+    for (int seed = 1; seed <= 4; ++seed) jobs.push_back(submit(scene, {{"passes", 3}, {"res", 64}}, seed));
+    for (const std::string& id : jobs) EXPECT_EQ(wait_finished(id)["state"], "succeeded");
     const std::string args = read_text(engine.dir / "all_args");
-    EXPECT_NE(args.find("--device gpu:0"), std::string::npos) << args;
-    EXPECT_NE(args.find("--device gpu:1"), std::string::npos) << args;
-    EXPECT_NE(server->log().find("2 GPU(s), 2 worker(s)"), std::string::npos) << server->log();
+    auto count = [&](const std::string& what) {
+        size_t n = 0;
+        for (size_t at = args.find(what); at != std::string::npos; at = args.find(what, at + 1)) ++n;
+        return n;
+    };
+    EXPECT_EQ(count("--device gpu:0"), 2u) << args;
+    EXPECT_EQ(count("--device gpu:1"), 2u) << args;
+    EXPECT_NE(server->log().find("2 GPU(s), 4 worker(s)"), std::string::npos) << server->log();
+}
+
+TEST(ServerConfig, WorkerCountIsTwoPerGpuOneWithoutOrAsAsked) {
+    server::ServerConfig config;
+    EXPECT_EQ(server::worker_count(config, 0), 1);
+    EXPECT_EQ(server::worker_count(config, 1), 2);
+    EXPECT_EQ(server::worker_count(config, 8), 16);
+    config.workers = 3;
+    EXPECT_EQ(server::worker_count(config, 0), 3);
+    EXPECT_EQ(server::worker_count(config, 8), 3);
 }
 
 TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
