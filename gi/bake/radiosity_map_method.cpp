@@ -88,22 +88,26 @@ nlohmann::json RadiosityMapMethod::description() const {
             {"settings", settings_json_}};
 }
 
-FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback,
+FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback, bool during_passes,
                                               const LightmapDenoiser* denoiser) const {
     FloatImage image = baker_.image(readback);
     if (denoiser) denoiser->denoise(image);
     image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;
     image.string_attributes["lightfarm.settings"] = settings_json_.dump();
     if (stitcher_) {
-        // Each layer is its own solve of the same system: one thread each.
+        // Each layer is its own solve of the same system: one thread each,
+        // except while a software renderer's passes use every core (more
+        // threads would only take them from the passes).
+        const bool in_parallel = !(during_passes && prepared_.gpu->info().is_software);
         std::vector<std::pair<std::string, std::vector<glm::vec4>>> layers;
         for (const char* layer : {"", "direct.", "indirect.", "raw.", "L1x.", "L1y.", "L1z."})
             if (image.channels.count(std::string(layer) + "R")) layers.emplace_back(layer, image_layer(image, layer));
         std::vector<std::future<void>> solves;
         for (auto& [layer, rgb] : layers) {
             const bool irradiance = layer[0] != 'L';  // the L1 vectors' components are signed
-            solves.push_back(std::async(
-                std::launch::async, [this, &rgb = rgb, irradiance] { stitcher_->stitch(rgb, 0.1f, 64, irradiance); }));
+            solves.push_back(
+                std::async(in_parallel ? std::launch::async : std::launch::deferred,
+                           [this, &rgb = rgb, irradiance] { stitcher_->stitch(rgb, 0.1f, 64, irradiance); }));
         }
         for (std::future<void>& solve : solves) solve.get();
         for (const auto& [layer, rgb] : layers) set_image_layer(image, layer, rgb);
@@ -115,7 +119,7 @@ SnapshotWrite RadiosityMapMethod::snapshot(const std::filesystem::path& dir, con
     auto readback = std::make_shared<RadiosityMapBaker::Readback>(baker_.read_back());
     return [this, dir, readback, pass = stats.pass] {
         const std::string name = snapshot_file_name("lightmap", pass, "exr");
-        FloatImage image = stitched_image(*readback);
+        FloatImage image = stitched_image(*readback, /*during_passes=*/true);
         write_exr(dir / name, image);
         last_snapshot_ = std::move(image);
         last_snapshot_pass_ = pass;
@@ -126,9 +130,10 @@ SnapshotWrite RadiosityMapMethod::snapshot(const std::filesystem::path& dir, con
 MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
     // The final file is the last snapshot when it shows the last pass (and
     // nothing is filtered: snapshots are not; the filter needs the GL thread).
-    const FloatImage image = last_snapshot_pass_ == stats.pass && !denoiser_
-                                 ? std::move(last_snapshot_)
-                                 : stitched_image(baker_.read_back(), denoiser_ ? &*denoiser_ : nullptr);
+    const FloatImage image =
+        last_snapshot_pass_ == stats.pass && !denoiser_
+            ? std::move(last_snapshot_)
+            : stitched_image(baker_.read_back(), /*during_passes=*/false, denoiser_ ? &*denoiser_ : nullptr);
     write_exr(dir / "lightmap.exr", image);
     MethodResult result;
     result.files = {"lightmap.exr"};

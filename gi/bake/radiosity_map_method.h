@@ -32,9 +32,10 @@ public:
     void restore(const MethodState& state) override { baker_.restore(state); }
 
 private:
-    // The baker's image with the job's attributes, seams stitched; with
-    // `denoiser`, filtered before stitching (the filter stops at chart borders).
-    FloatImage stitched_image(const RadiosityMapBaker::Readback& readback,
+    // The baker's image with the job's attributes, seams stitched (a
+    // snapshot's `during_passes`); with `denoiser`, filtered before
+    // stitching (the filter stops at chart borders).
+    FloatImage stitched_image(const RadiosityMapBaker::Readback& readback, bool during_passes,
                               const LightmapDenoiser* denoiser = nullptr) const;
 
     const PreparedScene& prepared_;
