@@ -45,8 +45,9 @@ REFERENCE_SEED = 7919
 def bake(scene, scheme, res, passes, out_dir, device, env=None, seed=None):
     """`scheme` is a --scheme, or one with "+denoise" (the same bake, --denoise)."""
     base, _, variant = scheme.partition("+")
-    lines = run([LIGHTFARM, "bake", os.path.join(SCENES, scene), "--out", out_dir, "--res", str(res),
-                 "--passes", str(passes), "--scheme", base, "--device", device, "--json"]
+    size = [] if res == "auto" else ["--res", str(res)]
+    lines = run([LIGHTFARM, "bake", os.path.join(SCENES, scene), "--out", out_dir] + size
+                + ["--passes", str(passes), "--scheme", base, "--device", device, "--json"]
                 + (["--denoise"] if variant == "denoise" else []) + (["--env", env] if env else [])
                 + (["--seed", str(seed)] if seed is not None else [])).splitlines()
     return json.loads(lines[0])
@@ -103,8 +104,9 @@ def plot(csv_path, png_path, series, scene):
     ]
     plots = []
     for scheme, res in series:
-        plots.append(f"'{csv_path}' using (strcol(2) eq '{scheme}' && $3 == {res} ? $6 : 1/0):7 "
-                     f"with linespoints title '{scheme} {res}²'")
+        size = "auto atlas" if res == "auto" else f"{res}²"
+        plots.append(f"'{csv_path}' using (strcol(2) eq '{scheme}' && strcol(3) eq '{res}' ? $6 : 1/0):7 "
+                     f"with linespoints title '{scheme} {size}'")
     if scene == "cornell_box.gltf":
         plots.append("'-' using 1:2 with linespoints lw 2 dt 2 title 'Cycles 256² (SOURCES.md)'")
     script.append("plot " + ", ".join(plots))
@@ -117,7 +119,8 @@ def main():
     p = argparse.ArgumentParser()
     p.add_argument("--scene", default="cornell_box.gltf", help="a file in shared/scenes")
     p.add_argument("--reference-passes", type=int, default=4096, help="path-tracing passes of a reference")
-    p.add_argument("--res", type=int, nargs="+", default=[64, 128, 256, 512])
+    p.add_argument("--res", nargs="+", default=["64", "128", "256", "512"],
+                   help="atlas sides, or auto (the bake's own choice, as a default bake makes it)")
     p.add_argument("--schemes", nargs="+", default=["epochs", "thesis"],
                    help="--scheme values; SCHEME+denoise bakes the same with --denoise")
     p.add_argument("--env", help="a uniform sky R,G,B for scenes lit through windows")
