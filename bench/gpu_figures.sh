@@ -21,7 +21,7 @@ done
 mkdir -p "$out"
 staircase=real/wooden_staircase/wooden_staircase.gltf
 if [ "$quick" = 1 ]; then
-  seconds=0.5 cornell="--res 64 --passes 16" spheres="--res 128 --passes 8" stairs="--res 256 --passes 4"
+  seconds=0.5 cornell="--res 64 --passes 16" spheres="--res 128 --passes 8" stairs="--res 512 --passes 2"
   sh_passes=1 jobs=2 job_res=64 job_passes=16
 else
   seconds=3 cornell="--res 512 --passes 800" spheres="--res 1024 --passes 256" stairs="--res 1024 --passes 1024"
@@ -29,9 +29,9 @@ else
 fi
 
 "$lightfarm" devices --json > "$out/devices.json"
-# The tracer alone: incoherent and coherent closest-hit rays per second.
+# The tracer alone: incoherent and coherent closest-hit rays per second (one JSON object per scene).
 for scene in cornell_box.gltf monkey.glb spheres.glb $staircase real/breakfast_room/breakfast_room.gltf; do
-  "$lightfarm" raybench "$scenes/$scene" --device "$device" --seconds "$seconds" >> "$out/raybench.jsonl"
+  "$lightfarm" raybench "$scenes/$scene" --device "$device" --seconds "$seconds" >> "$out/raybench.json"
 done
 # Bakes end to end: the time each event arrived, the manifest's stages.
 bake() {  # NAME SCENE ARGS...
