@@ -10,8 +10,8 @@
 
 #include <nlohmann/json.hpp>
 
-#include <filesystem>
 #include <algorithm>
+#include <filesystem>
 #include <functional>
 #include <string>
 #include <vector>
@@ -103,7 +103,6 @@ public:
     explicit PassBatcher(int max_batch, double seconds = 0.02) : max_(std::max(1, max_batch)), seconds_(seconds) {}
     int next(int limit) const { return std::max(1, std::min(size_, limit)); }
     void record(int passes, double seconds);
-    int size() const { return size_; }
 
 private:
     int max_;

@@ -9,8 +9,6 @@ namespace lf {
 
 namespace {
 
-constexpr int kSeamSamplesPerEdge = 8;  // rows of the stitch per seam edge (seams.h)
-
 // The R, G, B channels of a layer ("" = combined, "direct.", "indirect.") as vec4 texels.
 std::vector<glm::vec4> image_layer(const FloatImage& image, const std::string& layer) {
     const auto &r = image.at(layer + "R"), &g = image.at(layer + "G"), &b = image.at(layer + "B");
@@ -58,10 +56,9 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
     : prepared_(prepared),
       stop_(stop_rule_from(settings.lightmap->stop)),
       baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer, radiosity_settings(settings)),
-      seams_(smooth_seams(*prepared.atlas_scene)),
-      stitch_(settings.lightmap->stitch) {
-    if (stitch_ && !seams_.empty())
-        stitcher_.emplace(seams_, prepared.atlas.width, prepared.atlas.height, kSeamSamplesPerEdge);
+      seams_(smooth_seams(*prepared.atlas_scene)) {
+    if (settings.lightmap->stitch && !seams_.empty())
+        stitcher_.emplace(seams_, prepared.atlas.width, prepared.atlas.height);
     if (settings.lightmap->denoise) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
     const RadiosityMapSettings r = radiosity_settings(settings);
     settings_json_ = {

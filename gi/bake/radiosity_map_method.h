@@ -42,9 +42,8 @@ private:
     StopRule stop_;
     nlohmann::json settings_json_;
     RadiosityMapBaker baker_;
-    std::vector<SeamEdge> seams_;  // smooth seams only (measured even when not stitched)
-    bool stitch_ = true;
-    std::optional<SeamStitcher> stitcher_;      // built once: the same system for every image (with stitch_)
+    std::vector<SeamEdge> seams_;               // smooth seams only (measured even when not stitched)
+    std::optional<SeamStitcher> stitcher_;      // built once (none with --no-stitch): one system for every image
     std::optional<LightmapDenoiser> denoiser_;  // with --denoise
     // The last snapshot's image (set on the writer thread; finish() runs
     // after the writer drained): the final image when the bake stops on a

@@ -108,7 +108,6 @@ public:
     GpuTimestamps(const GpuTimestamps&) = delete;
     GpuTimestamps& operator=(const GpuTimestamps&) = delete;
 
-    int size() const { return int(ids_.size()); }
     void mark(int i) const { glQueryCounter(ids_[size_t(i)], GL_TIMESTAMP); }
     // Seconds from mark 0 to mark i; waits until the device has passed mark i.
     double seconds(int i) const;
