@@ -958,6 +958,42 @@ TEST(AtlasSpeed, BigScenesAt1024) {
 // fraction of 0.5, gi/bake/bake_job.cpp's default; the fastest of 3) and
 // the density a 512² atlas reaches. The Cornell box's own TEXCOORD_1 is
 // ignored: every atlas here is generated.
+// What a bake's stitch costs (docs/BENCHMARKS.md, "Read-backs in batches,
+// the seam system built once"): the staircase's smooth seams at 512², three
+// layers of random texels (a noisy lightmap), stitched as the bake did before
+// (the system built for each layer, one layer after another) and as it does
+// now (SeamStitcher built once, a thread per layer); the same texels both ways.
+TEST(SeamsSpeed, DISABLED_OneSystemLayersInParallel) {
+    Scene scene = load_scene(kScenes / "real/wooden_staircase/wooden_staircase.gltf");
+    const int res = 512;
+    generate_lightmap_uvs(scene, {.resolution = res});
+    std::vector<SeamEdge> seams;
+    for (const SeamEdge& e : find_seams(scene))
+        if (e.smooth) seams.push_back(e);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::vector<std::vector<glm::vec4>> layers(3, std::vector<glm::vec4>(size_t(res) * res));
+    for (auto& layer : layers)
+        for (glm::vec4& t : layer) t = glm::vec4(u(rng), u(rng), u(rng), 0.0f);
+    using clock = std::chrono::steady_clock;
+    auto seconds = [](auto a, auto b) { return std::chrono::duration<double>(b - a).count(); };
+    std::vector<std::vector<glm::vec4>> before = layers, after = layers;
+    const auto t0 = clock::now();
+    for (auto& layer : before) stitch_seams(seams, layer, res, res);
+    const auto t1 = clock::now();
+    const SeamStitcher stitcher(seams, res, res);
+    const auto t2 = clock::now();
+    std::vector<std::thread> threads;
+    for (auto& layer : after) threads.emplace_back([&stitcher, &layer] { stitcher.stitch(layer); });
+    for (std::thread& t : threads) t.join();
+    const auto t3 = clock::now();
+    std::printf(
+        "%zu smooth seams at %d²: system per layer, layers in turn %.3f s; system once %.3f s, "
+        "three layers in parallel %.3f s\n",
+        seams.size(), res, seconds(t0, t1), seconds(t1, t2), seconds(t2, t3));
+    EXPECT_EQ(before, after);
+}
+
 TEST(AtlasSpeed, DISABLED_AutoAndFixedResolution) {
     for (const char* name :
          {"cornell_box.gltf", "monkey.glb", "spheres.glb", "real/wooden_staircase/wooden_staircase.gltf",
