@@ -47,6 +47,10 @@ def main():
             if os.path.exists(url_file) and os.path.exists(os.path.join(a.data, "tokens")):
                 break
             time.sleep(0.1)
+            if server.poll() is not None:
+                break
+        if not os.path.exists(url_file):
+            sys.exit(f"lightfarmd did not start: see {os.path.join(a.data, 'log')}")
         url = open(url_file).read().strip()
         token = next(l.strip() for l in open(os.path.join(a.data, "tokens")) if l.strip() and not l.startswith("#"))
         path = os.path.join(SCENES, a.scene)
