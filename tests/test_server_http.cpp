@@ -273,13 +273,21 @@ TEST_F(HttpTest, ConnectionCapsAnswer503) {
     start({"--limit", "connections_per_address=20"});
     std::vector<std::unique_ptr<RawSocket>> idle;
     for (int i = 0; i < 20; ++i) idle.push_back(std::make_unique<RawSocket>(server->port));
-    std::this_thread::sleep_for(1s);  // the gate counts them as it accepts them
-    RawSocket over(server->port);
-    over.send(request("GET", "/healthz", ""));
-    EXPECT_EQ(over.status(), 503) << over.received();
-    over.peer_closed(2s);  // the whole answer: under load the body may follow the headers later
-    EXPECT_NE(over.received().find("Retry-After: 1"), std::string::npos);
-    EXPECT_NE(over.received().find("connections_per_address"), std::string::npos);
+    // The gate counts them as it accepts them, which a loaded machine may
+    // take a while to do (a fixed second was not always enough under ctest
+    // -j2): a new connection is tried until one is refused, and one must be.
+    std::unique_ptr<RawSocket> over;
+    int over_status = 0;
+    for (const auto deadline = Clock::now() + 10s; over_status != 503 && Clock::now() < deadline;) {
+        if (over) std::this_thread::sleep_for(100ms);
+        over = std::make_unique<RawSocket>(server->port);
+        over->send(request("GET", "/healthz", ""));
+        over_status = over->status();
+    }
+    ASSERT_EQ(over_status, 503) << over->received();
+    over->peer_closed(2s);  // the whole answer: under load the body may follow the headers later
+    EXPECT_NE(over->received().find("Retry-After: 1"), std::string::npos);
+    EXPECT_NE(over->received().find("connections_per_address"), std::string::npos);
     idle.clear();
     const auto deadline = Clock::now() + 3s;
     int status = 0;

@@ -648,8 +648,10 @@ TEST(ShBake, PerTexelWritesTheTransferExr) {
          {"atlas", {{"res", 128}, {"subsamples", 1}}}});
     const protocol::DoneEvent done = run_bake_job(job, [](const protocol::WorkerEvent&) {});
     const std::vector<std::string>& files = done.files;
-    for (const char* f :
-         {"sh_transfer.exr", "sh_transfer.pass-0001.exr", "sh_transfer.pass-0002.exr", "sh_transfer.bin"})
+    // The first pass's snapshot is always taken; the second's only if the
+    // writer has finished the first by then (SnapshotSchedule), which a
+    // loaded machine may not have: not asked for.
+    for (const char* f : {"sh_transfer.exr", "sh_transfer.pass-0001.exr", "sh_transfer.bin"})
         EXPECT_NE(std::find(files.begin(), files.end(), f), files.end()) << f;
     const FloatImage image = read_exr(out / "sh_transfer.exr");
     EXPECT_EQ(image.width, 128);
