@@ -229,12 +229,17 @@ TEST(Bvh, UnusedChildSlotsAreUnreachable) {
     test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);
     const Bvh bvh = build_bvh(s);
     ASSERT_EQ(bvh.nodes.size(), 1u);
-    ASSERT_EQ(bvh.nodes[0].right_count, 0u);
+    ASSERT_TRUE(bvh.nodes[0].child_used(0));
     std::mt19937 rng(3);
-    for (int i = 0; i < 1000; ++i) {
-        const glm::vec3 org = glm::vec3(std::uniform_real_distribution<float>(-2, 2)(rng),
-                                        std::uniform_real_distribution<float>(-2, 2)(rng), 0.3f);
-        EXPECT_FALSE(ray_enters_box(org, random_direction(rng), bvh.nodes[0].right_lo, bvh.nodes[0].right_hi));
+    for (int c = 1; c < kBvhWidth; ++c) {
+        ASSERT_FALSE(bvh.nodes[0].child_used(c));
+        ASSERT_EQ(bvh.nodes[0].count[c], 0u);
+        const Bounds box = bvh.nodes[0].child_box(c);
+        for (int i = 0; i < 1000; ++i) {
+            const glm::vec3 org = glm::vec3(std::uniform_real_distribution<float>(-2, 2)(rng),
+                                            std::uniform_real_distribution<float>(-2, 2)(rng), 0.3f);
+            EXPECT_FALSE(ray_enters_box(org, random_direction(rng), box.lo, box.hi));
+        }
     }
     gpu();
     Tracer tracer(s);
@@ -268,11 +273,47 @@ TEST(Bvh, BoundsContainTheirTrianglesAndEveryTriangleIsInOneLeaf) {
         }
     };
     for (const BvhNode& n : bvh.nodes) {
-        if (n.left_count) check_leaf(n.left_lo, n.left_hi, n.left_index, n.left_count);
-        if (n.right_count) check_leaf(n.right_lo, n.right_hi, n.right_index, n.right_count);
+        for (int c = 0; c < kBvhWidth; ++c)
+            if (n.count[c]) check_leaf(n.child_box(c).lo, n.child_box(c).hi, n.index[c], n.count[c]);
     }
     for (size_t t = 0; t < seen.size(); ++t) EXPECT_EQ(seen[t], scene.triangle_area(t) > 0.0f ? 1 : 0) << t;
     EXPECT_LE(bvh.stats.max_depth, size_t(kBvhMaxDepth));
+}
+
+// The 4-wide tree is a tree (every node but the root is one child of one
+// node, and inside its parent's box) and its nodes are full: a node has fewer
+// than four children only where none of them could be opened (all leaves).
+// That is what halves the node visits against the binary tree it came from.
+TEST(Bvh, FourWideNodesAreFullAndFormOneTree) {
+    const Scene scene = load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf"));
+    const Bvh bvh = build_bvh(scene);
+    std::vector<int> parents(bvh.nodes.size(), 0);
+    size_t interior_children = 0;
+    for (const BvhNode& n : bvh.nodes) {
+        int used = 0, leaves = 0;
+        for (int c = 0; c < kBvhWidth; ++c) {
+            if (!n.child_used(c)) continue;
+            ++used;
+            if (n.count[c] > 0) {
+                ++leaves;
+                continue;
+            }
+            ++interior_children;
+            ASSERT_LT(n.index[c], bvh.nodes.size());
+            ++parents[n.index[c]];
+            const BvhNode& child = bvh.nodes[n.index[c]];
+            for (int g = 0; g < kBvhWidth; ++g) {
+                if (!child.child_used(g)) continue;
+                EXPECT_TRUE(glm::all(glm::greaterThanEqual(child.child_box(g).lo, n.child_box(c).lo)));
+                EXPECT_TRUE(glm::all(glm::lessThanEqual(child.child_box(g).hi, n.child_box(c).hi)));
+            }
+        }
+        EXPECT_TRUE(used == kBvhWidth || used == leaves) << used << " children, " << leaves << " leaves";
+    }
+    EXPECT_EQ(parents[0], 0);
+    for (size_t i = 1; i < parents.size(); ++i) EXPECT_EQ(parents[i], 1) << "node " << i;
+    EXPECT_EQ(interior_children, bvh.nodes.size() - 1);
+    EXPECT_GT(bvh.stats.leaves, 2 * bvh.nodes.size()) << "a 4-wide tree has over two leaves per node";
 }
 
 TEST(GpuContext, ReportsDeviceAndRefusesAMissingGpu) {

@@ -6,10 +6,11 @@
 
 #include "buffer_bindings.glsl"
 #ifndef LF_BVH_STACK_SIZE
-#define LF_BVH_STACK_SIZE 48  // = kBvhMaxDepth in trace/bvh.h
+#define LF_BVH_STACK_SIZE 144  // = kBvhStackSize in trace/bvh.h: 3 per level of a 4-wide tree
 #endif
 
-// BvhNode (64 bytes): left box, right box; child index/count in the w's.
+// BvhNode (128 bytes, 4-wide): lo_x, hi_x, lo_y, hi_y, lo_z, hi_z of the four
+// child boxes, then the children's indices and triangle counts (as uint bits).
 layout(std430, binding = LF_BINDING_BVH_NODES) readonly buffer LfBvhNodes { vec4 lf_bvh_nodes[]; };
 // BvhTriangle (48 bytes): v0 (w = scene triangle index bits), v1, v2.
 layout(std430, binding = LF_BINDING_BVH_TRIANGLES) readonly buffer LfBvhTriangles { vec4 lf_bvh_tris[]; };
@@ -71,18 +72,22 @@ bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float 
     return true;
 }
 
-// Entry and exit distances of the ray with a box. An unused child slot holds
-// a box at +infinity, which no ray enters (see build_bvh).
-// The exit distance is pushed out by a few ulps (Ize 2013, "Robust BVH Ray
-// Traversal") so rounding never drops a box whose face a ray grazes: a ray
-// through a vertex on the box's surface must still reach the triangles.
-bool intersect_box(vec3 org_x_inv, vec3 inv_dir, vec3 lo, vec3 hi, float t_max, out float t_enter) {
-    vec3 t0 = lo * inv_dir - org_x_inv;
-    vec3 t1 = hi * inv_dir - org_x_inv;
-    vec3 tn = min(t0, t1), tf = max(t0, t1);
-    t_enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
-    float t_exit = min(min(tf.x, tf.y), min(tf.z, t_max)) * 1.0000004;
-    return t_enter <= t_exit;
+// Entry distances of the ray into a node's four child boxes, +infinity for
+// a box it misses. An unused child slot holds a box at +infinity, which no
+// ray enters (see build_bvh). The exit distance is pushed out by a few ulps
+// (Ize 2013, "Robust BVH Ray Traversal") so rounding never drops a box whose
+// face a ray grazes: a ray through a vertex on the box's surface must still
+// reach the triangles.
+const float LF_INFINITY = uintBitsToFloat(0x7f800000u);
+
+vec4 intersect_boxes(vec3 org_x_inv, vec3 inv_dir, uint node, float t_max) {
+    uint base = 8u * node;
+    vec4 tx0 = lf_bvh_nodes[base + 0u] * inv_dir.x - org_x_inv.x, tx1 = lf_bvh_nodes[base + 1u] * inv_dir.x - org_x_inv.x;
+    vec4 ty0 = lf_bvh_nodes[base + 2u] * inv_dir.y - org_x_inv.y, ty1 = lf_bvh_nodes[base + 3u] * inv_dir.y - org_x_inv.y;
+    vec4 tz0 = lf_bvh_nodes[base + 4u] * inv_dir.z - org_x_inv.z, tz1 = lf_bvh_nodes[base + 5u] * inv_dir.z - org_x_inv.z;
+    vec4 t_enter = max(max(min(tx0, tx1), min(ty0, ty1)), max(min(tz0, tz1), vec4(0.0)));
+    vec4 t_exit = min(min(max(tx0, tx1), max(ty0, ty1)), min(max(tz0, tz1), vec4(t_max))) * 1.0000004;
+    return mix(vec4(LF_INFINITY), t_enter, lessThanEqual(t_enter, t_exit));
 }
 
 vec3 safe_inverse(vec3 d) {
@@ -90,6 +95,18 @@ vec3 safe_inverse(vec3 d) {
     return 1.0 / vec3(abs(d.x) > tiny ? d.x : (d.x < 0.0 ? -tiny : tiny),
                       abs(d.y) > tiny ? d.y : (d.y < 0.0 ? -tiny : tiny),
                       abs(d.z) > tiny ? d.z : (d.z < 0.0 ? -tiny : tiny));
+}
+
+// One compare-exchange of a sorting network: slots a < b by entry distance.
+void lf_order(inout vec4 t, inout uvec4 node, int a, int b) {
+    if (t[b] < t[a]) {
+        float t_a = t[a];
+        t[a] = t[b];
+        t[b] = t_a;
+        uint node_a = node[a];
+        node[a] = node[b];
+        node[b] = node_a;
+    }
 }
 
 // The traversal, shared by both queries. any_hit: stop at the first hit
@@ -100,23 +117,17 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, bool any_hit) {
     vec3 inv_dir = safe_inverse(dir);
     vec3 org_x_inv = org * inv_dir;
     uint stack[LF_BVH_STACK_SIZE];
+    float stack_t[LF_BVH_STACK_SIZE];
     int sp = 0;
     uint node = 0u;
     while (true) {
-        vec4 n0 = lf_bvh_nodes[4u * node + 0u];
-        vec4 n1 = lf_bvh_nodes[4u * node + 1u];
-        vec4 n2 = lf_bvh_nodes[4u * node + 2u];
-        vec4 n3 = lf_bvh_nodes[4u * node + 3u];
-        uint child[2] = uint[2](floatBitsToUint(n0.w), floatBitsToUint(n1.w));
-        uint count[2] = uint[2](floatBitsToUint(n2.w), floatBitsToUint(n3.w));
-        float t_enter[2];
-        bool enter[2];
-        enter[0] = intersect_box(org_x_inv, inv_dir, n0.xyz, n1.xyz, hit.t, t_enter[0]);
-        enter[1] = intersect_box(org_x_inv, inv_dir, n2.xyz, n3.xyz, hit.t, t_enter[1]);
+        vec4 t_enter = intersect_boxes(org_x_inv, inv_dir, node, hit.t);
+        uvec4 child = floatBitsToUint(lf_bvh_nodes[8u * node + 6u]);
+        uvec4 count = floatBitsToUint(lf_bvh_nodes[8u * node + 7u]);
         // Leaves are tested right away; only interior children are traversed.
-        for (int c = 0; c < 2; ++c) {
-            if (!enter[c] || count[c] == 0u) continue;
-            enter[c] = false;
+        for (int c = 0; c < 4; ++c) {
+            if (t_enter[c] == LF_INFINITY || count[c] == 0u) continue;
+            t_enter[c] = LF_INFINITY;
             for (uint i = child[c]; i < child[c] + count[c]; ++i) {
                 float t; vec2 b;
                 vec3 v0 = lf_bvh_tris[3u * i].xyz, v1 = lf_bvh_tris[3u * i + 1u].xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
@@ -127,15 +138,28 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, bool any_hit) {
                 }
             }
         }
-        if (enter[0] && enter[1]) {
-            bool left_first = t_enter[0] <= t_enter[1];
-            stack[sp++] = left_first ? child[1] : child[0];
-            node = left_first ? child[0] : child[1];
-        } else if (enter[0]) {
+        // Interior children that start before the closest hit so far, nearest
+        // first (a sorting network): the nearest is visited next, the others
+        // wait on the stack. An occlusion query takes any hit, in any order.
+        t_enter = mix(t_enter, vec4(LF_INFINITY), greaterThan(t_enter, vec4(hit.t)));
+        if (!any_hit) {
+            lf_order(t_enter, child, 0, 1);
+            lf_order(t_enter, child, 2, 3);
+            lf_order(t_enter, child, 0, 2);
+            lf_order(t_enter, child, 1, 3);
+            lf_order(t_enter, child, 1, 2);
+        }
+        for (int c = 3; c > 0; --c) {
+            if (t_enter[c] != LF_INFINITY) {
+                stack_t[sp] = t_enter[c];
+                stack[sp++] = child[c];
+            }
+        }
+        if (t_enter[0] != LF_INFINITY) {
             node = child[0];
-        } else if (enter[1]) {
-            node = child[1];
         } else {
+            // A node that starts beyond the closest hit found since it was pushed is skipped.
+            while (sp > 0 && stack_t[sp - 1] > hit.t) --sp;
             if (sp == 0) break;
             node = stack[--sp];
         }

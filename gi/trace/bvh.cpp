@@ -84,9 +84,20 @@ Split find_split(const std::vector<BuildRef>& refs, Range r, const Bounds& centr
     return best;
 }
 
-class Builder {
+// The binary tree the SAH builds, before it is collapsed into 4-wide nodes.
+struct BinaryChild {
+    Bounds box;
+    uint32_t index = 0;  // node (count 0) or first triangle (count > 0)
+    uint32_t count = 0;
+};
+struct BinaryNode {
+    BinaryChild child[2];
+    int children = 0;  // 1 only at the root of a scene that is one leaf
+};
+
+class BinaryBuilder {
 public:
-    Builder(std::vector<BuildRef>& refs, Bvh& bvh) : refs_(refs), bvh_(bvh) {}
+    BinaryBuilder(std::vector<BuildRef>& refs, std::vector<BinaryNode>& nodes) : refs_(refs), nodes_(nodes) {}
 
     // Decides whether `r` becomes a leaf; if not, partitions it and returns the two halves.
     bool split(Range r, const Bounds& box, const Bounds& centroids, size_t depth, Range* left, Range* right) {
@@ -114,61 +125,83 @@ public:
         return depth + 1 < size_t(kBvhMaxDepth);
     }
 
-    // Writes the child slot of `node` for range r and recurses if it is interior.
-    void build_child(uint32_t node, bool is_left, Range r, size_t depth) {
+    // The child for range r: a leaf, or a new node built recursively.
+    BinaryChild build_child(Range r, size_t depth) {
+        BinaryChild c;
         Bounds centroids;
-        const Bounds box = bounds_of(refs_, r, &centroids);
+        c.box = bounds_of(refs_, r, &centroids);
         Range a{}, b{};
-        const bool interior = split(r, box, centroids, depth, &a, &b);
-        uint32_t index, count;
-        if (interior) {
-            index = uint32_t(bvh_.nodes.size());
-            bvh_.nodes.emplace_back();
-            count = 0;
-        } else {
-            index = r.begin;
-            count = r.count();
-            ++bvh_.stats.leaves;
+        if (!split(r, c.box, centroids, depth, &a, &b)) {
+            c.index = r.begin;
+            c.count = r.count();
+            return c;
         }
-        BvhNode& n = bvh_.nodes[node];
-        if (is_left) {
-            n.left_lo = box.lo;
-            n.left_hi = box.hi;
-            n.left_index = index;
-            n.left_count = count;
-        } else {
-            n.right_lo = box.lo;
-            n.right_hi = box.hi;
-            n.right_index = index;
-            n.right_count = count;
-        }
-        bvh_.stats.max_depth = std::max(bvh_.stats.max_depth, depth);
-        if (interior) {
-            build_child(index, true, a, depth + 1);
-            build_child(index, false, b, depth + 1);
-        }
+        c.index = uint32_t(nodes_.size());
+        nodes_.emplace_back();
+        const BinaryChild left = build_child(a, depth + 1);
+        const BinaryChild right = build_child(b, depth + 1);
+        nodes_[c.index] = {{left, right}, 2};
+        return c;
     }
 
 private:
     std::vector<BuildRef>& refs_;
-    Bvh& bvh_;
+    std::vector<BinaryNode>& nodes_;
 };
+
+// Collapses binary node `from` (and its subtree) into 4-wide node `to` of
+// `bvh`: starting from its two children, the interior child of largest
+// surface area (the one a ray most likely enters) is replaced by its own two
+// children until four fill the node or only leaves are left.
+void collapse(const std::vector<BinaryNode>& binary, uint32_t from, uint32_t to, size_t depth, Bvh& bvh) {
+    std::vector<BinaryChild> children(binary[from].child, binary[from].child + binary[from].children);
+    while (children.size() < size_t(kBvhWidth)) {
+        auto widest = children.end();
+        for (auto c = children.begin(); c != children.end(); ++c)
+            if (c->count == 0 && (widest == children.end() || c->box.surface_area() > widest->box.surface_area()))
+                widest = c;
+        if (widest == children.end()) break;
+        const BinaryNode& opened = binary[widest->index];
+        *widest = opened.child[0];
+        children.insert(widest + 1, opened.child[1]);
+    }
+    // An unused slot: a box at +infinity, which the slab test (it takes
+    // min/max of the slabs, so an inverted box would NOT be empty) never
+    // enters from any ray. Its index 0 would lead back to the root.
+    const float nowhere = std::numeric_limits<float>::infinity();
+    BvhNode node{glm::vec4(nowhere), glm::vec4(nowhere), glm::vec4(nowhere), glm::vec4(nowhere),
+                 glm::vec4(nowhere), glm::vec4(nowhere), glm::uvec4(0),      glm::uvec4(0)};
+    std::vector<std::pair<uint32_t, uint32_t>> interior;  // (binary node, 4-wide node)
+    for (size_t k = 0; k < children.size(); ++k) {
+        const BinaryChild& c = children[k];
+        node.lo_x[k] = c.box.lo.x, node.lo_y[k] = c.box.lo.y, node.lo_z[k] = c.box.lo.z;
+        node.hi_x[k] = c.box.hi.x, node.hi_y[k] = c.box.hi.y, node.hi_z[k] = c.box.hi.z;
+        node.count[k] = c.count;
+        if (c.count > 0) {
+            node.index[k] = c.index;
+            ++bvh.stats.leaves;
+        } else {
+            node.index[k] = uint32_t(bvh.nodes.size());
+            interior.emplace_back(c.index, node.index[k]);
+            bvh.nodes.emplace_back();
+        }
+    }
+    bvh.nodes[to] = node;
+    bvh.stats.max_depth = std::max(bvh.stats.max_depth, depth);
+    for (const auto& [binary_node, wide_node] : interior) collapse(binary, binary_node, wide_node, depth + 1, bvh);
+}
 
 double sah_cost(const Bvh& bvh, const Bounds& root_box) {
     // Expected cost of a random ray that hits the root box: each child box
     // weighted by its area relative to the root.
     const float root_area = std::max(root_box.surface_area(), 1e-30f);
     double cost = kTraversalCost;
-    auto area = [](glm::vec3 lo, glm::vec3 hi) {
-        Bounds b;
-        b.lo = lo;
-        b.hi = hi;
-        return b.empty() ? 0.0f : b.surface_area();
-    };
     for (const BvhNode& n : bvh.nodes) {
-        const float al = area(n.left_lo, n.left_hi) / root_area, ar = area(n.right_lo, n.right_hi) / root_area;
-        cost += n.left_count ? al * n.left_count : al * kTraversalCost;
-        cost += n.right_count ? ar * n.right_count : ar * kTraversalCost;
+        for (int k = 0; k < kBvhWidth; ++k) {
+            if (!n.child_used(k)) continue;
+            const float area = n.child_box(k).surface_area() / root_area;
+            cost += n.count[k] ? area * n.count[k] : area * kTraversalCost;
+        }
     }
     return cost;
 }
@@ -189,34 +222,25 @@ Bvh build_bvh(const Scene& scene) {
         refs.push_back(r);
     }
 
-    Bvh bvh;
-    bvh.nodes.emplace_back();  // the root
-    BvhNode& root = bvh.nodes[0];
-    // An unused child slot: a box at +infinity, which the slab test (it
-    // takes min/max of the slabs, so an inverted box would NOT be empty)
-    // never enters from any ray. Its index 0 would lead back to the root.
-    const glm::vec3 nowhere(std::numeric_limits<float>::infinity());
-    root.right_lo = root.right_hi = nowhere;
+    // The binary tree; its root always has a node, even over one leaf or none.
+    std::vector<BinaryNode> binary(1);
     Bounds root_box;
     if (!refs.empty()) {
-        Builder builder(refs, bvh);
+        BinaryBuilder builder(refs, binary);
         Bounds centroids;
         root_box = bounds_of(refs, {0, uint32_t(refs.size())}, &centroids);
         Range a{}, b{};
         if (builder.split({0, uint32_t(refs.size())}, root_box, centroids, 0, &a, &b)) {
-            builder.build_child(0, true, a, 1);
-            builder.build_child(0, false, b, 1);
+            const BinaryChild left = builder.build_child(a, 1);
+            const BinaryChild right = builder.build_child(b, 1);
+            binary[0] = {{left, right}, 2};
         } else {
-            // Few triangles: the root holds one leaf.
-            bvh.nodes[0].left_lo = root_box.lo;
-            bvh.nodes[0].left_hi = root_box.hi;
-            bvh.nodes[0].left_index = 0;
-            bvh.nodes[0].left_count = uint32_t(refs.size());
-            bvh.stats.leaves = 1;
+            binary[0] = {{BinaryChild{root_box, 0, uint32_t(refs.size())}}, 1};  // few triangles: one leaf
         }
-    } else {
-        root.left_lo = root.left_hi = nowhere;
     }
+    Bvh bvh;
+    bvh.nodes.emplace_back();  // the root
+    collapse(binary, 0, 0, 1, bvh);
 
     bvh.triangles.resize(refs.size());
     for (size_t i = 0; i < refs.size(); ++i) {

@@ -6,27 +6,32 @@
 
 #include <glm/glm.hpp>
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
 namespace lf {
 
-// One interior node, 64 bytes: the boxes of BOTH children, so one fetch
-// decides which children a ray enters and in which order (Aila & Laine 2009).
-// A child is either another node (count 0, index = node) or a leaf
-// (count > 0, index = first triangle in Bvh::triangles). An unused slot (the
-// root of a tiny or empty scene) has a box at +infinity: no ray enters it.
+// One node of the 4-wide tree: the boxes of up to four children, so one
+// fetch of 128 bytes decides which children a ray enters and in which order
+// (Aila & Laine 2009 for two boxes per node; Wald, Benthin & Boulos 2008 and
+// Ylitie, Karras & Laine 2017 for wider nodes: half the node visits of a
+// binary tree, and four slab tests that share their loads). The boxes are
+// stored as structure of arrays, child c's box being (lo_x[c], lo_y[c],
+// lo_z[c]) to (hi_x[c], hi_y[c], hi_z[c]), so the four slab tests are vec4
+// arithmetic. A child is either another node (count 0, index = node) or a
+// leaf (count > 0, index = first triangle in Bvh::triangles). An unused slot
+// has a box at +infinity: no ray enters it.
 struct BvhNode {
-    glm::vec3 left_lo;
-    uint32_t left_index;
-    glm::vec3 left_hi;
-    uint32_t right_index;
-    glm::vec3 right_lo;
-    uint32_t left_count;
-    glm::vec3 right_hi;
-    uint32_t right_count;
+    glm::vec4 lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;
+    glm::uvec4 index;
+    glm::uvec4 count;
+
+    Bounds child_box(int c) const { return {{lo_x[c], lo_y[c], lo_z[c]}, {hi_x[c], hi_y[c], hi_z[c]}}; }
+    bool child_used(int c) const { return !std::isinf(lo_x[c]); }
 };
-static_assert(sizeof(BvhNode) == 64);
+static_assert(sizeof(BvhNode) == 128);
+constexpr int kBvhWidth = 4;
 
 // A triangle as the traversal reads it: three vertices, 48 bytes; the
 // scene's triangle index rides in the first vertex's w.
@@ -44,7 +49,7 @@ struct BvhStats {
     double build_seconds = 0.0;
     size_t nodes = 0;
     size_t leaves = 0;
-    size_t max_depth = 0;
+    size_t max_depth = 0;   // of the 4-wide tree (the root's children: 1)
     size_t bytes = 0;       // nodes + triangles as uploaded
     double sah_cost = 0.0;  // expected cost, traversal step = 1, triangle test = 1
 };
@@ -55,11 +60,16 @@ struct Bvh {
     BvhStats stats;
 };
 
-// The deepest a tree may go; the GLSL traversal stack is sized from it.
+// The deepest the binary tree may go. The 4-wide tree, collapsed from it, is
+// no deeper, and a traversal pushes at most kBvhWidth - 1 nodes per level:
+// the GLSL traversal stack (LF_BVH_STACK_SIZE in trace.glsl) holds that.
 constexpr int kBvhMaxDepth = 48;
+constexpr int kBvhStackSize = (kBvhWidth - 1) * kBvhMaxDepth;
 
 // Builds over all triangles with non-zero area (degenerate ones can never be
-// hit and are left out). Binned SAH, 32 bins, leaves of at most 8 triangles.
+// hit and are left out): a binary tree by binned SAH (32 bins, leaves of at
+// most 8 triangles), collapsed into 4-wide nodes by opening, in each node, the
+// child of largest surface area until four children fill it.
 Bvh build_bvh(const Scene& scene);
 
 }  // namespace lf
