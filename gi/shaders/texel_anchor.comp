@@ -36,24 +36,34 @@ void main() {
     bool marked = false;
     for (uint s = first; s < first + texel.y; ++s) marked = marked || sample_points[3u * s + 1u].w != 0.0;
 
-    // The reference: the sample that sees the most others.
-    uint reference = first;
+    // Which samples see which: bit b of visible[a] is set when sample a sees
+    // sample b. Seeing is the same segment both ways, so each pair is traced
+    // once (half the rays of asking both ways).
+    uint visible[MAX_CHECKED];
+    for (uint a = 0u; a < count; ++a) visible[a] = 1u << a;
+    for (uint a = 0u; a + 1u < count; ++a) {
+        for (uint b = a + 1u; b < count; ++b) {
+            if (sees(first + a, first + b)) {
+                visible[a] |= 1u << b;
+                visible[b] |= 1u << a;
+            }
+        }
+    }
+    // The reference: the sample that sees the most others (the first of equals).
+    uint reference = 0u;
     uint best = 0u;
-    for (uint a = first; a < first + count && count > 1u; ++a) {
-        uint seen = 0u;
-        for (uint b = first; b < first + count; ++b)
-            if (b != a && sees(a, b)) ++seen;
-        if (seen > best || a == first) { best = seen; reference = a; }
+    for (uint a = 0u; a < count; ++a) {
+        uint seen = uint(bitCount(visible[a])) - 1u;
+        if (seen > best || a == 0u) { best = seen; reference = a; }
     }
     if (count > 1u && best + 1u < count) {
         // Cut by geometry: samples on the far side take the reference's place.
-        for (uint s = first; s < first + count; ++s) {
-            if (s == reference || sees(reference, s)) continue;
-            sample_points[3u * s] = sample_points[3u * reference];
-            sample_points[3u * s + 1u] = sample_points[3u * reference + 1u];
-            sample_points[3u * s + 2u] = sample_points[3u * reference + 2u];
+        for (uint s = 0u; s < count; ++s) {
+            if ((visible[reference] & (1u << s)) != 0u) continue;
+            for (uint k = 0u; k < 3u; ++k) sample_points[3u * (first + s) + k] = sample_points[3u * (first + reference) + k];
         }
         marked = true;
     }
+    reference += first;
     texel_anchors[texel.z] = vec4(sample_points[3u * reference].xyz, marked ? LF_ANCHOR_CUT : LF_ANCHOR_COVERED);
 }
