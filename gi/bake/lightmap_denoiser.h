@@ -1,7 +1,8 @@
 // `--denoise`: an edge-aware filter of the lightmap on the GPU
 // (gi/shaders/lightmap_denoise.comp: the à-trous wavelet of Dammertz et al.
-// 2010 with SVGF's variance guidance), guided by the texels' positions,
-// normals and charts, never across a chart's border. Whether it is worth its
+// 2010 with SVGF's variance guidance, each step a weighted plane fit rather
+// than a mean), guided by the texels' positions, normals and charts, never
+// across a chart's border. Whether it is worth its
 // bias is measured, not assumed: docs/BENCHMARKS.md "Denoising".
 #pragma once
 

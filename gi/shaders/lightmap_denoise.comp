@@ -13,6 +13,14 @@
 //   luminance  exp(-|l_p - l_q| / (4 sigma_p + eps))  sigma_p: the texel's standard error
 // so flat, alike, noisy texels average and edges the noise cannot explain
 // (a shadow's border, where the error is small against the step) stay.
+//
+// Each step fits a plane (value = a + b dx + c dy over the atlas offsets)
+// to its weighted taps and keeps a, rather than their weighted mean: the two
+// agree where the taps lie symmetrically around the texel, but where a
+// chart's border cuts the kernel off on one side, the mean would pull a
+// texel at the end of a gradient (a wall towards a corner) towards the
+// chart's inside, and the fit does not (a local linear regression, as in
+// Moon et al. 2014's weighted local regression for denoising).
 layout(local_size_x = 64) in;
 #include "buffer_bindings.glsl"
 
@@ -31,43 +39,78 @@ const float KERNEL[3] = float[](3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0);
 
 float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
+struct Texel {
+    vec3 position;
+    vec3 normal;
+    float size;     // world size
+    float luminance;
+    float sigma;    // standard error of the luminance
+    uint chart;
+};
+
+Texel texel_at(uint i) {
+    Texel t;
+    t.position = guide[2u * i].xyz;
+    t.chart = floatBitsToUint(guide[2u * i].w);
+    t.normal = guide[2u * i + 1u].xyz;
+    t.size = max(guide[2u * i + 1u].w, 1e-6);
+    t.luminance = luminance(colour_in[i].rgb);
+    t.sigma = sqrt(max(colour_in[i].w, 0.0));
+    return t;
+}
+
+// The weight of tap (dx, dy) for texel p, and its index; 0 where it is off
+// the atlas or in another chart.
+float tap_weight(ivec2 p, const Texel centre, int dx, int dy, out uint j) {
+    ivec2 q = p + ivec2(dx, dy) * step_size;
+    j = 0u;
+    if (q.x < 0 || q.y < 0 || q.x >= int(width) || q.y >= int(height)) return 0.0;
+    j = uint(q.y) * width + uint(q.x);
+    if (floatBitsToUint(guide[2u * j].w) != centre.chart) return 0.0;
+    float w = KERNEL[abs(dx)] * KERNEL[abs(dy)];
+    if (dx == 0 && dy == 0) return w;  // the centre weighs in whole (even with a degenerate normal)
+    w *= pow(max(0.0, dot(centre.normal, guide[2u * j + 1u].xyz)), 64.0);
+    w *= exp(-abs(dot(centre.normal, guide[2u * j].xyz - centre.position)) / centre.size);
+    w *= exp(-abs(luminance(colour_in[j].rgb) - centre.luminance) / (4.0 * centre.sigma + 1e-6));
+    return w;
+}
+
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     if (i >= width * height) return;
-    vec4 centre = colour_in[i];
-    uint chart = floatBitsToUint(guide[2u * i].w);
-    if (chart == NO_TEXEL) {
-        colour_out[i] = centre;
+    Texel centre = texel_at(i);
+    if (centre.chart == NO_TEXEL) {
+        colour_out[i] = colour_in[i];
         return;
     }
-    vec3 x_p = guide[2u * i].xyz;
-    vec3 n_p = guide[2u * i + 1u].xyz;
-    float s_p = max(guide[2u * i + 1u].w, 1e-6);
-    float l_p = luminance(centre.rgb);
-    float sigma_p = sqrt(max(centre.w, 0.0));
     ivec2 p = ivec2(i % width, i / width);
 
-    vec3 sum = vec3(0.0);
-    float weights = 0.0, variance = 0.0;
+    // The normal equations of the weighted fit: M = sum of w f f^T, f = (1, dx, dy).
+    mat3 m = mat3(0.0);
     for (int dy = -2; dy <= 2; ++dy) {
         for (int dx = -2; dx <= 2; ++dx) {
-            ivec2 q = p + ivec2(dx, dy) * step_size;
-            if (q.x < 0 || q.y < 0 || q.x >= int(width) || q.y >= int(height)) continue;
-            uint j = uint(q.y) * width + uint(q.x);
-            if (floatBitsToUint(guide[2u * j].w) != chart) continue;
-            vec4 c = colour_in[j];
-            vec3 n_q = guide[2u * j + 1u].xyz;
-            float w = KERNEL[abs(dx)] * KERNEL[abs(dy)];
-            if (j != i) {  // the centre weighs in whole (even with a degenerate normal)
-                w *= pow(max(0.0, dot(n_p, n_q)), 64.0);
-                w *= exp(-abs(dot(n_p, guide[2u * j].xyz - x_p)) / s_p);
-                w *= exp(-abs(luminance(c.rgb) - l_p) / (4.0 * sigma_p + 1e-6));
-            }
-            sum += w * c.rgb;
-            weights += w;
-            variance += w * w * c.w;
+            uint j;
+            vec3 f = vec3(1.0, dx, dy);
+            m += tap_weight(p, centre, dx, dy, j) * outerProduct(f, f);
         }
     }
-    // The centre always weighs in, so weights > 0.
-    colour_out[i] = vec4(sum / weights, variance / (weights * weights));
+    // The fit's value at the texel is sum of w (g . f) v with g = M^-1 (1, 0, 0).
+    // Where the taps cannot fix a plane (a chart one texel wide, a lone
+    // texel) it is their weighted mean: g = (1 / sum of w, 0, 0).
+    vec3 g = abs(determinant(m)) > 1e-6 * m[0][0] * m[0][0] * m[0][0] ? inverse(m)[0] : vec3(1.0 / m[0][0], 0.0, 0.0);
+
+    vec3 sum = vec3(0.0);
+    float variance = 0.0;
+    for (int dy = -2; dy <= 2; ++dy) {
+        for (int dx = -2; dx <= 2; ++dx) {
+            uint j;
+            float k = tap_weight(p, centre, dx, dy, j) * dot(g, vec3(1.0, dx, dy));
+            if (k == 0.0) continue;
+            vec4 c = colour_in[j];
+            sum += k * c.rgb;
+            variance += k * k * c.w;
+        }
+    }
+    // Irradiance is never negative; a fit's extrapolation to a border could be.
+    colour_out[i] = vec4(max(sum, vec3(0.0)), variance);
 }
