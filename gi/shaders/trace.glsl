@@ -72,14 +72,14 @@ bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float 
     return true;
 }
 
+const float LF_INFINITY = uintBitsToFloat(0x7f800000u);
+
 // Entry distances of the ray into a node's four child boxes, +infinity for
 // a box it misses. An unused child slot holds a box at +infinity, which no
 // ray enters (see build_bvh). The exit distance is pushed out by a few ulps
 // (Ize 2013, "Robust BVH Ray Traversal") so rounding never drops a box whose
 // face a ray grazes: a ray through a vertex on the box's surface must still
 // reach the triangles.
-const float LF_INFINITY = uintBitsToFloat(0x7f800000u);
-
 vec4 intersect_boxes(vec3 org_x_inv, vec3 inv_dir, uint node, float t_max) {
     uint base = 8u * node;
     vec4 tx0 = lf_bvh_nodes[base + 0u] * inv_dir.x - org_x_inv.x, tx1 = lf_bvh_nodes[base + 1u] * inv_dir.x - org_x_inv.x;
