@@ -953,11 +953,6 @@ TEST(AtlasSpeed, BigScenesAt1024) {
     }
 }
 
-// The figures of docs/BENCHMARKS.md's "Packing by texel shape" (run with
-// --gtest_also_run_disabled_tests): per scene, the auto atlas (a border
-// fraction of 0.5, gi/bake/bake_job.cpp's default; the fastest of 3) and
-// the density a 512² atlas reaches. The Cornell box's own TEXCOORD_1 is
-// ignored: every atlas here is generated.
 // What a bake's stitch costs (docs/BENCHMARKS.md, "Read-backs in batches,
 // the seam system built once"): the staircase's smooth seams at 512², three
 // layers of random texels (a noisy lightmap), stitched as the bake did before
@@ -994,6 +989,11 @@ TEST(SeamsSpeed, DISABLED_OneSystemLayersInParallel) {
     EXPECT_EQ(before, after);
 }
 
+// The figures of docs/BENCHMARKS.md's "Packing by texel shape" (run with
+// --gtest_also_run_disabled_tests): per scene, the auto atlas (a border
+// fraction of 0.5, gi/bake/bake_job.cpp's default; the fastest of 3) and
+// the density a 512² atlas reaches. The Cornell box's own TEXCOORD_1 is
+// ignored: every atlas here is generated.
 TEST(AtlasSpeed, DISABLED_AutoAndFixedResolution) {
     for (const char* name :
          {"cornell_box.gltf", "monkey.glb", "spheres.glb", "real/wooden_staircase/wooden_staircase.gltf",
