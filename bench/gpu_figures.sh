@@ -43,8 +43,6 @@ bake() {  # NAME SCENE ARGS...
 }
 # shellcheck disable=SC2086
 bake cornell cornell_box.gltf $cornell
-"$lightfarm" compare "$out/cornell/lightmap.exr" "$scenes/cornell_box.ref256.exr" \
-  --mask "$scenes/cornell_box.mask256.pfm" > "$out/cornell.compare.json" 2>&1 || true  # the reference is 256²: fails at 512²
 # shellcheck disable=SC2086
 bake spheres spheres.glb $spheres
 # shellcheck disable=SC2086
