@@ -5,9 +5,7 @@
 #define LF_TRACE_GLSL
 
 #include "buffer_bindings.glsl"
-#ifndef LF_BVH_STACK_SIZE
-#define LF_BVH_STACK_SIZE 144  // = kBvhStackSize in trace/bvh.h: 3 per level of a 4-wide tree
-#endif
+#include "bvh_layout.glsl"
 
 // BvhNode (128 bytes, 4-wide): lo_x, hi_x, lo_y, hi_y, lo_z, hi_z of the four
 // child boxes, then the children's indices and triangle counts (as uint bits).

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "scene/scene.h"
+#include "shaders/bvh_layout.glsl"
 
 #include <glm/glm.hpp>
 
@@ -31,7 +32,8 @@ struct BvhNode {
     bool child_used(int c) const { return !std::isinf(lo_x[c]); }
 };
 static_assert(sizeof(BvhNode) == 128);
-constexpr int kBvhWidth = 4;
+constexpr int kBvhWidth = LF_BVH_WIDTH;
+static_assert(kBvhWidth == 4, "BvhNode holds its children as the components of vec4s");
 
 // A triangle as the traversal reads it: three vertices, 48 bytes; the
 // scene's triangle index rides in the first vertex's w.
@@ -61,10 +63,9 @@ struct Bvh {
 };
 
 // The deepest the binary tree may go. The 4-wide tree, collapsed from it, is
-// no deeper, and a traversal pushes at most kBvhWidth - 1 nodes per level:
-// the GLSL traversal stack (LF_BVH_STACK_SIZE in trace.glsl) holds that.
-constexpr int kBvhMaxDepth = 48;
-constexpr int kBvhStackSize = (kBvhWidth - 1) * kBvhMaxDepth;
+// no deeper, and the GLSL traversal's stack is sized from it
+// (shaders/bvh_layout.glsl, where both numbers are defined for both languages).
+constexpr int kBvhMaxDepth = LF_BVH_MAX_DEPTH;
 
 // Builds over all triangles with non-zero area (degenerate ones can never be
 // hit and are left out): a binary tree by binned SAH (32 bins, leaves of at
