@@ -85,14 +85,16 @@ void main() {
     }
     ivec2 p = ivec2(i % width, i / width);
 
-    // The normal equations of the weighted fit: M = sum of w f f^T, f = (1, dx, dy).
+    // The taps' weights (read once: the fit and the sum both need them), and
+    // the normal equations of the weighted fit: M = sum of w f f^T, f = (1, dx, dy).
+    float w[25];
+    uint tap[25];
     mat3 m = mat3(0.0);
-    for (int dy = -2; dy <= 2; ++dy) {
-        for (int dx = -2; dx <= 2; ++dx) {
-            uint j;
-            vec3 f = vec3(1.0, dx, dy);
-            m += tap_weight(p, centre, dx, dy, j) * outerProduct(f, f);
-        }
+    for (int t = 0; t < 25; ++t) {
+        int dx = t % 5 - 2, dy = t / 5 - 2;
+        w[t] = tap_weight(p, centre, dx, dy, tap[t]);
+        vec3 f = vec3(1.0, dx, dy);
+        m += w[t] * outerProduct(f, f);
     }
     // The fit's value at the texel is sum of w (g . f) v with g = M^-1 (1, 0, 0).
     // Where the taps cannot fix a plane (a chart one texel wide, a lone
@@ -101,15 +103,12 @@ void main() {
 
     vec3 sum = vec3(0.0);
     float variance = 0.0;
-    for (int dy = -2; dy <= 2; ++dy) {
-        for (int dx = -2; dx <= 2; ++dx) {
-            uint j;
-            float k = tap_weight(p, centre, dx, dy, j) * dot(g, vec3(1.0, dx, dy));
-            if (k == 0.0) continue;
-            vec4 c = colour_in[j];
-            sum += k * c.rgb;
-            variance += k * k * c.w;
-        }
+    for (int t = 0; t < 25; ++t) {
+        float k = w[t] * dot(g, vec3(1.0, t % 5 - 2, t / 5 - 2));
+        if (k == 0.0) continue;
+        vec4 c = colour_in[tap[t]];
+        sum += k * c.rgb;
+        variance += k * k * c.w;
     }
     // Irradiance is never negative; a fit's extrapolation to a border could be.
     colour_out[i] = vec4(max(sum, vec3(0.0)), variance);
