@@ -385,5 +385,19 @@ TEST(GpuDispatch, CoversEveryItemOnceBeyond65535Groups) {
     }
 }
 
+// A buffer larger than a shader can address is refused before GL allocates
+// it, with its size in the message (the 4096² staircase's 2.26 GB of sample
+// points crashed llvmpipe's worker instead).
+TEST(GpuBuffer, RefusesMoreThanAShaderCanAddress) {
+    gpu();
+    try {
+        GpuBuffer too_large(kMaxGpuBufferBytes + 1);
+        FAIL() << "a buffer of " << too_large.bytes() << " bytes was made";
+    } catch (const GpuBufferTooLarge& e) {
+        EXPECT_NE(std::string(e.what()).find("2.15 GB"), std::string::npos) << e.what();
+    }
+    EXPECT_LT(kMaxGpuBufferBytes, size_t(1) << 31);
+}
+
 }  // namespace
 }  // namespace lf

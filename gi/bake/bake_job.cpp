@@ -10,6 +10,7 @@
 #include "bake/radiosity_map_method.h"
 #include "bake/sh_transfer_method.h"
 #include "bake/snapshot_writer.h"
+#include "gpu/shader.h"
 #include "io/image_files.h"
 #include "scene/gltf_loader.h"
 
@@ -168,6 +169,19 @@ std::vector<std::unique_ptr<ProgressiveMethod>> make_methods(const PreparedScene
     if (s.sh) methods.push_back(std::make_unique<ShTransferMethod>(p, s));
     if (s.probes) methods.push_back(std::make_unique<ProbesMethod>(p, s));
     return methods;
+}
+
+// make_methods, a buffer too large for the device refused as the job's
+// input: the atlas (or the sample points per texel) is what makes one so
+// large, and a smaller one is what the user can change.
+std::vector<std::unique_ptr<ProgressiveMethod>> methods_that_fit(const PreparedScene& p, const BakeJob& job) {
+    try {
+        return make_methods(p, job.settings);
+    } catch (const GpuBufferTooLarge& e) {
+        throw BakeInputError(job.scene.filename().string() + ": this bake needs " + e.what() + " (" +
+                             std::to_string(p.atlas.width) + "x" + std::to_string(p.atlas.height) +
+                             " atlas); bake at a lower --res or --texel-density, or with --subsamples 1");
+    }
 }
 
 // "lightmap.pass-0004.exr" -> "lightmap.pass-NNNN.exr": how methods describe their snapshots.
@@ -366,7 +380,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     fs::create_directories(job.out);
     const std::unique_ptr<PreparedScene> prepared = prepare(job);
     std::vector<std::unique_ptr<ProgressiveMethod>> methods =
-        prepared->timed("methods", [&] { return make_methods(*prepared, job.settings); });
+        prepared->timed("methods", [&] { return methods_that_fit(*prepared, job); });
     prepared->prepare_seconds = seconds_since(start);
 
     protocol::StartEvent started;

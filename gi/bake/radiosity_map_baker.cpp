@@ -97,8 +97,8 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
 
 void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     covered_count_ = texels.covered_count();
-    std::vector<glm::vec4> points;
-    points.reserve(3 * texels.samples.size());
+    std::vector<glm::vec4> points;  // radiosity_texels.glsl's sample_points
+    points.reserve(2 * texels.samples.size());
     std::vector<glm::uvec4> covered(covered_count_);
     std::vector<glm::vec4> accumulators(kAccumulatorVec4s * covered_count_, glm::vec4(0.0f));
     covered_atlas_index_ = texels.texels;
@@ -112,8 +112,7 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
             glm::vec3 ng = s.geometric_normal;
             if (glm::dot(ng, s.normal) < 0.0f) ng = -ng;
             points.push_back(glm::vec4(s.position, texels.texel_world_size[i]));
-            points.push_back(glm::vec4(s.normal, 0.0f));
-            points.push_back(glm::vec4(ng, 0.0f));
+            points.push_back(glm::vec4(ng, pack_unit_vector(s.normal)));
         }
     }
     sample_points_ = GpuBuffer(points);
@@ -155,10 +154,13 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
 // Moves sample points out of geometry, then records each texel's anchor
 // (where it gathers) for the leak check of reflected_radiance_at.
 void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
+    GpuBuffer moved_samples((sample_count + 31) / 32 * sizeof(uint32_t));  // a bit per sample point
+    moved_samples.clear_zero();
     ComputeProgram relocate("texel_relocate.comp");
     relocate.use();
     tracer_.bind();
     sample_points_.bind(LF_BINDING_TEXEL_SAMPLE_POINTS);
+    moved_samples.bind(LF_BINDING_MOVED_SAMPLES);
     glUniform1ui(relocate.uniform("sample_count"), GLuint(sample_count));
     relocate.dispatch_1d(sample_count);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -178,19 +180,19 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     glUniform2ui(wall_check.uniform("atlas_size"), GLuint(width_), GLuint(height_));
     wall_check.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-    count_texels_by_geometry();
+    count_texels_by_geometry(moved_samples);
     copy_to_dilated_texels(texel_anchors_);
 }
 
 // How many texels intersecting geometry touched, for the output to say
 // (read back once, before the passes).
-void RadiosityMapBaker::count_texels_by_geometry() {
-    const std::vector<glm::vec4> points = sample_points_.read<glm::vec4>();
+void RadiosityMapBaker::count_texels_by_geometry(const GpuBuffer& moved_samples) {
+    const std::vector<uint32_t> moved_bits = moved_samples.read<uint32_t>();
     const std::vector<glm::vec4> anchors = texel_anchors_.read<glm::vec4>();
     const std::vector<glm::uvec4> covered = covered_.read<glm::uvec4>();
     for (const glm::uvec4& texel : covered) {
         bool moved = false;
-        for (uint32_t s = texel.x; s < texel.x + texel.y; ++s) moved = moved || points[3 * size_t(s) + 1].w != 0.0f;
+        for (uint32_t s = texel.x; s < texel.x + texel.y; ++s) moved = moved || (moved_bits[s / 32] >> (s % 32) & 1u);
         moved_texels_ += moved ? 1 : 0;
         cut_texels_ += anchors[texel.z].w >= float(LF_ANCHOR_CUT) ? 1 : 0;  // or LF_ANCHOR_NEXT_TO_CUT
     }

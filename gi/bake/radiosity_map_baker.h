@@ -145,7 +145,7 @@ private:
     void count_pass(const ResolveTotals& totals);
     void relocate_samples_inside_geometry(size_t sample_count);
     void copy_to_dilated_texels(const GpuBuffer& atlas_buffer);
-    void count_texels_by_geometry();
+    void count_texels_by_geometry(const GpuBuffer& moved_samples);
     void add_directional_layers(FloatImage& image, const std::vector<glm::vec4>& sums) const;
 
     const Tracer& tracer_;

@@ -3,7 +3,12 @@
 #include "gpu/context.h"
 #include "gpu/embedded_shaders.h"
 
+#include <glm/packing.hpp>
+#include <glm/vec2.hpp>
+#include <glm/common.hpp>
+
 #include <algorithm>
+#include <cstdio>
 #include <map>
 #include <regex>
 #include <set>
@@ -139,7 +144,21 @@ void ComputeProgram::dispatch_1d(size_t n) const {
     check_gl(name_.c_str());
 }
 
+float pack_unit_vector(glm::vec3 v) {
+    v /= std::abs(v.x) + std::abs(v.y) + std::abs(v.z);
+    glm::vec2 e(v.x, v.y);
+    if (v.z < 0.0f)  // the lower half folded over the diagonals
+        e = (1.0f - glm::abs(glm::vec2(v.y, v.x))) * glm::vec2(v.x >= 0.0f ? 1.0f : -1.0f, v.y >= 0.0f ? 1.0f : -1.0f);
+    return uint_bits(glm::packSnorm2x16(e));
+}
+
 GpuBuffer::GpuBuffer(size_t bytes, const void* data) : bytes_(bytes) {
+    if (bytes > kMaxGpuBufferBytes) {
+        char text[128];
+        std::snprintf(text, sizeof text, "a GPU buffer of %.2f GB, more than the %.2f GB a shader can address in one",
+                      double(bytes) / 1e9, double(kMaxGpuBufferBytes) / 1e9);
+        throw GpuBufferTooLarge(text);
+    }
     glCreateBuffers(1, &id_);
     // Zero-sized SSBOs are not allowed; keep a 16-byte minimum so empty inputs still bind.
     glNamedBufferStorage(id_, GLsizeiptr(std::max<size_t>(bytes, 16)), bytes ? data : nullptr, GL_DYNAMIC_STORAGE_BIT);

@@ -4,6 +4,10 @@
 
 #include <epoxy/gl.h>
 
+#include "gpu/context.h"
+
+#include <glm/vec3.hpp>
+
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
@@ -58,10 +62,30 @@ inline float uint_bits(uint32_t u) {
     return f;
 }
 
+// The most bytes one GpuBuffer holds. A shader indexes a storage buffer's
+// bytes with 32-bit signed offsets on llvmpipe: the staircase's 4096² atlas,
+// whose sample points took 2.26 GB in one buffer, crashed its worker there
+// (2026-11-26). A buffer this large is refused with GpuBufferTooLarge
+// instead, on every device, so that a bake's limits do not depend on the
+// driver.
+constexpr size_t kMaxGpuBufferBytes = (size_t(1) << 31) - 1;
+
+// A buffer larger than kMaxGpuBufferBytes was asked for; what() says how large.
+class GpuBufferTooLarge : public GpuError {
+public:
+    using GpuError::GpuError;
+};
+
+// A unit vector as two snorm16 octahedral coordinates in a float lane's
+// bits (32 bits for 96), read in GLSL by unit_vector.glsl's
+// lf_unpack_unit_vector.
+float pack_unit_vector(glm::vec3 v);
+
 // A shader storage buffer that owns its GL name.
 class GpuBuffer {
 public:
     GpuBuffer() = default;
+    // Throws GpuBufferTooLarge above kMaxGpuBufferBytes.
     explicit GpuBuffer(size_t bytes, const void* data = nullptr);
     template <class T>
     explicit GpuBuffer(const std::vector<T>& v) : GpuBuffer(v.size() * sizeof(T), v.data()) {}

@@ -25,6 +25,7 @@
 #define LF_BINDING_TEXEL_ALBEDO 15
 #define LF_BINDING_DIRECTIONAL_ACCUMULATORS 16
 #define LF_BINDING_REFLECTED_INDIRECT 19  // per atlas texel, under a final gather
+#define LF_BINDING_MOVED_SAMPLES 20       // texel_relocate.comp, texel_anchor.comp: a bit per sample point
 // What an atlas texel is, in w of LF_BINDING_TEXEL_ANCHORS (read back by
 // RadiosityMapBaker to count the texels geometry touched).
 #define LF_ANCHOR_UNCOVERED 0.0

@@ -124,9 +124,9 @@ void main() {
     Rng rng = rng_start(i, pass, seed);
     // Cycle through the texel's sample points so the estimate averages its footprint.
     uint s = texel.x + (pass + pcg_hash(i)) % texel.y;
-    vec3 x = sample_points[3u * s].xyz;
-    vec3 n = sample_points[3u * s + 1u].xyz;
-    vec3 ng = sample_points[3u * s + 2u].xyz;
+    vec3 x = sample_position(s);
+    vec3 n = sample_normal(s);
+    vec3 ng = sample_geometric_normal(s);
     vec3 origin = offset_ray_origin(x, ng);
 
     // Direct: eq. 3.12 for the emitters (MIS with the indirect ray below),
@@ -176,7 +176,7 @@ void main() {
 #if defined(LF_PATH_TRACE)
             indirect = path_radiance(hit, origin, dir, rng, path_rays);
 #else
-            float near = sample_points[3u * s].w;  // the texel's size
+            float near = sample_texel_size(s);
             bool answered = map_may_say(hit, near) && map_radiance(hit, y, n_hit, rng, path_rays, indirect);
             if (!answered) indirect = gather_at_hit(hit, y, n_hit, near, rng, path_rays);
 #endif

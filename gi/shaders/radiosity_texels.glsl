@@ -2,13 +2,25 @@
 #ifndef LF_RADIOSITY_TEXELS_GLSL
 #define LF_RADIOSITY_TEXELS_GLSL
 #include "buffer_bindings.glsl"
+#include "unit_vector.glsl"
 
-// Sample points inside texel footprints: (position, world texel size),
-// (shading normal, 0), (geometric normal on the shading normal's side, 0).
+// Sample points inside texel footprints, two vec4 (32 bytes) each, so that
+// the 47 M points of the staircase's 4096² atlas fit one buffer
+// (kMaxGpuBufferBytes; at 48 bytes they did not):
+//   [2s]      position, world texel size
+//   [2s + 1]  geometric normal on the shading normal's side (xyz), shading
+//             normal packed in w (lf_unpack_unit_vector)
+// Read through the sample_* functions below.
 #ifndef LF_SAMPLE_POINTS_ACCESS
 #define LF_SAMPLE_POINTS_ACCESS readonly
 #endif
 layout(std430, binding = LF_BINDING_TEXEL_SAMPLE_POINTS) LF_SAMPLE_POINTS_ACCESS buffer TexelSamplePoints { vec4 sample_points[]; };
+#ifdef LF_MOVED_SAMPLES
+// One bit per sample point, set where texel_relocate.comp moved it out of
+// geometry (texel_anchor.comp marks its texel; the bake counts them).
+layout(std430, binding = LF_BINDING_MOVED_SAMPLES) buffer MovedSamples { uint moved_samples[]; };
+bool sample_was_moved(uint s) { return (moved_samples[s / 32u] & (1u << (s % 32u))) != 0u; }
+#endif
 // Per covered texel: (first sample point, sample count, atlas index, 0).
 layout(std430, binding = LF_BINDING_COVERED_TEXELS) readonly buffer CoveredTexels { uvec4 covered_texels[]; };
 
@@ -28,5 +40,10 @@ uint covered_index() {
 }
 
 float channel_mean(vec3 c) { return (c.r + c.g + c.b) * (1.0 / 3.0); }
+
+vec3 sample_position(uint s) { return sample_points[2u * s].xyz; }
+float sample_texel_size(uint s) { return sample_points[2u * s].w; }
+vec3 sample_geometric_normal(uint s) { return sample_points[2u * s + 1u].xyz; }
+vec3 sample_normal(uint s) { return lf_unpack_unit_vector(sample_points[2u * s + 1u].w); }
 
 #endif

@@ -13,15 +13,13 @@
 layout(local_size_x = 64) in;
 
 #define LF_SAMPLE_POINTS_ACCESS
+#define LF_MOVED_SAMPLES
 #include "lightmap_lookup.glsl"
 #include "radiosity_texels.glsl"
 
 const uint MAX_CHECKED = 16u;
 
-vec3 lifted(uint s) {
-    vec4 p = sample_points[3u * s];
-    return p.xyz + 0.1 * p.w * sample_points[3u * s + 2u].xyz;
-}
+vec3 lifted(uint s) { return sample_position(s) + 0.1 * sample_texel_size(s) * sample_geometric_normal(s); }
 
 bool sees(uint a, uint b) {
     vec3 from = lifted(a);
@@ -34,7 +32,7 @@ void main() {
     uvec4 texel = covered_texels[i];
     uint first = texel.x, count = min(texel.y, MAX_CHECKED);
     bool marked = false;
-    for (uint s = first; s < first + texel.y; ++s) marked = marked || sample_points[3u * s + 1u].w != 0.0;
+    for (uint s = first; s < first + texel.y; ++s) marked = marked || sample_was_moved(s);
 
     // Which samples see which: bit b of visible[a] is set when sample a sees
     // sample b. Seeing is the same segment both ways, so each pair is traced
@@ -60,10 +58,10 @@ void main() {
         // Cut by geometry: samples on the far side take the reference's place.
         for (uint s = 0u; s < count; ++s) {
             if ((visible[reference] & (1u << s)) != 0u) continue;
-            for (uint k = 0u; k < 3u; ++k) sample_points[3u * (first + s) + k] = sample_points[3u * (first + reference) + k];
+            for (uint k = 0u; k < 2u; ++k) sample_points[2u * (first + s) + k] = sample_points[2u * (first + reference) + k];
         }
         marked = true;
     }
     reference += first;
-    texel_anchors[texel.z] = vec4(sample_points[3u * reference].xyz, marked ? LF_ANCHOR_CUT : LF_ANCHOR_COVERED);
+    texel_anchors[texel.z] = vec4(sample_position(reference), marked ? LF_ANCHOR_CUT : LF_ANCHOR_COVERED);
 }

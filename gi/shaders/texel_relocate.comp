@@ -7,6 +7,7 @@
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 #define LF_SAMPLE_POINTS_ACCESS
+#define LF_MOVED_SAMPLES
 #include "trace.glsl"
 #include "sampling.glsl"
 #include "radiosity_texels.glsl"
@@ -17,9 +18,9 @@ uniform uint sample_count;
 void main() {
     uint s = covered_index();
     if (s >= sample_count) return;
-    vec3 x = sample_points[3u * s].xyz;
-    float texel_size = sample_points[3u * s].w;
-    vec3 ng = sample_points[3u * s + 2u].xyz;
+    vec3 x = sample_position(s);
+    float texel_size = sample_texel_size(s);
+    vec3 ng = sample_geometric_normal(s);
     vec3 t, b;
     orthonormal_basis(ng, t, b);
     vec3 origin = offset_ray_origin(x, ng);
@@ -39,7 +40,7 @@ void main() {
         // Just past the back face, back on the plane of the surface.
         vec3 moved = x + best_dir * (best_t + 0.05);
         moved -= ng * dot(moved - x, ng);
-        sample_points[3u * s].xyz = moved;
-        sample_points[3u * s + 1u].w = 1.0;  // moved: the texel's anchor (texel_anchor.comp)
+        sample_points[2u * s].xyz = moved;
+        atomicOr(moved_samples[s / 32u], 1u << (s % 32u));  // for the texel's anchor (texel_anchor.comp)
     }
 }

@@ -16,7 +16,7 @@ void main() {
     uvec4 texel = covered_texels[i];
     vec4 self = texel_anchors[texel.z];
     if (self.w >= LF_ANCHOR_CUT) return;
-    vec3 lift = 0.1 * sample_points[3u * texel.x].w * sample_points[3u * texel.x + 2u].xyz;
+    vec3 lift = 0.1 * sample_texel_size(texel.x) * sample_geometric_normal(texel.x);
     int x = int(texel.z % atlas_size.x), y = int(texel.z / atlas_size.x);
     const ivec2 offsets[4] = ivec2[4](ivec2(1, 0), ivec2(-1, 0), ivec2(0, 1), ivec2(0, -1));
     for (int k = 0; k < 4; ++k) {
