@@ -2,6 +2,7 @@
 
 #include "atlas/mesh_topology.h"
 #include "atlas/texel_samples.h"
+#include "util/parallel.h"
 
 #include <glm/gtc/constants.hpp>
 
@@ -427,8 +428,9 @@ ChartLayout lay_out_charts(const Scene& scene, std::vector<Chart> charts) {
     for (size_t c = 0; c < layout.charts.size(); ++c) {
         layout.first[c] = next;
         next += uint32_t(layout.charts[c].triangles.size());
-        layout.shapes[c] = lay_out_chart(scene, layout.charts[c], layout.corners_of(c));
     }
+    parallel_for(layout.charts.size(), 64,
+                 [&](size_t c) { layout.shapes[c] = lay_out_chart(scene, layout.charts[c], layout.corners_of(c)); });
     return layout;
 }
 
@@ -749,12 +751,28 @@ void share_shape(TexelMasks& set, size_t first_turn, size_t rows, size_t words, 
 // they are worth it: 2% more texels/m for the staircase at 1024².
 constexpr size_t kQuarterTurnTexels = 64;
 
+// A chart's texel runs as rasterized (chart_runs): turned by 0° and, where
+// add_chart_masks may need them, by 90°.
+struct RasterizedChart {
+    std::array<std::vector<TexelRun>, 2> turns;  // 0° (turn 0), 90° (turn 2)
+};
+
+// Rasterizes chart c for add_chart_masks: the 90° turn only where the
+// chart's rectangle holds kQuarterTurnTexels or more (its mask, no larger,
+// may then have that many texels).
+void rasterize_chart(const ChartLayout& layout, size_t c, double density, RasterizedChart& out) {
+    for (std::vector<TexelRun>& runs : out.turns) runs.clear();
+    chart_runs(layout, c, density, 0, out.turns[0]);
+    const glm::ivec2 rect = chart_rect(layout.shapes[c].size, density);
+    if (size_t(rect.x) * size_t(rect.y) >= kQuarterTurnTexels) chart_runs(layout, c, density, 2, out.turns[1]);
+}
+
 // Appends chart c's masks in each of its kTurns turns. The 0° and 90° turns
-// are rasterized; the 180° and 270° ones are those turned by 180° (texel
-// (i, j) of a w x h mask to (w-1-i, h-1-j)), which is exact because a chart
-// is centred in its rectangle.
-void add_chart_masks(TexelMasks& set, const ChartLayout& layout, size_t c, double density,
-                     std::vector<TexelRun>& runs) {
+// are rasterized (`chart`, whose runs are used up); the 180° and 270° ones
+// are those turned by 180° (texel (i, j) of a w x h mask to
+// (w-1-i, h-1-j)), which is exact because a chart is centred in its
+// rectangle.
+void add_chart_masks(TexelMasks& set, const ChartLayout& layout, size_t c, double density, RasterizedChart& chart) {
     const size_t first = set.masks.size();
     for (int turn = 0; turn < kTurns; ++turn) {
         if (turn == 2 && set.masks[first].texels < kQuarterTurnTexels) {
@@ -765,12 +783,9 @@ void add_chart_masks(TexelMasks& set, const ChartLayout& layout, size_t c, doubl
             return;
         }
         const glm::ivec2 rect = chart_rect(turned_size(layout.shapes[c].size, turn), density);
-        if (turn % 2 == 0) {
-            runs.clear();
-            chart_runs(layout, c, density, turn, runs);
-        } else {
+        std::vector<TexelRun>& runs = chart.turns[size_t(turn / 2)];
+        if (turn % 2 == 1)
             for (TexelRun& run : runs) run = {rect.y - 1 - run.row, rect.x - run.hi, rect.x - run.lo};
-        }
         const size_t rows = set.rows.size(), words = set.words.size(), cores = set.cores.size();
         add_mask(set, rect, runs);
         share_shape(set, first, rows, words, cores);
@@ -793,17 +808,28 @@ double padded_texels(const TexelMasks& set, const Mask& m, int r) {
 // false when they cannot fit a size x size atlas: a rectangle wider than it,
 // too many texels (padded_texels), or (a hostile scene's hollow charts)
 // masks of more than 32 bits per atlas texel.
+//
+// The charts are rasterized on every core, a block at a time, and their
+// masks added in chart order (the same set on any number of threads); an
+// attempt that cannot fit stops at the block where it fails.
 bool chart_masks(const ChartLayout& layout, double density, int size, int padding, TexelMasks& set) {
     const double atlas = double(size) * double(size), padded_atlas = double(size + padding) * double(size + padding);
     set.clear();
-    std::vector<TexelRun> runs;
-    for (size_t c = 0; c < layout.charts.size(); ++c) {
-        const glm::ivec2 rect = chart_rect(layout.shapes[c].size, density);
-        if (rect.x > size || rect.y > size) return false;
-        add_chart_masks(set, layout, c, density, runs);
-        set.padded += padded_texels(set, set.mask(c, 0), padding / 2);
-        set.one_texel_each = set.one_texel_each && rect == glm::ivec2(1);
-        if (set.padded > padded_atlas || double(set.words.size()) > atlas / 2.0 + 65536.0) return false;
+    constexpr size_t kBlock = 2048;
+    std::vector<RasterizedChart> block(std::min(kBlock, layout.charts.size()));
+    for (size_t begin = 0; begin < layout.charts.size(); begin += kBlock) {
+        const size_t end = std::min(layout.charts.size(), begin + kBlock);
+        for (size_t c = begin; c < end; ++c) {
+            const glm::ivec2 rect = chart_rect(layout.shapes[c].size, density);
+            if (rect.x > size || rect.y > size) return false;
+        }
+        parallel_for(end - begin, 16, [&](size_t k) { rasterize_chart(layout, begin + k, density, block[k]); });
+        for (size_t c = begin; c < end; ++c) {
+            add_chart_masks(set, layout, c, density, block[c - begin]);
+            set.padded += padded_texels(set, set.mask(c, 0), padding / 2);
+            set.one_texel_each = set.one_texel_each && chart_rect(layout.shapes[c].size, density) == glm::ivec2(1);
+            if (set.padded > padded_atlas || double(set.words.size()) > atlas / 2.0 + 65536.0) return false;
+        }
     }
     return true;
 }

@@ -1,8 +1,12 @@
 #include "atlas/texel_samples.h"
 
+#include "util/parallel.h"
+
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 
 namespace lf {
@@ -75,34 +79,87 @@ struct PixelTriangle {
 
 // The centroid of the part of the triangle inside texel (x, y): the triangle
 // clipped to the texel square (Sutherland-Hodgman), so the point lies in both.
+// A triangle clipped by four half-planes keeps at most seven corners.
 glm::dvec2 centroid_inside_texel(const PixelTriangle& tri, int x, int y) {
-    std::vector<glm::dvec2> poly(tri.p.begin(), tri.p.end()), next;
+    std::array<glm::dvec2, 8> poly{tri.p[0], tri.p[1], tri.p[2]}, next;
+    size_t count = 3;
     auto clip = [&](auto inside_distance) {  // keeps points with distance >= 0
-        next.clear();
-        for (size_t i = 0; i < poly.size(); ++i) {
-            const glm::dvec2 a = poly[i], b = poly[(i + 1) % poly.size()];
+        size_t kept = 0;
+        for (size_t i = 0; i < count; ++i) {
+            const glm::dvec2 a = poly[i], b = poly[(i + 1) % count];
             const double da = inside_distance(a), db = inside_distance(b);
-            if (da >= 0.0) next.push_back(a);
-            if ((da >= 0.0) != (db >= 0.0)) next.push_back(a + (b - a) * (da / (da - db)));
+            if (da >= 0.0) next[kept++] = a;
+            if ((da >= 0.0) != (db >= 0.0)) next[kept++] = a + (b - a) * (da / (da - db));
         }
-        poly.swap(next);
+        poly = next;
+        count = kept;
     };
     clip([&](glm::dvec2 q) { return q.x - x; });
     clip([&](glm::dvec2 q) { return x + 1 - q.x; });
     clip([&](glm::dvec2 q) { return q.y - y; });
     clip([&](glm::dvec2 q) { return y + 1 - q.y; });
-    if (poly.empty()) return glm::clamp(tri.centroid(), glm::dvec2(x, y), glm::dvec2(x + 1, y + 1));
+    if (count == 0) return glm::clamp(tri.centroid(), glm::dvec2(x, y), glm::dvec2(x + 1, y + 1));
     double area2 = 0.0;
     glm::dvec2 weighted(0.0), mean(0.0);
-    for (size_t i = 0; i < poly.size(); ++i) {
-        const glm::dvec2 a = poly[i], b = poly[(i + 1) % poly.size()];
+    for (size_t i = 0; i < count; ++i) {
+        const glm::dvec2 a = poly[i], b = poly[(i + 1) % count];
         const double c = cross2(a, b);
         area2 += c;
         weighted += (a + b) * c;
         mean += a;
     }
     if (std::abs(area2) > 1e-12) return weighted / (3.0 * area2);
-    return mean / double(poly.size());
+    return mean / double(count);
+}
+
+// The rows [first, last] of the image that a triangle's UV bounding box
+// reaches (first > last where none).
+glm::ivec2 triangle_rows(const PixelTriangle& tri, int height) {
+    const double lo = std::min({tri.p[0].y, tri.p[1].y, tri.p[2].y});
+    const double hi = std::max({tri.p[0].y, tri.p[1].y, tri.p[2].y});
+    return {std::max(0, int(std::floor(lo))), std::min(height - 1, int(std::floor(hi)))};
+}
+
+// Calls emit(x, y, pixel_position) for every sample of a finite,
+// non-degenerate triangle in rows [rows.x, rows.y]: covered sub-positions,
+// else one conservative sample per touched texel; returns whether it
+// emitted any. Without kPositions, emit(x, y) only (counting), and the
+// conservative samples' positions are not computed.
+template <bool kPositions, typename Emit>
+bool rasterize_rows(const PixelTriangle& tri, int width, int n, glm::ivec2 rows, Emit&& emit) {
+    const glm::dvec2 lo = glm::min(glm::min(tri.p[0], tri.p[1]), tri.p[2]);
+    const glm::dvec2 hi = glm::max(glm::max(tri.p[0], tri.p[1]), tri.p[2]);
+    const int x0 = std::max(0, int(std::floor(lo.x))), x1 = std::min(width - 1, int(std::floor(hi.x)));
+    bool any = false;
+    for (int y = rows.x; y <= rows.y; ++y)
+        for (int x = x0; x <= x1; ++x) {
+            bool covered = false;
+            for (int j = 0; j < n; ++j)
+                for (int i = 0; i < n; ++i) {
+                    const glm::dvec2 q(x + (i + 0.5) / n, y + (j + 0.5) / n);
+                    if (tri.contains(q)) {
+                        if constexpr (kPositions) emit(x, y, q);
+                        else emit(x, y);
+                        covered = true;
+                    }
+                }
+            if (!covered && tri.touches_texel(x, y)) {
+                if constexpr (kPositions) emit(x, y, centroid_inside_texel(tri, x, y));
+                else emit(x, y);
+                covered = true;
+            }
+            any = any || covered;
+        }
+    return any;
+}
+
+// The one sample of a finite triangle that rasterizes to none (degenerate
+// in UV, or smaller than kTouchDepth everywhere: it still owns its texel),
+// at its UV centroid, if that lies inside the image.
+std::optional<glm::dvec2> centroid_sample(const PixelTriangle& tri, int width, int height) {
+    const glm::dvec2 c = tri.centroid();
+    if (c.x < 0.0 || c.y < 0.0 || c.x >= width || c.y >= height) return std::nullopt;
+    return c;
 }
 
 // Calls emit(x, y, pixel_position) for every sample of triangle t: covered
@@ -112,39 +169,35 @@ template <typename Emit>
 void rasterize_triangle(const Scene& scene, size_t t, int width, int height, int n, Emit&& emit) {
     const PixelTriangle tri(scene, t, width, height);
     if (!tri.finite()) return;
-    auto emit_centroid = [&] {
-        const glm::dvec2 c = tri.centroid();
-        if (c.x < 0.0 || c.y < 0.0 || c.x >= width || c.y >= height) return;
-        emit(int(c.x), int(c.y), c);
-    };
-    if (tri.degenerate()) {
-        emit_centroid();
-        return;
-    }
+    if (!tri.degenerate() && rasterize_rows<true>(tri, width, n, triangle_rows(tri, height), emit)) return;
+    if (const auto c = centroid_sample(tri, width, height)) emit(int(c->x), int(c->y), *c);
+}
 
-    const glm::dvec2 lo = glm::min(glm::min(tri.p[0], tri.p[1]), tri.p[2]);
-    const glm::dvec2 hi = glm::max(glm::max(tri.p[0], tri.p[1]), tri.p[2]);
-    const int x0 = std::max(0, int(std::floor(lo.x))), x1 = std::min(width - 1, int(std::floor(hi.x)));
-    const int y0 = std::max(0, int(std::floor(lo.y))), y1 = std::min(height - 1, int(std::floor(hi.y)));
-    bool any = false;
-    for (int y = y0; y <= y1; ++y)
-        for (int x = x0; x <= x1; ++x) {
-            bool covered = false;
-            for (int j = 0; j < n; ++j)
-                for (int i = 0; i < n; ++i) {
-                    const glm::dvec2 q(x + (i + 0.5) / n, y + (j + 0.5) / n);
-                    if (tri.contains(q)) {
-                        emit(x, y, q);
-                        covered = true;
-                    }
-                }
-            if (!covered && tri.touches_texel(x, y)) {
-                emit(x, y, centroid_inside_texel(tri, x, y));
-                covered = true;
-            }
-            any = any || covered;
-        }
-    if (!any) emit_centroid();  // smaller than kTouchDepth everywhere: still owns its texel
+// The image in bands of rows, each with the finite, non-degenerate
+// triangles whose rows reach into it, ascending: the passes of
+// rasterize_texel_samples run a band per task, and each pixel's samples come
+// out in triangle order, as one pass over the triangles gives them, on any
+// number of threads.
+struct RowBands {
+    int rows = 16;                                 // per band
+    std::vector<std::vector<uint32_t>> triangles;  // per band
+    // A triangle's rows within band b.
+    glm::ivec2 rows_of(size_t b, const PixelTriangle& tri, int height) const {
+        const glm::ivec2 all = triangle_rows(tri, height);
+        return {std::max(all.x, int(b) * rows), std::min(all.y, int(b + 1) * rows - 1)};
+    }
+};
+
+RowBands row_bands(const std::vector<PixelTriangle>& tris, int height) {
+    RowBands bands;
+    bands.triangles.resize(size_t((height + bands.rows - 1) / bands.rows));
+    for (uint32_t t = 0; t < tris.size(); ++t) {
+        if (!tris[t].finite() || tris[t].degenerate()) continue;
+        const glm::ivec2 rows = triangle_rows(tris[t], height);
+        for (int b = rows.x / bands.rows; b <= rows.y / bands.rows && rows.x <= rows.y; ++b)
+            bands.triangles[size_t(b)].push_back(t);
+    }
+    return bands;
 }
 
 void check_size(int width, int height, int subsamples) {
@@ -160,7 +213,10 @@ std::vector<std::pair<uint32_t, uint32_t>> dilation_map(const std::vector<uint32
                                                         int radius) {
     std::vector<std::pair<uint32_t, uint32_t>> map;
     if (radius <= 0) return map;
-    for (int y = 0; y < height; ++y)
+    std::vector<std::vector<std::pair<uint32_t, uint32_t>>> rows(
+        static_cast<size_t>(height));  // each row's, in scan order
+    parallel_for(size_t(height), 16, [&](size_t row) {
+        const int y = int(row);
         for (int x = 0; x < width; ++x) {
             if (count[size_t(y) * size_t(width) + size_t(x)] != 0) continue;
             int best = INT32_MAX;
@@ -178,8 +234,10 @@ std::vector<std::pair<uint32_t, uint32_t>> dilation_map(const std::vector<uint32
                     }
                 }
             }
-            if (best != INT32_MAX) map.emplace_back(uint32_t(y) * uint32_t(width) + uint32_t(x), best_pixel);
+            if (best != INT32_MAX) rows[row].emplace_back(uint32_t(y) * uint32_t(width) + uint32_t(x), best_pixel);
         }
+    });
+    for (const auto& r : rows) map.insert(map.end(), r.begin(), r.end());
     return map;
 }
 
@@ -211,12 +269,32 @@ TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, 
     check_size(width, height, subsamples_per_axis);
     const int n = subsamples_per_axis;
     const size_t pixels = size_t(width) * size_t(height);
+    std::vector<PixelTriangle> tris;
+    tris.reserve(scene.triangles.size());
+    for (size_t t = 0; t < scene.triangles.size(); ++t) tris.emplace_back(scene, t, width, height);
+    const RowBands bands = row_bands(tris, height);
 
     // Pass 1: samples per texel, to lay the sample array out by texel.
     std::vector<uint32_t> count(pixels, 0);
-    for (size_t t = 0; t < scene.triangles.size(); ++t)
-        rasterize_triangle(scene, t, width, height, n,
-                           [&](int x, int y, glm::dvec2) { ++count[size_t(y) * size_t(width) + size_t(x)]; });
+    std::vector<uint8_t> rasterized(tris.size(), 0);  // emitted a sample in some band
+    parallel_for(bands.triangles.size(), 1, [&](size_t b) {
+        for (const uint32_t t : bands.triangles[b]) {
+            const bool any =
+                rasterize_rows<false>(tris[t], width, n, bands.rows_of(b, tris[t], height),
+                                      [&](int x, int y) { ++count[size_t(y) * size_t(width) + size_t(x)]; });
+            if (any) std::atomic_ref<uint8_t>(rasterized[t]).store(1, std::memory_order_relaxed);
+        }
+    });
+    // Triangles that rasterized to nothing: one sample at the centroid, in
+    // its band's pass below (a pixel's samples in triangle order).
+    std::vector<std::vector<uint32_t>> centroids(bands.triangles.size());
+    for (uint32_t t = 0; t < tris.size(); ++t) {
+        if (rasterized[t] || !tris[t].finite()) continue;
+        if (const auto c = centroid_sample(tris[t], width, height)) {
+            ++count[size_t(c->y) * size_t(width) + size_t(c->x)];
+            centroids[size_t(c->y) / size_t(bands.rows)].push_back(t);
+        }
+    }
 
     TexelSamples out;
     out.width = width;
@@ -230,15 +308,28 @@ TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, 
         out.first_sample.push_back(out.first_sample.back() + count[pixel]);
     }
 
-    // Pass 2: the samples themselves.
+    // Pass 2: the samples themselves, a band per task, each band's
+    // triangles and centroid samples merged in triangle order.
     out.samples.resize(out.first_sample.back());
-    for (size_t t = 0; t < scene.triangles.size(); ++t) {
-        const PixelTriangle tri(scene, t, width, height);
-        rasterize_triangle(scene, t, width, height, n, [&](int x, int y, glm::dvec2 q) {
+    parallel_for(bands.triangles.size(), 1, [&](size_t b) {
+        auto write = [&](uint32_t t, int x, int y, glm::dvec2 q) {
             out.samples[cursor[size_t(y) * size_t(width) + size_t(x)]++] =
-                make_sample(scene, uint32_t(t), tri.barycentrics(q));
-        });
-    }
+                make_sample(scene, t, tris[t].barycentrics(q));
+        };
+        const std::vector<uint32_t>& rows = bands.triangles[b];
+        const std::vector<uint32_t>& lone = centroids[b];
+        for (size_t i = 0, j = 0; i < rows.size() || j < lone.size();) {
+            if (j == lone.size() || (i < rows.size() && rows[i] <= lone[j])) {
+                const uint32_t t = rows[i++];
+                rasterize_rows<true>(tris[t], width, n, bands.rows_of(b, tris[t], height),
+                                     [&](int x, int y, glm::dvec2 q) { write(t, x, y, q); });
+            } else {
+                const uint32_t t = lone[j++];
+                const glm::dvec2 c = tris[t].centroid();
+                write(t, int(c.x), int(c.y), c);
+            }
+        }
+    });
 
     // Per-texel averages.
     std::vector<float> world_per_texel(scene.triangles.size());
@@ -251,7 +342,7 @@ TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, 
     out.albedo.resize(covered);
     out.emission.resize(covered);
     out.texel_world_size.resize(covered);
-    for (size_t i = 0; i < covered; ++i) {
+    parallel_for(covered, 1024, [&](size_t i) {
         glm::vec3 albedo(0.0f), emission(0.0f);
         float size = 0.0f;
         for (uint32_t s = out.first_sample[i]; s < out.first_sample[i + 1]; ++s) {
@@ -264,7 +355,7 @@ TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, 
         out.albedo[i] = albedo * inv;
         out.emission[i] = emission * inv;
         out.texel_world_size[i] = size;
-    }
+    });
 
     out.dilation = dilation_map(count, width, height, dilate_texels);
     return out;
