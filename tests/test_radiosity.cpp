@@ -1144,15 +1144,7 @@ TEST(SamplePoints, PackedNormalsComeBackInGlsl) {
     for (int i = 0; i < 100000; ++i) normals.push_back(glm::normalize(glm::vec3(g(rng), g(rng), g(rng))));
     std::vector<glm::vec4> cases;
     for (const glm::vec3& n : normals) cases.push_back(glm::vec4(pack_unit_vector(n), 0.0f, 0.0f, 0.0f));
-    const ComputeProgram program("unit_vector_check.comp");
-    GpuBuffer in(cases), out(cases.size() * sizeof(glm::vec4));
-    in.bind(LF_BINDING_CHECK_CASES);
-    out.bind(LF_BINDING_CHECK_RESULTS);
-    program.use();
-    glUniform1ui(program.uniform("item_count"), GLuint(cases.size()));
-    program.dispatch_1d(cases.size());
-    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-    const auto got = out.read<glm::vec4>();
+    const auto got = test::run_check_program(ComputeProgram("unit_vector_check.comp"), cases, 1);
     double worst = 0.0;
     for (size_t i = 0; i < normals.size(); ++i) {
         const glm::dvec3 a(normals[i]), b(glm::vec3(got[i]));
@@ -1191,15 +1183,8 @@ TEST(SurfaceTextures, GlslMatchesTheSceneOnTheCpu) {
             const glm::vec2 bary = a + b > 1.0f ? glm::vec2(1.0f - a, 1.0f - b) : glm::vec2(a, b);
             cases.push_back(glm::vec4(uint_bits(t), bary, 0.0f));
         }
-        GpuBuffer in(cases), out(2 * cases.size() * sizeof(glm::vec4));
         textures.bind();
-        in.bind(LF_BINDING_CHECK_CASES);
-        out.bind(LF_BINDING_CHECK_RESULTS);
-        program.use();
-        glUniform1ui(program.uniform("item_count"), GLuint(cases.size()));
-        program.dispatch_1d(cases.size());
-        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-        const auto got = out.read<glm::vec4>();
+        const auto got = test::run_check_program(program, cases, 2);
         for (size_t i = 0; i < cases.size(); ++i) {
             const size_t t = glm::floatBitsToUint(cases[i].x);
             const glm::vec2 bary(cases[i].y, cases[i].z);
