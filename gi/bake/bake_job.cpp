@@ -20,6 +20,7 @@
 #include <fstream>
 #include <functional>
 #include <future>
+#include <map>
 #include <memory>
 #include <regex>
 
@@ -235,7 +236,8 @@ ResumePoint finished_output(const fs::path& out, const fs::path& path, const std
     ResumePoint point;
     point.stats = protocol::progress_from_json(done["stats"]);
     point.snapshots = done.value("snapshots", std::vector<std::string>{});
-    MethodResult result{done.value("files", std::vector<std::string>{}), done.value("manifest", nlohmann::json{})};
+    MethodResult result{done.value("files", std::vector<std::string>{}), done.value("manifest", nlohmann::json{}),
+                        nullptr};
     for (const std::string& f : result.files)
         if (!fs::exists(out / f)) throw MethodStateMismatch(f + ", which it finished, is missing");
     if (result.files.empty()) throw MethodStateMismatch(path.filename().string() + ": names no file");
@@ -341,7 +343,8 @@ void save_finished(const fs::path& out, const ProgressiveMethod& method, const P
 // One output from where it resumes: its passes (unless an earlier run
 // finished it) and its final files, added to `done`; returns its manifest section.
 nlohmann::json bake_output(ProgressiveMethod& m, const ResumePoint& from, const fs::path& out,
-                           const BakeEventSink& emit, protocol::DoneEvent& done) {
+                           const BakeEventSink& emit, protocol::DoneEvent& done,
+                           std::shared_ptr<const FloatImage>& final_image) {
     std::vector<std::string> snapshots = from.snapshots;
     PassStats last = from.stats;
     std::optional<MethodResult> result = from.finished;
@@ -356,12 +359,17 @@ nlohmann::json bake_output(ProgressiveMethod& m, const ResumePoint& from, const 
     done.final_files[m.output()] = result->files.front();
     done.files.insert(done.files.end(), result->files.begin(), result->files.end());
     done.progress = last;
+    final_image = std::move(result->image);
     return std::move(result->manifest);
 }
 
 // scene.lit.glb from the final lightmap: its RGB (irradiance/pi), RGBM-encoded.
-void write_lit_scene(const BakeJob& job, const Scene& atlas_scene, const fs::path& lightmap_exr) {
-    const FloatImage image = read_exr(lightmap_exr);
+// `lightmap` is the final image where the method still held it, else (an
+// output an earlier run finished) it is read from the file.
+void write_lit_scene(const BakeJob& job, const Scene& atlas_scene, const fs::path& lightmap_exr,
+                     std::shared_ptr<const FloatImage> lightmap) {
+    if (!lightmap) lightmap = std::make_shared<const FloatImage>(read_exr(lightmap_exr));
+    const FloatImage& image = *lightmap;
     const auto &r = image.at("R"), &g = image.at("G"), &b = image.at("B");
     std::vector<float> rgb(r.size() * 3);
     for (size_t i = 0; i < r.size(); ++i) {
@@ -419,14 +427,16 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"unlit_chart_rays", prepared->unlit_chart_rays}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
+    std::map<std::string, std::shared_ptr<const FloatImage>> final_images;  // by output
     for (size_t i = 0; i < methods.size(); ++i) {
         manifest["prepared"]["outputs"].push_back(methods[i]->output());
-        manifest[methods[i]->output()] = bake_output(*methods[i], resumed[i], job.out, emit, done);
+        manifest[methods[i]->output()] =
+            bake_output(*methods[i], resumed[i], job.out, emit, done, final_images[methods[i]->output()]);
     }
     if (prepared->atlas_scene) {
         done.files.push_back("scene.lightmapped.glb");
         if (const auto lightmap = done.final_files.find("lightmap"); lightmap != done.final_files.end()) {
-            write_lit_scene(job, *prepared->atlas_scene, job.out / lightmap->second);
+            write_lit_scene(job, *prepared->atlas_scene, job.out / lightmap->second, final_images["lightmap"]);
             done.files.push_back("scene.lit.glb");
         }
     }

@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -34,9 +35,15 @@ StopRule stop_rule_from(const protocol::StopSettings& stop);
 
 // What a method hands the driver when it is done: its files (the main one
 // first) and its section of manifest.json.
+struct FloatImage;
+
 struct MethodResult {
     std::vector<std::string> files;
     nlohmann::json manifest = nlohmann::json::object();
+    // The image written to files.front(), where the method still holds it:
+    // the driver makes scene.lit.glb from it rather than read the file back
+    // (6.4 s of a 4096² bake). Null for an output an earlier run finished.
+    std::shared_ptr<const FloatImage> image;
 };
 
 // The second half of a snapshot: builds and writes its files off the GL

@@ -127,13 +127,15 @@ SnapshotWrite RadiosityMapMethod::snapshot(const std::filesystem::path& dir, con
 MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
     // The final file is the last snapshot when it shows the last pass (and
     // nothing is filtered: snapshots are not; the filter needs the GL thread).
-    const FloatImage image =
+    auto final_image = std::make_shared<const FloatImage>(
         last_snapshot_pass_ == stats.pass && !denoiser_
             ? std::move(last_snapshot_)
-            : stitched_image(baker_.read_back(), /*during_passes=*/false, denoiser_ ? &*denoiser_ : nullptr);
+            : stitched_image(baker_.read_back(), /*during_passes=*/false, denoiser_ ? &*denoiser_ : nullptr));
+    const FloatImage& image = *final_image;
     write_exr(dir / "lightmap.exr", image);
     MethodResult result;
     result.files = {"lightmap.exr"};
+    result.image = std::move(final_image);
     result.manifest = {
         {"settings", settings_json_},
         {"texels",
