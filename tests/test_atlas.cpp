@@ -8,6 +8,7 @@
 #include "util/parallel.h"
 #include "scene/gltf_loader.h"
 #include "scene_builders.h"
+#include "thread_count.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -932,24 +933,8 @@ TEST(LightmappedGlb, InstancedAndMirroredMeshesGetTheirOwnUVs) {
 // ---------------------------------------------------------------------------
 // Preparation on every core (util/parallel.h).
 
-// Sets LIGHTFARM_THREADS for the scope, then restores it.
-class ThreadCount {
-public:
-    explicit ThreadCount(const char* n) {
-        if (const char* old = std::getenv("LIGHTFARM_THREADS")) old_ = old;
-        setenv("LIGHTFARM_THREADS", n, 1);
-    }
-    ~ThreadCount() {
-        if (old_.empty()) unsetenv("LIGHTFARM_THREADS");
-        else setenv("LIGHTFARM_THREADS", old_.c_str(), 1);
-    }
-
-private:
-    std::string old_;
-};
-
 TEST(Parallel, EveryIndexOnceAndTheFirstErrorRethrown) {
-    const ThreadCount four("4");
+    const test::ThreadCount four("4");
     EXPECT_EQ(preparation_threads(), 4u);
     for (const size_t count : {size_t(0), size_t(1), size_t(999), size_t(100003)}) {
         std::vector<std::atomic<int>> visits(count);
@@ -984,7 +969,7 @@ TEST(Parallel, TheAtlasAndTexelSamplesAreTheSameOnOneThreadAsOnFour) {
         TexelSamples texels;
     };
     auto prepare = [&](const char* threads) {
-        const ThreadCount count(threads);
+        const test::ThreadCount count(threads);
         Result r{loaded, {}, {}};
         r.report = generate_lightmap_uvs(r.scene, {.resolution = 512});
         r.texels = rasterize_texel_samples(r.scene, r.report.width, r.report.height);

@@ -1,9 +1,13 @@
 #include "trace/bvh.h"
 
+#include "util/parallel.h"
+
 #include <algorithm>
-#include <limits>
 #include <array>
+#include <atomic>
 #include <chrono>
+#include <future>
+#include <limits>
 #include <numeric>
 
 namespace lf {
@@ -97,7 +101,10 @@ struct BinaryNode {
 
 class BinaryBuilder {
 public:
-    BinaryBuilder(std::vector<BuildRef>& refs, std::vector<BinaryNode>& nodes) : refs_(refs), nodes_(nodes) {}
+    // `helpers`: how many more threads the build may start (shared by the
+    // builders of its subtrees).
+    BinaryBuilder(std::vector<BuildRef>& refs, std::vector<BinaryNode>& nodes, std::atomic<int>& helpers)
+        : refs_(refs), nodes_(nodes), helpers_(helpers) {}
 
     // Decides whether `r` becomes a leaf; if not, partitions it and returns the two halves.
     bool split(Range r, const Bounds& box, const Bounds& centroids, size_t depth, Range* left, Range* right) {
@@ -138,15 +145,57 @@ public:
         }
         c.index = uint32_t(nodes_.size());
         nodes_.emplace_back();
-        const BinaryChild left = build_child(a, depth + 1);
-        const BinaryChild right = build_child(b, depth + 1);
+        const auto [left, right] = build_children(a, b, depth + 1);
         nodes_[c.index] = {{left, right}, 2};
         return c;
     }
 
+    // The two children of a node whose triangles were split into a and b.
+    // While a thread of the preparation's is free and both halves are
+    // large, the halves are built side by side, each into a node list of
+    // its own, appended left then right: the nodes are numbered as one
+    // thread numbers them (depth first, left first), so the tree does not
+    // depend on the thread count.
+    std::array<BinaryChild, 2> build_children(Range a, Range b, size_t depth) {
+        constexpr uint32_t kParallelTriangles = 4096;  // fewer take less than a thread's start-up
+        if (std::min(a.count(), b.count()) < kParallelTriangles || !take_helper())
+            return {build_child(a, depth), build_child(b, depth)};
+        std::vector<BinaryNode> left_nodes, right_nodes;
+        auto right_child = std::async(std::launch::async, [&] {
+            // refs_ is shared: a and b are apart.
+            const BinaryChild child = BinaryBuilder(refs_, right_nodes, helpers_).build_child(b, depth);
+            ++helpers_;
+            return child;
+        });
+        BinaryChild left = BinaryBuilder(refs_, left_nodes, helpers_).build_child(a, depth);
+        BinaryChild right = right_child.get();
+        append_subtree(left_nodes, left);
+        append_subtree(right_nodes, right);
+        return {left, right};
+    }
+
 private:
+    // A helper thread, if one of the preparation's is free.
+    bool take_helper() {
+        for (int free = helpers_; free > 0;)
+            if (helpers_.compare_exchange_weak(free, free - 1)) return true;
+        return false;
+    }
+
+    // Appends a subtree numbered from 0 after this builder's nodes,
+    // renumbering its references to them and `root`'s.
+    void append_subtree(std::vector<BinaryNode>& subtree, BinaryChild& root) {
+        const auto offset = uint32_t(nodes_.size());
+        for (BinaryNode& n : subtree)
+            for (int k = 0; k < n.children; ++k)
+                if (n.child[k].count == 0) n.child[k].index += offset;
+        if (root.count == 0) root.index += offset;
+        nodes_.insert(nodes_.end(), subtree.begin(), subtree.end());
+    }
+
     std::vector<BuildRef>& refs_;
     std::vector<BinaryNode>& nodes_;
+    std::atomic<int>& helpers_;
 };
 
 // Collapses binary node `from` (and its subtree) into 4-wide node `to` of
@@ -226,13 +275,13 @@ Bvh build_bvh(const Scene& scene) {
     std::vector<BinaryNode> binary(1);
     Bounds root_box;
     if (!refs.empty()) {
-        BinaryBuilder builder(refs, binary);
+        std::atomic<int> helpers{int(preparation_threads()) - 1};
+        BinaryBuilder builder(refs, binary, helpers);
         Bounds centroids;
         root_box = bounds_of(refs, {0, uint32_t(refs.size())}, &centroids);
         Range a{}, b{};
         if (builder.split({0, uint32_t(refs.size())}, root_box, centroids, 0, &a, &b)) {
-            const BinaryChild left = builder.build_child(a, 1);
-            const BinaryChild right = builder.build_child(b, 1);
+            const auto [left, right] = builder.build_children(a, b, 1);
             binary[0] = {{left, right}, 2};
         } else {
             binary[0] = {{BinaryChild{root_box, 0, uint32_t(refs.size())}}, 1};  // few triangles: one leaf
