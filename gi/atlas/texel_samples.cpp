@@ -262,6 +262,34 @@ void apply_dilation(const TexelSamples& texels, std::vector<Pixel>& image) {
     for (const auto& [to, from] : texels.dilation) image[to] = image[from];
 }
 
+// Each covered texel's albedo and emission, averaged over its samples, and
+// its world size (TexelSamples::texel_world_size).
+void average_over_samples(const Scene& scene, const std::vector<PixelTriangle>& tris, TexelSamples& out) {
+    std::vector<float> world_per_texel(tris.size());
+    for (size_t t = 0; t < tris.size(); ++t) {
+        const double uv_area = 0.5 * std::abs(tris[t].area2);
+        world_per_texel[t] = uv_area > 1e-12 ? float(std::sqrt(scene.triangle_area(t) / uv_area)) : 0.0f;
+    }
+    const size_t covered = out.texels.size();
+    out.albedo.resize(covered);
+    out.emission.resize(covered);
+    out.texel_world_size.resize(covered);
+    parallel_for(covered, 1024, [&](size_t i) {
+        glm::vec3 albedo(0.0f), emission(0.0f);
+        float size = 0.0f;
+        for (uint32_t s = out.first_sample[i]; s < out.first_sample[i + 1]; ++s) {
+            const TexelSample& sample = out.samples[s];
+            albedo += scene.albedo_at(sample.triangle, sample.bary);
+            emission += scene.emission_at(sample.triangle, sample.bary);
+            size = std::max(size, world_per_texel[sample.triangle]);
+        }
+        const float inv = 1.0f / float(out.sample_count(i));
+        out.albedo[i] = albedo * inv;
+        out.emission[i] = emission * inv;
+        out.texel_world_size[i] = size;
+    });
+}
+
 }  // namespace
 
 TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, int subsamples_per_axis,
@@ -331,32 +359,7 @@ TexelSamples rasterize_texel_samples(const Scene& scene, int width, int height, 
         }
     });
 
-    // Per-texel averages.
-    std::vector<float> world_per_texel(scene.triangles.size());
-    for (size_t t = 0; t < scene.triangles.size(); ++t) {
-        const PixelTriangle tri(scene, t, width, height);
-        const double uv_area = 0.5 * std::abs(tri.area2);
-        world_per_texel[t] = uv_area > 1e-12 ? float(std::sqrt(scene.triangle_area(t) / uv_area)) : 0.0f;
-    }
-    const size_t covered = out.texels.size();
-    out.albedo.resize(covered);
-    out.emission.resize(covered);
-    out.texel_world_size.resize(covered);
-    parallel_for(covered, 1024, [&](size_t i) {
-        glm::vec3 albedo(0.0f), emission(0.0f);
-        float size = 0.0f;
-        for (uint32_t s = out.first_sample[i]; s < out.first_sample[i + 1]; ++s) {
-            const TexelSample& sample = out.samples[s];
-            albedo += scene.albedo_at(sample.triangle, sample.bary);
-            emission += scene.emission_at(sample.triangle, sample.bary);
-            size = std::max(size, world_per_texel[sample.triangle]);
-        }
-        const float inv = 1.0f / float(out.sample_count(i));
-        out.albedo[i] = albedo * inv;
-        out.emission[i] = emission * inv;
-        out.texel_world_size[i] = size;
-    });
-
+    average_over_samples(scene, tris, out);
     out.dilation = dilation_map(count, width, height, dilate_texels);
     return out;
 }
