@@ -941,6 +941,15 @@ TEST(Parallel, EveryIndexOnceAndTheFirstErrorRethrown) {
         parallel_for(count, 7, [&](size_t i) { ++visits[i]; });
         EXPECT_TRUE(std::all_of(visits.begin(), visits.end(), [](const auto& v) { return v == 1; })) << count;
     }
+    for (const char* bad : {"0", "-2", "two", "4x", "", "100000"}) {
+        const test::ThreadCount count(bad);
+        try {
+            preparation_threads();
+            ADD_FAILURE() << "LIGHTFARM_THREADS=" << bad << " was taken";
+        } catch (const std::invalid_argument& e) {
+            EXPECT_NE(std::string(e.what()).find("LIGHTFARM_THREADS="), std::string::npos) << e.what();
+        }
+    }
     EXPECT_THROW(parallel_for(1000, 1,
                               [](size_t i) {
                                   if (i == 500) throw std::runtime_error("index 500");

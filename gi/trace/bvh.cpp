@@ -9,6 +9,7 @@
 #include <future>
 #include <limits>
 #include <numeric>
+#include <system_error>
 
 namespace lf {
 
@@ -161,12 +162,18 @@ public:
         if (std::min(a.count(), b.count()) < kParallelTriangles || !take_helper())
             return {build_child(a, depth), build_child(b, depth)};
         std::vector<BinaryNode> left_nodes, right_nodes;
-        auto right_child = std::async(std::launch::async, [&] {
-            // refs_ is shared: a and b are apart.
-            const BinaryChild child = BinaryBuilder(refs_, right_nodes, helpers_).build_child(b, depth);
+        std::future<BinaryChild> right_child;
+        try {
+            right_child = std::async(std::launch::async, [&] {
+                // refs_ is shared: a and b are apart.
+                const BinaryChild child = BinaryBuilder(refs_, right_nodes, helpers_).build_child(b, depth);
+                ++helpers_;
+                return child;
+            });
+        } catch (const std::system_error&) {  // no thread to be had: this one builds both
             ++helpers_;
-            return child;
-        });
+            return {build_child(a, depth), build_child(b, depth)};
+        }
         BinaryChild left = BinaryBuilder(refs_, left_nodes, helpers_).build_child(a, depth);
         BinaryChild right = right_child.get();
         append_subtree(left_nodes, left);

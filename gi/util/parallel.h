@@ -15,18 +15,30 @@
 #include <cstdlib>
 #include <exception>
 #include <mutex>
+#include <sched.h>
+#include <stdexcept>
+#include <string>
+#include <system_error>
 #include <thread>
 #include <vector>
 
 namespace lf {
 
-// The threads a parallel loop uses: LIGHTFARM_THREADS where set (1: the
-// calling thread alone), else the cores this process may use.
+// The threads a parallel loop uses: LIGHTFARM_THREADS where set (1 to
+// 1024; 1: the calling thread alone), else the cores this process may run
+// on (its CPU affinity: a container's share, not the machine's). Any other
+// LIGHTFARM_THREADS is refused (std::invalid_argument), not ignored.
 inline size_t preparation_threads() {
     if (const char* env = std::getenv("LIGHTFARM_THREADS")) {
-        const long n = std::strtol(env, nullptr, 10);
-        if (n >= 1) return size_t(n);
+        char* end = nullptr;
+        const long n = std::strtol(env, &end, 10);
+        if (end == env || *end != '\0' || n < 1 || n > 1024)
+            throw std::invalid_argument(std::string("LIGHTFARM_THREADS=") + env +
+                                        ": not a thread count (a whole number from 1 to 1024)");
+        return size_t(n);
     }
+    cpu_set_t cpus;
+    if (sched_getaffinity(0, sizeof cpus, &cpus) == 0 && CPU_COUNT(&cpus) > 0) return size_t(CPU_COUNT(&cpus));
     return std::max(1u, std::thread::hardware_concurrency());
 }
 
@@ -62,7 +74,11 @@ void parallel_ranges(size_t count, size_t grain, Body&& body) {
     };
     std::vector<std::thread> helpers;
     helpers.reserve(threads - 1);
-    for (size_t t = 1; t < threads; ++t) helpers.emplace_back(work);
+    try {
+        for (size_t t = 1; t < threads; ++t) helpers.emplace_back(work);
+    } catch (const std::system_error&) {
+        // No more threads to be had: the ones started, and this one, do it all.
+    }
     work();
     for (std::thread& h : helpers) h.join();
     if (error) std::rethrow_exception(error);
