@@ -1125,9 +1125,10 @@ Scene randomly_textured_quads() {
 // A shading normal packed into 32 bits (pack_unit_vector, the texels'
 // sample points) comes back in GLSL within 1e-4 rad (0.006°) of itself,
 // and exactly on the axes: random directions, the axes, and the
-// octahedron's folds (z = 0, |x| = |y|). The bound is the quantization's: a
-// step of 1/32767 in octahedral coordinates, stretched up to about 2x where
-// the octahedron is folded (6.4e-5 rad measured on 100,000 directions).
+// octahedron's folds (z = 0, |x| = |y|); a zero or NaN vector comes back
+// as +z. The bound is the quantization's: a step of 1/32767 in octahedral
+// coordinates, stretched up to about 2x where the octahedron is folded
+// (6.4e-5 rad measured on 100,000 directions).
 TEST(SamplePoints, PackedNormalsComeBackInGlsl) {
     gpu();
     std::mt19937 rng(11);
@@ -1144,7 +1145,11 @@ TEST(SamplePoints, PackedNormalsComeBackInGlsl) {
     for (int i = 0; i < 100000; ++i) normals.push_back(glm::normalize(glm::vec3(g(rng), g(rng), g(rng))));
     std::vector<glm::vec4> cases;
     for (const glm::vec3& n : normals) cases.push_back(glm::vec4(pack_unit_vector(n), 0.0f, 0.0f, 0.0f));
+    // No direction (a degenerate triangle's normal) and NaN: +z, not NaN.
+    for (const glm::vec3 none : {glm::vec3(0.0f), glm::vec3(std::nanf(""), 0.0f, 1.0f)})
+        cases.push_back(glm::vec4(pack_unit_vector(none), 0.0f, 0.0f, 0.0f));
     const auto got = test::run_check_program(ComputeProgram("unit_vector_check.comp"), cases, 1);
+    for (size_t i = normals.size(); i < cases.size(); ++i) EXPECT_EQ(glm::vec3(got[i]), glm::vec3(0, 0, 1)) << i;
     double worst = 0.0;
     for (size_t i = 0; i < normals.size(); ++i) {
         const glm::dvec3 a(normals[i]), b(glm::vec3(got[i]));

@@ -8,6 +8,7 @@
 #include <glm/common.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <regex>
@@ -145,7 +146,11 @@ void ComputeProgram::dispatch_1d(size_t n) const {
 }
 
 float pack_unit_vector(glm::vec3 v) {
-    v /= std::abs(v.x) + std::abs(v.y) + std::abs(v.z);
+    const float l1 = std::abs(v.x) + std::abs(v.y) + std::abs(v.z);
+    // No direction (a degenerate triangle's normal), or not a number: +z,
+    // a unit vector rather than whatever NaN would pack to.
+    if (!(l1 > 0.0f) || !std::isfinite(l1)) return uint_bits(glm::packSnorm2x16(glm::vec2(0.0f)));
+    v /= l1;
     glm::vec2 e(v.x, v.y);
     if (v.z < 0.0f)  // the lower half folded over the diagonals
         e = (1.0f - glm::abs(glm::vec2(v.y, v.x))) * glm::vec2(v.x >= 0.0f ? 1.0f : -1.0f, v.y >= 0.0f ? 1.0f : -1.0f);

@@ -78,7 +78,7 @@ public:
 
 // A unit vector as two snorm16 octahedral coordinates in a float lane's
 // bits (32 bits for 96), read in GLSL by unit_vector.glsl's
-// lf_unpack_unit_vector.
+// lf_unpack_unit_vector. A zero or non-finite vector packs as +z.
 float pack_unit_vector(glm::vec3 v);
 
 // A shader storage buffer that owns its GL name.
