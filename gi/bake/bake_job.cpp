@@ -179,9 +179,11 @@ std::vector<std::unique_ptr<ProgressiveMethod>> methods_that_fit(const PreparedS
     try {
         return make_methods(p, job.settings);
     } catch (const GpuBufferTooLarge& e) {
-        throw BakeInputError(job.scene.filename().string() + ": this bake needs " + e.what() + " (" +
-                             std::to_string(p.atlas.width) + "x" + std::to_string(p.atlas.height) +
-                             " atlas); bake at a lower --res or --texel-density, or with --subsamples 1");
+        std::string what = job.scene.filename().string() + ": this bake needs " + e.what();
+        if (p.atlas.width > 0)
+            what += " (a " + std::to_string(p.atlas.width) + "x" + std::to_string(p.atlas.height) +
+                    " atlas); bake at a lower --res or --texel-density, or with --subsamples 1";
+        throw BakeInputError(what);
     }
 }
 
