@@ -43,6 +43,9 @@ bake() {  # NAME SCENE ARGS...
 }
 # shellcheck disable=SC2086
 bake cornell cornell_box.gltf $cornell
+# The same with one pass per dispatch: what several passes per dispatch save (the default is auto).
+# shellcheck disable=SC2086
+bake cornell_one_pass_per_dispatch cornell_box.gltf $cornell --passes-per-dispatch 1
 # shellcheck disable=SC2086
 bake spheres spheres.glb $spheres
 # shellcheck disable=SC2086

@@ -83,6 +83,9 @@ std::vector<Setting> build_catalog() {
               "L1 SH per texel too: layers L1x, L1y, L1z for normal-mapped shading"),
         typed("lightmap", "denoise", T::Flag, false,
               "edge-aware filter of the final lightmap (RGB; the raw result stays in layer raw.)"),
+        with_auto(integer("lightmap", "passes_per_dispatch", 1, 1, 16, "",
+                          "passes one GPU dispatch runs; they read the map as it was before it (auto: enough for "
+                          "262,144 texel passes)")),
 
         with_auto(integer("sh", "sh_bands", 4, 1, 4, "", "SH bands (auto: fewest within 2% of 4 bands)")),
         integer("sh", "sh_bounces", 0, 0, 4, "", "interreflection bounces (0: shadowed transfer)"),
@@ -381,8 +384,9 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
         b.atlas.max_res = int(std::max(256.0, limits.cap("res")));  // the smallest max_res: the default atlas
     if (outputs.contains("lightmap")) {
         const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
-        b.lightmap = LightmapSettings{stop_from(l, ""), l["scheme"],  l["light_samples"], l["light_sampling"],
-                                      l["stitch"],      l["denoise"], l["directional"]};
+        b.lightmap =
+            LightmapSettings{stop_from(l, ""), l["scheme"],  l["light_samples"], l["light_sampling"],
+                             l["stitch"],      l["denoise"], l["directional"],   int_or_auto(l["passes_per_dispatch"])};
     }
     if (outputs.contains("sh")) {
         const json s = settings_of_group("sh", outputs["sh"], limits);
@@ -430,7 +434,8 @@ json to_json(const BakeSettings& b) {
                                     {"light_sampling", l->light_sampling},
                                     {"stitch", l->stitch},
                                     {"denoise", l->denoise},
-                                    {"directional", l->directional}};
+                                    {"directional", l->directional},
+                                    {"passes_per_dispatch", or_auto(l->passes_per_dispatch)}};
     if (const auto& s = b.sh)
         j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)},
                               {"sh_bounces", s->bounces},

@@ -116,6 +116,8 @@ struct LightmapSettings {
     bool stitch = true;
     bool denoise = false;      // measured: docs/BENCHMARKS.md "Denoising"
     bool directional = false;  // L1 layers (README "Directional lightmaps")
+    // Passes per GPU dispatch; empty: auto (from the texel count).
+    std::optional<int> passes_per_dispatch;
 };
 
 struct ShSettings {

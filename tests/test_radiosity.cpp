@@ -55,7 +55,13 @@ BakeResult bake(const Scene& scene, int res, int passes, RadiosityMapSettings se
     r.texels = rasterize_texel_samples(scene, res, res, 2);
     Tracer tracer(scene);
     RadiosityMapBaker baker(scene, r.texels, tracer, settings);
-    for (int p = 0; p < passes; ++p) r.stats = baker.step();
+    // In batches, so that a dispatch runs as many passes as its cell
+    // (BatchedPassesAreThePassesOneAtATime: the same pixels as one at a time).
+    for (int done = 0; done < passes;) {
+        const int count = std::min(baker.max_batch(), passes - done);
+        r.stats = baker.run_passes(count).back();
+        done += count;
+    }
     r.image = baker.snapshot();
     r.moved_texels = baker.texels_moved_out_of_geometry();
     r.cut_texels = baker.texels_cut_by_geometry();
@@ -1027,38 +1033,100 @@ TEST(RadiosityMap, ConvergedTexelsStopTracing) {
 // estimate, read from that pass's own slot of partial sums. The furnace with
 // a convergence threshold changes which texels trace from pass to pass, and
 // the final gather adds rays that vary per pass, so both counts are exercised.
+// With several passes per dispatch, batches that end inside a cell split it
+// into two dispatches, which must read the map of the cell's start alike.
 TEST(RadiosityMap, BatchedPassesAreThePassesOneAtATime) {
     const int res = 48;
     const Scene s = furnace(0.5f, 1.0f, res);
-    RadiosityMapSettings settings;
-    settings.converged_texel_error = 0.05;
-    settings.scheme = RadiosityScheme::FinalGather;
     gpu();
     const TexelSamples texels = rasterize_texel_samples(s, res, res, 2);
     Tracer tracer(s);
-    RadiosityMapBaker single(s, texels, tracer, settings), batched(s, texels, tracer, settings);
-    ASSERT_GE(batched.max_batch(), 16);
-    std::vector<PassStats> one_at_a_time, in_batches;
-    for (int p = 0; p < 60; ++p) one_at_a_time.push_back(single.step());
-    for (int count : {1, 3, 16, 7, 1, 32}) {
-        const std::vector<PassStats> batch = batched.run_passes(count);
-        ASSERT_EQ(batch.size(), size_t(count));
-        in_batches.insert(in_batches.end(), batch.begin(), batch.end());
-    }
-    ASSERT_EQ(in_batches.size(), one_at_a_time.size());
-    for (size_t p = 0; p < in_batches.size(); ++p) {
-        EXPECT_EQ(in_batches[p].pass, int(p) + 1);
-        EXPECT_EQ(in_batches[p].rays, one_at_a_time[p].rays) << "pass " << p + 1;
-        EXPECT_EQ(in_batches[p].error_estimate, one_at_a_time[p].error_estimate) << "pass " << p + 1;
-        if (p > 0) {
-            EXPECT_GE(in_batches[p].seconds, in_batches[p - 1].seconds);
+    for (int per_dispatch : {1, 4}) {
+        SCOPED_TRACE("passes per dispatch " + std::to_string(per_dispatch));
+        RadiosityMapSettings settings;
+        settings.converged_texel_error = 0.05;
+        settings.scheme = RadiosityScheme::FinalGather;
+        settings.passes_per_dispatch = per_dispatch;
+        RadiosityMapBaker single(s, texels, tracer, settings), batched(s, texels, tracer, settings);
+        ASSERT_GE(batched.max_batch(), 36);
+        ASSERT_EQ(batched.passes_per_dispatch(), per_dispatch);
+        // To pass 100: cells of 2 passes from 32, of 4 from 64 (cell_end_after).
+        std::vector<PassStats> one_at_a_time, in_batches;
+        for (int p = 0; p < 100; ++p) one_at_a_time.push_back(single.step());
+        for (int count : {1, 3, 16, 7, 1, 32, 5, 35}) {
+            const std::vector<PassStats> batch = batched.run_passes(count);
+            ASSERT_EQ(batch.size(), size_t(count));
+            in_batches.insert(in_batches.end(), batch.begin(), batch.end());
         }
+        ASSERT_EQ(in_batches.size(), one_at_a_time.size());
+        for (size_t p = 0; p < in_batches.size(); ++p) {
+            EXPECT_EQ(in_batches[p].pass, int(p) + 1);
+            EXPECT_EQ(in_batches[p].rays, one_at_a_time[p].rays) << "pass " << p + 1;
+            EXPECT_EQ(in_batches[p].error_estimate, one_at_a_time[p].error_estimate) << "pass " << p + 1;
+            if (p > 0) {
+                EXPECT_GE(in_batches[p].seconds, in_batches[p - 1].seconds);
+            }
+        }
+        EXPECT_LT(in_batches.back().rays - in_batches[in_batches.size() - 2].rays,
+                  in_batches[1].rays - in_batches[0].rays)
+            << "texels converged: the counts must have changed within the batches";
+        const FloatImage a = single.snapshot(), b = batched.snapshot();
+        for (const auto& [name, data] : a.channels) EXPECT_EQ(data, b.at(name)) << name;
+        EXPECT_THROW(batched.run_passes(batched.max_batch() + 1), std::invalid_argument);
     }
-    EXPECT_LT(in_batches.back().rays - in_batches[in_batches.size() - 2].rays, in_batches[1].rays - in_batches[0].rays)
-        << "texels converged: the counts must have changed within the batches";
-    const FloatImage a = single.snapshot(), b = batched.snapshot();
-    for (const auto& [name, data] : a.channels) EXPECT_EQ(data, b.at(name)) << name;
-    EXPECT_THROW(batched.run_passes(batched.max_batch() + 1), std::invalid_argument);
+}
+
+// Where a cell of passes ends (cell_end_after): at every power of two (the
+// epochs' ends), in cells of 1/16 of the passes so far, at most
+// passes_per_dispatch; and how many passes a dispatch runs by default.
+TEST(RadiosityMap, CellsOfPassesAreShortEarlyAndEndAtEveryDoubling) {
+    auto cell_ends = [](int per_dispatch, int passes) {
+        std::vector<int> ends;
+        for (int p = 0; p < passes; p = cell_end_after(p, per_dispatch))
+            ends.push_back(cell_end_after(p, per_dispatch));
+        return ends;
+    };
+    std::vector<int> every_pass(40);
+    for (int p = 0; p < 40; ++p) every_pass[size_t(p)] = p + 1;
+    EXPECT_EQ(cell_ends(1, 40), every_pass);
+    std::vector<int> expected(every_pass.begin(), every_pass.begin() + 32);
+    for (int end : {34, 36, 38, 40}) expected.push_back(end);  // 2^5 / 16: cells of 2
+    EXPECT_EQ(cell_ends(16, 40), expected);
+    EXPECT_EQ(cell_end_after(300, 16), 304);  // 2^8 / 16 = 16: cells of 16
+    EXPECT_EQ(cell_end_after(300, 8), 304);   // at most passes_per_dispatch
+    EXPECT_EQ(cell_end_after(1000, 16), 1008);
+    EXPECT_EQ(cell_end_after(1020, 16), 1024);  // cut at the doubling
+    EXPECT_EQ(cell_end_after(1024, 5), 1025);   // a cell need not divide an epoch
+    EXPECT_EQ(cell_end_after(1021, 5), 1024);
+
+    EXPECT_EQ(passes_per_dispatch_for(40'000, false), 8);  // 8 x 40,000 >= 2^18
+    EXPECT_EQ(passes_per_dispatch_for(300'000, false), 1);
+    EXPECT_EQ(passes_per_dispatch_for(100, false), kMaxPassesPerDispatch);
+    EXPECT_EQ(passes_per_dispatch_for(100, true), 1) << "llvmpipe: any pass fills its cores";
+}
+
+// Path tracing reads no map, so how many passes a dispatch runs changes
+// nothing but the dispatches: the same bits. The epochs read the map a few
+// passes late in a furnace of albedo 0.8, where most of the light has
+// bounced more than ten times: the cells keep it within the same bound.
+TEST(RadiosityMap, SeveralPassesPerDispatchAreTheSamePasses) {
+    const int res = 48;
+    const Scene s = furnace(0.8f, 1.0f, res);
+    RadiosityMapSettings pathtrace, pathtrace_in_cells;
+    pathtrace.scheme = pathtrace_in_cells.scheme = RadiosityScheme::PathTracing;
+    pathtrace.passes_per_dispatch = 1;
+    pathtrace_in_cells.passes_per_dispatch = 16;
+    const BakeResult a = bake(s, res, 200, pathtrace), b = bake(s, res, 200, pathtrace_in_cells);
+    for (const auto& [name, data] : a.image.channels) EXPECT_EQ(data, b.image.at(name)) << name;
+    EXPECT_EQ(a.stats.rays, b.stats.rays);
+    EXPECT_EQ(a.stats.error_estimate, b.stats.error_estimate);
+
+    RadiosityMapSettings epochs;
+    epochs.passes_per_dispatch = 16;
+    const BakeResult r = bake(s, res, 256, epochs);
+    const double mean = mean_covered(r, "R");
+    std::printf("furnace rho=0.8, 16 passes per dispatch, 256 passes: mean %.4f (exact 5)\n", mean);
+    EXPECT_NEAR(mean, 5.0, 0.02 * 5.0);
 }
 
 // A curved mesh cut into many charts, lit from above: after stitching, the

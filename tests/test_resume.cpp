@@ -118,35 +118,45 @@ bool same_bits(const std::vector<T>& a, const std::vector<T>& b) {
 // The bakers themselves, at a pass chosen here: a state taken after pass 6
 // (in the middle of the epoch of passes 5-8, with texels converging under
 // adaptive sampling) and restored into a new baker continues to the same
-// bits as a baker that never stopped, under every scheme.
+// bits as a baker that never stopped, under every scheme. With 4 passes per
+// dispatch, a state after pass 66 is inside the cell of passes 65-68, whose
+// passes read the map of pass 64, not the accumulators' values: it comes
+// with the state.
 TEST(ResumeBaker, ARadiosityMapRestoredMidEpochContinuesBitForBit) {
     test::gpu();
     Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
     generate_lightmap_uvs(scene, {.resolution = 64});
     const TexelSamples texels = rasterize_texel_samples(scene, 64, 64, 2);
     const Tracer tracer(scene);
-    for (RadiosityScheme scheme : {RadiosityScheme::DoublingEpochs, RadiosityScheme::FinalGather,
-                                   RadiosityScheme::Thesis, RadiosityScheme::PathTracing}) {
-        RadiosityMapSettings settings;
-        settings.scheme = scheme;
-        settings.directional = true;
-        settings.converged_texel_error = 0.2;  // some texels stop tracing: the active flags are state too
-        RadiosityMapBaker whole(scene, texels, tracer, settings);
-        for (int p = 0; p < 6; ++p) whole.step();
-        RadiosityMapBaker resumed(scene, texels, tracer, settings);
-        resumed.restore(whole.state());
-        PassStats a, b;
-        for (int p = 6; p < 13; ++p) {
-            a = whole.step();
-            b = resumed.step();
+    for (const auto& [per_dispatch, stop] : {std::pair{1, 6}, std::pair{4, 66}})
+        for (RadiosityScheme scheme : {RadiosityScheme::DoublingEpochs, RadiosityScheme::FinalGather,
+                                       RadiosityScheme::Thesis, RadiosityScheme::PathTracing}) {
+            SCOPED_TRACE(std::to_string(per_dispatch) + " passes per dispatch, stopped after pass " +
+                         std::to_string(stop));
+            RadiosityMapSettings settings;
+            settings.scheme = scheme;
+            settings.directional = true;
+            settings.converged_texel_error = 0.2;  // some texels stop tracing: the active flags are state too
+            settings.passes_per_dispatch = per_dispatch;
+            RadiosityMapBaker whole(scene, texels, tracer, settings);
+            for (int p = 0; p < stop; ++p) whole.step();
+            const MethodState state = whole.state();
+            const size_t map_buffers = scheme == RadiosityScheme::FinalGather ? 2 : 1;
+            EXPECT_EQ(state.buffers.size(), 2 + (per_dispatch > 1 ? map_buffers : 0)) << "the map, inside a cell";
+            RadiosityMapBaker resumed(scene, texels, tracer, settings);
+            resumed.restore(state);
+            PassStats a, b;
+            for (int p = stop; p < stop + 7; ++p) {
+                a = whole.step();
+                b = resumed.step();
+            }
+            const RadiosityMapBaker::Readback x = whole.read_back(), y = resumed.read_back();
+            EXPECT_TRUE(same_bits(x.accumulators, y.accumulators)) << to_string(scheme);
+            EXPECT_TRUE(same_bits(x.directional, y.directional)) << to_string(scheme);
+            EXPECT_EQ(a.pass, b.pass);
+            EXPECT_EQ(a.rays, b.rays) << to_string(scheme) << ": the same texels traced (adaptive sampling)";
+            EXPECT_EQ(a.error_estimate, b.error_estimate) << to_string(scheme);
         }
-        const RadiosityMapBaker::Readback x = whole.read_back(), y = resumed.read_back();
-        EXPECT_TRUE(same_bits(x.accumulators, y.accumulators)) << to_string(scheme);
-        EXPECT_TRUE(same_bits(x.directional, y.directional)) << to_string(scheme);
-        EXPECT_EQ(a.pass, b.pass);
-        EXPECT_EQ(a.rays, b.rays) << to_string(scheme) << ": the same texels traced (adaptive sampling)";
-        EXPECT_EQ(a.error_estimate, b.error_estimate) << to_string(scheme);
-    }
     // A state of other texels is refused, and changes nothing.
     Scene other = load_scene(test::shared_scene("cornell_box.gltf"));
     generate_lightmap_uvs(other, {.resolution = 48});

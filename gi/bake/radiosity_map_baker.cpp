@@ -5,6 +5,7 @@
 #include "shaders/buffer_bindings.glsl"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -38,10 +39,25 @@ LightSampling parse_light_sampling(const std::string& text) {
 
 namespace {
 
+// The passes one dispatch runs: the settings' or passes_per_dispatch_for's,
+// within 256 MiB of texel totals (16 bytes per texel and pass; one pass of
+// the staircase's 4096² atlas needs 176 MB).
+int choose_passes_per_dispatch(const RadiosityMapSettings& s, size_t covered_texels) {
+    if (s.passes_per_dispatch < 0 || s.passes_per_dispatch > kMaxPassesPerDispatch)
+        throw std::invalid_argument("passes per dispatch must be 1 to " + std::to_string(kMaxPassesPerDispatch) +
+                                    " (or 0: auto), not " + std::to_string(s.passes_per_dispatch));
+    const int wanted = s.passes_per_dispatch > 0 ? s.passes_per_dispatch
+                                                 : passes_per_dispatch_for(covered_texels, renderer_is_software());
+    const size_t fit = (size_t(256) << 20) / (sizeof(glm::vec4) * std::max<size_t>(1, covered_texels));
+    return int(std::clamp<size_t>(fit, 1, size_t(wanted)));
+}
+
 // The gather shader's compile-time choices.
-std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityMapSettings& s) {
+std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityMapSettings& s, int per_dispatch) {
     std::vector<std::pair<std::string, std::string>> defines = {
         {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
+    // Without the loop over passes, which costs llvmpipe a quarter of its speed.
+    if (per_dispatch == 1) defines.emplace_back("LF_ONE_PASS_PER_DISPATCH", "1");
     if (s.scheme == RadiosityScheme::PathTracing) {
         defines.emplace_back("LF_PATH_TRACE", "1");
         defines.emplace_back("LF_EXACT_TEXTURES", "1");  // the reference reads textures where paths land
@@ -51,9 +67,9 @@ std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityM
     return defines;
 }
 
-// The resolve pass publishes what indirect rays read: albedo x the whole
+// The publish pass publishes what indirect rays read: albedo x the whole
 // value, and under a final gather albedo x the indirect layer too.
-std::vector<std::pair<std::string, std::string>> resolve_defines(const RadiosityMapSettings& s) {
+std::vector<std::pair<std::string, std::string>> publish_defines(const RadiosityMapSettings& s) {
     if (s.scheme == RadiosityScheme::FinalGather) return {{"LF_FINAL_GATHER", "1"}};
     return {};
 }
@@ -63,6 +79,14 @@ bool restarts_epochs(RadiosityScheme s) {
 }
 
 }  // namespace
+
+int passes_per_dispatch_for(size_t covered_texels, bool software_renderer) {
+    int passes = 1;
+    while (!software_renderer && passes < kMaxPassesPerDispatch &&
+           size_t(passes) * covered_texels < kTexelPassesPerDispatch)
+        passes *= 2;
+    return passes;
+}
 
 const char* to_string(RadiosityScheme scheme) {
     switch (scheme) {
@@ -86,10 +110,11 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
                                      const RadiosityMapSettings& settings)
     : tracer_(tracer),
       settings_(settings),
+      passes_per_dispatch_(choose_passes_per_dispatch(settings, texels.covered_count())),
       width_(texels.width),
       height_(texels.height),
-      gather_("radiosity_gather.comp", gather_defines(settings)),
-      resolve_("radiosity_resolve.comp", resolve_defines(settings)),
+      gather_("radiosity_gather.comp", gather_defines(settings, passes_per_dispatch_)),
+      publish_("radiosity_publish.comp", publish_defines(settings)),
       shading_(scene) {
     if (settings.scheme == RadiosityScheme::PathTracing) surface_textures_.emplace(scene);
     upload_texels(texels);
@@ -136,15 +161,16 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
         directional_ = GpuBuffer(3 * covered_count_ * sizeof(glm::vec4));
         directional_.clear_zero();
     }
-    // Two vec4 per work group of the resolve pass, however it is dispatched,
-    // in one slot per pass of a batch: as many passes as fit 64 MiB, at most
-    // 64 (a batch is at most what a GPU does in a few milliseconds).
+    // Two vec4 per work group of the totals' sums, however it is dispatched, in
+    // one slot per pass of a batch: as many passes as fit 64 MiB, at most 64
+    // (a batch is at most what a GPU does in a few milliseconds).
     const size_t alignment = storage_offset_alignment();
-    const size_t group_bytes = 2 * sizeof(glm::vec4) * std::max<size_t>(1, resolve_.groups_1d(covered_count_));
+    const size_t group_bytes = 2 * sizeof(glm::vec4) * std::max<size_t>(1, totals_.groups_1d(covered_count_));
     partials_slot_bytes_ = (group_bytes + alignment - 1) / alignment * alignment;
     max_batch_ = int(std::clamp<size_t>((size_t(64) << 20) / partials_slot_bytes_, 1, 64));
     error_partials_ = GpuBuffer(size_t(max_batch_) * partials_slot_bytes_);
-    pass_ends_ = GpuTimestamps(max_batch_ + 1);
+    dispatch_ends_ = GpuTimestamps(max_batch_ + 1);
+    texel_totals_ = GpuBuffer(size_t(passes_per_dispatch_) * std::max<size_t>(1, covered_count_) * sizeof(glm::vec4));
     active_texels_ = covered_count_;
     rays_per_texel_ =
         uint64_t(1 + shading_.punctual_count() + (shading_.emitter_count() ? settings_.light_samples : 0));
@@ -221,11 +247,23 @@ void RadiosityMapBaker::bind_buffers() const {
     if (surface_textures_) surface_textures_->bind();
 }
 
-void RadiosityMapBaker::gather(int pass) {
+int cell_end_after(int pass, int passes_per_dispatch) {
+    if (pass < 1) return 1;
+    const int doubling = int(std::bit_floor(unsigned(pass)));  // the last power of two <= pass
+    const int cell = std::clamp(doubling / kPublicationsPerDoubling, 1, passes_per_dispatch);
+    return std::min((pass / cell + 1) * cell, 2 * doubling);
+}
+
+void RadiosityMapBaker::gather(int first_pass, int count, bool end_epoch, int slot) {
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
+    texel_totals_.bind(LF_BINDING_TEXEL_TOTALS);
     glUniform1ui(gather_.uniform("covered_count"), GLuint(covered_count_));
-    glUniform1ui(gather_.uniform("pass"), GLuint(pass));
+    glUniform1ui(gather_.uniform("first_pass"), GLuint(first_pass));
+    glUniform1ui(gather_.uniform("pass_count"), GLuint(count));
+    glUniform1ui(gather_.uniform("end_epoch"), end_epoch ? 1u : 0u);
+    glUniform1f(gather_.uniform("converged_error"), float(settings_.converged_texel_error));
+    glUniform1ui(gather_.uniform("min_samples"), 16u);
     glUniform1ui(gather_.uniform("seed"), settings_.seed);
     glUniform1ui(gather_.uniform("light_samples"), GLuint(std::max(1, settings_.light_samples)));
     glUniform3fv(gather_.uniform("background"), 1, &settings_.background.x);
@@ -233,6 +271,15 @@ void RadiosityMapBaker::gather(int pass) {
     glUniform2ui(gather_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
     shading_.set_uniforms(gather_);
     gather_.dispatch_1d(covered_count_);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+
+    totals_.use();
+    error_partials_.bind_range(LF_BINDING_ERROR_PARTIALS, size_t(slot) * partials_slot_bytes_,
+                               size_t(count) * partials_slot_bytes_);
+    glUniform1ui(totals_.uniform("covered_count"), GLuint(covered_count_));
+    glUniform1ui(totals_.uniform("pass_count"), GLuint(count));
+    glUniform1ui(totals_.uniform("partials_stride"), GLuint(partials_slot_bytes_ / sizeof(glm::vec4)));
+    totals_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 }
 
@@ -242,18 +289,24 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
                                     std::to_string(max_batch_) + " here)");
     const auto start = std::chrono::steady_clock::now();
     const double seconds_before = stats_.seconds;
-    pass_ends_.mark(0);
-    for (int k = 0; k < count; ++k) {
-        bind_buffers();
-        gather(stats_.pass + k);
-        ++pass_in_epoch_;
+    std::vector<int> dispatch_of_pass;  // which dispatch ran each pass of the batch
+    dispatch_ends_.mark(0);
+    for (int pass = stats_.pass, done = 0, dispatches = 0; done < count; ++dispatches) {
+        const int cell_end = cell_end_after(pass, passes_per_dispatch_);
+        const int passes = std::min(cell_end - pass, count - done);
+        pass_in_epoch_ += passes;
         const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
-        resolve(end_epoch, k);
+        bind_buffers();
+        gather(pass, passes, end_epoch, done);
+        pass += passes;
         if (end_epoch) {
             pass_in_epoch_ = 0;
-            epoch_length_ = stats_.pass + k + 1;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
+            epoch_length_ = pass;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
         }
-        pass_ends_.mark(k + 1);
+        if (pass == cell_end) publish();
+        dispatch_ends_.mark(dispatches + 1);
+        dispatch_of_pass.insert(dispatch_of_pass.end(), size_t(passes), dispatches);
+        done += passes;
     }
     // The batch's one wait: its passes' partial sums, read back together.
     std::vector<glm::vec4> partials(size_t(count) * partials_slot_bytes_ / sizeof(glm::vec4));
@@ -263,8 +316,10 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
     std::vector<PassStats> passes;
     for (int k = 0; k < count; ++k) {
         count_pass(totals_of(partials, k));
-        // The batch's wall time at its end, the device's clock within it.
-        stats_.seconds = seconds_before + (k + 1 < count ? std::min(wall, pass_ends_.seconds(k + 1)) : wall);
+        // The batch's wall time at its end; the device's clock at the end of
+        // the pass's dispatch within it.
+        const int ends = dispatch_of_pass[size_t(k)] + 1;
+        stats_.seconds = seconds_before + (k + 1 < count ? std::min(wall, dispatch_ends_.seconds(ends)) : wall);
         passes.push_back(stats_);
     }
     return passes;
@@ -283,15 +338,10 @@ void RadiosityMapBaker::count_pass(const ResolveTotals& totals) {
         stats_.error_estimate = std::sqrt(totals.variance / totals.covered) / (totals.level / totals.covered);
 }
 
-void RadiosityMapBaker::resolve(bool end_epoch, int slot) {
-    resolve_.use();
-    error_partials_.bind_range(LF_BINDING_ERROR_PARTIALS, size_t(slot) * partials_slot_bytes_, partials_slot_bytes_);
-    glUniform1ui(resolve_.uniform("covered_count"), GLuint(covered_count_));
-    glUniform1ui(resolve_.uniform("end_epoch"), end_epoch ? 1u : 0u);
-    glUniform1f(resolve_.uniform("converged_error"), float(settings_.converged_texel_error));
-    glUniform1ui(resolve_.uniform("min_samples"), 16u);
-    glUniform2ui(resolve_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
-    resolve_.dispatch_1d(covered_count_);
+void RadiosityMapBaker::publish() {
+    publish_.use();
+    glUniform1ui(publish_.uniform("covered_count"), GLuint(covered_count_));
+    publish_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     if (settings_.scheme == RadiosityScheme::FinalGather) copy_to_dilated_texels(reflected_indirect_);
     copy_to_dilated_texels(reflected_);  // last: the copy leaves its buffer bound where the gather reads it
@@ -300,7 +350,7 @@ void RadiosityMapBaker::resolve(bool end_epoch, int slot) {
 RadiosityMapBaker::ResolveTotals RadiosityMapBaker::totals_of(const std::vector<glm::vec4>& partials, int slot) const {
     ResolveTotals t;
     const size_t begin = size_t(slot) * partials_slot_bytes_ / sizeof(glm::vec4);
-    const size_t groups = resolve_.groups_1d(covered_count_);
+    const size_t groups = totals_.groups_1d(covered_count_);
     for (size_t g = 0; g < groups; ++g) {
         const glm::vec4 a = partials[begin + 2 * g], b = partials[begin + 2 * g + 1];
         t.variance += a.x;
@@ -313,31 +363,50 @@ RadiosityMapBaker::ResolveTotals RadiosityMapBaker::totals_of(const std::vector<
     return t;
 }
 
+// What a state holds: the accumulators, the L1 sums, and inside a cell the
+// map its passes read (published at its start, no longer what the
+// accumulators say).
+// (A template for state()'s const buffers and restore()'s writable ones.)
+template <class Baker>
+auto RadiosityMapBaker::state_buffers(Baker& baker, bool cell_end) {
+    using Buffer = decltype(&baker.accumulators_);
+    std::vector<std::pair<Buffer, std::string>> buffers = {{&baker.accumulators_, "the texels' accumulators"}};
+    if (baker.settings_.directional) buffers.emplace_back(&baker.directional_, "the texels' L1 sums");
+    if (!cell_end) {
+        buffers.emplace_back(&baker.reflected_, "the map the cell's passes read");
+        if (baker.settings_.scheme == RadiosityScheme::FinalGather)
+            buffers.emplace_back(&baker.reflected_indirect_, "the map's indirect layer the cell's passes read");
+    }
+    return buffers;
+}
+
 MethodState RadiosityMapBaker::state() const {
     MethodState s;
     s.layout = layout_;
     s.stats = stats_;
     s.counters = {pass_in_epoch_, epoch_length_, int64_t(active_texels_)};
-    s.buffers.push_back(buffer_bytes(accumulators_));
-    if (settings_.directional) s.buffers.push_back(buffer_bytes(directional_));
+    const bool cell_end = stats_.pass == 0 || cell_end_after(stats_.pass - 1, passes_per_dispatch_) == stats_.pass;
+    for (const auto& [buffer, name] : state_buffers(*this, cell_end)) s.buffers.push_back(buffer_bytes(*buffer));
     return s;
 }
 
 void RadiosityMapBaker::restore(const MethodState& s) {
     if (s.layout != layout_) throw MethodStateMismatch("the lightmap's texels are laid out differently");
     if (s.counters.size() != 3) throw MethodStateMismatch("not a lightmap's state");
-    std::vector<std::pair<GpuBuffer*, std::string>> buffers = {{&accumulators_, "the texels' accumulators"}};
-    if (settings_.directional) buffers.emplace_back(&directional_, "the texels' L1 sums");
-    restore_buffers(buffers, s.buffers);
+    const int pass = s.stats.pass;
+    const bool cell_end = pass == 0 || cell_end_after(pass - 1, passes_per_dispatch_) == pass;
+    restore_buffers(state_buffers(*this, cell_end), s.buffers);
     pass_in_epoch_ = int(s.counters[0]);
     epoch_length_ = int(s.counters[1]);
     active_texels_ = size_t(s.counters[2]);
     stats_ = s.stats;
-    // The resolve without an epoch's end changes no accumulator (the rays
-    // counter it clears is already 0 between passes): it publishes the
-    // reflected radiance exactly as the last pass before the state did.
-    bind_buffers();
-    resolve(false, 0);
+    // At a cell's end the map is the accumulators' values, published again
+    // here exactly as the last pass before the state did (inside a cell it
+    // came with the state).
+    if (cell_end) {
+        bind_buffers();
+        publish();
+    }
 }
 
 // L1x.*, L1y.*, L1z.*: the mean of each texel's L1 sums over its passes.

@@ -75,7 +75,34 @@ struct RadiosityMapSettings {
     // Directional lightmaps: each texel's L1 vector too (image layers L1x,
     // L1y, L1z; direct_light.glsl's lf_add_directional).
     bool directional = false;
+    // Passes one dispatch may run, 1 to kMaxPassesPerDispatch; 0:
+    // passes_per_dispatch_for(the covered texels).
+    int passes_per_dispatch = 0;
 };
+
+// A pass of a small atlas is too little work for a GPU: an H100 keeps
+// 132 x 2048 = 270,336 threads resident, and a 256² Cornell box has 46,000
+// texels. So one dispatch runs several passes, as many as bring its texel
+// passes to kTexelPassesPerDispatch (a power of two, at most
+// kMaxPassesPerDispatch). Those passes read the map as it was before the
+// dispatch, up to that many passes old, and the map is published after it:
+// RadiosityMapBaker's cells. A software renderer runs one: any pass fills
+// its cores, and the loop over passes costs llvmpipe a quarter of its speed
+// (docs/BENCHMARKS.md, "Several passes per dispatch").
+inline constexpr size_t kTexelPassesPerDispatch = size_t(1) << 18;
+inline constexpr int kMaxPassesPerDispatch = 16;
+int passes_per_dispatch_for(size_t covered_texels, bool software_renderer);
+
+// The cells: runs of passes that read one publication of the map. The
+// passes from 2^j to 2^(j+1) (an epoch of RadiosityScheme::DoublingEpochs)
+// are cut into cells of 2^j / kPublicationsPerDoubling passes, at least 1
+// and at most passes_per_dispatch, so that the map is published at least
+// that many times each time the pass count doubles: a pass reads a map at
+// most 1/16 of the bake old, and light keeps bouncing (the furnace with a
+// fixed 16 passes per cell fell 2.5% short of Le / (1 - rho) at 256 passes).
+// Returns the pass count at which the cell of pass number `pass` (0-based) ends.
+inline constexpr int kPublicationsPerDoubling = 16;
+int cell_end_after(int pass, int passes_per_dispatch);
 
 class RadiosityMapBaker {
 public:
@@ -87,11 +114,17 @@ public:
     // Runs `count` passes (1 <= count <= max_batch()) back to back and
     // returns the totals after each. Nothing is read back between them: the
     // device is waited for once, after the last, and each pass's totals
-    // (rays, error) come from its own slot of the resolve's partial sums.
-    // The pixels do not depend on how passes are batched.
+    // (rays, error) come from its own slot of the partial sums.
+    //
+    // The passes fall into cells (cell_end_after). Every pass of a cell
+    // reads the map published at the cell's start, and the map is published
+    // again at its end; a cell is one dispatch, or two where a batch ends
+    // inside it. So the pixels depend on the pass count and
+    // passes_per_dispatch(), not on how passes are batched.
     std::vector<PassStats> run_passes(int count);
     PassStats step() { return run_passes(1).back(); }
     int max_batch() const { return max_batch_; }
+    int passes_per_dispatch() const { return passes_per_dispatch_; }
 
     // The current lightmap: RGB = combined, direct.* and indirect.* layers,
     // "samples" (indirect samples behind the value), "error" (standard error
@@ -112,8 +145,9 @@ public:
     FloatImage image(const Readback& readback) const;
 
     // Resuming (bake/method_state.h): the accumulators, the L1 sums and the
-    // epoch's position; restore() publishes again what the next pass's
-    // indirect rays read, from the restored accumulators.
+    // epoch's position, and inside a cell the map its passes read; restore()
+    // publishes again what the next pass's indirect rays read, from the
+    // restored accumulators at a cell's end.
     MethodState state() const;
     void restore(const MethodState& state);
 
@@ -130,12 +164,15 @@ public:
 private:
     void upload_texels(const TexelSamples& texels);
     void bind_buffers() const;
-    // One pass's indirect and direct rays (radiosity_gather.comp).
-    void gather(int pass);
-    // The resolve pass: turns the accumulators into this pass's values and
-    // publishes them to the next (radiosity_resolve.comp); its work groups'
-    // error totals go to partials slot `slot`.
-    void resolve(bool end_epoch, int slot);
+    template <class Baker>
+    static auto state_buffers(Baker& baker, bool cell_end);
+    // `count` passes from `first_pass` (radiosity_gather.comp), each
+    // resolved as it ends, and their totals summed per work group
+    // (radiosity_totals.comp) into partials slots `slot` to
+    // `slot + count - 1`; `end_epoch`: the last one ends an epoch.
+    void gather(int first_pass, int count, bool end_epoch, int slot);
+    // Publishes the texels' values to the next passes' indirect rays (radiosity_publish.comp).
+    void publish();
     struct ResolveTotals {
         double variance = 0.0, level = 0.0, active_next = 0.0, covered = 0.0, extra_rays = 0.0, unknown = 0.0;
     };
@@ -150,6 +187,7 @@ private:
 
     const Tracer& tracer_;
     RadiosityMapSettings settings_;
+    int passes_per_dispatch_ = 1;
     int width_ = 0, height_ = 0;
     size_t covered_count_ = 0;
     uint64_t layout_ = 0;  // hash of which atlas texel, which samples each covered texel is
@@ -158,19 +196,21 @@ private:
     std::vector<std::pair<uint32_t, uint32_t>> dilation_;  // (to, from) atlas indices
 
     ComputeProgram gather_;
-    ComputeProgram resolve_;
+    ComputeProgram totals_{"radiosity_totals.comp"};
+    ComputeProgram publish_;
     ComputeProgram copy_{"copy_texels.comp"};
     SceneShading shading_;
     std::optional<SurfaceTextures> surface_textures_;  // the path-tracing scheme's exact textures
     GpuBuffer sample_points_, covered_, accumulators_, reflected_;
     GpuBuffer error_partials_, dilation_pairs_, texel_anchors_;
+    GpuBuffer texel_totals_;  // per pass of a dispatch and covered texel: what it adds to the pass's totals
     // error_partials_ holds max_batch_ slots of partials_slot_bytes_ each, one per pass of a batch.
     size_t partials_slot_bytes_ = 0;
     int max_batch_ = 1;
-    GpuTimestamps pass_ends_{0};    // mark 0 before a batch, mark k after its pass k
-    GpuBuffer texel_albedo_;        // per atlas texel, dilated: what a final gather's hit reflects
-    GpuBuffer reflected_indirect_;  // per atlas texel: albedo x the indirect layer (final gather only)
-    GpuBuffer directional_;         // 3 vec4 per covered texel: L1 sums (settings.directional)
+    GpuTimestamps dispatch_ends_{0};  // mark 0 before a batch, mark k after its dispatch k
+    GpuBuffer texel_albedo_;          // per atlas texel, dilated: what a final gather's hit reflects
+    GpuBuffer reflected_indirect_;    // per atlas texel: albedo x the indirect layer (final gather only)
+    GpuBuffer directional_;           // 3 vec4 per covered texel: L1 sums (settings.directional)
 
     PassStats stats_;
     int pass_in_epoch_ = 0;

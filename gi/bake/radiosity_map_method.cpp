@@ -49,6 +49,7 @@ RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) 
     // Adaptive sampling: a texel well below the target stops tracing.
     if (l.stop.target_error > 0.0) r.converged_texel_error = 0.5 * l.stop.target_error;
     r.directional = l.directional;
+    r.passes_per_dispatch = l.passes_per_dispatch.value_or(0);
     return r;
 }
 
@@ -71,6 +72,7 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
         {"stitch", settings.lightmap->stitch},
         {"denoise", settings.lightmap->denoise},
         {"directional", settings.lightmap->directional},
+        {"passes_per_dispatch", baker_.passes_per_dispatch()},
         {"seed", r.seed},
         {"max_passes", stop_.max_passes},
         {"target_error", stop_.target_error},

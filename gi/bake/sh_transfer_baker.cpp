@@ -64,8 +64,7 @@ ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const
         throw std::invalid_argument("SH transfer: need 0 <= near < far (far 0 = unlimited)");
     build_receivers(scene, points);
     build_occluders(scene);
-    const char* renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
-    software_renderer_ = renderer && (std::strstr(renderer, "llvmpipe") || std::strstr(renderer, "softpipe"));
+    software_renderer_ = renderer_is_software();
 }
 
 ShTransferBaker::~ShTransferBaker() = default;

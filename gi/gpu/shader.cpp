@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <map>
 #include <regex>
 #include <set>
@@ -193,6 +194,11 @@ void GpuBuffer::download(void* data, size_t bytes, size_t offset) const {
 }
 
 void GpuBuffer::clear_zero() { glClearNamedBufferData(id_, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, nullptr); }
+
+bool renderer_is_software() {
+    const char* renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+    return renderer && (std::strstr(renderer, "llvmpipe") || std::strstr(renderer, "softpipe"));
+}
 
 size_t storage_offset_alignment() {
     GLint alignment = 0;

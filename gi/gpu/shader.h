@@ -120,6 +120,10 @@ private:
 // What bind_range's offsets must be multiples of (GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT).
 size_t storage_offset_alignment();
 
+// Whether the current context renders in software (Mesa's llvmpipe or
+// softpipe): its "device" is the CPU's cores, which any pass fills.
+bool renderer_is_software();
+
 // Timestamps the device takes where it reaches them in the command stream
 // (GL_TIMESTAMP queries): the times of the passes of a batch that the CPU
 // waits for only at its end.

@@ -13,7 +13,8 @@
 #define LF_BINDING_BVH_TRIANGLES 1
 
 // A radiosity-map bake's texels (radiosity_texels.glsl, lightmap_lookup.glsl,
-// radiosity_gather.comp, radiosity_resolve.comp, texel_*.comp, copy_texels.comp).
+// radiosity_resolve.glsl, radiosity_gather.comp, radiosity_totals.comp,
+// radiosity_publish.comp, texel_*.comp, copy_texels.comp).
 #define LF_BINDING_TEXEL_SAMPLE_POINTS 2
 #define LF_BINDING_COVERED_TEXELS 3
 #define LF_BINDING_TEXEL_ACCUMULATORS 4
@@ -26,6 +27,7 @@
 #define LF_BINDING_DIRECTIONAL_ACCUMULATORS 16
 #define LF_BINDING_REFLECTED_INDIRECT 19  // per atlas texel, under a final gather
 #define LF_BINDING_MOVED_SAMPLES 20       // texel_relocate.comp, texel_anchor.comp: a bit per sample point
+#define LF_BINDING_TEXEL_TOTALS 21        // per pass of a dispatch and covered texel (radiosity_gather.comp, radiosity_totals.comp)
 // What an atlas texel is, in w of LF_BINDING_TEXEL_ANCHORS (read back by
 // RadiosityMapBaker to count the texels geometry touched).
 #define LF_ANCHOR_UNCOVERED 0.0

@@ -1,7 +1,7 @@
 #version 450 core
-// One pass of the radiosity map (thesis §3.2-3.5): every covered texel
-// gathers direct light by shadow rays to the emitters and indirect light by
-// one cosine-distributed ray that reads the current radiosity map.
+// Passes of the radiosity map (thesis §3.2-3.5): in each, every covered
+// texel gathers direct light by shadow rays to the emitters and indirect
+// light by one cosine-distributed ray that reads the current radiosity map.
 // With LF_FINAL_GATHER defined the indirect ray's first bounce is computed
 // where it lands (final_gather below) and the map supplies only the light
 // beyond. With LF_PATH_TRACE defined it is the brute-force baseline instead:
@@ -17,11 +17,17 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 #include "direct_light.glsl"
 #include "radiosity_texels.glsl"
 #include "path_trace.glsl"
+#include "radiosity_resolve.glsl"
 
 
-uniform uint pass;            // 0-based pass count since the bake began
+uniform uint first_pass;       // the dispatch's first pass, 0-based since the bake began
+uniform uint pass_count;      // passes this dispatch runs (1 under LF_ONE_PASS_PER_DISPATCH)
+uniform uint end_epoch;        // 1: its last pass ends an epoch (the current indirect estimate becomes "previous")
 uniform uint seed;
 uniform uint light_samples;   // emitter samples per texel per pass
+
+// Per pass of the dispatch, per covered texel: resolve_texel's totals.
+layout(std430, binding = LF_BINDING_TEXEL_TOTALS) writeonly buffer TexelTotals { vec4 texel_totals[]; };
 
 #ifdef LF_DIRECTIONAL
 // Per covered texel: the running sum of its L1 vector's x, y, z (RGB each;
@@ -43,8 +49,8 @@ vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
 // LF_FINAL_GATHER its first bounce is computed at y instead: y's direct
 // light sampled as the texels' is (one emitter sample, the punctual lights,
 // the sky), times the albedo there, plus albedo x the map's indirect layer
-// for the light that reaches y after bouncing at least once (the resolve
-// pass publishes that under LF_FINAL_GATHER). False where the map cannot
+// for the light that reaches y after bouncing at least once (publish_texel
+// publishes that under LF_FINAL_GATHER). False where the map cannot
 // say (reflected_lookup).
 bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out vec3 radiance) {
     vec2 uv = hit_lightmap_uv(hit);
@@ -114,12 +120,9 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
     }
 }
 
-void main() {
-    uint i = covered_index();
-    if (i >= covered_count) return;
-    vec4 flags = accumulators[5u * i + 1u];
-    if (flags.w != 0.0) return;  // converged: this texel costs no more rays
-
+// Pass `pass` of covered texel i: its rays, added to its accumulators;
+// returns the rays it traced beyond the pass's fixed ones.
+uint gather_texel(uint i, uint pass) {
     uvec4 texel = covered_texels[i];
     Rng rng = rng_start(i, pass, seed);
     // Cycle through the texel's sample points so the estimate averages its footprint.
@@ -211,10 +214,34 @@ void main() {
 #endif
 
     vec4 acc_direct = accumulators[5u * i];
+    vec4 moments = accumulators[5u * i + 1u];
     vec4 acc_indirect = accumulators[5u * i + 2u];
     float d = channel_mean(direct), g = channel_mean(indirect);
     accumulators[5u * i] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
-    accumulators[5u * i + 1u] = vec4(flags.x + d * d, flags.y + g * g, flags.zw);
+    accumulators[5u * i + 1u] = vec4(moments.x + d * d, moments.y + g * g, moments.zw);
     accumulators[5u * i + 2u] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
-    accumulators[5u * i + 4u].w = float(path_rays);
+    return path_rays;
+}
+
+// Pass first_pass + k of covered texel i, resolved (radiosity_resolve.glsl).
+void gather_and_resolve(uint i, uint k) {
+    uint extra_rays = 0u;
+    // A converged texel costs no more rays.
+    if (accumulators[5u * i + 1u].w == 0.0) extra_rays = gather_texel(i, first_pass + k);
+    texel_totals[k * covered_count + i] = resolve_texel(i, end_epoch != 0u && k + 1u == pass_count, float(extra_rays));
+}
+
+// `pass_count` passes from `first_pass`, each resolved texel by texel as it ends
+// (radiosity_resolve.glsl) with its error totals in a slot of its own. All
+// of them read the map as it was last published: the map is published at
+// the ends of RadiosityMapBaker's cells of passes, never within a dispatch.
+// Several passes in one dispatch fill a device that one small pass cannot.
+void main() {
+    uint i = covered_index();
+    if (i >= covered_count) return;
+#ifdef LF_ONE_PASS_PER_DISPATCH
+    gather_and_resolve(i, 0u);  // no loop: llvmpipe runs the gather a quarter slower in one
+#else
+    for (uint k = 0u; k < pass_count; ++k) gather_and_resolve(i, k);
+#endif
 }

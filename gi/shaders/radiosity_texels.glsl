@@ -30,7 +30,7 @@ layout(std430, binding = LF_BINDING_COVERED_TEXELS) readonly buffer CoveredTexel
 //   [1] second moments (of the channel mean): direct, current indirect; previous epoch's variance of the mean; active flag
 //   [2] indirect, current epoch: sum (rgb), sample count
 //   [3] indirect, previous epoch: mean (rgb), sample count
-//   [4] albedo (rgb), rays this pass traced beyond the fixed ones (path tracing)
+//   [4] albedo (rgb), 0
 layout(std430, binding = LF_BINDING_TEXEL_ACCUMULATORS) buffer TexelAccumulators { vec4 accumulators[]; };
 
 uniform uint covered_count;
