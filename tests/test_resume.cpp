@@ -145,6 +145,13 @@ TEST(ResumeBaker, ARadiosityMapRestoredMidEpochContinuesBitForBit) {
             EXPECT_EQ(state.buffers.size(), 2 + (per_dispatch > 1 ? map_buffers : 0)) << "the map, inside a cell";
             RadiosityMapBaker resumed(scene, texels, tracer, settings);
             resumed.restore(state);
+            if (per_dispatch > 1) {  // another device's count (auto follows the device) resumes it too
+                RadiosityMapSettings one_per_dispatch = settings;
+                one_per_dispatch.passes_per_dispatch = 1;
+                RadiosityMapBaker elsewhere(scene, texels, tracer, one_per_dispatch);
+                EXPECT_NO_THROW(elsewhere.restore(state));
+                EXPECT_EQ(elsewhere.step().pass, stop + 1);
+            }
             PassStats a, b;
             for (int p = stop; p < stop + 7; ++p) {
                 a = whole.step();

@@ -393,8 +393,10 @@ MethodState RadiosityMapBaker::state() const {
 void RadiosityMapBaker::restore(const MethodState& s) {
     if (s.layout != layout_) throw MethodStateMismatch("the lightmap's texels are laid out differently");
     if (s.counters.size() != 3) throw MethodStateMismatch("not a lightmap's state");
-    const int pass = s.stats.pass;
-    const bool cell_end = pass == 0 || cell_end_after(pass - 1, passes_per_dispatch_) == pass;
+    // A state taken inside a cell holds the map its passes read (state()):
+    // told by its buffers, so that a state of another passes_per_dispatch (a
+    // GPU's, resumed on llvmpipe) continues as well.
+    const bool cell_end = s.buffers.size() != state_buffers(*this, false).size();
     restore_buffers(state_buffers(*this, cell_end), s.buffers);
     pass_in_epoch_ = int(s.counters[0]);
     epoch_length_ = int(s.counters[1]);

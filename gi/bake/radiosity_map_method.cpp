@@ -72,7 +72,6 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
         {"stitch", settings.lightmap->stitch},
         {"denoise", settings.lightmap->denoise},
         {"directional", settings.lightmap->directional},
-        {"passes_per_dispatch", baker_.passes_per_dispatch()},
         {"seed", r.seed},
         {"max_passes", stop_.max_passes},
         {"target_error", stop_.target_error},
@@ -84,6 +83,9 @@ nlohmann::json RadiosityMapMethod::description() const {
     return {{"texels", baker_.covered_texels()},
             {"texels_moved_out_of_geometry", baker_.texels_moved_out_of_geometry()},
             {"texels_cut_by_geometry", baker_.texels_cut_by_geometry()},
+            // Not a setting of the result (a state of any count resumes):
+            // follows the device where auto.
+            {"passes_per_dispatch", baker_.passes_per_dispatch()},
             {"settings", settings_json_}};
 }
 
