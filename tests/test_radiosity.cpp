@@ -1106,7 +1106,7 @@ TEST(RadiosityMap, CellsOfPassesAreShortEarlyAndEndAtEveryDoubling) {
 }
 
 // Path tracing reads no map, so how many passes a dispatch runs changes
-// nothing but the dispatches: the same bits. The epochs read the map a few
+// nothing but the dispatches: the same bits, L1 layers included. The epochs read the map a few
 // passes late in a furnace of albedo 0.8, where most of the light has
 // bounced more than ten times: the cells keep it within the same bound.
 TEST(RadiosityMap, SeveralPassesPerDispatchAreTheSamePasses) {
@@ -1114,6 +1114,7 @@ TEST(RadiosityMap, SeveralPassesPerDispatchAreTheSamePasses) {
     const Scene s = furnace(0.8f, 1.0f, res);
     RadiosityMapSettings pathtrace, pathtrace_in_cells;
     pathtrace.scheme = pathtrace_in_cells.scheme = RadiosityScheme::PathTracing;
+    pathtrace.directional = pathtrace_in_cells.directional = true;  // each pass's own L1 sums
     pathtrace.passes_per_dispatch = 1;
     pathtrace_in_cells.passes_per_dispatch = 16;
     const BakeResult a = bake(s, res, 200, pathtrace), b = bake(s, res, 200, pathtrace_in_cells);

@@ -140,6 +140,7 @@ uint gather_texel(uint i, uint pass) {
     uvec3 light_rotation = uvec3(pcg_hash(i ^ pcg_hash(seed + 1u)), pcg_hash(i * 5u + seed), pcg_hash(i * 11u + seed));
     vec3 direct = vec3(0.0);
 #ifdef LF_DIRECTIONAL
+    lf_directional = vec3[](vec3(0.0), vec3(0.0), vec3(0.0));  // this pass's alone
     lf_directional_on = true;  // the texel's own light only, not the hit points' of the final gather
 #endif
     for (uint k = 0u; k < light_samples; ++k) {
