@@ -84,8 +84,8 @@ std::vector<Setting> build_catalog() {
         typed("lightmap", "denoise", T::Flag, false,
               "edge-aware filter of the final lightmap (RGB; the raw result stays in layer raw.)"),
         with_auto(integer("lightmap", "passes_per_dispatch", 1, 1, 16, "",
-                          "passes one GPU dispatch runs; they read the map as it was before it (auto: enough for "
-                          "262,144 texel passes)")),
+                          "the most passes one GPU dispatch runs; the passes of a cell read the map published at its "
+                          "start (auto: enough for 262,144 texel passes)")),
 
         with_auto(integer("sh", "sh_bands", 4, 1, 4, "", "SH bands (auto: fewest within 2% of 4 bands)")),
         integer("sh", "sh_bounces", 0, 0, 4, "", "interreflection bounces (0: shadowed transfer)"),

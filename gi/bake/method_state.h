@@ -4,7 +4,9 @@
 // of from pass 0. Every method's random numbers are keyed by (seed, pass,
 // element), never drawn from a running generator, so the restored buffers and
 // pass count are all a method needs: a resumed bake traces exactly the rays
-// the uninterrupted one would have.
+// the uninterrupted one would have (the lightmap's, with the same passes per
+// dispatch: a state from another device's count is taken, and continues
+// with this one's).
 //
 // In the job's output directory, beside its snapshots:
 //   .resume/<output>.state      the latest state (binary, below)

@@ -40,8 +40,8 @@ LightSampling parse_light_sampling(const std::string& text) {
 namespace {
 
 // The passes one dispatch runs: the settings' or passes_per_dispatch_for's,
-// within 256 MiB of texel totals (16 bytes per texel and pass; one pass of
-// the staircase's 4096² atlas needs 176 MB).
+// as many as fit 256 MiB of texel totals (16 bytes per texel and pass), and
+// at least 1 (one pass of the staircase's 4096² atlas needs 176 MB).
 int choose_passes_per_dispatch(const RadiosityMapSettings& s, size_t covered_texels) {
     if (s.passes_per_dispatch < 0 || s.passes_per_dispatch > kMaxPassesPerDispatch)
         throw std::invalid_argument("passes per dispatch must be 1 to " + std::to_string(kMaxPassesPerDispatch) +
@@ -247,6 +247,10 @@ void RadiosityMapBaker::bind_buffers() const {
     if (surface_textures_) surface_textures_->bind();
 }
 
+bool RadiosityMapBaker::at_cell_end(int pass) const {
+    return pass == 0 || cell_end_after(pass - 1, passes_per_dispatch_) == pass;
+}
+
 int cell_end_after(int pass, int passes_per_dispatch) {
     if (pass < 1) return 1;
     const int doubling = int(std::bit_floor(unsigned(pass)));  // the last power of two <= pass
@@ -254,7 +258,7 @@ int cell_end_after(int pass, int passes_per_dispatch) {
     return std::min((pass / cell + 1) * cell, 2 * doubling);
 }
 
-void RadiosityMapBaker::gather(int first_pass, int count, bool end_epoch, int slot) {
+void RadiosityMapBaker::dispatch_passes(int first_pass, int count, bool end_epoch, int slot) {
     const float far = 1e30f;  // rays end at the scene's bounds anyway
     gather_.use();
     texel_totals_.bind(LF_BINDING_TEXEL_TOTALS);
@@ -280,7 +284,7 @@ void RadiosityMapBaker::gather(int first_pass, int count, bool end_epoch, int sl
     glUniform1ui(totals_.uniform("pass_count"), GLuint(count));
     glUniform1ui(totals_.uniform("partials_stride"), GLuint(partials_slot_bytes_ / sizeof(glm::vec4)));
     totals_.dispatch_1d(covered_count_);
-    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);  // read back at the batch's end
 }
 
 std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
@@ -297,7 +301,7 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
         pass_in_epoch_ += passes;
         const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
         bind_buffers();
-        gather(pass, passes, end_epoch, done);
+        dispatch_passes(pass, passes, end_epoch, done);
         pass += passes;
         if (end_epoch) {
             pass_in_epoch_ = 0;
@@ -363,16 +367,16 @@ RadiosityMapBaker::ResolveTotals RadiosityMapBaker::totals_of(const std::vector<
     return t;
 }
 
-// What a state holds: the accumulators, the L1 sums, and inside a cell the
-// map its passes read (published at its start, no longer what the
-// accumulators say).
+// What a state holds: the accumulators, the L1 sums, and `with_map` (inside
+// a cell) the map its passes read, published at its start and no longer
+// what the accumulators say; path tracing reads no map.
 // (A template for state()'s const buffers and restore()'s writable ones.)
 template <class Baker>
-auto RadiosityMapBaker::state_buffers(Baker& baker, bool cell_end) {
+auto RadiosityMapBaker::state_buffers(Baker& baker, bool with_map) {
     using Buffer = decltype(&baker.accumulators_);
     std::vector<std::pair<Buffer, std::string>> buffers = {{&baker.accumulators_, "the texels' accumulators"}};
     if (baker.settings_.directional) buffers.emplace_back(&baker.directional_, "the texels' L1 sums");
-    if (!cell_end) {
+    if (with_map && baker.settings_.scheme != RadiosityScheme::PathTracing) {
         buffers.emplace_back(&baker.reflected_, "the map the cell's passes read");
         if (baker.settings_.scheme == RadiosityScheme::FinalGather)
             buffers.emplace_back(&baker.reflected_indirect_, "the map's indirect layer the cell's passes read");
@@ -385,27 +389,27 @@ MethodState RadiosityMapBaker::state() const {
     s.layout = layout_;
     s.stats = stats_;
     s.counters = {pass_in_epoch_, epoch_length_, int64_t(active_texels_)};
-    const bool cell_end = stats_.pass == 0 || cell_end_after(stats_.pass - 1, passes_per_dispatch_) == stats_.pass;
-    for (const auto& [buffer, name] : state_buffers(*this, cell_end)) s.buffers.push_back(buffer_bytes(*buffer));
+    for (const auto& [buffer, name] : state_buffers(*this, !at_cell_end(stats_.pass)))
+        s.buffers.push_back(buffer_bytes(*buffer));
     return s;
 }
 
 void RadiosityMapBaker::restore(const MethodState& s) {
     if (s.layout != layout_) throw MethodStateMismatch("the lightmap's texels are laid out differently");
     if (s.counters.size() != 3) throw MethodStateMismatch("not a lightmap's state");
-    // A state taken inside a cell holds the map its passes read (state()):
-    // told by its buffers, so that a state of another passes_per_dispatch (a
-    // GPU's, resumed on llvmpipe) continues as well.
-    const bool cell_end = s.buffers.size() != state_buffers(*this, false).size();
-    restore_buffers(state_buffers(*this, cell_end), s.buffers);
+    // A state taken inside a cell holds the map its passes read (state()),
+    // told by its buffers: a state of another passes_per_dispatch (a GPU's,
+    // resumed on llvmpipe) is taken too.
+    const bool with_map =
+        s.buffers.size() == state_buffers(*this, true).size() && s.buffers.size() != state_buffers(*this, false).size();
+    restore_buffers(state_buffers(*this, with_map), s.buffers);
     pass_in_epoch_ = int(s.counters[0]);
     epoch_length_ = int(s.counters[1]);
     active_texels_ = size_t(s.counters[2]);
     stats_ = s.stats;
-    // At a cell's end the map is the accumulators' values, published again
-    // here exactly as the last pass before the state did (inside a cell it
-    // came with the state).
-    if (cell_end) {
+    // At a cell's end (this baker's) the map is the accumulators' values,
+    // published again here exactly as the last pass before the state did.
+    if (!with_map || at_cell_end(stats_.pass)) {
         bind_buffers();
         publish();
     }

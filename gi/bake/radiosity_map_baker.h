@@ -81,7 +81,7 @@ struct RadiosityMapSettings {
 };
 
 // A pass of a small atlas is too little work for a GPU: an H100 keeps
-// 132 x 2048 = 270,336 threads resident, and a 256² Cornell box has 46,000
+// 132 x 2048 = 270,336 threads resident, and a 256² Cornell box has 40,555
 // texels. So one dispatch runs several passes, as many as bring its texel
 // passes to kTexelPassesPerDispatch (a power of two, at most
 // kMaxPassesPerDispatch). Those passes read the map as it was before the
@@ -165,12 +165,14 @@ private:
     void upload_texels(const TexelSamples& texels);
     void bind_buffers() const;
     template <class Baker>
-    static auto state_buffers(Baker& baker, bool cell_end);
-    // `count` passes from `first_pass` (radiosity_gather.comp), each
-    // resolved as it ends, and their totals summed per work group
-    // (radiosity_totals.comp) into partials slots `slot` to
-    // `slot + count - 1`; `end_epoch`: the last one ends an epoch.
-    void gather(int first_pass, int count, bool end_epoch, int slot);
+    static auto state_buffers(Baker& baker, bool with_map);
+    // Whether `pass` passes end a cell (the map is the accumulators' values there).
+    bool at_cell_end(int pass) const;
+    // One dispatch of `count` passes from `first_pass`
+    // (radiosity_gather.comp), each resolved as it ends, then their totals
+    // summed per work group (radiosity_totals.comp) into partials slots
+    // `slot` to `slot + count - 1`; `end_epoch`: the last one ends an epoch.
+    void dispatch_passes(int first_pass, int count, bool end_epoch, int slot);
     // Publishes the texels' values to the next passes' indirect rays (radiosity_publish.comp).
     void publish();
     struct ResolveTotals {

@@ -3,7 +3,7 @@
 // the pass's error estimate (resolve_texel, after each pass, inside the
 // gather's dispatch), and publishing albedo x value as the reflected radiance
 // that later passes' indirect rays read (publish_texel, radiosity_publish.comp,
-// once the dispatch is done: other texels read it). Neither waits at a
+// at the end of a cell of passes, a dispatch of its own: other texels read it). Neither waits at a
 // barrier: llvmpipe runs a shader with barrier() as coroutines, and the
 // gather's took 25 times as long so.
 #ifndef LF_RADIOSITY_RESOLVE_GLSL
