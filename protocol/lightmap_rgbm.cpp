@@ -1,7 +1,5 @@
 #include "lightmap_rgbm.h"
 
-#include <stb/stb_image_write.h>
-
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -10,10 +8,6 @@ namespace lf::protocol {
 
 namespace {
 float storable(float v) { return std::isfinite(v) && v > 0.0f ? v : 0.0f; }
-
-void append_bytes(void* context, void* data, int size) {
-    static_cast<std::string*>(context)->append(static_cast<const char*>(data), size_t(size));
-}
 }  // namespace
 
 RgbmImage encode_rgbm(const std::vector<float>& rgb, int width, int height) {
@@ -50,13 +44,11 @@ std::vector<float> decode_rgbm(const RgbmImage& image) {
     return rgb;
 }
 
-std::string rgbm_png(const RgbmImage& image) {
-    std::string png;
-    if (image.width <= 0 || image.height <= 0 ||
-        !stbi_write_png_to_func(append_bytes, &png, image.width, image.height, 4, image.rgba.data(), image.width * 4))
-        throw std::runtime_error("cannot encode a " + std::to_string(image.width) + "x" + std::to_string(image.height) +
-                                 " RGBM PNG");
-    return png;
+std::string rgbm_png(const RgbmImage& image, const PngStripRunner& run) {
+    if (image.rgba.size() != size_t(std::max(image.width, 0)) * size_t(std::max(image.height, 0)) * 4)
+        throw std::invalid_argument("rgbm_png: " + std::to_string(image.rgba.size()) + " bytes for " +
+                                    std::to_string(image.width) + "x" + std::to_string(image.height) + " RGBA pixels");
+    return encode_png(image.rgba.data(), image.width, image.height, 4, run);
 }
 
 }  // namespace lf::protocol

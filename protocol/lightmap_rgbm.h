@@ -14,6 +14,8 @@
 // 8 bits have 255:1.
 #pragma once
 
+#include "png.h"
+
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -34,7 +36,8 @@ RgbmImage encode_rgbm(const std::vector<float>& rgb, int width, int height);
 // The linear RGB values an RgbmImage stands for (width * height * 3).
 std::vector<float> decode_rgbm(const RgbmImage& image);
 
-// The image as a PNG file (RGBA, 8 bits). Throws std::runtime_error.
-std::string rgbm_png(const RgbmImage& image);
+// The image as a PNG file (RGBA, 8 bits; encode_png, its strips run by
+// `run`). Throws std::invalid_argument for an empty image.
+std::string rgbm_png(const RgbmImage& image, const PngStripRunner& run = {});
 
 }  // namespace lf::protocol

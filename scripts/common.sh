@@ -7,7 +7,7 @@ LIGHTFARM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 LIGHTFARM_PACKAGES=(
   build-essential cmake pkg-config
   libegl-dev libgl-dev libepoxy-dev libegl-mesa0 libgl1-mesa-dri
-  libtinygltf-dev nlohmann-json3-dev libstb-dev libglm-dev libopenexr-dev
+  libtinygltf-dev nlohmann-json3-dev libstb-dev libglm-dev libopenexr-dev zlib1g-dev
   libgtest-dev libcpp-httplib-dev libsqlite3-dev libssl-dev libpq-dev
 )
 

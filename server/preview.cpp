@@ -6,7 +6,6 @@
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
-#include <stb/stb_image_write.h>
 
 #include <algorithm>
 #include <cmath>
@@ -79,15 +78,12 @@ unsigned char encode_srgb(float linear) {
     return static_cast<unsigned char>(std::lround(s * 255.0f));
 }
 
-void append_bytes(void* context, void* data, int size) {
-    static_cast<std::string*>(context)->append(static_cast<const char*>(data), size_t(size));
-}
-
 std::string rgb_png(const std::vector<unsigned char>& rgb, int width, int height, const std::string& path) {
-    std::string png;
-    if (!stbi_write_png_to_func(append_bytes, &png, width, height, 3, rgb.data(), width * 3))
-        throw std::runtime_error("cannot encode a PNG preview of " + path);
-    return png;
+    try {
+        return protocol::encode_png(rgb.data(), width, height, 3);
+    } catch (const std::exception& e) {
+        throw std::runtime_error("cannot encode a PNG preview of " + path + ": " + e.what());
+    }
 }
 
 std::vector<unsigned char> tonemapped(const LightmapPixels& image, float exposure) {

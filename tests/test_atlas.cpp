@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <stb/stb_image.h>
 #include <tiny_gltf.h>
 
 #include <algorithm>
@@ -785,6 +786,40 @@ TEST(LightmappedGlb, AnInfiniteCameraKeepsNoZfar) {
     EXPECT_FALSE(written["cameras"][0]["perspective"].contains("zfar")) << written["cameras"][0].dump();
     EXPECT_DOUBLE_EQ(written["cameras"][0]["perspective"]["znear"].get<double>(), 0.01);
     fs::remove_all(dir);
+}
+
+// encode_png: decoded (by stb_image, as viewers and tinygltf do) to the
+// bytes it was given, RGB and RGBA, over several strips of rows and a width
+// that is no multiple of anything; the same bytes however its strips run.
+TEST(Png, DecodesToItsPixelsAndDoesNotDependOnHowItsStripsRun) {
+    const int width = 203, height = 2 * protocol::kPngStripRows + 22;
+    std::mt19937 random(7);
+    for (int channels : {3, 4}) {
+        std::vector<uint8_t> pixels(size_t(width) * height * size_t(channels));
+        for (size_t i = 0; i < pixels.size(); ++i)  // gradients, and noise in the lower half
+            pixels[i] =
+                uint8_t(i < pixels.size() / 2 ? (i / size_t(channels)) % 251 + i % size_t(channels) : random() & 0xff);
+        const std::string png = protocol::encode_png(pixels.data(), width, height, channels);
+        int w = 0, h = 0, n = 0;
+        stbi_uc* decoded =
+            stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(png.data()), int(png.size()), &w, &h, &n, channels);
+        ASSERT_NE(decoded, nullptr) << stbi_failure_reason();
+        EXPECT_EQ(w, width);
+        EXPECT_EQ(h, height);
+        EXPECT_EQ(n, channels);
+        EXPECT_EQ(std::memcmp(decoded, pixels.data(), pixels.size()), 0) << channels << " channels";
+        stbi_image_free(decoded);
+
+        const protocol::PngStripRunner backwards_on_threads = [](size_t count, const std::function<void(size_t)>& f) {
+            std::vector<std::thread> threads;
+            for (size_t i = count; i-- > 0;) threads.emplace_back(f, i);
+            for (std::thread& t : threads) t.join();
+        };
+        EXPECT_EQ(protocol::encode_png(pixels.data(), width, height, channels, backwards_on_threads), png);
+    }
+    const uint8_t pixel[4] = {};
+    EXPECT_THROW(protocol::encode_png(pixel, 1, 1, 2), std::invalid_argument);
+    EXPECT_THROW(protocol::encode_png(pixel, 0, 1, 4), std::invalid_argument);
 }
 
 // scene.lit.glb: every baked primitive's material carries the lightmap with

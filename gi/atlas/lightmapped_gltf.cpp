@@ -1,5 +1,7 @@
 #include "atlas/lightmapped_gltf.h"
 
+#include "util/parallel.h"
+
 #include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
 
@@ -358,7 +360,9 @@ int add_default_lambertian_material(tinygltf::Model& model) {
 // is not sRGB), applied with MOZ_lightmap to the materials of `primitives`.
 void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
                     const protocol::RgbmImage& lightmap) {
-    const std::string png = protocol::rgbm_png(lightmap);
+    // Its strips compressed on every core (protocol/png.h).
+    const std::string png = protocol::rgbm_png(
+        lightmap, [](size_t strips, const std::function<void(size_t)>& strip) { parallel_for(strips, 1, strip); });
     tinygltf::Image image;
     image.name = "lightmap (RGBM)";
     image.mimeType = "image/png";
