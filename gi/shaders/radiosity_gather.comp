@@ -120,23 +120,13 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
     }
 }
 
-// Pass `pass` of covered texel i: its rays, added to its accumulators;
-// returns the rays it traced beyond the pass's fixed ones.
-uint gather_texel(uint i, uint pass) {
-    uvec4 texel = covered_texels[i];
-    Rng rng = rng_start(i, pass, seed);
-    // Cycle through the texel's sample points so the estimate averages its footprint.
-    uint s = texel.x + (pass + pcg_hash(i)) % texel.y;
-    vec3 x = sample_position(s);
-    vec3 n = sample_normal(s);
-    vec3 ng = sample_geometric_normal(s);
-    vec3 origin = offset_ray_origin(x, ng);
-
-    // Direct: eq. 3.12 for the emitters (MIS with the indirect ray below),
-    // punctual lights exactly. Stored as E / pi. The emitter samples (which
-    // emitter, where on it) follow an R3 sequence over the whole bake,
-    // rotated per texel: stratified across passes, they converge faster than
-    // independent samples wherever a texel sees its lights unoccluded.
+// Direct light at texel i's point x (shading normal n, rays from origin) in
+// pass `pass`: eq. 3.12 for the emitters (MIS with the indirect ray),
+// punctual lights exactly; irradiance E, not yet over pi. The emitter
+// samples (which emitter, where on it) follow an R3 sequence over the whole
+// bake, rotated per texel: stratified across passes, they converge faster
+// than independent samples wherever a texel sees its lights unoccluded.
+vec3 texel_direct_light(uint i, uint pass, vec3 x, vec3 n, vec3 origin) {
     uvec3 light_rotation = uvec3(pcg_hash(i ^ pcg_hash(seed + 1u)), pcg_hash(i * 5u + seed), pcg_hash(i * 11u + seed));
     vec3 direct = vec3(0.0);
 #ifdef LF_DIRECTIONAL
@@ -151,6 +141,38 @@ uint gather_texel(uint i, uint pass) {
 #ifdef LF_DIRECTIONAL
     lf_directional_on = false;
 #endif
+    return direct;
+}
+
+// Adds a pass's direct and indirect samples (E/pi) to texel i's running
+// sums, and its L1 vector's under LF_DIRECTIONAL.
+void accumulate_pass(uint i, vec3 direct, vec3 indirect) {
+#ifdef LF_DIRECTIONAL
+    directional_accumulators[3u * i] += vec4(lf_directional[0], 1.0);
+    directional_accumulators[3u * i + 1u] += vec4(lf_directional[1], 0.0);
+    directional_accumulators[3u * i + 2u] += vec4(lf_directional[2], 0.0);
+#endif
+    vec4 acc_direct = accumulators[5u * i];
+    vec4 moments = accumulators[5u * i + 1u];
+    vec4 acc_indirect = accumulators[5u * i + 2u];
+    float d = channel_mean(direct), g = channel_mean(indirect);
+    accumulators[5u * i] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
+    accumulators[5u * i + 1u] = vec4(moments.x + d * d, moments.y + g * g, moments.zw);
+    accumulators[5u * i + 2u] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
+}
+
+// Pass `pass` of covered texel i: its rays, added to its accumulators;
+// returns the rays it traced beyond the pass's fixed ones.
+uint gather_texel(uint i, uint pass) {
+    uvec4 texel = covered_texels[i];
+    Rng rng = rng_start(i, pass, seed);
+    // Cycle through the texel's sample points so the estimate averages its footprint.
+    uint s = texel.x + (pass + pcg_hash(i)) % texel.y;
+    vec3 x = sample_position(s);
+    vec3 n = sample_normal(s);
+    vec3 ng = sample_geometric_normal(s);
+    vec3 origin = offset_ray_origin(x, ng);
+    vec3 direct = texel_direct_light(i, pass, x, n, origin);
 
     // Indirect: eq. 3.7, one cosine-distributed ray. The hit point's emission
     // is left out (the direct term already counts it); what it reflects is
@@ -209,18 +231,8 @@ uint gather_texel(uint i, uint pass) {
     lf_directional_on = true;
     lf_add_directional(PI * (indirect + sky), dir, n);
     lf_directional_on = false;
-    directional_accumulators[3u * i] += vec4(lf_directional[0], 1.0);
-    directional_accumulators[3u * i + 1u] += vec4(lf_directional[1], 0.0);
-    directional_accumulators[3u * i + 2u] += vec4(lf_directional[2], 0.0);
 #endif
-
-    vec4 acc_direct = accumulators[5u * i];
-    vec4 moments = accumulators[5u * i + 1u];
-    vec4 acc_indirect = accumulators[5u * i + 2u];
-    float d = channel_mean(direct), g = channel_mean(indirect);
-    accumulators[5u * i] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
-    accumulators[5u * i + 1u] = vec4(moments.x + d * d, moments.y + g * g, moments.zw);
-    accumulators[5u * i + 2u] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
+    accumulate_pass(i, direct, indirect);
     return path_rays;
 }
 
