@@ -84,9 +84,9 @@ struct RadiosityMapSettings {
 // 132 x 2048 = 270,336 threads resident, and a 256² Cornell box has 40,555
 // texels. So one dispatch runs several passes, as many as bring its texel
 // passes to kTexelPassesPerDispatch (a power of two, at most
-// kMaxPassesPerDispatch). Those passes read the map as it was before the
-// dispatch, up to that many passes old, and the map is published after it:
-// RadiosityMapBaker's cells. A software renderer runs one: any pass fills
+// kMaxPassesPerDispatch). Those passes read the map published at the start
+// of their cell (cell_end_after), up to that many passes old; it is
+// published again at the cell's end. A software renderer runs one: any pass fills
 // its cores, and the loop over passes costs llvmpipe a quarter of its speed
 // (docs/BENCHMARKS.md, "Several passes per dispatch").
 inline constexpr size_t kTexelPassesPerDispatch = size_t(1) << 18;
