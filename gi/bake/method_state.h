@@ -38,7 +38,7 @@ struct MethodState {
     // come from a different packing.
     uint64_t layout = 0;
     PassStats stats;
-    std::vector<int64_t> counters;                // the method's own (epoch position, …)
+    std::vector<int64_t> counters;                // the method's own (texels still tracing, …)
     std::vector<std::vector<std::byte>> buffers;  // the GPU buffers, in the method's order
     std::vector<std::string> files;               // snapshots written so far, oldest first
 };

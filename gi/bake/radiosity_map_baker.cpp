@@ -298,15 +298,12 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
     for (int pass = stats_.pass, done = 0, dispatches = 0; done < count; ++dispatches) {
         const int cell_end = cell_end_after(pass, passes_per_dispatch_);
         const int passes = std::min(cell_end - pass, count - done);
-        pass_in_epoch_ += passes;
-        const bool end_epoch = restarts_epochs(settings_.scheme) && pass_in_epoch_ == epoch_length_;
+        // Epochs end where the pass count reaches a power of two (passes
+        // 1 | 2 | 3-4 | 5-8 …), always a cell's end.
+        const bool end_epoch = restarts_epochs(settings_.scheme) && std::has_single_bit(unsigned(pass + passes));
         bind_buffers();
         dispatch_passes(pass, passes, end_epoch, done);
         pass += passes;
-        if (end_epoch) {
-            pass_in_epoch_ = 0;
-            epoch_length_ = pass;  // epochs: 1 | 1 | 2 | 4 | 8 … passes
-        }
         if (pass == cell_end) publish();
         dispatch_ends_.mark(dispatches + 1);
         dispatch_of_pass.insert(dispatch_of_pass.end(), size_t(passes), dispatches);
@@ -388,7 +385,7 @@ MethodState RadiosityMapBaker::state() const {
     MethodState s;
     s.layout = layout_;
     s.stats = stats_;
-    s.counters = {pass_in_epoch_, epoch_length_, int64_t(active_texels_)};
+    s.counters = {int64_t(active_texels_)};
     for (const auto& [buffer, name] : state_buffers(*this, !at_cell_end(stats_.pass)))
         s.buffers.push_back(buffer_bytes(*buffer));
     return s;
@@ -396,16 +393,14 @@ MethodState RadiosityMapBaker::state() const {
 
 void RadiosityMapBaker::restore(const MethodState& s) {
     if (s.layout != layout_) throw MethodStateMismatch("the lightmap's texels are laid out differently");
-    if (s.counters.size() != 3) throw MethodStateMismatch("not a lightmap's state");
+    if (s.counters.size() != 1) throw MethodStateMismatch("not a lightmap's state");
     // A state taken inside a cell holds the map its passes read (state()),
     // told by its buffers: a state of another passes_per_dispatch (a GPU's,
     // resumed on llvmpipe) is taken too.
     const bool with_map =
         s.buffers.size() == state_buffers(*this, true).size() && s.buffers.size() != state_buffers(*this, false).size();
     restore_buffers(state_buffers(*this, with_map), s.buffers);
-    pass_in_epoch_ = int(s.counters[0]);
-    epoch_length_ = int(s.counters[1]);
-    active_texels_ = size_t(s.counters[2]);
+    active_texels_ = size_t(s.counters[0]);
     stats_ = s.stats;
     // At a cell's end (this baker's) the map is the accumulators' values,
     // published again here exactly as the last pass before the state did.

@@ -144,8 +144,9 @@ public:
     Readback read_back() const;
     FloatImage image(const Readback& readback) const;
 
-    // Resuming (bake/method_state.h): the accumulators, the L1 sums and the
-    // epoch's position, and inside a cell the map its passes read; restore()
+    // Resuming (bake/method_state.h): the accumulators, the L1 sums, the
+    // texels still tracing, and inside a cell the map its passes read (the
+    // pass count says where the epochs and cells are); restore()
     // publishes again what the next pass's indirect rays read, from the
     // restored accumulators at a cell's end.
     MethodState state() const;
@@ -215,8 +216,6 @@ private:
     GpuBuffer directional_;           // 3 vec4 per covered texel: L1 sums (settings.directional)
 
     PassStats stats_;
-    int pass_in_epoch_ = 0;
-    int epoch_length_ = 1;
     uint64_t rays_per_texel_ = 0;
     size_t active_texels_ = 0;  // texels the next pass traces for
 };

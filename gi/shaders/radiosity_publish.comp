@@ -5,7 +5,6 @@
 // gather's: a texel's rays read other texels' values.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
-#define LF_PUBLISH_ONLY
 #include "radiosity_resolve.glsl"
 
 void main() {

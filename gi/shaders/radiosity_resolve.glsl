@@ -3,9 +3,9 @@
 // the pass's error estimate (resolve_texel, after each pass, inside the
 // gather's dispatch), and publishing albedo x value as the reflected radiance
 // that later passes' indirect rays read (publish_texel, radiosity_publish.comp,
-// at the end of a cell of passes, a dispatch of its own: other texels read it). Neither waits at a
-// barrier: llvmpipe runs a shader with barrier() as coroutines, and the
-// gather's took 25 times as long so.
+// at the end of a cell of passes, a dispatch of its own: other texels read
+// it). Neither waits at a barrier: llvmpipe runs a shader with barrier() as
+// coroutines, and the gather took 25 times as long so.
 #ifndef LF_RADIOSITY_RESOLVE_GLSL
 #define LF_RADIOSITY_RESOLVE_GLSL
 #include "buffer_bindings.glsl"
@@ -24,7 +24,6 @@ float variance_of_mean(float sum, float sum_sq, float n) {
 vec3 texel_indirect(vec4 current, vec4 previous) { return current.w > 0.0 ? current.rgb / current.w : previous.rgb; }
 vec3 texel_direct(vec4 direct) { return direct.w > 0.0 ? direct.rgb / direct.w : vec3(0.0); }
 
-#ifndef LF_PUBLISH_ONLY
 uniform float converged_error;  // > 0: texels whose relative standard error is below this stop tracing
 uniform uint min_samples;       // before which no texel is called converged
 
@@ -74,7 +73,6 @@ vec4 resolve_texel(uint i, bool end_epoch, float extra_rays) {
     bool unknown_variance = (deliver_current ? current.w : previous.w) < 2.0 || direct.w < 2.0;
     return vec4(var, level, extra_rays, (converged ? 0.0 : 1.0) + (unknown_variance ? 2.0 : 0.0));
 }
-#endif
 
 // Publishes texel i's albedo x value where indirect rays read it.
 void publish_texel(uint i) {
