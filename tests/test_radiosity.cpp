@@ -1103,6 +1103,22 @@ TEST(RadiosityMap, CellsOfPassesAreShortEarlyAndEndAtEveryDoubling) {
     EXPECT_EQ(passes_per_dispatch_for(300'000, false), 1);
     EXPECT_EQ(passes_per_dispatch_for(100, false), kMaxPassesPerDispatch);
     EXPECT_EQ(passes_per_dispatch_for(100, true), 1) << "llvmpipe: any pass fills its cores";
+
+    // A count outside 0 (auto) to kMaxPassesPerDispatch is refused, saying so.
+    gpu();
+    const Scene s = furnace(0.5f, 1.0f, 16);
+    const TexelSamples texels = rasterize_texel_samples(s, 16, 16, 2);
+    const Tracer tracer(s);
+    for (int wrong : {-1, kMaxPassesPerDispatch + 1}) {
+        RadiosityMapSettings settings;
+        settings.passes_per_dispatch = wrong;
+        try {
+            RadiosityMapBaker baker(s, texels, tracer, settings);
+            ADD_FAILURE() << wrong << " passes per dispatch were taken";
+        } catch (const std::invalid_argument& e) {
+            EXPECT_NE(std::string(e.what()).find("passes per dispatch must be 1 to 16"), std::string::npos) << e.what();
+        }
+    }
 }
 
 // Path tracing reads no map, so how many passes a dispatch runs changes
