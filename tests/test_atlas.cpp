@@ -820,6 +820,10 @@ TEST(Png, DecodesToItsPixelsAndDoesNotDependOnHowItsStripsRun) {
     const uint8_t pixel[4] = {};
     EXPECT_THROW(protocol::encode_png(pixel, 1, 1, 2), std::invalid_argument);
     EXPECT_THROW(protocol::encode_png(pixel, 0, 1, 4), std::invalid_argument);
+    protocol::RgbmImage short_of_pixels;
+    short_of_pixels.width = short_of_pixels.height = 2;
+    short_of_pixels.rgba.resize(3 * 4);
+    EXPECT_THROW(protocol::rgbm_png(short_of_pixels), std::invalid_argument);
 }
 
 // scene.lit.glb: every baked primitive's material carries the lightmap with
