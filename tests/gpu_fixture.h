@@ -29,17 +29,19 @@ inline std::string shared_scene(const std::string& name) {
     return std::string(env ? env : LIGHTFARM_SHARED_SCENES) + "/" + name;
 }
 
-// Runs a *_check.comp program (gi/shaders) on `cases`, one item each, with
-// whatever else it reads already bound; returns its `results_per_case` vec4
-// per case. How the tests call a GLSL function to compare it with the C++.
+// Runs a *_check.comp program (gi/shaders) on `cases`, `vec4s_per_case`
+// vec4 each, with whatever else it reads already bound; returns its
+// `results_per_case` vec4 per case. How the tests call a GLSL function to
+// compare it with the C++.
 inline std::vector<glm::vec4> run_check_program(const ComputeProgram& program, const std::vector<glm::vec4>& cases,
-                                                size_t results_per_case) {
-    GpuBuffer in(cases), out(results_per_case * cases.size() * sizeof(glm::vec4));
+                                                size_t results_per_case, size_t vec4s_per_case = 1) {
+    const size_t items = cases.size() / vec4s_per_case;
+    GpuBuffer in(cases), out(results_per_case * items * sizeof(glm::vec4));
     in.bind(LF_BINDING_CHECK_CASES);
     out.bind(LF_BINDING_CHECK_RESULTS);
     program.use();
-    glUniform1ui(program.uniform("item_count"), GLuint(cases.size()));
-    program.dispatch_1d(cases.size());
+    glUniform1ui(program.uniform("item_count"), GLuint(items));
+    program.dispatch_1d(items);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     return out.read<glm::vec4>();
 }

@@ -86,42 +86,6 @@ float light_pdf_solid_angle(float area_pdf, float dist2, float cos_y) {
     return cos_y > 0.0 ? area_pdf * dist2 / cos_y : 0.0;
 }
 
-// The solid angle triangle (A, B, C) subtends from x: its spherical excess.
-// 0 when too small or too degenerate to sample stably (callers then sample by
-// area; sampler and density use this one test, so they always agree).
-float spherical_triangle_solid_angle(vec3 x, vec3 A, vec3 B, vec3 C) {
-    vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
-    vec3 n_ab = cross(a, b), n_bc = cross(b, c), n_ca = cross(c, a);
-    if (dot(n_ab, n_ab) < 1e-12 || dot(n_bc, n_bc) < 1e-12 || dot(n_ca, n_ca) < 1e-12) return 0.0;
-    n_ab = normalize(n_ab); n_bc = normalize(n_bc); n_ca = normalize(n_ca);
-    float alpha = acos(clamp(-dot(n_ab, n_ca), -1.0, 1.0));
-    float beta = acos(clamp(-dot(n_bc, n_ab), -1.0, 1.0));
-    float gamma = acos(clamp(-dot(n_ca, n_bc), -1.0, 1.0));
-    float area = alpha + beta + gamma - PI;
-    return area > 1e-5 ? area : 0.0;
-}
-
-// A direction uniform in solid angle within the spherical triangle that
-// (A, B, C) subtends from x, whose solid angle `area` is > 0 (Arvo 1995,
-// "Stratified Sampling of Spherical Triangles").
-vec3 sample_spherical_triangle(vec3 x, vec3 A, vec3 B, vec3 C, float area, vec2 u) {
-    vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
-    vec3 n_ab = normalize(cross(a, b)), n_ca = normalize(cross(c, a));
-    float alpha = acos(clamp(-dot(n_ab, n_ca), -1.0, 1.0));
-    // The sub-triangle of solid angle u.x * area: its third vertex c_hat on the arc a..c.
-    float area_hat = u.x * area;
-    float s = sin(area_hat - alpha), t = cos(area_hat - alpha);
-    float cos_c = dot(a, b);
-    float uu = t - cos(alpha), vv = s + sin(alpha) * cos_c;
-    float q = clamp(((vv * t - uu * s) * cos(alpha) - vv) / ((vv * s + uu * t) * sin(alpha)), -1.0, 1.0);
-    vec3 c_hat = q * a + sqrt(max(0.0, 1.0 - q * q)) * normalize(c - dot(c, a) * a);
-    // Then uniformly in z = cos along the arc from b to c_hat.
-    float z = 1.0 - u.y * (1.0 - dot(c_hat, b));
-    vec3 perp = c_hat - dot(c_hat, b) * b;
-    if (dot(perp, perp) < 1e-14) return b;
-    return normalize(z * b + sqrt(max(0.0, 1.0 - z * z)) * normalize(perp));
-}
-
 // Density over solid angle with which emitter sampling reaches emitter e
 // (chosen with probability pdf_choose) from x, at distance² dist2 and
 // cosine cos_y on the emitter: by solid angle where the triangle's solid
