@@ -63,7 +63,7 @@ vec4 resolve_texel(uint i, bool end_epoch, float extra_rays) {
     bool deliver_current = current.w > 0.0 && current.w >= previous.w;
     vec3 delivered = texel_direct(direct) + (deliver_current ? current.rgb / current.w : previous.rgb);
     float var = variance_of_mean(channel_mean(direct.rgb), moments.x, direct.w) +
-                (deliver_current ? variance_of_mean(channel_mean(current.rgb), moments.y, current.w) : moments.z);
+                (deliver_current ? current_var : moments.z);  // delivering current: no restart above
     float level = channel_mean(delivered);
     bool converged = converged_error > 0.0 && direct.w >= float(min_samples) && level > 0.0 &&
                      sqrt(var) < converged_error * level;
