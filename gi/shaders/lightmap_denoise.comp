@@ -10,7 +10,7 @@
 // weighs it by how alike the two are:
 //   normal     max(0, n_p . n_q)^64
 //   plane      exp(-|n_p . (x_q - x_p)| / s_p)        s_p: the texel's world size
-//   luminance  exp(-|l_p - l_q| / (4 sigma_p + eps))  sigma_p: the texel's standard error
+//   luminance  exp(-|l_p - l_q| / (4 sigma_p + eps))  sigma_p: the standard error around the texel
 // so flat, alike, noisy texels average and edges the noise cannot explain
 // (a shadow's border, where the error is small against the step) stay.
 //
@@ -48,6 +48,30 @@ struct Texel {
     uint chart;
 };
 
+// The variance of texel p's luminance, 3x3-Gaussian-filtered over its own
+// chart's adjacent texels (SVGF, Schied et al. 2017, §4.3). A texel's own
+// variance estimate rises with its own error: a texel that found the light
+// in a few of its paths is both bright and uncertain, one that did not is
+// both a little dark and sure, so weighing neighbours by the centre's own
+// sigma pulled the bright ones in and kept the dark ones apart, and the mean
+// went dark (docs/BENCHMARKS.md, "Denoising"). The neighbourhood's variance
+// treats both alike.
+float filtered_variance(ivec2 p, uint chart) {
+    const float gauss[2] = float[](0.25, 0.125);
+    float sum = 0.0, weights = 0.0;
+    for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = p + ivec2(dx, dy);
+            if (q.x < 0 || q.y < 0 || q.x >= int(width) || q.y >= int(height)) continue;
+            uint j = uint(q.y) * width + uint(q.x);
+            if (floatBitsToUint(guide[2u * j].w) != chart) continue;
+            float w = gauss[abs(dx)] * gauss[abs(dy)];
+            sum += w * max(colour_in[j].w, 0.0);
+            weights += w;
+        }
+    return sum / weights;  // the centre is always in its own chart
+}
+
 Texel texel_at(uint i) {
     Texel t;
     t.position = guide[2u * i].xyz;
@@ -55,7 +79,7 @@ Texel texel_at(uint i) {
     t.normal = guide[2u * i + 1u].xyz;
     t.size = max(guide[2u * i + 1u].w, 1e-6);
     t.luminance = luminance(colour_in[i].rgb);
-    t.sigma = sqrt(max(colour_in[i].w, 0.0));
+    t.sigma = sqrt(filtered_variance(ivec2(i % width, i / width), t.chart));
     return t;
 }
 
