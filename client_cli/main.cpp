@@ -193,7 +193,11 @@ int compare(int argc, char** argv) {
     if (args.has("--layer")) {  // "direct", "indirect", "raw": that layer of both files
         const std::string prefix = args.get("--layer") + ".";
         bake = layer_of(bake, prefix, args.positional()[0]);
-        reference = layer_of(reference, prefix, args.positional()[1]);
+        // A reference that was never filtered (Cycles', a bake without
+        // --denoise) is its own raw layer: a denoised bake's raw layer is
+        // measured against its RGB.
+        if (!(prefix == "raw." && !reference.channels.count("raw.R")))
+            reference = layer_of(reference, prefix, args.positional()[1]);
     }
     lf::FloatImage mask;
     if (args.has("--mask")) {

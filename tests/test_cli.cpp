@@ -394,7 +394,8 @@ TEST(CliBake, LightmapAndShShareOnePreparation) {
 }
 
 // --denoise: RGB filtered, the raw bake kept as raw.R/G/B (the same as a bake
-// without --denoise, bit for bit), the filter's time in the header.
+// without --denoise, bit for bit), the filter's time in the header; and
+// `compare --layer raw` against a bake that has no raw layer.
 TEST(CliBake, DenoiseKeepsTheRawBake) {
     const fs::path raw = fresh_dir("raw"), denoised = fresh_dir("denoised");
     const std::string common = " --res 64 --passes 8 --seed 3";
@@ -409,6 +410,12 @@ TEST(CliBake, DenoiseKeepsTheRawBake) {
     EXPECT_NE(b.at("R"), a.at("R"));
     EXPECT_GT(b.number_attributes.at("lightfarm.denoiseSeconds"), 0.0);
     EXPECT_FALSE(a.channels.count("raw.R"));
+    // compare --layer raw measures the raw layer against a reference without
+    // one (never filtered) by that reference's RGB: here the same texels.
+    const CliRun c = run_lightfarm("compare " + (denoised / "lightmap.exr").string() + " " +
+                                   (raw / "lightmap.exr").string() + " --layer raw");
+    ASSERT_EQ(c.exit_code, 0) << c.err;
+    EXPECT_EQ(nlohmann::json::parse(c.out)["relative_rmse"], 0.0);
     for (const fs::path& d : {raw, denoised}) fs::remove_all(d);
 }
 
