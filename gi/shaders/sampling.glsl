@@ -83,12 +83,11 @@ float accurate_atan2(float y, float x) {
 // alpha + beta + gamma - pi, from three acos, loses the solid angle of a
 // small triangle to their rounding: on llvmpipe the Cornell box's light
 // (0.015 sr from its floor) came out 1-2% off, texel by texel, and so did
-// its direct light
-// (tests/test_radiosity.cpp, SphericalTriangles). 0 when too degenerate or
-// under 0.001 sr, where the float sampler below drifts from uniform (1% at
-// 3e-4 sr: its cosines of small arcs round off) while sampling by area is
-// nearly as good; callers then sample by area, and sampler and density use
-// this one test, so they always agree.
+// its direct light (tests/test_radiosity.cpp, SphericalTriangles).
+// 0 when too degenerate or under 0.001 sr, where the float sampler below
+// drifts from uniform (1% at 3e-4 sr: its cosines of small arcs round off)
+// while sampling by area is nearly as good; callers then sample by area,
+// and sampler and density use this one test, so they always agree.
 float spherical_triangle_solid_angle(vec3 x, vec3 A, vec3 B, vec3 C) {
     vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
     vec3 n_ab = cross(a, b), n_bc = cross(b, c), n_ca = cross(c, a);
