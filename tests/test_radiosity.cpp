@@ -13,6 +13,7 @@
 #include "bake/unlit_charts.h"
 #include "io/image_files.h"
 #include "io/reference_error.h"
+#include "probes/probe_eval.h"
 #include "scene/gltf_loader.h"
 #include "trace/tracer.h"
 #include "shaders/buffer_bindings.glsl"
@@ -1331,20 +1332,6 @@ TEST(SamplePoints, PackedNormalsComeBackInGlsl) {
     EXPECT_LT(worst, 1e-4);
 }
 
-// The integral of max(0, n . w) over the directions from the origin to
-// triangle (a, b, c), which lies wholly above the plane of n: Lambert's
-// formula, half the sum over the edges of angle x n . (unit normal of the
-// edge's plane), in double precision.
-double cosine_integral_over_triangle(glm::dvec3 a, glm::dvec3 b, glm::dvec3 c, glm::dvec3 n) {
-    const glm::dvec3 v[3] = {glm::normalize(a), glm::normalize(b), glm::normalize(c)};
-    double sum = 0.0;
-    for (int i = 0; i < 3; ++i) {
-        const glm::dvec3 e = glm::cross(v[i], v[(i + 1) % 3]);
-        sum += std::atan2(glm::length(e), glm::dot(v[i], v[(i + 1) % 3])) * glm::dot(n, glm::normalize(e));
-    }
-    return std::abs(sum) / 2.0;
-}
-
 // The solid angle of triangle (a, b, c) from the origin (Van Oosterom and
 // Strackee 1983), in double precision.
 double solid_angle_of_triangle(glm::dvec3 a, glm::dvec3 b, glm::dvec3 c) {
@@ -1355,10 +1342,10 @@ double solid_angle_of_triangle(glm::dvec3 a, glm::dvec3 b, glm::dvec3 c) {
 
 // Solid-angle sampling of an emitter weighs each sample by the solid angle
 // the shader computes, so a relative error there is a bias of the same size
-// in the direct light. In GLSL, against double precision: the solid angle,
+// in the direct light. In GLSL: the solid angle, against double precision,
 // and the integral of the cosine over the triangle from 128² stratified
 // sample_spherical_triangle directions (so the sampler spreads its
-// directions uniformly). The cases: the Cornell box's light from points of
+// directions uniformly), against polygon_to_point_form_factor. The cases: the Cornell box's light from points of
 // its floor, back wall and side wall, up to 4 mm under the light's plane
 // (seen nearly edge-on), and random triangles of 0.002 sr or more at 0.3 to
 // 30 times their size. When the solid angle was the spherical excess from
@@ -1415,7 +1402,12 @@ TEST(SphericalTriangles, SolidAngleAndSamplerAreExactInGlsl) {
         const double omega = solid_angle_of_triangle(c.a, c.b, c.c);
         ASSERT_GT(got[i].x, 0.0f) << i << ": sampled by area";
         worst_omega = std::max(worst_omega, std::abs(got[i].x / omega - 1.0));
-        const double integral_error = std::abs(got[i].y / cosine_integral_over_triangle(c.a, c.b, c.c, c.n) - 1.0);
+        // The integral of max(0, n . w) over a triangle wholly above the plane
+        // of n is pi times its form factor (Lambert's formula, either winding).
+        const glm::vec3 corners[3] = {glm::vec3(c.a), glm::vec3(c.b), glm::vec3(c.c)};
+        const double integral =
+            M_PI * std::abs(polygon_to_point_form_factor(glm::vec3(0.0f), glm::vec3(c.n), corners, 3));
+        const double integral_error = std::abs(got[i].y / integral - 1.0);
         worst_integral = std::max(worst_integral, integral_error);
         if (i < cornell_cases && omega > 0.01)
             worst_cornell_integral = std::max(worst_cornell_integral, integral_error);
