@@ -11,6 +11,7 @@
 
 #include <cstdlib>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -35,6 +36,9 @@ inline std::string shared_scene(const std::string& name) {
 // compare it with the C++.
 inline std::vector<glm::vec4> run_check_program(const ComputeProgram& program, const std::vector<glm::vec4>& cases,
                                                 size_t results_per_case, size_t vec4s_per_case = 1) {
+    if (vec4s_per_case == 0 || cases.size() % vec4s_per_case != 0)
+        throw std::invalid_argument("run_check_program: " + std::to_string(cases.size()) +
+                                    " vec4 are not whole cases of " + std::to_string(vec4s_per_case));
     const size_t items = cases.size() / vec4s_per_case;
     GpuBuffer in(cases), out(results_per_case * items * sizeof(glm::vec4));
     in.bind(LF_BINDING_CHECK_CASES);
