@@ -79,7 +79,7 @@ Texel texel_at(uint i) {
     t.normal = guide[2u * i + 1u].xyz;
     t.size = max(guide[2u * i + 1u].w, 1e-6);
     t.luminance = luminance(colour_in[i].rgb);
-    t.sigma = sqrt(filtered_variance(ivec2(i % width, i / width), t.chart));
+    t.sigma = t.chart == NO_TEXEL ? 0.0 : sqrt(filtered_variance(ivec2(i % width, i / width), t.chart));
     return t;
 }
 
