@@ -93,7 +93,7 @@ float light_pdf_solid_angle(float area_pdf, float dist2, float cos_y) {
 float emitter_pdf(uint e, vec3 x, float dist2, float cos_y) {
     vec4 a = emitters[4u * e], b = emitters[4u * e + 1u], c = emitters[4u * e + 2u];
 #if LF_LIGHT_SAMPLING != 1
-    float omega = spherical_triangle_solid_angle(x, a.xyz, b.xyz, c.xyz);
+    float omega = spherical_triangle(x, a.xyz, b.xyz, c.xyz).area;
     if (omega > 0.0) return b.w / omega;
 #endif
     return light_pdf_solid_angle(b.w / c.w, dist2, cos_y);
@@ -110,12 +110,14 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
     vec3 ny = normalize(cross(b.xyz - a.xyz, c.xyz - a.xyz));
     uint emitter_bits = floatBitsToUint(le.w);
     vec3 y;
-    float omega = 0.0;
 #if LF_LIGHT_SAMPLING != 1
-    omega = spherical_triangle_solid_angle(x, a.xyz, b.xyz, c.xyz);
+    SphericalTriangle seen = spherical_triangle(x, a.xyz, b.xyz, c.xyz);
+#else
+    SphericalTriangle seen = SphericalTriangle(vec3(0.0), vec3(0.0), vec3(0.0), 0.0);  // area sampling alone
 #endif
+    float omega = seen.area;
     if (omega > 0.0) {
-        vec3 dir = sample_spherical_triangle(x, a.xyz, b.xyz, c.xyz, omega, u_point);
+        vec3 dir = sample_spherical_triangle(seen, u_point);
         float along = dot(dir, ny);
         if (abs(along) < 1e-12) return vec3(0.0);  // grazing: no light, and a measure-zero event
         y = x + dir * (dot(a.xyz - x, ny) / along);  // where the direction meets the emitter's plane

@@ -77,7 +77,7 @@ float accurate_atan2(float y, float x) {
     return t + (y * c - x * s) / (x * c + y * s);
 }
 
-// The solid angle triangle (A, B, C) subtends from x (Van Oosterom and
+// The triangle (A, B, C) as seen from x, and its solid angle (Van Oosterom and
 // Strackee 1983: tan(omega / 2) = |a . (b x c)| / (1 + a.b + b.c + c.a) for
 // unit a, b, c), which has no cancellation. The spherical excess
 // alpha + beta + gamma - pi, from three acos, loses the solid angle of a
@@ -88,21 +88,30 @@ float accurate_atan2(float y, float x) {
 // drifts from uniform (1% at 3e-4 sr: its cosines of small arcs round off)
 // while sampling by area is nearly as good; callers then sample by area,
 // and sampler and density use this one test, so they always agree.
-float spherical_triangle_solid_angle(vec3 x, vec3 A, vec3 B, vec3 C) {
-    vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
-    vec3 n_ab = cross(a, b), n_bc = cross(b, c), n_ca = cross(c, a);
-    if (dot(n_ab, n_ab) < 1e-12 || dot(n_bc, n_bc) < 1e-12 || dot(n_ca, n_ca) < 1e-12) return 0.0;
-    float area = 2.0 * accurate_atan2(abs(dot(a, n_bc)), 1.0 + dot(a, b) + dot(b, c) + dot(c, a));
-    return area > 1e-3 ? area : 0.0;
+struct SphericalTriangle {
+    vec3 a, b, c;  // unit directions from x to the corners
+    float area;    // the solid angle; 0: sample the triangle by area instead
+};
+
+SphericalTriangle spherical_triangle(vec3 x, vec3 A, vec3 B, vec3 C) {
+    SphericalTriangle t;
+    t.a = normalize(A - x), t.b = normalize(B - x), t.c = normalize(C - x);
+    vec3 n_ab = cross(t.a, t.b), n_bc = cross(t.b, t.c), n_ca = cross(t.c, t.a);
+    t.area = 0.0;
+    if (dot(n_ab, n_ab) < 1e-12 || dot(n_bc, n_bc) < 1e-12 || dot(n_ca, n_ca) < 1e-12) return t;
+    float area = 2.0 * accurate_atan2(abs(dot(t.a, n_bc)), 1.0 + dot(t.a, t.b) + dot(t.b, t.c) + dot(t.c, t.a));
+    t.area = area > 1e-3 ? area : 0.0;
+    return t;
 }
 
-// A direction uniform in solid angle within the spherical triangle that
-// (A, B, C) subtends from x, whose solid angle `area` is > 0 (Arvo 1995,
-// "Stratified Sampling of Spherical Triangles"). The angle alpha at a
-// comes from accurate_atan2 for the same reason as the solid angle: the
-// sub-triangle of solid angle u.x * area is only that if alpha is exact.
-vec3 sample_spherical_triangle(vec3 x, vec3 A, vec3 B, vec3 C, float area, vec2 u) {
-    vec3 a = normalize(A - x), b = normalize(B - x), c = normalize(C - x);
+// A direction uniform in solid angle within spherical triangle `seen`, whose
+// area is > 0 (Arvo 1995, "Stratified Sampling of Spherical Triangles").
+// The angle alpha at a comes from accurate_atan2 for the same reason as the
+// solid angle: the sub-triangle of solid angle u.x * area is only that if
+// alpha is exact.
+vec3 sample_spherical_triangle(SphericalTriangle seen, vec2 u) {
+    vec3 a = seen.a, b = seen.b, c = seen.c;
+    float area = seen.area;
     vec3 n_ab = normalize(cross(a, b)), n_ca = normalize(cross(c, a));
     float cos_alpha = -dot(n_ab, n_ca), sin_alpha = length(cross(n_ab, n_ca));
     float alpha = accurate_atan2(sin_alpha, cos_alpha);

@@ -21,14 +21,15 @@ void main() {
     if (i >= item_count) return;
     vec4 a = cases[3u * i], b = cases[3u * i + 1u], c = cases[3u * i + 2u];
     vec3 n = vec3(a.w, b.w, c.w);
-    float omega = spherical_triangle_solid_angle(vec3(0.0), a.xyz, b.xyz, c.xyz);
+    SphericalTriangle t = spherical_triangle(vec3(0.0), a.xyz, b.xyz, c.xyz);
+    float omega = t.area;
     float sum = 0.0;
     if (omega > 0.0) {
         for (uint row = 0u; row < grid; ++row) {  // by rows: one float sum of grid² terms would round off
             float row_sum = 0.0;
             for (uint k = 0u; k < grid; ++k) {
                 vec2 u = (vec2(k, row) + 0.5) / float(grid);
-                row_sum += max(0.0, dot(n, sample_spherical_triangle(vec3(0.0), a.xyz, b.xyz, c.xyz, omega, u)));
+                row_sum += max(0.0, dot(n, sample_spherical_triangle(t, u)));
             }
             sum += row_sum;
         }
