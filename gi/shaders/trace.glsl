@@ -7,9 +7,11 @@
 #include "buffer_bindings.glsl"
 #include "bvh_layout.glsl"
 
-// BvhNode (128 bytes, 4-wide): lo_x, hi_x, lo_y, hi_y, lo_z, hi_z of the four
-// child boxes, then the children's indices and triangle counts (as uint bits).
-layout(std430, binding = LF_BINDING_BVH_NODES) readonly buffer LfBvhNodes { vec4 lf_bvh_nodes[]; };
+// BvhNode (64 bytes, 4-wide; trace/bvh.h): the low corner of the node's box
+// and its three steps' exponents; the children's planes, one byte each, in
+// steps from that corner (lo_x, hi_x, lo_y, hi_y, lo_z, hi_z); their
+// triangle counts (16 bits each); their indices.
+layout(std430, binding = LF_BINDING_BVH_NODES) readonly buffer LfBvhNodes { uvec4 lf_bvh_nodes[]; };
 // BvhTriangle (48 bytes): v0 (w = scene triangle index bits), v1, v2.
 layout(std430, binding = LF_BINDING_BVH_TRIANGLES) readonly buffer LfBvhTriangles { vec4 lf_bvh_tris[]; };
 
@@ -72,17 +74,24 @@ bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float 
 
 const float LF_INFINITY = uintBitsToFloat(0x7f800000u);
 
+// The four bytes of a plane word, child c's in component c.
+vec4 lf_plane_steps(uint word) { return vec4((uvec4(word) >> uvec4(0u, 8u, 16u, 24u)) & 0xffu); }
+
 // Entry distances of the ray into a node's four child boxes, +infinity for
-// a box it misses. An unused child slot holds a box at +infinity, which no
-// ray enters (see build_bvh). The exit distance is pushed out by a few ulps
-// (Ize 2013, "Robust BVH Ray Traversal") so rounding never drops a box whose
-// face a ray grazes: a ray through a vertex on the box's surface must still
-// reach the triangles.
-vec4 intersect_boxes(vec3 org_x_inv, vec3 inv_dir, uint node, float t_max) {
-    uint base = 8u * node;
-    vec4 tx0 = lf_bvh_nodes[base + 0u] * inv_dir.x - org_x_inv.x, tx1 = lf_bvh_nodes[base + 1u] * inv_dir.x - org_x_inv.x;
-    vec4 ty0 = lf_bvh_nodes[base + 2u] * inv_dir.y - org_x_inv.y, ty1 = lf_bvh_nodes[base + 3u] * inv_dir.y - org_x_inv.y;
-    vec4 tz0 = lf_bvh_nodes[base + 4u] * inv_dir.z - org_x_inv.z, tz1 = lf_bvh_nodes[base + 5u] * inv_dir.z - org_x_inv.z;
+// a box it misses. A plane q steps from the node's corner is met at
+// t = (corner - org) / dir + q step / dir: one multiply-add per plane, with
+// the ray's distance to the corner taken as a difference first (Ize 2013,
+// "Robust BVH Ray Traversal"). The exit distance is pushed out by a few ulps
+// so rounding never drops a box whose face a ray grazes: a ray through a
+// vertex on the box's surface must still reach the triangles. Unused child
+// slots are the caller's to skip.
+vec4 intersect_boxes(vec3 org, vec3 inv_dir, uvec4 corner_steps, uvec4 planes_xy, uvec2 planes_z, float t_max) {
+    vec3 t_corner = (uintBitsToFloat(corner_steps.xyz) - org) * inv_dir;
+    uvec3 exponents = (uvec3(corner_steps.w) >> uvec3(0u, 8u, 16u)) & 0xffu;
+    vec3 t_step = uintBitsToFloat(exponents << 23u) * inv_dir;  // 2^(e - 127) / dir
+    vec4 tx0 = lf_plane_steps(planes_xy.x) * t_step.x + t_corner.x, tx1 = lf_plane_steps(planes_xy.y) * t_step.x + t_corner.x;
+    vec4 ty0 = lf_plane_steps(planes_xy.z) * t_step.y + t_corner.y, ty1 = lf_plane_steps(planes_xy.w) * t_step.y + t_corner.y;
+    vec4 tz0 = lf_plane_steps(planes_z.x) * t_step.z + t_corner.z, tz1 = lf_plane_steps(planes_z.y) * t_step.z + t_corner.z;
     vec4 t_enter = max(max(min(tx0, tx1), min(ty0, ty1)), max(min(tz0, tz1), vec4(0.0)));
     vec4 t_exit = min(min(max(tx0, tx1), max(ty0, ty1)), min(max(tz0, tz1), vec4(t_max))) * 1.0000004;
     return mix(vec4(LF_INFINITY), t_enter, lessThanEqual(t_enter, t_exit));
@@ -113,15 +122,18 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, bool any_hit) {
     Hit hit = Hit(t_max, LF_NO_HIT, vec2(0.0), false, vec3(0.0));
     RayShear sh = ray_shear(dir);
     vec3 inv_dir = safe_inverse(dir);
-    vec3 org_x_inv = org * inv_dir;
     uint stack[LF_BVH_STACK_SIZE];
     float stack_t[LF_BVH_STACK_SIZE];
     int sp = 0;
     uint node = 0u;
     while (true) {
-        vec4 t_enter = intersect_boxes(org_x_inv, inv_dir, node, hit.t);
-        uvec4 child = floatBitsToUint(lf_bvh_nodes[8u * node + 6u]);
-        uvec4 count = floatBitsToUint(lf_bvh_nodes[8u * node + 7u]);
+        uint base = LF_BVH_NODE_UVEC4S * node;
+        uvec4 planes_z_counts = lf_bvh_nodes[base + 2u];
+        uvec4 child = lf_bvh_nodes[base + 3u];
+        uvec4 count = (planes_z_counts.zzww >> uvec4(0u, 16u, 0u, 16u)) & 0xffffu;
+        vec4 t_enter = intersect_boxes(org, inv_dir, lf_bvh_nodes[base], lf_bvh_nodes[base + 1u],
+                                       planes_z_counts.xy, hit.t);
+        t_enter = mix(t_enter, vec4(LF_INFINITY), equal(child | count, uvec4(0u)));  // unused slots
         // Leaves are tested right away; only interior children are traversed.
         for (int c = 0; c < 4; ++c) {
             if (t_enter[c] == LF_INFINITY || count[c] == 0u) continue;

@@ -5,10 +5,13 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cmath>
 #include <chrono>
 #include <future>
 #include <limits>
 #include <numeric>
+#include <stdexcept>
+#include <string>
 #include <system_error>
 
 namespace lf {
@@ -205,6 +208,42 @@ private:
     std::atomic<int>& helpers_;
 };
 
+// The step of an axis of a node's box: the smallest power of two 2^e with
+// which 255 steps span `extent`, as the biased exponent of the float 2^e
+// (1 to 254: 2^-126 to 2^127; 255 2^e is exact in double).
+uint32_t step_exponent(double extent) {
+    int e = extent > 0.0 ? std::max(-126, std::ilogb(extent) - 8) : -126;  // 255 2^e < extent here, or e = -126
+    while (std::ldexp(255.0, e) < extent) ++e;                             // at most twice
+    return uint32_t(e + 127);
+}
+
+// Node `index`'s children, their boxes quantized to its own (see BvhNode).
+// Each plane is found in double: the difference of two floats is exact there
+// (unless their magnitudes are 2^29 apart) and so is a division by a power
+// of two, so rounding the low planes down and the high ones up gives boxes
+// that contain their children.
+BvhNode quantized_node(const std::vector<BinaryChild>& children, const glm::uvec4& index) {
+    BvhNode node;
+    node.index = index;
+    if (children.empty()) return node;  // the root of an empty scene
+    Bounds box;
+    for (const BinaryChild& c : children) box.extend(c.box);
+    node.origin = box.lo;
+    for (int a = 0; a < 3; ++a) {
+        const uint32_t exponent = step_exponent(double(box.hi[a]) - double(box.lo[a]));
+        node.step_exponents |= exponent << (8 * a);
+        const double step = std::ldexp(1.0, int(exponent) - 127);
+        for (size_t k = 0; k < children.size(); ++k) {
+            const double lo = std::floor((double(children[k].box.lo[a]) - double(box.lo[a])) / step);
+            const double hi = std::ceil((double(children[k].box.hi[a]) - double(box.lo[a])) / step);
+            node.planes[2 * a] |= uint32_t(std::clamp(lo, 0.0, 255.0)) << (8 * k);
+            node.planes[2 * a + 1] |= uint32_t(std::clamp(hi, 0.0, 255.0)) << (8 * k);
+        }
+    }
+    for (size_t k = 0; k < children.size(); ++k) node.counts[k / 2] |= children[k].count << (16 * (k % 2));
+    return node;
+}
+
 // Collapses binary node `from` (and its subtree) into 4-wide node `to` of
 // `bvh`: starting from its two children, the interior child of largest
 // surface area (the one a ray most likely enters) is replaced by its own two
@@ -221,28 +260,25 @@ void collapse(const std::vector<BinaryNode>& binary, uint32_t from, uint32_t to,
         *widest = opened.child[0];
         children.insert(widest + 1, opened.child[1]);
     }
-    // An unused slot: a box at +infinity, which the slab test (it takes
-    // min/max of the slabs, so an inverted box would NOT be empty) never
-    // enters from any ray. Its index 0 would lead back to the root.
-    const float nowhere = std::numeric_limits<float>::infinity();
-    BvhNode node{glm::vec4(nowhere), glm::vec4(nowhere), glm::vec4(nowhere), glm::vec4(nowhere),
-                 glm::vec4(nowhere), glm::vec4(nowhere), glm::uvec4(0),      glm::uvec4(0)};
+    glm::uvec4 index(0);
     std::vector<std::pair<uint32_t, uint32_t>> interior;  // (binary node, 4-wide node)
     for (size_t k = 0; k < children.size(); ++k) {
         const BinaryChild& c = children[k];
-        node.lo_x[k] = c.box.lo.x, node.lo_y[k] = c.box.lo.y, node.lo_z[k] = c.box.lo.z;
-        node.hi_x[k] = c.box.hi.x, node.hi_y[k] = c.box.hi.y, node.hi_z[k] = c.box.hi.z;
-        node.count[k] = c.count;
+        if (c.count > kBvhMaxLeafTriangles)
+            throw std::runtime_error("BVH: " + std::to_string(c.count) + " triangles left in one leaf at depth " +
+                                     std::to_string(kBvhMaxDepth) + " (at most " +
+                                     std::to_string(kBvhMaxLeafTriangles) +
+                                     "): the surface area heuristic found no way to split them");
         if (c.count > 0) {
-            node.index[k] = c.index;
+            index[k] = c.index;
             ++bvh.stats.leaves;
         } else {
-            node.index[k] = uint32_t(bvh.nodes.size());
-            interior.emplace_back(c.index, node.index[k]);
+            index[k] = uint32_t(bvh.nodes.size());
+            interior.emplace_back(c.index, index[k]);
             bvh.nodes.emplace_back();
         }
     }
-    bvh.nodes[to] = node;
+    bvh.nodes[to] = quantized_node(children, index);
     bvh.stats.max_depth = std::max(bvh.stats.max_depth, depth);
     for (const auto& [binary_node, wide_node] : interior) collapse(binary, binary_node, wide_node, depth + 1, bvh);
 }
@@ -256,13 +292,33 @@ double sah_cost(const Bvh& bvh, const Bounds& root_box) {
         for (int k = 0; k < kBvhWidth; ++k) {
             if (!n.child_used(k)) continue;
             const float area = n.child_box(k).surface_area() / root_area;
-            cost += n.count[k] ? area * n.count[k] : area * kTraversalCost;
+            cost += n.count(k) ? area * float(n.count(k)) : area * kTraversalCost;
         }
     }
     return cost;
 }
 
+// Rounds outwards: the float at or below (above) x.
+float float_at_or_below(double x) {
+    const float f = float(x);
+    return double(f) > x ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+}
+float float_at_or_above(double x) {
+    const float f = float(x);
+    return double(f) < x ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+}
+
 }  // namespace
+
+Bounds BvhNode::child_box(int c) const {
+    Bounds b;
+    for (int a = 0; a < 3; ++a) {
+        const double step = std::ldexp(1.0, int((step_exponents >> (8 * a)) & 0xffu) - 127);
+        b.lo[a] = float_at_or_below(origin[a] + step * double((planes[2 * a] >> (8 * c)) & 0xffu));
+        b.hi[a] = float_at_or_above(origin[a] + step * double((planes[2 * a + 1] >> (8 * c)) & 0xffu));
+    }
+    return b;
+}
 
 Bvh build_bvh(const Scene& scene) {
     const auto start = std::chrono::steady_clock::now();
