@@ -145,27 +145,31 @@ TEST(Tracer, RewoundTrianglesHitAsARebuiltTree) {
 }
 
 // Rays aimed exactly at the vertices and edge midpoints of a closed mesh, from
-// inside and from outside, must hit it: no ray slips between two triangles.
+// inside and from outside, must hit it: no ray slips between two triangles,
+// nor past the boxes around them (which the tree quantizes), also far from
+// the origin where float spacing is coarse.
 TEST(Tracer, WatertightOnSharedEdgesAndVertices) {
     gpu();
-    Scene s;
-    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
-    const glm::vec3 centre(0.3f, -0.2f, 0.1f);
-    test::add_icosphere(s, centre, 1.0f, 3, m);
-    Tracer tracer(s);
-    std::vector<Ray> rays;
-    auto aim = [&](glm::vec3 target) {
-        rays.push_back(Ray{centre, 10.0f, target - centre, 0});  // from inside, t in units of the offset
-        const glm::vec3 outside = centre + 3.0f * (target - centre);
-        rays.push_back(Ray{outside, 10.0f, target - outside, 0});
-    };
-    for (uint32_t v = 0; v < s.positions.size(); ++v) aim(s.positions[v]);
-    for (const glm::uvec3& t : s.triangles)
-        for (int k = 0; k < 3; ++k) aim(0.5f * (s.positions[t[k]] + s.positions[t[(k + 1) % 3]]));
-    const std::vector<RayHit> hits = tracer.trace(rays);
-    size_t escaped = 0;
-    for (const RayHit& h : hits) escaped += h.triangle == kNoHit;
-    EXPECT_EQ(escaped, 0u) << "of " << rays.size() << " rays through edges and vertices";
+    for (float distance : {0.0f, 1000.0f, 100000.0f}) {
+        Scene s;
+        const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+        const glm::vec3 centre = glm::vec3(0.3f, -0.2f, 0.1f) + distance * glm::vec3(1.0f, 0.5f, -1.0f);
+        test::add_icosphere(s, centre, 1.0f + distance * 1e-3f, 3, m);
+        Tracer tracer(s);
+        std::vector<Ray> rays;
+        auto aim = [&](glm::vec3 target) {
+            rays.push_back(Ray{centre, 10.0f, target - centre, 0});  // from inside, t in units of the offset
+            const glm::vec3 outside = centre + 3.0f * (target - centre);
+            rays.push_back(Ray{outside, 10.0f, target - outside, 0});
+        };
+        for (uint32_t v = 0; v < s.positions.size(); ++v) aim(s.positions[v]);
+        for (const glm::uvec3& t : s.triangles)
+            for (int k = 0; k < 3; ++k) aim(0.5f * (s.positions[t[k]] + s.positions[t[(k + 1) % 3]]));
+        const std::vector<RayHit> hits = tracer.trace(rays);
+        size_t escaped = 0;
+        for (const RayHit& h : hits) escaped += h.triangle == kNoHit;
+        EXPECT_EQ(escaped, 0u) << "of " << rays.size() << " rays through edges and vertices, at distance " << distance;
+    }
 }
 
 // Rays leaving a convex surface outward, far from the origin where float
