@@ -487,6 +487,16 @@ bool Supervisor::lease_lost(const std::string& job_id) {
     return lost_.count(job_id) > 0;
 }
 
+// How a worker's run ended, as supervise_worker saw it.
+struct Supervisor::WorkerEnd {
+    AttemptState state;      // what the worker reported
+    ExitStatus status;       // its exit
+    std::string cause;       // why we ended it ourselves (its deadline, a stall); "" = we did not
+    bool cancelled = false;  // the job was cancelled
+    bool lost = false;       // the job no longer runs on this node
+    bool stopped = false;    // lightfarmd stops: the job went back to the queue, and nothing else is to be done
+};
+
 void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     const std::string& id = job.status.id;
     // Validated once, at submit, against the limits of that day: a lower
@@ -530,14 +540,18 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         return;
     }
 
+    const WorkerEnd end = supervise_worker(job, spec.bake, *child);
+    if (!end.stopped) end_attempt(job, *scene, *child, end);
+}
+
+Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const protocol::BakeSettings& bake,
+                                                   Subprocess& worker) {
+    const std::string& id = job.status.id;
     const auto started = Clock::now();
     const auto deadline =
         started + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(job.max_seconds));
     auto last_output = started;
-    AttemptState state;
-    std::string cause;  // set when we end the worker ourselves
-    bool cancelled = false;
-    bool lost = false;  // the job no longer runs on this node
+    WorkerEnd end;
     // What the store could not take yet (a full disk): kept, in order, and
     // stored when it can again; the worker bakes on meanwhile. A progress
     // update replaces an unsaved one of the same output, so this stays small.
@@ -548,8 +562,8 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
 
     for (std::string line;;) {
         if (stopping_) {
-            child->kill();
-            child->wait();
+            worker.kill();
+            end.status = worker.wait();
             try {
                 flush_updates(id, unsaved);
                 store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}},
@@ -558,23 +572,24 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
                 log_line("job " + id + ": " + e.what() +
                          "; it stays running in the store and the next start queues it again");
             }
-            return;
+            end.stopped = true;
+            return end;
         }
         if (!unsaved.empty()) flush_updates(id, unsaved);
-        if ((cancelled = cancel_requested(id)) || (lost = lease_lost(id))) {
-            child->kill();
+        if ((end.cancelled = cancel_requested(id)) || (end.lost = lease_lost(id))) {
+            worker.kill();
             break;
         }
         // The limits hold on every turn, however much the worker prints.
         const auto now = Clock::now();
-        if (cause = limit_exceeded(job, now, deadline, last_output); !cause.empty()) {
-            child->kill();
+        if (end.cause = limit_exceeded(job, now, deadline, last_output); !end.cause.empty()) {
+            worker.kill();
             break;
         }
         const auto wait = std::clamp(
             std::chrono::duration_cast<std::chrono::milliseconds>(deadline - now) + std::chrono::milliseconds(1),
             std::chrono::milliseconds(1), std::chrono::milliseconds(200));
-        const Subprocess::Read r = child->read_line(line, wait);
+        const Subprocess::Read r = worker.read_line(line, wait);
         if (r == Subprocess::Read::End) break;
         if (r == Subprocess::Read::Timeout) continue;
         last_output = Clock::now();
@@ -586,12 +601,12 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
             log_line("job " + id + ": ignoring worker output (" + e.what() + "): " + line.substr(0, 200));
             continue;
         }
-        const AttemptUpdate update = apply_worker_event(state, *event, spec.bake, id, job.status.attempts);
+        const AttemptUpdate update = apply_worker_event(end.state, *event, bake, id, job.status.attempts);
         if (!update.ignored.empty()) {
             log_line("job " + id + ": ignoring " + update.ignored);
             continue;
         }
-        state = update.state;
+        end.state = update.state;
         metrics_.rays_total += update.new_rays;
         if (update.rays_per_second) metrics_.set_job_rate(id, *update.rays_per_second);
         if (!unsaved.empty() && progress_only(update) && progress_only(unsaved.back()) &&
@@ -602,7 +617,7 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         changes_.notify();
     }
 
-    const ExitStatus status = child->wait();
+    end.status = worker.wait();
     std::error_code ec;
     fs::remove(job_dir(id) / kPidFile, ec);
     // The attempt's events before its end, so that the final event stays last.
@@ -610,11 +625,17 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         persist("job " + id + ": events", [&] {
             if (!flush_updates(id, unsaved)) throw StoreError("job store: the events are not stored yet");
         });
-    if (cancelled) {
+    return end;
+}
+
+void Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker,
+                             const WorkerEnd& end) {
+    const std::string& id = job.status.id;
+    if (end.cancelled) {
         log_line("job " + id + ": cancelled, worker killed");
         return;  // the cancel route already recorded the final state
     }
-    if (lost) {
+    if (end.lost) {
         // Cancelled on another node, or taken over after this node could not
         // renew its lease: the job's state is the store's, not this attempt's.
         log_line("job " + id +
@@ -622,12 +643,12 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
                  "expired); worker killed");
         return;
     }
-    if (!cause.empty()) {
-        attempt_failed(job, cause);
+    if (!end.cause.empty()) {
+        attempt_failed(job, end.cause);
         return;
     }
-    if (status.success() && state.done) {
-        json done = *state.done;
+    if (end.status.success() && end.state.done) {
+        json done = *end.state.done;
         done["cached"] = false;
         bool still_ours = true;
         persist("job " + id + ": succeeded state", [&] {
@@ -640,18 +661,19 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         return;
     }
     const std::string scene_name =
-        scene->main_file.empty() ? scene->summary.value("source", "the scene") : scene->main_file;
+        scene.main_file.empty() ? scene.summary.value("source", "the scene") : scene.main_file;
     const std::string last =
-        user_facing(child->stderr_last_line(), scene_path(*scene), scene_name,
-                    fs::path(config_.data_dir) / "scenes" / scene->id, job_dir(id), config_.data_dir);
-    if (status.exited && protocol::is_input_error_exit(status.code)) {
+        user_facing(worker.stderr_last_line(), scene_path(scene), scene_name,
+                    fs::path(config_.data_dir) / "scenes" / scene.id, job_dir(id), config_.data_dir);
+    if (end.status.exited && protocol::is_input_error_exit(end.status.code)) {
         // The scene or the settings cannot be baked: another run cannot help.
         ++metrics_.worker_failures;
         fail_now(job, "the bake cannot run on this scene with these settings (not retried)",
-                 last.empty() ? "worker " + status.describe() : last);
+                 last.empty() ? "worker " + end.status.describe() : last);
         return;
     }
-    std::string failure = status.success() ? "worker exited without reporting done" : "worker " + status.describe();
+    std::string failure =
+        end.status.success() ? "worker exited without reporting done" : "worker " + end.status.describe();
     if (!last.empty()) failure += ": " + last;
     attempt_failed(job, failure);
 }

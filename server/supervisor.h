@@ -95,6 +95,13 @@ private:
     int count_gpus() const;
     // One worker run of a claimed job, start to end state.
     void run_attempt(const JobRecord& job, const std::string& device);
+    struct WorkerEnd;
+    // Reads the worker's events until it ends or must be ended (cancelled,
+    // lost, past a limit, lightfarmd stopping), storing what each asks for.
+    WorkerEnd supervise_worker(const JobRecord& job, const protocol::BakeSettings& bake, Subprocess& worker);
+    // The job's state after its worker ended: succeeded, failed, retried, or
+    // left to whoever cancelled or took it.
+    void end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker, const WorkerEnd& end);
     // Writes the spec into the job directory and starts the engine on it.
     std::unique_ptr<Subprocess> start_worker(const JobRecord& job, const protocol::JobSpec& spec,
                                              const SceneRecord& scene, const std::string& device);
