@@ -114,6 +114,46 @@ int64_t largest_texture(const json& summary) {
     return largest;
 }
 
+// The upload's one .gltf or .glb file, after checking every file's name
+// (and a .gltf's URIs against the names). Throws HttpError 400.
+const UploadFile& checked_main_file(const std::vector<UploadFile>& files) {
+    if (files.empty()) throw HttpError(400, "the upload holds no file");
+    std::set<std::string> names;
+    std::vector<const UploadFile*> mains;
+    for (const UploadFile& f : files) {
+        const std::string why = unsafe_path_reason(f.name);
+        if (!why.empty()) throw HttpError(400, "file name '" + f.name + "' " + why, {{"field", f.name}});
+        const std::string name = fs::path(f.name).lexically_normal().string();
+        if (!names.insert(name).second)
+            throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
+        if (ends_with(name, ".gltf") || ends_with(name, ".glb")) mains.push_back(&f);
+    }
+    if (mains.size() != 1)
+        throw HttpError(
+            400, "an upload holds exactly one .gltf or .glb file, this one holds " + std::to_string(mains.size()));
+    const UploadFile& main = *mains.front();
+    if (ends_with(main.name, ".glb") && main.bytes.compare(0, 4, "glTF") != 0)
+        throw HttpError(400, main.name + " is not a binary glTF (no 'glTF' magic)", {{"field", main.name}});
+    if (ends_with(main.name, ".gltf")) check_gltf_uris(main.name, main.bytes, names);
+    return main;
+}
+
+// The id is the content hash: of the file itself for one file (so it equals
+// `sha256sum scene.glb`), else of every (name, size, bytes) in name order.
+std::string scene_id(const std::vector<UploadFile>& files) {
+    if (files.size() == 1) return sha256_hex(files.front().bytes);
+    std::vector<const UploadFile*> sorted;
+    for (const UploadFile& f : files) sorted.push_back(&f);
+    std::sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->name < b->name; });
+    Sha256 h;
+    for (const UploadFile* f : sorted) {
+        h.update(f->name);
+        h.update(std::string(1, '\0') + std::to_string(f->bytes.size()) + std::string(1, '\0'));
+        h.update(f->bytes);
+    }
+    return h.hex();
+}
+
 }  // namespace
 
 SceneStore::SceneStore(const ServerConfig& config, JobStore& store)
@@ -152,69 +192,13 @@ private:
     SceneStore& s_;
 };
 
-SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, const std::string& owner) {
-    if (files.empty()) throw HttpError(400, "the upload holds no file");
-    std::set<std::string> names;
-    std::vector<const UploadFile*> mains;
-    for (const UploadFile& f : files) {
-        const std::string why = unsafe_path_reason(f.name);
-        if (!why.empty()) throw HttpError(400, "file name '" + f.name + "' " + why, {{"field", f.name}});
-        const std::string name = fs::path(f.name).lexically_normal().string();
-        if (!names.insert(name).second)
-            throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
-        if (ends_with(name, ".gltf") || ends_with(name, ".glb")) mains.push_back(&f);
-    }
-    if (mains.size() != 1)
-        throw HttpError(
-            400, "an upload holds exactly one .gltf or .glb file, this one holds " + std::to_string(mains.size()));
-    const UploadFile& main = *mains.front();
-    if (ends_with(main.name, ".glb") && main.bytes.compare(0, 4, "glTF") != 0)
-        throw HttpError(400, main.name + " is not a binary glTF (no 'glTF' magic)", {{"field", main.name}});
-    if (ends_with(main.name, ".gltf")) check_gltf_uris(main.name, main.bytes, names);
-
-    // The id is the content hash: of the file itself for one file (so it
-    // equals `sha256sum scene.glb`), else of every (name, size, bytes) in
-    // name order.
-    std::string id;
-    if (files.size() == 1) {
-        id = sha256_hex(main.bytes);
-    } else {
-        std::vector<const UploadFile*> sorted;
-        for (const UploadFile& f : files) sorted.push_back(&f);
-        std::sort(sorted.begin(), sorted.end(), [](auto* a, auto* b) { return a->name < b->name; });
-        Sha256 h;
-        for (const UploadFile* f : sorted) {
-            h.update(f->name);
-            h.update(std::string(1, '\0') + std::to_string(f->bytes.size()) + std::string(1, '\0'));
-            h.update(f->bytes);
-        }
-        id = h.hex();
-    }
-
-    if (std::optional<SceneRecord> known = store_.scene(id)) {
-        const bool created = store_.add_scene_owner(id, owner);
-        return {*known, created};
-    }
-
-    // Write into a private temporary directory, validate there, then move it
-    // into place in one rename: a scene directory is never half written.
-    const fs::path tmp = fs::path(config_.data_dir) / "tmp" / ("upload-" + random_hex(8));
-    struct Cleanup {
-        fs::path dir;
-        ~Cleanup() {
-            std::error_code ec;
-            fs::remove_all(dir, ec);
-        }
-    } cleanup{tmp};
-    for (const UploadFile& f : files) write_file(tmp / fs::path(f.name).lexically_normal(), f.bytes);
-    const std::string main_name = fs::path(main.name).lexically_normal().string();
-
+json SceneStore::inspect(const fs::path& main_file) {
     RunResult r;
     {
         const InspectTurn turn(*this);
         SpawnLimits limits;
         limits.address_space_bytes = config_.inspect_memory_bytes;
-        r = run_command({engine_, "inspect", (tmp / main_name).string(), "--json"},
+        r = run_command({engine_, "inspect", main_file.string(), "--json"},
                         std::chrono::milliseconds(int64_t(config_.inspect_seconds * 1000)), 16 << 20, limits);
     }
     if (r.timed_out)
@@ -244,6 +228,32 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
                         "textures: a texture of " + std::to_string(side) + " pixels exceeds the limit " +
                             std::to_string(config_.limits.texture_size),
                         {{"field", "textures"}, {"limit", config_.limits.texture_size}});
+
+    return summary;
+}
+
+SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, const std::string& owner) {
+    const UploadFile& main = checked_main_file(files);
+    const std::string id = scene_id(files);
+    if (std::optional<SceneRecord> known = store_.scene(id)) {
+        const bool created = store_.add_scene_owner(id, owner);
+        return {*known, created};
+    }
+
+    // Write into a private temporary directory, validate there, then move it
+    // into place in one rename: a scene directory is never half written.
+    const fs::path tmp = fs::path(config_.data_dir) / "tmp" / ("upload-" + random_hex(8));
+    struct Cleanup {
+        fs::path dir;
+        ~Cleanup() {
+            std::error_code ec;
+            fs::remove_all(dir, ec);
+        }
+    } cleanup{tmp};
+    for (const UploadFile& f : files) write_file(tmp / fs::path(f.name).lexically_normal(), f.bytes);
+    const std::string main_name = fs::path(main.name).lexically_normal().string();
+
+    const json summary = inspect(tmp / main_name);
 
     const fs::path final_dir = fs::path(config_.data_dir) / "scenes" / id;
     fs::create_directories(final_dir.parent_path());

@@ -6,7 +6,10 @@
 #include "config.h"
 #include "job_store.h"
 
+#include <nlohmann/json.hpp>
+
 #include <condition_variable>
+#include <filesystem>
 #include <mutex>
 #include <string>
 #include <vector>
@@ -39,6 +42,10 @@ public:
 private:
     // A turn to run the checker: waits for one, or throws HttpError 503.
     class InspectTurn;
+    // `lightfarm inspect --json` on the upload's main file, in a process of
+    // its own (a turn, a time and a memory limit), and the scene's size
+    // checked against the limits: its summary. Throws HttpError.
+    nlohmann::json inspect(const std::filesystem::path& main_file);
     const ServerConfig& config_;
     JobStore& store_;
     std::string engine_;
