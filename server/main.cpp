@@ -192,6 +192,35 @@ void write_url_file(const ServerConfig& config, const std::string& url) {
     fs::rename(tmp, path);
 }
 
+// The data directory: made (0700) and resolved, and claimed: locked for
+// this lightfarmd with the embedded store; with a shared store (--store)
+// every node may use the same one (the store arbitrates, and files are
+// written under unique names and renamed), under a node name of its own.
+void open_data_dir(ServerConfig& config) {
+    if (config.data_dir.empty()) config.data_dir = default_data_dir();
+    fs::create_directories(config.data_dir);
+    config.data_dir = fs::canonical(config.data_dir).string();
+    // The data directory itself too, when it existed with a wider mode.
+    if (struct stat st{};
+        ::stat(config.data_dir.c_str(), &st) == 0 && (st.st_mode & 0077) && ::chmod(config.data_dir.c_str(), 0700) == 0)
+        log_line("made " + config.data_dir + " readable by its owner only (0700)");
+    if (config.store.empty()) lock_data_dir(config.data_dir);
+    else check_node_name_is_free(config);
+    check_store_against_data_dir(config);
+}
+
+// A first start's token, and how to use it.
+void print_new_token(const ServerConfig& config, const std::string& token, const std::string& url) {
+    log_line("no --tokens file given: created " + config.tokens_file + " with a new token");
+    std::cout << "lightfarmd: token: " << token << "\n"
+              << "  submit a bake:  LIGHTFARM_TOKEN=" << token << " lightfarm submit scene.glb --server " << url
+              << " --wait\n"
+              << "  with curl:      curl -H 'Authorization: Bearer " << token
+              << "' -H 'Content-Type: model/gltf-binary' --data-binary @scene.glb " << url << "/v1/scenes\n"
+              << "  status page:    " << url << "/?token=" << token << "\n"
+              << std::flush;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -223,19 +252,7 @@ int main(int argc, char** argv) {
     umask(077);
 
     try {
-        if (config.data_dir.empty()) config.data_dir = default_data_dir();
-        fs::create_directories(config.data_dir);
-        config.data_dir = fs::canonical(config.data_dir).string();
-        // The data directory itself too, when it existed with a wider mode.
-        if (struct stat st{}; ::stat(config.data_dir.c_str(), &st) == 0 && (st.st_mode & 0077) &&
-                              ::chmod(config.data_dir.c_str(), 0700) == 0)
-            log_line("made " + config.data_dir + " readable by its owner only (0700)");
-        // One lightfarmd per data directory with the embedded store; with a
-        // shared store (--store) every node may use the same one: the store
-        // arbitrates, and files are written under unique names and renamed.
-        if (config.store.empty()) lock_data_dir(config.data_dir);
-        else check_node_name_is_free(config);
-        check_store_against_data_dir(config);
+        open_data_dir(config);
         bool created = false;
         const std::vector<std::string> tokens = load_tokens(config, created);
         Service service(config, tokens);
@@ -244,18 +261,8 @@ int main(int argc, char** argv) {
         write_url_file(config, url);
 
         log_line("listening on " + url + ", data in " + config.data_dir);
-        if (created) {
-            log_line("no --tokens file given: created " + config.tokens_file + " with a new token");
-            std::cout << "lightfarmd: token: " << tokens.front() << "\n"
-                      << "  submit a bake:  LIGHTFARM_TOKEN=" << tokens.front()
-                      << " lightfarm submit scene.glb --server " << url << " --wait\n"
-                      << "  with curl:      curl -H 'Authorization: Bearer " << tokens.front()
-                      << "' -H 'Content-Type: model/gltf-binary' --data-binary @scene.glb " << url << "/v1/scenes\n"
-                      << "  status page:    " << url << "/?token=" << tokens.front() << "\n"
-                      << std::flush;
-        } else {
-            log_line("tokens from " + config.tokens_file + " (" + std::to_string(tokens.size()) + ")");
-        }
+        if (created) print_new_token(config, tokens.front(), url);
+        else log_line("tokens from " + config.tokens_file + " (" + std::to_string(tokens.size()) + ")");
 
         std::atomic<bool> ran{false};
         std::thread signal_thread([&service, &ran, stop_signals] {
