@@ -172,6 +172,69 @@ TEST(Tracer, WatertightOnSharedEdgesAndVertices) {
     }
 }
 
+// A closed box whose faces are grids of quads on a power-of-two lattice, far
+// from the origin: the tree's boxes then have planes exactly on their node's
+// step grid (BvhNode), where the slab test's sums have no rounding margin of
+// their own. Rays through the lattice's vertices (the corners of leaf
+// boxes) and a lattice point inside the box, leaving the box there or
+// entering it, must hit: they cross the closed surface there (exactly, as
+// every coordinate is a lattice point; a ray that only touched the box at
+// an edge would be allowed to miss).
+TEST(Tracer, RaysThroughBoxCornersOnAPowerOfTwoLatticeHit) {
+    gpu();
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+    const glm::vec3 lo(1024.0f, -2048.0f, 512.0f);
+    const float step = 0.125f;
+    const int n = 24;  // quads along an edge
+    std::vector<glm::vec3> vertices;
+    for (int a = 0; a < 3; ++a) {
+        const int b = (a + 1) % 3, c = (a + 2) % 3;
+        for (int side = 0; side < 2; ++side)
+            for (int i = 0; i <= n; ++i)
+                for (int j = 0; j <= n; ++j) {
+                    glm::vec3 p = lo;
+                    p[a] += float(side * n) * step;
+                    p[b] += float(i) * step;
+                    p[c] += float(j) * step;
+                    vertices.push_back(p);
+                    if (i == n || j == n) continue;
+                    glm::vec3 u(0.0f), v(0.0f);
+                    u[b] = step;
+                    v[c] = step;
+                    test::add_quad(s, p, u, v, m);
+                }
+    }
+    Tracer tracer(s);
+    // From lattice points inside the box, far from the target (the ray's t
+    // and the slab test's terms alike), and from points of a 64 times finer
+    // lattice near it (the terms, which measure the node, then far exceed
+    // t: where rounding bites).
+    std::mt19937 rng(11);
+    std::uniform_int_distribution<int> anywhere(1, n - 1), near(1, 2);
+    const glm::vec3 hi = lo + float(n) * step;
+    std::vector<Ray> rays;
+    for (const glm::vec3& target : vertices) {
+        for (int k = 0; k < 4; ++k) {
+            glm::vec3 p = lo + step * glm::vec3(anywhere(rng), anywhere(rng), anywhere(rng));
+            if (k >= 2)
+                for (int a = 0; a < 3; ++a) {
+                    const float towards = target[a] == lo[a]   ? 1.0f
+                                          : target[a] == hi[a] ? -1.0f
+                                          : rng() % 2          ? 1.0f
+                                                               : -1.0f;
+                    p[a] = glm::clamp(target[a] + towards * step / 64.0f * float(near(rng)), lo[a] + step / 64.0f,
+                                      hi[a] - step / 64.0f);
+                }
+            rays.push_back(Ray{p, 2.0f, target - p, 0});                  // leaves the box at the target
+            rays.push_back(Ray{2.0f * target - p, 2.0f, p - target, 0});  // enters it there
+        }
+    }
+    size_t escaped = 0;
+    for (const RayHit& h : tracer.trace(rays)) escaped += h.triangle == kNoHit;
+    EXPECT_EQ(escaped, 0u) << "of " << rays.size() << " rays through the lattice's vertices";
+}
+
 // Rays leaving a convex surface outward, far from the origin where float
 // spacing is coarse, must not hit the surface they start on.
 TEST(Tracer, OffsetOriginsDoNotSelfIntersect) {

@@ -79,12 +79,15 @@ vec4 lf_plane_steps(uint word) { return vec4((uvec4(word) >> uvec4(0u, 8u, 16u, 
 
 // Entry distances of the ray into a node's four child boxes, +infinity for
 // a box it misses. A plane q steps from the node's corner is met at
-// t = (corner - org) / dir + q step / dir: one multiply-add per plane, with
-// the ray's distance to the corner taken as a difference first (Ize 2013,
-// "Robust BVH Ray Traversal"). The exit distance is pushed out by a few ulps
-// so rounding never drops a box whose face a ray grazes: a ray through a
-// vertex on the box's surface must still reach the triangles. Unused child
-// slots are the caller's to skip.
+// t = (corner - org) / dir + q step / dir: one multiply-add per plane.
+// Rounding must never drop a box whose face a ray grazes (a ray through a
+// vertex on the box's surface must still reach the triangles), so each
+// axis's interval is widened on both ends by more than the rounding error
+// of its sums: a few ulps of their terms, |corner - org| / |dir| and
+// 255 step / |dir| (the relative push of Ize 2013, "Robust BVH Ray
+// Traversal", covers only errors proportional to t, and these terms may
+// cancel; one axis's entry is compared with another's exit, so both ends
+// need it). Unused child slots are the caller's to skip.
 vec4 intersect_boxes(vec3 org, vec3 inv_dir, uvec4 corner_steps, uvec4 planes_xy, uvec2 planes_z, float t_max) {
     vec3 t_corner = (uintBitsToFloat(corner_steps.xyz) - org) * inv_dir;
     uvec3 exponents = (uvec3(corner_steps.w) >> uvec3(0u, 8u, 16u)) & 0xffu;
@@ -92,8 +95,10 @@ vec4 intersect_boxes(vec3 org, vec3 inv_dir, uvec4 corner_steps, uvec4 planes_xy
     vec4 tx0 = lf_plane_steps(planes_xy.x) * t_step.x + t_corner.x, tx1 = lf_plane_steps(planes_xy.y) * t_step.x + t_corner.x;
     vec4 ty0 = lf_plane_steps(planes_xy.z) * t_step.y + t_corner.y, ty1 = lf_plane_steps(planes_xy.w) * t_step.y + t_corner.y;
     vec4 tz0 = lf_plane_steps(planes_z.x) * t_step.z + t_corner.z, tz1 = lf_plane_steps(planes_z.y) * t_step.z + t_corner.z;
-    vec4 t_enter = max(max(min(tx0, tx1), min(ty0, ty1)), max(min(tz0, tz1), vec4(0.0)));
-    vec4 t_exit = min(min(max(tx0, tx1), max(ty0, ty1)), min(max(tz0, tz1), vec4(t_max))) * 1.0000004;
+    vec3 slack = 4e-7 * (abs(t_corner) + 255.0 * abs(t_step));  // > 6 ulps of each axis's terms
+    vec4 t_enter = max(max(min(tx0, tx1) - slack.x, min(ty0, ty1) - slack.y), max(min(tz0, tz1) - slack.z, vec4(0.0)));
+    vec4 t_exit = min(min(max(tx0, tx1) + slack.x, max(ty0, ty1) + slack.y), min(max(tz0, tz1) + slack.z, vec4(t_max)));
+    t_exit *= 1.0000004;
     return mix(vec4(LF_INFINITY), t_enter, lessThanEqual(t_enter, t_exit));
 }
 

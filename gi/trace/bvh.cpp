@@ -1,5 +1,6 @@
 #include "trace/bvh.h"
 
+#include "scene/gltf_loader.h"
 #include "util/parallel.h"
 
 #include <algorithm>
@@ -10,7 +11,6 @@
 #include <future>
 #include <limits>
 #include <numeric>
-#include <stdexcept>
 #include <string>
 #include <system_error>
 
@@ -264,11 +264,6 @@ void collapse(const std::vector<BinaryNode>& binary, uint32_t from, uint32_t to,
     std::vector<std::pair<uint32_t, uint32_t>> interior;  // (binary node, 4-wide node)
     for (size_t k = 0; k < children.size(); ++k) {
         const BinaryChild& c = children[k];
-        if (c.count > kBvhMaxLeafTriangles)
-            throw std::runtime_error("BVH: " + std::to_string(c.count) + " triangles left in one leaf at depth " +
-                                     std::to_string(kBvhMaxDepth) + " (at most " +
-                                     std::to_string(kBvhMaxLeafTriangles) +
-                                     "): the surface area heuristic found no way to split them");
         if (c.count > 0) {
             index[k] = c.index;
             ++bvh.stats.leaves;
@@ -350,6 +345,15 @@ Bvh build_bvh(const Scene& scene) {
             binary[0] = {{BinaryChild{root_box, 0, uint32_t(refs.size())}}, 1};  // few triangles: one leaf
         }
     }
+    // A leaf's count has 16 bits (BvhNode). Only the depth limit makes a
+    // larger one, on geometry the SAH splits one triangle at a time.
+    for (const BinaryNode& n : binary)
+        for (int k = 0; k < n.children; ++k)
+            if (n.child[k].count > kBvhMaxLeafTriangles)
+                throw SceneError(scene.source + ": " + std::to_string(n.child[k].count) +
+                                 " triangles are left in one leaf of the ray tracing tree at its depth limit (" +
+                                 std::to_string(kBvhMaxDepth) + "); a leaf holds at most " +
+                                 std::to_string(kBvhMaxLeafTriangles));
     Bvh bvh;
     bvh.nodes.emplace_back();  // the root
     collapse(binary, 0, 0, 1, bvh);
