@@ -235,6 +235,54 @@ TEST(Tracer, RaysThroughBoxCornersOnAPowerOfTwoLatticeHit) {
     EXPECT_EQ(escaped, 0u) << "of " << rays.size() << " rays through the lattice's vertices";
 }
 
+// Two squares sharing an edge at x = 0, the boxes on one side of it tested
+// in nodes whose corners are 512 and more units away (a square far out makes
+// them so). A ray from close by that crosses the edge meets such a box's
+// plane at t = (corner - org) / dir + q step / dir, two terms of about
+// 512 / |dir| that cancel to about 1: their rounding is then thousands of
+// ulps of t. Without each axis's slack in intersect_boxes the box could be
+// dropped, and the ray miss the surface where the edge falls to that side
+// (with dff5986's shader, 84 of these 2,032 rays did).
+TEST(Tracer, ASharedEdgeBetweenNodesFarApartIsWatertight) {
+    gpu();
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+    auto square = [&](float x0, float x1) { test::add_quad(s, {x0, 0.0f, 0.0f}, {x1 - x0, 0, 0}, {0, 16, 0}, m); };
+    // A (scene triangles 0 to 7) and B (8 to 15): 2 x 2 quads each, so the
+    // surface area heuristic splits the scene between them.
+    for (float x0 : {-16.0f, 0.0f})
+        for (float dx : {0.0f, 8.0f})
+            for (float y0 : {0.0f, 8.0f}) test::add_quad(s, {x0 + dx, y0, 0.0f}, {8, 0, 0}, {0, 8, 0}, m);
+    square(-512.0f, -32.0f);
+    square(32.0f, 512.0f);
+    square(-2048.0f, -2032.0f);
+    square(2032.0f, 2048.0f);
+    const Bvh bvh = build_bvh(s);
+    // The setup this test needs: a box that ends at the shared edge is
+    // tested in a node whose corner is 512 units or more away.
+    bool far_box_at_edge = false;
+    for (const BvhNode& node : bvh.nodes)
+        for (int c = 0; c < kBvhWidth; ++c)
+            far_box_at_edge |= node.child_used(c) && node.origin.x <= -512.0f && node.child_box(c).hi.x == 0.0f;
+    ASSERT_TRUE(far_box_at_edge);
+
+    Tracer tracer(s);
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> offset(1.0f / 64.0f, 1.0f / 8.0f);
+    auto any_sign = [&] { return rng() % 2 ? offset(rng) : -offset(rng); };
+    std::vector<Ray> rays;
+    for (int k = 1; k < 128; ++k) {  // towards points on the shared edge, from random points close by
+        const glm::vec3 target(0.0f, float(k) / 8.0f, 0.0f);
+        for (int r = 0; r < 16; ++r) {
+            const glm::vec3 org = target + glm::vec3(any_sign(), any_sign(), any_sign());
+            rays.push_back(Ray{org, 2.0f, target - org, 0});
+        }
+    }
+    size_t escaped = 0;
+    for (const RayHit& h : tracer.trace(rays)) escaped += h.triangle == kNoHit;
+    EXPECT_EQ(escaped, 0u) << "of " << rays.size() << " rays across the shared edge";
+}
+
 // Rays leaving a convex surface outward, far from the origin where float
 // spacing is coarse, must not hit the surface they start on.
 TEST(Tracer, OffsetOriginsDoNotSelfIntersect) {
