@@ -174,12 +174,14 @@ TEST(Tracer, WatertightOnSharedEdgesAndVertices) {
 
 // A closed box whose faces are grids of quads on a power-of-two lattice, far
 // from the origin: the tree's boxes then have planes exactly on their node's
-// step grid (BvhNode), where the slab test's sums have no rounding margin of
-// their own. Rays through the lattice's vertices (the corners of leaf
-// boxes) and a lattice point inside the box, leaving the box there or
-// entering it, must hit: they cross the closed surface there (exactly, as
+// step grid (BvhNode), and rays through the lattice's vertices pass exactly
+// through the corners of leaf boxes, which the traversal must keep. Rays
+// through a vertex and a lattice point inside the box, leaving the box there
+// or entering it, must hit: they cross the closed surface there (exactly, as
 // every coordinate is a lattice point; a ray that only touched the box at
-// an edge would be allowed to miss).
+// an edge would be allowed to miss). Every number here is dyadic, so the
+// slab test's two terms cancel without rounding: the slack that rounding
+// needs is ASharedEdgeBetweenNodesFarApartIsWatertight's to check.
 TEST(Tracer, RaysThroughBoxCornersOnAPowerOfTwoLatticeHit) {
     gpu();
     Scene s;
@@ -206,10 +208,8 @@ TEST(Tracer, RaysThroughBoxCornersOnAPowerOfTwoLatticeHit) {
                 }
     }
     Tracer tracer(s);
-    // From lattice points inside the box, far from the target (the ray's t
-    // and the slab test's terms alike), and from points of a 64 times finer
-    // lattice near it (the terms, which measure the node, then far exceed
-    // t: where rounding bites).
+    // From lattice points inside the box, far from the target, and from
+    // points of a 64 times finer lattice near it.
     std::mt19937 rng(11);
     std::uniform_int_distribution<int> anywhere(1, n - 1), near(1, 2);
     const glm::vec3 hi = lo + float(n) * step;

@@ -7,7 +7,6 @@
 
 #include <glm/glm.hpp>
 
-#include <cmath>
 #include <cstdint>
 #include <vector>
 
