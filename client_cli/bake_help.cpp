@@ -20,12 +20,26 @@ std::string bake_settings_help() {
     return text;
 }
 
+// The outputs a bake can ask for, from the registry (protocol/outputs.h).
+std::string bake_outputs_help() {
+    std::string text = "outputs (any number; without one, the first):\n";
+    for (const protocol::OutputKind& o : protocol::output_registry()) {
+        std::string flag = "--" + o.name;
+        flag.resize(std::max<size_t>(flag.size(), 34), ' ');
+        text += "  " + flag + " " + o.help + "\n";
+    }
+    return text;
+}
+
 std::string bake_help() {
-    return "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh] [--probes]\n"
+    std::string outputs;
+    for (const std::string& o : protocol::output_names()) outputs += " [--" + o + "]";
+    return "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json]" + outputs +
+           "\n"
            "                      [--device auto|gpu|gpu:N|cpu] [--json] [--resume] [settings]\n\n"
            "  --resume  continue an interrupted bake into the same DIR from its last snapshot\n"
            "            (an output whose saved state is another bake's starts from pass 0)\n\n" +
-           bake_settings_help();
+           bake_outputs_help() + "\n" + bake_settings_help();
 }
 
 }  // namespace lf::cli

@@ -38,9 +38,10 @@ commands:
   inspect SCENE [--json]             what was loaded from a .gltf/.glb
   raybench SCENE [--device auto|gpu|cpu] [--seconds S]
                                      ray throughput of the tracer (JSON)
-  bake SCENE --out DIR [--spec SPEC.json] [--lightmap] [--sh] [--device auto|gpu|gpu:N|cpu] [--json]
+  bake SCENE --out DIR [--spec SPEC.json] [--OUTPUT …] [--device auto|gpu|gpu:N|cpu] [--json]
        [--resume] [bake settings: `lightfarm bake --help`, or the README's table]
-                                     bake a radiosity-map lightmap and/or SH transfer
+                                     bake the outputs asked for (`lightfarm bake --help`
+                                     lists them; without one, the lightmap)
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
@@ -234,9 +235,7 @@ class BakeReporter {
 public:
     BakeReporter(bool json, const lf::protocol::BakeSettings& settings)
         : json_(json), terminal_(!json && isatty(STDERR_FILENO)) {
-        if (settings.lightmap) max_passes_["lightmap"] = settings.lightmap->stop.passes;
-        if (settings.sh) max_passes_["sh"] = settings.sh->stop.passes;
-        if (settings.probes) max_passes_["probes"] = settings.probes->stop.passes;
+        for (const auto& [output, o] : settings.outputs) max_passes_[output] = o.stop().passes;
     }
 
     void operator()(const lf::protocol::WorkerEvent& e) {

@@ -32,7 +32,7 @@ const char* const kRemoteUsage = R"(usage of the remote commands (a lightfarmd s
                                      downloads the final files into --out (default
                                      ./JOB; --snapshots: the intermediate ones too).
                                      The bake options are those of `lightfarm bake`:
-                                     every output (--lightmap, --sh) and setting
+                                     every output (--OUTPUT) and setting
   watch JOB [--json]                 follow a job's progress until it ends
   fetch JOB [--out DIR] [--latest | --snapshots]
                                      download a job's final files (--snapshots: and

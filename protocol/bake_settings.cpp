@@ -105,7 +105,8 @@ std::vector<Setting> build_catalog() {
         with_auto(number("probes", "probe_spacing", 0, 0, true, 1e4, "",
                          "grid spacing in metres (auto: a quarter of the scene's largest extent)")),
         integer("probes", "probe_res", 32, 16, 256, "", "capture texels per cube face side (R)"),
-        integer("probes", "probe_m", 4, 1, 16, "", "texels per face side after downsampling (M, divides R)"),
+        integer("probes", "probe_m", 4, 1, 256, "",
+                "texels per face side after downsampling (M, divides R; M = R: not downsampled)"),
         integer("probes", "probe_passes", 64, 1, kMaxPasses, "passes",
                 "stop after this many passes of one path per texel"),
         number("probes", "probe_target_error", 0, 0, false, 1e3, "",
@@ -266,6 +267,8 @@ json settings_of_group(const std::string& group, const json& given, const SpecLi
     for (const Setting& s : setting_catalog()) {
         if (s.group != group) continue;
         if (given.contains(s.name)) out[s.name] = check_setting(s, given[s.name], limits);
+        else if (s.type == SettingType::Number && s.default_value.is_number())
+            out[s.name] = s.default_value.get<double>();  // canonical as a given value is: 0.0, not 0
         else if (!s.default_value.is_null()) out[s.name] = s.default_value;
     }
     return out;
@@ -285,13 +288,21 @@ StopSettings stop_from(const json& j, const std::string& prefix) {
 void check_combination(const BakeSettings& b) {
     if (b.atlas.res && b.atlas.texel_density)
         throw SpecError("atlas.texel_density", "cannot be given together with atlas.res (give one; the other follows)");
-    if (b.probes && b.probes->res % b.probes->m != 0)
-        throw SpecError("probes.probe_m", std::to_string(b.probes->m) + " does not divide probe_res " +
-                                              std::to_string(b.probes->res) + " (M must divide R)");
-    if ((b.lightmap || b.probes) && !b.env.map_file.empty())
-        throw SpecError("env",
-                        "a lightmap's or probes' environment is a uniform sky R,G,B; environment maps work with the sh "
-                        "output only");
+    if (const OutputSettings* probes = b.output("probes"))
+        if (probes->integer("probe_res") % probes->integer("probe_m") != 0)
+            throw SpecError("probes.probe_m", std::to_string(probes->integer("probe_m")) +
+                                                  " does not divide probe_res " +
+                                                  std::to_string(probes->integer("probe_res")) + " (M must divide R)");
+    if (b.env.map_file.empty()) return;
+    std::vector<std::string> takers;
+    for (const OutputKind& o : output_registry())
+        if (o.takes_environment_map) takers.push_back(o.name);
+    for (const auto& [name, settings] : b.outputs)
+        if (!find_output(name)->takes_environment_map)
+            throw SpecError("env", "the " + name +
+                                       " output's environment is a uniform sky R,G,B; environment maps "
+                                       "work with the " +
+                                       joined(takers, ", ") + " output only");
 }
 
 }  // namespace
@@ -331,9 +342,60 @@ const std::vector<Setting>& setting_catalog() {
     return catalog;
 }
 
-const std::vector<std::string>& output_names() {
-    static const std::vector<std::string> names = {"lightmap", "sh", "probes"};
-    return names;
+StopSettings OutputSettings::stop() const { return stop_from(values, find_output(output)->stop_prefix); }
+
+std::optional<int> OutputSettings::integer_or_auto(const std::string& name) const {
+    const json& v = values.at(name);
+    if (v.is_string()) return std::nullopt;
+    return v.get<int>();
+}
+
+std::optional<double> OutputSettings::number_or_auto(const std::string& name) const {
+    const json& v = values.at(name);
+    if (v.is_string()) return std::nullopt;
+    return v.get<double>();
+}
+
+const OutputSettings* BakeSettings::output(const std::string& name) const {
+    const auto it = outputs.find(name);
+    return it == outputs.end() ? nullptr : &it->second;
+}
+
+OutputSettings* BakeSettings::output(const std::string& name) {
+    const auto it = outputs.find(name);
+    return it == outputs.end() ? nullptr : &it->second;
+}
+
+namespace {
+
+bool on_atlas(const OutputKind& kind, const OutputSettings& settings) {
+    return kind.domain == OutputDomain::Texel ||
+           (!kind.per_texel_setting.empty() && settings.flag(kind.per_texel_setting));
+}
+
+}  // namespace
+
+bool BakeSettings::uses_atlas() const {
+    for (const auto& [name, settings] : outputs)
+        if (on_atlas(*find_output(name), settings)) return true;
+    return false;
+}
+
+bool BakeSettings::atlas_needs_light() const {
+    bool any = false;
+    for (const auto& [name, settings] : outputs) {
+        const OutputKind& kind = *find_output(name);
+        if (!on_atlas(kind, settings)) continue;
+        if (!kind.needs_light) return false;
+        any = true;
+    }
+    return any;
+}
+
+bool BakeSettings::needs_light() const {
+    for (const auto& [name, settings] : outputs)
+        if (find_output(name)->needs_light) return true;
+    return false;
 }
 
 const Setting* find_setting(const std::string& group, const std::string& name) {
@@ -382,35 +444,11 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     b.atlas.max_res = int_or_auto(atlas["max_res"]);
     if (!b.atlas.max_res && limits.cap("res") < kAutoMaxAtlasRes)
         b.atlas.max_res = int(std::max(256.0, limits.cap("res")));  // the smallest max_res: the default atlas
-    if (outputs.contains("lightmap")) {
-        const json l = settings_of_group("lightmap", outputs["lightmap"], limits);
-        b.lightmap =
-            LightmapSettings{stop_from(l, ""), l["scheme"],  l["light_samples"], l["light_sampling"],
-                             l["stitch"],      l["denoise"], l["directional"],   int_or_auto(l["passes_per_dispatch"])};
-    }
-    if (outputs.contains("sh")) {
-        const json s = settings_of_group("sh", outputs["sh"], limits);
-        ShSettings sh;
-        sh.bands = int_or_auto(s["sh_bands"]);
-        sh.bounces = s["sh_bounces"];
-        sh.window = s["sh_window"];
-        sh.stop = stop_from(s, "sh_");
-        sh.occluders = s["sh_occluders"].get<std::vector<int>>();
-        sh.receivers = s["sh_receivers"].get<std::vector<int>>();
-        sh.per_texel = s["sh_per_texel"];
-        b.sh = sh;
-    }
-    if (outputs.contains("probes")) {
-        const json p = settings_of_group("probes", outputs["probes"], limits);
-        ProbesSettings probes;
-        for (const json& point : p["probe_positions"])
-            probes.positions.push_back({point["position"][0].get<float>(), point["position"][1].get<float>(),
-                                        point["position"][2].get<float>()});
-        if (!p["probe_spacing"].is_string()) probes.spacing = p["probe_spacing"].get<double>();
-        probes.res = p["probe_res"];
-        probes.m = p["probe_m"];
-        probes.stop = stop_from(p, "probe_");
-        b.probes = probes;
+    for (const OutputKind& kind : output_registry()) {
+        if (!outputs.contains(kind.name)) continue;
+        OutputSettings& o = b.outputs[kind.name];
+        o.output = kind.name;
+        o.values = settings_of_group(kind.name, outputs[kind.name], limits);
     }
     check_combination(b);
     return b;
@@ -425,38 +463,7 @@ json to_json(const BakeSettings& b) {
                   {"max_res", or_auto(b.atlas.max_res)}};
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
-    if (const auto& l = b.lightmap)
-        j["outputs"]["lightmap"] = {{"passes", l->stop.passes},
-                                    {"target_error", l->stop.target_error},
-                                    {"time_limit", l->stop.time_limit},
-                                    {"scheme", l->scheme},
-                                    {"light_samples", l->light_samples},
-                                    {"light_sampling", l->light_sampling},
-                                    {"stitch", l->stitch},
-                                    {"denoise", l->denoise},
-                                    {"directional", l->directional},
-                                    {"passes_per_dispatch", or_auto(l->passes_per_dispatch)}};
-    if (const auto& s = b.sh)
-        j["outputs"]["sh"] = {{"sh_bands", or_auto(s->bands)},
-                              {"sh_bounces", s->bounces},
-                              {"sh_window", s->window},
-                              {"sh_passes", s->stop.passes},
-                              {"sh_target_error", s->stop.target_error},
-                              {"sh_time_limit", s->stop.time_limit},
-                              {"sh_occluders", s->occluders},
-                              {"sh_receivers", s->receivers},
-                              {"sh_per_texel", s->per_texel}};
-    if (const auto& p = b.probes) {
-        json positions = json::array();
-        for (const auto& q : p->positions) positions.push_back({{"position", {q[0], q[1], q[2]}}});
-        j["outputs"]["probes"] = {{"probe_positions", positions},
-                                  {"probe_spacing", or_auto(p->spacing)},
-                                  {"probe_res", p->res},
-                                  {"probe_m", p->m},
-                                  {"probe_passes", p->stop.passes},
-                                  {"probe_target_error", p->stop.target_error},
-                                  {"probe_time_limit", p->stop.time_limit}};
-    }
+    for (const auto& [name, settings] : b.outputs) j["outputs"][name] = settings.values;
     return j;
 }
 

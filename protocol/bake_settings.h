@@ -15,6 +15,8 @@
 // chosen by `--lightmap`, `--sh`, or by giving any of their own settings.
 #pragma once
 
+#include "outputs.h"
+
 #include <nlohmann/json.hpp>
 
 #include <array>
@@ -64,7 +66,7 @@ enum class SettingType {
 };
 
 struct Setting {
-    std::string group;  // "lightmap", "sh" or "probes" (outputs), "atlas", or "" (the job's own: seed, env)
+    std::string group;  // an output's name (outputs.h), "atlas", or "" (the job's own: seed, env)
     std::string name;   // JSON key, e.g. "texel_density"
     SettingType type = SettingType::Number;
     nlohmann::json default_value;  // "auto" where the engine chooses; null: none
@@ -82,14 +84,13 @@ struct Setting {
 
 // Every setting, outputs first (in output order), then the atlas, then the job's.
 const std::vector<Setting>& setting_catalog();
-// The outputs a job can ask for, in a fixed order; each is selected by `--NAME`.
-const std::vector<std::string>& output_names();
 const Setting* find_setting(const std::string& group, const std::string& name);
 const Setting* find_setting_by_flag(const std::string& flag);
 
-// The typed settings, filled from validated JSON with the catalog's defaults.
+// The typed settings, filled from validated JSON with the catalog's
+// defaults (the catalog is where every default lives: nothing here repeats one).
 struct StopSettings {
-    int passes = 256;
+    int passes = 0;
     double target_error = 0.0;  // 0: no target
     double time_limit = 0.0;    // seconds, 0: none
 };
@@ -100,7 +101,7 @@ inline constexpr int kAutoMaxAtlasRes = 4096;
 struct AtlasSettings {
     std::optional<int> res;               // empty: auto (the file's TEXCOORD_1 size, or the engine's default)
     std::optional<double> texel_density;  // texels per metre; empty: from res
-    int subsamples = 2;                   // sample points per texel = this squared
+    int subsamples = 0;                   // sample points per texel = this squared
     // The largest side of an atlas the engine sizes (res auto, or from
     // texel_density); empty: auto, kAutoMaxAtlasRes. A server's res limit
     // below that is written in here when the spec is parsed, so that the
@@ -108,33 +109,23 @@ struct AtlasSettings {
     std::optional<int> max_res;
 };
 
-struct LightmapSettings {
-    StopSettings stop;
-    std::string scheme = "epochs";
-    int light_samples = 1;
-    std::string light_sampling = "mis";
-    bool stitch = true;
-    bool denoise = false;      // measured: docs/BENCHMARKS.md "Denoising"
-    bool directional = false;  // L1 layers (README "Directional lightmaps")
-    // Passes per GPU dispatch; empty: auto (from the texel count).
-    std::optional<int> passes_per_dispatch;
-};
+// One requested output's settings: every setting of its catalog group,
+// validated, in canonical JSON ("auto" where auto). Each method reads these
+// into its own engine struct (gi/bake/*_method.h), as pbrt's
+// Create(parameters) does; the rest of lightfarm reads only the stop rule.
+struct OutputSettings {
+    std::string output;  // its name (outputs.h)
+    nlohmann::json values = nlohmann::json::object();
 
-struct ShSettings {
-    std::optional<int> bands;  // empty: auto
-    int bounces = 0;
-    std::string window = "none";
-    StopSettings stop;
-    std::vector<int> occluders, receivers;  // glTF mesh indices, empty = all
-    bool per_texel = false;
-};
+    // Its stop rule: the settings the registry names (OutputKind::stop_prefix).
+    StopSettings stop() const;
 
-struct ProbesSettings {
-    std::vector<std::array<float, 3>> positions;  // explicit reference points; empty: a grid
-    std::optional<double> spacing;                // grid spacing in metres; empty: auto (from the scene's extent)
-    int res = 32;                                 // R: capture texels per cube face side
-    int m = 4;                                    // M: texels per face side after downsampling (divides R)
-    StopSettings stop;
+    int integer(const std::string& name) const { return values.at(name).get<int>(); }
+    double number(const std::string& name) const { return values.at(name).get<double>(); }
+    bool flag(const std::string& name) const { return values.at(name).get<bool>(); }
+    std::string choice(const std::string& name) const { return values.at(name).get<std::string>(); }
+    std::optional<int> integer_or_auto(const std::string& name) const;
+    std::optional<double> number_or_auto(const std::string& name) const;
 };
 
 // A uniform sky radiance or an environment map file (or nothing).
@@ -145,12 +136,23 @@ struct EnvironmentSetting {
 };
 
 struct BakeSettings {
-    std::optional<LightmapSettings> lightmap;
-    std::optional<ShSettings> sh;
-    std::optional<ProbesSettings> probes;
+    // The requested outputs by name (outputs.h), each with its settings.
+    std::map<std::string, OutputSettings> outputs;
     AtlasSettings atlas;
     uint32_t seed = 1;
     EnvironmentSetting env;
+
+    // The output `name`'s settings, or null when it was not asked for.
+    const OutputSettings* output(const std::string& name) const;
+    OutputSettings* output(const std::string& name);
+    // Whether any requested output is baked on the lightmap atlas (a per-texel
+    // output, or one whose per-texel setting is on).
+    bool uses_atlas() const;
+    // Whether any requested atlas output needs a light (only then may the
+    // atlas shrink the charts no light reaches).
+    bool atlas_needs_light() const;
+    // Whether any requested output needs a light (outputs.h).
+    bool needs_light() const;
 };
 
 // Validates the bake part of a spec ({"outputs", "atlas", "seed", "env"}; other

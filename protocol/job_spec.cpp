@@ -79,15 +79,24 @@ json to_json(const JobSpec& spec) {
     return j;
 }
 
+namespace {
+
+// "lightmap and probes": the requested outputs that need a light.
+std::string lit_outputs(const BakeSettings& bake) {
+    std::string out;
+    for (const OutputKind& o : output_registry())
+        if (o.needs_light && bake.output(o.name)) out += (out.empty() ? "" : " and ") + o.name;
+    return out;
+}
+
+}  // namespace
+
 void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scene) {
     const std::string name = scene.source.empty() ? "the scene" : scene.source;
-    if ((bake.lightmap || bake.probes) && !scene.has_light() && !bake.env.given())
-        throw SpecError(
-            "env", name +
-                       " has no emissive surface and no punctual light, so its lightmap and probes would be black; "
-                       "give a sky with \"env\": [R, G, B] (--env R,G,B)");
-    const bool per_texel = bake.lightmap || (bake.sh && bake.sh->per_texel);
-    if (per_texel && !scene.has_lightmap_uvs && scene.min_atlas_res > 0 && bake.atlas.res &&
+    if (bake.needs_light() && !scene.has_light() && !bake.env.given())
+        throw SpecError("env", name + " has no emissive surface and no punctual light, so its " + lit_outputs(bake) +
+                                   " would be black; give a sky with \"env\": [R, G, B] (--env R,G,B)");
+    if (bake.uses_atlas() && !scene.has_lightmap_uvs && scene.min_atlas_res > 0 && bake.atlas.res &&
         *bake.atlas.res < scene.min_atlas_res)
         throw SpecError("atlas.res", std::to_string(*bake.atlas.res) + " is too small for " + name + "'s " +
                                          "generated atlas; the smallest that fits is " +

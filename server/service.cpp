@@ -47,17 +47,6 @@ void send_json(httplib::Response& res, int status, const json& body) {
 thread_local std::string current_route;
 thread_local std::chrono::steady_clock::time_point request_started;
 
-std::string content_type_of(const std::string& name) {
-    const std::string ext = fs::path(name).extension().string();
-    if (ext == ".exr") return "image/x-exr";
-    if (ext == ".png") return "image/png";
-    if (ext == ".json") return "application/json";
-    if (ext == ".glb") return "model/gltf-binary";
-    if (ext == ".gltf") return "model/gltf+json";
-    if (ext == ".txt" || ext == ".log") return "text/plain";
-    return "application/octet-stream";
-}
-
 // Workers write a file as a temporary and rename it; those temporaries, and
 // the supervisor's own dot files, are not artifacts.
 bool is_artifact_name(const std::string& name) {
@@ -1321,7 +1310,7 @@ void Service::list_artifacts(const httplib::Request& req, httplib::Response& res
     for (const Artifact& a : artifacts_in(supervisor_->job_dir(job.status.id)))
         list.push_back({{"name", a.name},
                         {"size", a.size},
-                        {"content_type", content_type_of(a.name)},
+                        {"content_type", protocol::content_type_of(a.name)},
                         {"url", "/v1/jobs/" + job.status.id + "/artifacts/" + a.name}});
     send_json(res, 200, {{"id", job.status.id}, {"state", protocol::to_string(job.status.state)}, {"artifacts", list}});
 }
@@ -1347,7 +1336,7 @@ void Service::get_artifact(const httplib::Request& req, httplib::Response& res, 
                         {{"id", job.status.id}, {"name", name}});
     const size_t size = size_t(end);
     file->seekg(0);
-    res.set_content_provider(size, content_type_of(name),
+    res.set_content_provider(size, protocol::content_type_of(name),
                              [file](size_t offset, size_t length, httplib::DataSink& sink) {
                                  char buf[64 * 1024];
                                  file->seekg(std::streamoff(offset));

@@ -300,15 +300,12 @@ namespace {
 
 // The output a progress event without a name is about: the only one asked for.
 std::string output_or_only(const std::string& output, const protocol::BakeSettings& bake) {
-    if (!output.empty()) return output;
-    if (bake.lightmap && !bake.sh) return "lightmap";
-    if (bake.sh && !bake.lightmap) return "sh";
-    return "";
+    if (!output.empty() || bake.outputs.size() != 1) return output;
+    return bake.outputs.begin()->first;
 }
 
 std::optional<protocol::StopSettings> stop_settings_of(const std::string& output, const protocol::BakeSettings& bake) {
-    if (output == "lightmap" && bake.lightmap) return bake.lightmap->stop;
-    if (output == "sh" && bake.sh) return bake.sh->stop;
+    if (const protocol::OutputSettings* o = bake.output(output)) return o->stop();
     return std::nullopt;
 }
 

@@ -840,7 +840,7 @@ TEST(LitGlb, CarriesTheLightmapOnEveryBakedMaterial) {
         for (size_t i = 0; i < rgb.size(); ++i) rgb[i] = 0.001f + float(i % 97) * 0.05f * float(1 + i % 3);
         const protocol::RgbmImage lightmap = protocol::encode_rgbm(rgb, 64, 32);
         const fs::path out = dir / "scene.lit.glb";
-        write_lit_glb(kScenes / name, scene, lightmap, out);
+        write_lit_glb(kScenes / name, scene, {&lightmap}, out);
 
         tinygltf::Model model;
         tinygltf::TinyGLTF gltf;

@@ -51,13 +51,7 @@ ProbeSet capture(const Scene& scene, const std::vector<glm::vec3>& points, int r
     prepared.file = "test.glb";
     prepared.scene = scene;
     prepared.tracer = std::make_unique<Tracer>(prepared.scene);
-    protocol::BakeSettings settings;
-    protocol::ProbesSettings probes;
-    for (const glm::vec3& p : points) probes.positions.push_back({p.x, p.y, p.z});
-    probes.res = r;
-    probes.m = m;
-    settings.probes = probes;
-    ProbesMethod method(prepared, settings);
+    ProbesMethod method(prepared, probes_at(points, r, m));
     PassStats stats;
     for (int p = 0; p < passes; ++p) stats = method.step();
     const std::filesystem::path dir =
@@ -125,7 +119,7 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
 // the largest extent apart by default.
 TEST(ProbePlacement, ExplicitThenTheFilesNodesThenAGrid) {
     Scene s = furnace(0.5f, 1.0f);  // [-1, 1]³
-    protocol::ProbesSettings settings;
+    ProbesSettings settings;
     float spacing = 0.0f;
     std::vector<glm::vec3> grid = ProbesMethod::place(s, settings, &spacing);
     EXPECT_FLOAT_EQ(spacing, 0.5f);

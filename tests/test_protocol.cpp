@@ -173,9 +173,9 @@ TEST(JobSpec, ParsesAValidSpec) {
     const JobSpec spec = parse_job_spec(valid_spec());
     EXPECT_EQ(spec.scene, "abc");
     EXPECT_EQ(spec.bake.seed, 7u);
-    ASSERT_TRUE(spec.bake.lightmap);
-    EXPECT_FALSE(spec.bake.sh);
-    EXPECT_EQ(spec.bake.lightmap->stop.passes, 16);
+    ASSERT_TRUE(spec.bake.output("lightmap"));
+    EXPECT_FALSE(spec.bake.output("sh"));
+    EXPECT_EQ(spec.bake.output("lightmap")->stop().passes, 16);
     EXPECT_EQ(spec.bake.atlas.res, 256);
     EXPECT_FALSE(spec.bake.atlas.texel_density);
     EXPECT_FALSE(spec.limits.max_seconds);
@@ -201,14 +201,14 @@ TEST(JobSpec, DefaultsComeFromTheCatalog) {
         EXPECT_EQ(*at, s.default_value) << s.field();
     }
     // And the typed values agree.
-    ASSERT_TRUE(b.lightmap && b.sh);
-    EXPECT_EQ(b.lightmap->stop.passes, find_setting("lightmap", "passes")->default_value.get<int>());
-    EXPECT_EQ(b.lightmap->scheme, "epochs");
-    EXPECT_EQ(b.lightmap->light_sampling, "mis");
-    EXPECT_TRUE(b.lightmap->stitch);
-    EXPECT_FALSE(b.sh->bands) << "sh_bands defaults to auto";
-    EXPECT_EQ(b.sh->window, "none");
-    EXPECT_EQ(b.sh->stop.passes, find_setting("sh", "sh_passes")->default_value.get<int>());
+    ASSERT_TRUE(b.output("lightmap") && b.output("sh"));
+    EXPECT_EQ(b.output("lightmap")->stop().passes, find_setting("lightmap", "passes")->default_value.get<int>());
+    EXPECT_EQ(b.output("lightmap")->choice("scheme"), "epochs");
+    EXPECT_EQ(b.output("lightmap")->choice("light_sampling"), "mis");
+    EXPECT_TRUE(b.output("lightmap")->flag("stitch"));
+    EXPECT_EQ(b.output("sh")->values["sh_bands"], "auto") << "sh_bands defaults to auto";
+    EXPECT_EQ(b.output("sh")->choice("sh_window"), "none");
+    EXPECT_EQ(b.output("sh")->stop().passes, find_setting("sh", "sh_passes")->default_value.get<int>());
     EXPECT_FALSE(b.atlas.res);
     EXPECT_FALSE(b.atlas.texel_density);
     EXPECT_EQ(b.atlas.subsamples, find_setting("atlas", "subsamples")->default_value.get<int>());
@@ -248,10 +248,10 @@ TEST(JobSpec, EdgeValuesAreRefusedWithTheFieldNamed) {
 
 TEST(JobSpec, AutoIsAValueOfItsOwn) {
     const JobSpec spec = parse_job_spec(sh_spec("sh_bands", "auto"));
-    ASSERT_TRUE(spec.bake.sh);
-    EXPECT_FALSE(spec.bake.sh->bands);
+    ASSERT_TRUE(spec.bake.output("sh"));
+    EXPECT_FALSE(spec.bake.output("sh")->integer_or_auto("sh_bands"));
     EXPECT_EQ(to_json(spec)["outputs"]["sh"]["sh_bands"], "auto");
-    EXPECT_EQ(*parse_job_spec(sh_spec("sh_bands", 3)).bake.sh->bands, 3);
+    EXPECT_EQ(parse_job_spec(sh_spec("sh_bands", 3)).bake.output("sh")->integer("sh_bands"), 3);
     EXPECT_EQ(to_json(parse_job_spec(sh_spec("sh_bands", 3)))["outputs"]["sh"]["sh_bands"], 3);
     // "auto" only where the catalog says so, and no other word.
     EXPECT_EQ(field_of(sh_spec("sh_bands", "Auto")), "sh.sh_bands");
@@ -474,7 +474,7 @@ TEST(JobSpec, CanonicalJsonIsAFixedPoint) {
     const JobSpec limited = parse_job_spec(specs[2]);
     EXPECT_EQ(*limited.limits.max_attempts, 2);
     EXPECT_DOUBLE_EQ(*limited.limits.max_seconds, 60.5);
-    EXPECT_EQ(limited.bake.sh->occluders, (std::vector<int>{0, 3}));
+    EXPECT_EQ(limited.bake.output("sh")->values["sh_occluders"].get<std::vector<int>>(), (std::vector<int>{0, 3}));
 }
 
 TEST(JobSpec, BakeIdentityIgnoresLimitsAndKeyOrderButNotDefaults) {
@@ -529,9 +529,9 @@ TEST(Flags, ChooseOutputs) {
     EXPECT_EQ(bake_json_from_flags({{"--passes", "8"}, {"--sh", ""}})["outputs"],
               json({{"lightmap", {{"passes", 8}}}, {"sh", json::object()}}));
     const BakeSettings b = parse_bake_settings(sh);
-    EXPECT_FALSE(b.lightmap);
-    ASSERT_TRUE(b.sh);
-    EXPECT_EQ(*b.sh->bands, 2);
+    EXPECT_FALSE(b.output("lightmap"));
+    ASSERT_TRUE(b.output("sh"));
+    EXPECT_EQ(b.output("sh")->integer("sh_bands"), 2);
 }
 
 TEST(Flags, BecomeTheSameSettingsAsJson) {
@@ -545,14 +545,14 @@ TEST(Flags, BecomeTheSameSettingsAsJson) {
                                          {"--seed", "9"},
                                          {"--scheme", "thesis"}});
     const BakeSettings b = parse_bake_settings(j);
-    ASSERT_TRUE(b.lightmap && b.sh);
+    ASSERT_TRUE(b.output("lightmap") && b.output("sh"));
     EXPECT_EQ(b.atlas.res, 128);
-    EXPECT_DOUBLE_EQ(b.lightmap->stop.target_error, 0.02);
-    EXPECT_FALSE(b.lightmap->stitch);
-    EXPECT_EQ(b.lightmap->scheme, "thesis");
-    EXPECT_TRUE(b.sh->per_texel);
-    EXPECT_FALSE(b.sh->bands);
-    EXPECT_EQ(b.sh->occluders, (std::vector<int>{0, 3}));
+    EXPECT_DOUBLE_EQ(b.output("lightmap")->stop().target_error, 0.02);
+    EXPECT_FALSE(b.output("lightmap")->flag("stitch"));
+    EXPECT_EQ(b.output("lightmap")->choice("scheme"), "thesis");
+    EXPECT_TRUE(b.output("sh")->flag("sh_per_texel"));
+    EXPECT_FALSE(b.output("sh")->integer_or_auto("sh_bands"));
+    EXPECT_EQ(b.output("sh")->values["sh_occluders"].get<std::vector<int>>(), (std::vector<int>{0, 3}));
     ASSERT_TRUE(b.env.sky);
     EXPECT_FLOAT_EQ((*b.env.sky)[1], 0.25f);
     EXPECT_EQ(b.seed, 9u);
@@ -573,10 +573,10 @@ TEST(Flags, OverrideABaseSpec) {
                        {"seed", 3}};
     const json j = bake_json_from_flags({{"--passes", "8"}, {"--res", "128"}, {"--seed", "5"}}, base);
     const BakeSettings b = parse_bake_settings(j);
-    ASSERT_TRUE(b.lightmap);
-    EXPECT_FALSE(b.sh);
-    EXPECT_EQ(b.lightmap->stop.passes, 8);
-    EXPECT_EQ(b.lightmap->scheme, "thesis") << "what no flag sets comes from the base";
+    ASSERT_TRUE(b.output("lightmap"));
+    EXPECT_FALSE(b.output("sh"));
+    EXPECT_EQ(b.output("lightmap")->stop().passes, 8);
+    EXPECT_EQ(b.output("lightmap")->choice("scheme"), "thesis") << "what no flag sets comes from the base";
     EXPECT_EQ(b.atlas.res, 128);
     EXPECT_EQ(b.seed, 5u);
     // Outputs named by flag are added to those of the base.
@@ -866,7 +866,7 @@ TEST(JobStatus, EtaFollowsTheStoppingRules) {
     // The catalog's default stop rules give an answer (256 passes).
     const BakeSettings b = parse_bake_settings({{"outputs", {{"lightmap", json::object()}}}});
     p.error_estimate.reset();
-    EXPECT_DOUBLE_EQ(*estimate_eta(b.lightmap->stop, p), 0.5 * (256 - 4));
+    EXPECT_DOUBLE_EQ(*estimate_eta(b.output("lightmap")->stop(), p), 0.5 * (256 - 4));
 }
 
 TEST(Sse, FormatsAndParsesInAnyChunking) {
@@ -1127,8 +1127,12 @@ TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
             else if (s.group == "atlas") spec["atlas"][s.name] = v;
             else spec["outputs"][s.group][s.name] = v;
             // "M divides R" is a rule between two settings, which the schema
-            // states in words: at R = 48 every M of the range divides it.
-            if (s.name == "probe_m") spec["outputs"]["probes"]["probe_res"] = 48;
+            // states in words: R = M where M is a valid R, else R = 48, which
+            // every other M tried here divides.
+            if (s.name == "probe_m") {
+                const bool an_r = v.is_number_integer() && v.get<int64_t>() >= 16 && v.get<int64_t>() <= 256;
+                spec["outputs"]["probes"]["probe_res"] = an_r ? v.get<int64_t>() : 48;
+            }
             EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec))
                 << s.field() << " = " << v.dump() << ": the schema says " << valid_against(doc, schema, spec)
                 << ", the server " << (accepted(spec) ? "accepts" : "refuses (" + error_of(spec, server) + ")");

@@ -17,7 +17,10 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <array>
 #include <cstring>
+#include <functional>
+#include <tuple>
 #include <fstream>
 #include <optional>
 #include <sstream>
@@ -338,15 +341,89 @@ TEST_F(Resume, AnInterruptedBakeOfEveryOutputEndsWithTheFilesOfAnUninterruptedOn
     EXPECT_FALSE(fs::exists(cut.out / protocol::kResumeDir));
 }
 
+// Every key a resume depends on, changed alone: the saved states are
+// another bake's, so each output starts from pass 0 and says why. Before
+// the key held the job's settings, seed, environment and scene content, a
+// lightmap or probes state resumed under another sky (or another scene with
+// the same texels) and went on adding the other sky's sums.
+TEST_F(Resume, AStateIsRestoredOnlyIntoTheBakeThatSavedIt) {
+    job.settings.outputs.erase("sh");
+    job.settings.output("lightmap")->values["passes"] = 24;
+    job.settings.env.sky = std::array<float, 3>{0.1f, 0.1f, 0.1f};
+    const fs::path scene_dir = root / "scene";
+    fs::create_directories(scene_dir);
+    const std::string gltf = file_bytes(job.scene);
+    write_bytes(scene_dir / "cornell_box.gltf", gltf);
+    job.scene = scene_dir / "cornell_box.gltf";
+
+    // Each change, and the outputs whose sums it changes (an output's own
+    // settings are its key alone: the other output still resumes).
+    using Change = std::function<void(BakeJob&)>;
+    const std::vector<std::string> both = {"lightmap", "probes"};
+    const std::vector<std::tuple<std::string, Change, std::vector<std::string>>> changes = {
+        {"seed", [](BakeJob& j) { j.settings.seed = 6; }, both},
+        {"env",
+         [](BakeJob& j) {
+             j.settings.env.sky = std::array<float, 3>{0.2f, 0.1f, 0.1f};
+         },
+         both},
+        {"lightmap setting",
+         [](BakeJob& j) { j.settings.output("lightmap")->values["light_samples"] = 2; },
+         {"lightmap"}},
+        {"probes setting", [](BakeJob& j) { j.settings.output("probes")->values["probe_passes"] = 9; }, {"probes"}},
+        {"atlas", [](BakeJob& j) { j.settings.atlas.subsamples = 1; }, both},
+        {"scene content",
+         [&](BakeJob&) {  // the light's strength, same geometry and texels
+             std::string other = gltf;
+             const size_t at = other.find("\"emissiveStrength\": 17.0");
+             ASSERT_NE(at, std::string::npos);
+             other.replace(at, 24, "\"emissiveStrength\": 16.0");
+             write_bytes(scene_dir / "cornell_box.gltf", other);
+         },
+         both},
+    };
+    for (const auto& [what, change, refused] : changes) {
+        SCOPED_TRACE(what);
+        write_bytes(job.scene, gltf);
+        BakeJob first = job;
+        first.out = root / ("changed " + what);
+        ASSERT_FALSE(bake(first, "probes", 3).done);
+        // The same job resumes each output (the control)…
+        BakeJob same = first;
+        same.resume = true;
+        fs::copy(first.out, root / ("same " + what), fs::copy_options::recursive);
+        same.out = root / ("same " + what);
+        const BakeRun again = bake(same, "probes", 4);
+        EXPECT_EQ(again.start().resumed.count("lightmap"), 1u) << "the same bake resumes";
+        EXPECT_EQ(again.start().resumed.count("probes"), 1u) << "the same bake resumes";
+        // …and the job with one key changed resumes none of the outputs it changes.
+        BakeJob changed = first;
+        changed.resume = true;
+        change(changed);
+        const BakeRun other = bake(changed, "lightmap", 1);
+        for (const std::string& output : both) {
+            const bool refuses = std::find(refused.begin(), refused.end(), output) != refused.end();
+            EXPECT_EQ(other.start().resumed.count(output), refuses ? 0u : 1u) << output;
+            if (!refuses) continue;
+            ASSERT_EQ(other.start().not_resumed.count(output), 1u) << output;
+            EXPECT_NE(other.start().not_resumed.at(output).find("another bake's"), std::string::npos)
+                << other.start().not_resumed.at(output);
+        }
+        if (std::find(refused.begin(), refused.end(), "lightmap") != refused.end()) {
+            EXPECT_EQ(other.passes("lightmap").front(), 1);
+        }
+    }
+}
+
+// A resumed run of another seed ends with the pixels of a fresh bake of
+// that seed; a damaged state is refused the same way.
 TEST_F(Resume, AStateOfAnotherBakeIsNotRestored) {
-    job.settings.lightmap->stop.passes = 24;
-    job.settings.sh.reset();
-    job.settings.probes.reset();
+    job.settings.output("lightmap")->values["passes"] = 24;
+    job.settings.outputs.erase("sh");
+    job.settings.outputs.erase("probes");
     job.out = root / "seed5";
     ASSERT_FALSE(bake(job, "lightmap", 6).done);
 
-    // The same directory asked to bake with another seed: its saved state is
-    // another bake's, so the bake starts from pass 0 and says why.
     job.settings.seed = 6;
     job.resume = true;
     const BakeRun other = bake(job);
@@ -362,7 +439,6 @@ TEST_F(Resume, AStateOfAnotherBakeIsNotRestored) {
     ASSERT_TRUE(bake(fresh).done);
     EXPECT_TRUE(same_file(job.out / "lightmap.exr", fresh.out / "lightmap.exr"));
 
-    // A damaged state is refused the same way.
     fs::create_directories(job.out / protocol::kResumeDir);
     write_bytes(job.out / protocol::kResumeDir / "lightmap.state", "LFSTATE1 and then nothing sensible");
     const BakeRun damaged = bake(job);

@@ -858,6 +858,33 @@ TEST(ApplyWorkerEvent, TheDoneFractionIncludesPreparation) {
     EXPECT_FALSE(protocol::done_fraction(protocol::Progress{})) << "no fraction claimed before the ETA is known";
 }
 
+// Every output of the registry, alone and beside every other, gets its
+// ETA from its own stop rule (a probes job showed 0% and no ETA until it
+// ended: the server knew the lightmap's and SH's stop settings only).
+TEST(ApplyWorkerEvent, EveryOutputGetsAnEtaFromItsOwnStopRule) {
+    json all = json::object();
+    for (const protocol::OutputKind& o : protocol::output_registry()) all[o.name] = json::object();
+    for (const protocol::OutputKind& o : protocol::output_registry()) {
+        SCOPED_TRACE(o.name);
+        const std::string passes = o.stop_prefix + "passes";
+        ASSERT_TRUE(protocol::find_setting(o.name, passes)) << "its stop settings are in the catalog";
+        for (json outputs : {json{{o.name, json::object()}}, all}) {
+            outputs[o.name] = {{passes, 40}};
+            if (o.name == "probes") outputs[o.name]["probe_positions"] = json::array({{{"position", {0, 0, 0}}}});
+            const protocol::BakeSettings bake =
+                protocol::parse_bake_settings({{"outputs", outputs}, {"env", {1, 1, 1}}});
+            protocol::ProgressEvent p{o.name, {}};
+            p.progress.pass = 10;
+            p.progress.seconds = 2.0;
+            const server::AttemptUpdate u = server::apply_worker_event({}, p, bake, "job1", 1);
+            ASSERT_TRUE(u.progress);
+            ASSERT_TRUE(u.progress->eta_seconds);
+            EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 0.2 * 30);  // 30 passes of 0.2 s left
+            ASSERT_TRUE(protocol::done_fraction(*u.progress));
+        }
+    }
+}
+
 TEST(ApplyWorkerEvent, ProgressGetsTheEtaOfItsOwnOutputAndCountsRaysPerOutput) {
     const protocol::BakeSettings bake = lightmap_and_sh();
     protocol::ProgressEvent p{"lightmap", {}};

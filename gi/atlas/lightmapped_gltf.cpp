@@ -356,15 +356,14 @@ int add_default_lambertian_material(tinygltf::Model& model) {
     return int(model.materials.size() - 1);
 }
 
-// The lightmap as an embedded PNG texture (linear filtering, clamped: RGBM
-// is not sRGB), applied with MOZ_lightmap to the materials of `primitives`.
-void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
-                    const protocol::RgbmImage& lightmap) {
-    // Its strips compressed on every core (protocol/png.h).
-    const std::string png = protocol::rgbm_png(
-        lightmap, [](size_t strips, const std::function<void(size_t)>& strip) { parallel_for(strips, 1, strip); });
+// A PNG's strips compressed on every core (protocol/png.h).
+void png_strips_in_parallel(size_t strips, const std::function<void(size_t)>& strip) { parallel_for(strips, 1, strip); }
+
+// An embedded PNG texture (linear filtering, clamped: baked maps are linear,
+// not sRGB, and end at their charts); returns its texture index.
+int add_png_texture(tinygltf::Model& model, const std::string& png, const std::string& name) {
     tinygltf::Image image;
-    image.name = "lightmap (RGBM)";
+    image.name = name;
     image.mimeType = "image/png";
     image.bufferView = append_view(model, std::vector<unsigned char>(png.begin(), png.end()), 0);
     model.images.push_back(image);
@@ -377,13 +376,11 @@ void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitiv
     texture.source = int(model.images.size() - 1);
     texture.sampler = int(model.samplers.size() - 1);
     model.textures.push_back(texture);
+    return int(model.textures.size() - 1);
+}
 
-    tinygltf::Value::Object extras{{"encoding", tinygltf::Value(std::string("RGBM"))},
-                                   {"rgbm_range", tinygltf::Value(double(lightmap.range))}};
-    tinygltf::Value::Object extension{{"index", tinygltf::Value(int(model.textures.size() - 1))},
-                                      {"texCoord", tinygltf::Value(1)},
-                                      {"intensity", tinygltf::Value(M_PI)},
-                                      {"extras", tinygltf::Value(extras)}};
+// The materials of `primitives`, a default one given to those without.
+std::set<int> materials_of(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives) {
     int default_material = -1;
     std::set<int> materials;
     for (tinygltf::Primitive* primitive : primitives) {
@@ -393,14 +390,46 @@ void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitiv
         }
         materials.insert(primitive->material);
     }
-    for (int m : materials) model.materials[size_t(m)].extensions["MOZ_lightmap"] = tinygltf::Value(extension);
+    return materials;
+}
+
+// The lightmap applied with MOZ_lightmap to the materials of `primitives`.
+void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+                    const protocol::RgbmImage& lightmap) {
+    const int texture = add_png_texture(model, protocol::rgbm_png(lightmap, png_strips_in_parallel), "lightmap (RGBM)");
+    tinygltf::Value::Object extras{{"encoding", tinygltf::Value(std::string("RGBM"))},
+                                   {"rgbm_range", tinygltf::Value(double(lightmap.range))}};
+    tinygltf::Value::Object extension{{"index", tinygltf::Value(texture)},
+                                      {"texCoord", tinygltf::Value(1)},
+                                      {"intensity", tinygltf::Value(M_PI)},
+                                      {"extras", tinygltf::Value(extras)}};
+    for (int m : materials_of(model, primitives))
+        model.materials[size_t(m)].extensions["MOZ_lightmap"] = tinygltf::Value(extension);
     use_extension(model, "MOZ_lightmap");
+}
+
+// Ambient occlusion as the core occlusionTexture of the materials of `primitives`.
+void embed_occlusion(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+                     const GreyImage& occlusion) {
+    std::vector<uint8_t> rgb(occlusion.values.size() * 3);
+    for (size_t i = 0; i < occlusion.values.size(); ++i)
+        rgb[3 * i] = rgb[3 * i + 1] = rgb[3 * i + 2] = occlusion.values[i];
+    const std::string png =
+        protocol::encode_png(rgb.data(), occlusion.width, occlusion.height, 3, png_strips_in_parallel);
+    const int texture = add_png_texture(model, png, "ambient occlusion");
+    for (int m : materials_of(model, primitives)) {
+        tinygltf::OcclusionTextureInfo& info = model.materials[size_t(m)].occlusionTexture;
+        info = tinygltf::OcclusionTextureInfo();
+        info.index = texture;
+        info.texCoord = 1;
+        info.strength = 1.0;
+    }
 }
 
 // write_glb_with_vertex_attributes, and the lightmap embedded when given.
 void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                const std::vector<std::vector<VertexAttribute>>& per_instance, const std::filesystem::path& out_glb,
-               bool unlit_materials, const protocol::RgbmImage* lightmap) {
+               bool unlit_materials, const LitSceneMaps& maps) {
     if (per_instance.size() != scene.instances.size())
         fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
                               std::to_string(scene.instances.size()));
@@ -445,7 +474,8 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
             m.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
         use_extension(model, "KHR_materials_unlit");
     }
-    if (lightmap) embed_lightmap(model, baked, *lightmap);
+    if (maps.lightmap) embed_lightmap(model, baked, *maps.lightmap);
+    if (maps.occlusion) embed_occlusion(model, baked, *maps.occlusion);
     write_atomically(model, out_glb);
 }
 
@@ -466,18 +496,18 @@ std::vector<std::vector<VertexAttribute>> lightmap_uvs(const Scene& scene) {
 
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                            const std::filesystem::path& out_glb) {
-    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, nullptr);
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {});
 }
 
-void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const protocol::RgbmImage& lightmap,
+void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const LitSceneMaps& maps,
                    const std::filesystem::path& out_glb) {
-    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, &lightmap);
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, maps);
 }
 
 void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,
                                       const std::vector<std::vector<VertexAttribute>>& per_instance,
                                       const std::filesystem::path& out_glb, bool unlit_materials) {
-    write_glb(source_gltf, scene, per_instance, out_glb, unlit_materials, nullptr);
+    write_glb(source_gltf, scene, per_instance, out_glb, unlit_materials, {});
 }
 
 }  // namespace lf

@@ -24,16 +24,33 @@ namespace lf {
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                            const std::filesystem::path& out_glb);
 
-// scene.lit.glb: write_lightmapped_glb's file with `lightmap` (the final
-// lightmap, RGBM-encoded) embedded as a PNG and applied to every material of
-// the baked primitives with the MOZ_lightmap extension (texCoord 1), the
-// convention three.js-based viewers read:
-//   "MOZ_lightmap": {"index": T, "texCoord": 1, "intensity": pi,
-//                    "extras": {"encoding": "RGBM", "rgbm_range": R}}
-// A viewer shows irradiance E = intensity * R * rgb * a, as three.js's
-// lightMap expects (the texels are E/pi, DESIGN.md "Units"). Primitives
-// without a material get a white, rough, non-metallic one to carry it.
-void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const protocol::RgbmImage& lightmap,
+// An 8-bit grey map (rows from the top), e.g. ambient occlusion.
+struct GreyImage {
+    int width = 0;
+    int height = 0;
+    std::vector<uint8_t> values;  // width * height, linear
+};
+
+// The baked maps scene.lit.glb carries; each is optional.
+struct LitSceneMaps {
+    // The final lightmap, RGBM-encoded: embedded as a PNG and applied to every
+    // material of the baked primitives with the MOZ_lightmap extension
+    // (texCoord 1), the convention three.js-based viewers read:
+    //   "MOZ_lightmap": {"index": T, "texCoord": 1, "intensity": pi,
+    //                    "extras": {"encoding": "RGBM", "rgbm_range": R}}
+    // A viewer shows irradiance E = intensity * R * rgb * a, as three.js's
+    // lightMap expects (the texels are E/pi, DESIGN.md "Units").
+    const protocol::RgbmImage* lightmap = nullptr;
+    // Ambient occlusion: every baked material's core glTF occlusionTexture
+    // (texCoord 1, strength 1; an occlusion texture of the file's own is
+    // replaced), as a PNG whose R = G = B = the occlusion.
+    const GreyImage* occlusion = nullptr;
+};
+
+// scene.lit.glb: write_lightmapped_glb's file with `maps` embedded.
+// Primitives without a material get a white, rough, non-metallic one to
+// carry them.
+void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const LitSceneMaps& maps,
                    const std::filesystem::path& out_glb);
 
 // One float vertex attribute for one primitive instance: `components` (1..4)

@@ -5,10 +5,8 @@
 #include "bake/method_state.h"
 #include "bake/unlit_charts.h"
 #include "atlas/lightmapped_gltf.h"
+#include "bake/output_methods.h"
 #include "bake/prepared_scene.h"
-#include "bake/probes_method.h"
-#include "bake/radiosity_map_method.h"
-#include "bake/sh_transfer_method.h"
 #include "bake/snapshot_writer.h"
 #include "gpu/shader.h"
 #include "io/image_files.h"
@@ -16,12 +14,14 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <functional>
 #include <future>
 #include <map>
 #include <memory>
+#include <optional>
 #include <regex>
 
 namespace lf {
@@ -32,8 +32,6 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
-
-bool needs_atlas(const protocol::BakeSettings& s) { return s.lightmap || (s.sh && s.sh->per_texel); }
 
 // Bytes of memory this machine has available now (MemAvailable), or 0 when unknown.
 uint64_t available_memory() {
@@ -81,8 +79,15 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
     options.resolution = s.atlas.res.value_or(0);
     options.texel_density = float(s.atlas.texel_density.value_or(0.0));
     options.max_resolution = options.auto_max_resolution = s.atlas.max_res.value_or(protocol::kAutoMaxAtlasRes);
-    const double target =
-        s.lightmap && s.lightmap->stop.target_error > 0.0 ? s.lightmap->stop.target_error : kDefaultResolutionBias;
+    // The tightest target error of the per-texel outputs.
+    double target = kDefaultResolutionBias;
+    bool targeted = false;
+    for (const auto& [name, o] : s.outputs) {
+        if (protocol::find_output(name)->domain != protocol::OutputDomain::Texel || o.stop().target_error <= 0.0)
+            continue;
+        target = targeted ? std::min(target, o.stop().target_error) : o.stop().target_error;
+        targeted = true;
+    }
     options.max_border_fraction = float(target / kBiasPerBorderFraction);
     return options;
 }
@@ -95,8 +100,9 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                    const std::function<const Tracer&()>& geometry) {
     const std::string name = p.file.filename().string();
     AtlasOptions options = atlas_options(settings);
-    // Per-texel SH transfer is lit later, by any environment: every chart may receive light.
-    if (!(settings.sh && settings.sh->per_texel))
+    // An atlas output that needs no light (per-texel SH transfer, lit later
+    // by any environment; ambient occlusion) gives every chart its texels.
+    if (settings.atlas_needs_light())
         options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
             const UnlitCharts unlit =
                 find_unlit_charts(p.scene, geometry(), chart, count, settings.env.sky.has_value());
@@ -139,7 +145,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
     p->file = job.scene;
     p->scene = p->timed("load", [&] { return load_scene(job.scene); });
     const protocol::BakeSettings& s = job.settings;
-    if ((s.lightmap || s.probes) && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
+    if (s.needs_light() && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
                              "environment was given (give a uniform sky with --env R,G,B)");
@@ -154,7 +160,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
         if (!p->tracer) p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(bvh.get()); });
         return *p->tracer;
     };
-    if (needs_atlas(s)) {
+    if (s.uses_atlas()) {
         prepare_atlas(*p, s, tracer);
         prepare_texels(*p, s.atlas, tracer());
         if (p->turned.charts > 0) p->timed("bvh_turned", [&] { p->tracer->rewind(*p->atlas_scene); });
@@ -163,12 +169,11 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
     return p;
 }
 
-// Every requested output's method, in the catalog's output order.
+// Every requested output's method, in the registry's order.
 std::vector<std::unique_ptr<ProgressiveMethod>> make_methods(const PreparedScene& p, const protocol::BakeSettings& s) {
     std::vector<std::unique_ptr<ProgressiveMethod>> methods;
-    if (s.lightmap) methods.push_back(std::make_unique<RadiosityMapMethod>(p, s));
-    if (s.sh) methods.push_back(std::make_unique<ShTransferMethod>(p, s));
-    if (s.probes) methods.push_back(std::make_unique<ProbesMethod>(p, s));
+    for (const protocol::OutputKind& output : protocol::output_registry())
+        if (s.output(output.name)) methods.push_back(method_factory(output.name)(p, s));
     return methods;
 }
 
@@ -214,12 +219,26 @@ fs::path finished_path(const fs::path& out, const std::string& output) {
     return resume_dir(out) / (output + ".done.json");
 }
 
-// What a saved state must match to be restored into `method`: its settings
-// (the atlas's included). Not the rest of its description: counts the GPU
-// makes there (texels moved out of geometry) may differ by a few from one
-// device to another; which texel, vertex or probe each entry is, is the
-// state's layout hash, which restore() checks.
-std::string state_key(const ProgressiveMethod& method) { return method.description().at("settings").dump(); }
+// What a saved state of `output` must match to be restored: the output's
+// canonical settings, the atlas's (when the job has one), the seed, the
+// environment and the scene's content (Scene::content_hash: the file and
+// every buffer and image it names). Each of them changes the sums a pass
+// adds to. Not the method's description: counts the GPU makes there (texels
+// moved out of geometry) may differ by a few from one device to another;
+// which texel, vertex or probe each entry is, is the state's layout hash,
+// which restore() checks.
+std::string state_key(const BakeJob& job, const Scene& scene, const std::string& output) {
+    const nlohmann::json settings = protocol::to_json(job.settings);
+    char content[17];
+    std::snprintf(content, sizeof content, "%016llx", static_cast<unsigned long long>(scene.content_hash));
+    nlohmann::json key = {{"output", output},
+                          {"settings", settings["outputs"][output]},
+                          {"seed", settings["seed"]},
+                          {"env", settings.value("env", nlohmann::json())},
+                          {"scene", content}};
+    if (job.settings.uses_atlas()) key["atlas"] = settings["atlas"];
+    return key.dump();
+}
 
 // Where one output of the job starts: from pass 0, from a saved state, or
 // already finished by an earlier run.
@@ -247,9 +266,11 @@ ResumePoint finished_output(const fs::path& out, const fs::path& path, const std
     return point;
 }
 
-// Where `method` resumes from, restored into it; recorded in the start event.
-ResumePoint resume_point(const fs::path& out, ProgressiveMethod& method, protocol::StartEvent& started) {
-    const std::string output = method.output(), key = state_key(method);
+// Where `method` resumes from, restored into it if its saved state's key
+// is `key`; recorded in the start event.
+ResumePoint resume_point(const fs::path& out, ProgressiveMethod& method, const std::string& key,
+                         protocol::StartEvent& started) {
+    const std::string output = method.output();
     try {
         ResumePoint point;
         if (fs::exists(finished_path(out, output))) {
@@ -258,7 +279,7 @@ ResumePoint resume_point(const fs::path& out, ProgressiveMethod& method, protoco
             MethodState state = read_method_state(state_path(out, output));
             if (state.key != key)
                 throw MethodStateMismatch(state_path(out, output).filename().string() +
-                                          " is another bake's (its settings, scene or texels differ)");
+                                          " is another bake's (its settings, seed, environment or scene differ)");
             method.restore(state);
             point.stats = state.stats;
             point.snapshots = std::move(state.files);
@@ -293,9 +314,9 @@ SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state
 // method's state) after a batch of passes and built and written on the
 // writer thread while the passes go on, announced once written (their names
 // appended to `files`).
-PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeEventSink& emit,
+PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs::path& out, const BakeEventSink& emit,
                      std::vector<std::string>& files, const ResumePoint& from) {
-    const std::string output = method.output(), key = state_key(method);
+    const std::string output = method.output();
     const auto start = Clock::now();
     SnapshotSchedule schedule;
     SnapshotWriter writer;
@@ -331,9 +352,9 @@ PassStats run_method(ProgressiveMethod& method, const fs::path& out, const BakeE
 
 // An output's result, kept until the job is done so that a resumed run
 // reuses it rather than baking the output again.
-void save_finished(const fs::path& out, const ProgressiveMethod& method, const PassStats& stats,
+void save_finished(const fs::path& out, const ProgressiveMethod& method, const std::string& key, const PassStats& stats,
                    const std::vector<std::string>& snapshots, const MethodResult& result) {
-    const nlohmann::json done = {{"key", state_key(method)},
+    const nlohmann::json done = {{"key", key},
                                  {"stats", protocol::to_json(stats)},
                                  {"snapshots", snapshots},
                                  {"files", result.files},
@@ -344,7 +365,7 @@ void save_finished(const fs::path& out, const ProgressiveMethod& method, const P
 
 // One output from where it resumes: its passes (unless an earlier run
 // finished it) and its final files, added to `done`; returns its manifest section.
-nlohmann::json bake_output(ProgressiveMethod& m, const ResumePoint& from, const fs::path& out,
+nlohmann::json bake_output(ProgressiveMethod& m, const std::string& key, const ResumePoint& from, const fs::path& out,
                            const BakeEventSink& emit, protocol::DoneEvent& done,
                            std::shared_ptr<const FloatImage>& final_image) {
     std::vector<std::string> snapshots = from.snapshots;
@@ -353,9 +374,9 @@ nlohmann::json bake_output(ProgressiveMethod& m, const ResumePoint& from, const 
     if (result) {
         emit(protocol::ProgressEvent{m.output(), last});
     } else {
-        last = run_method(m, out, emit, snapshots, from);
+        last = run_method(m, key, out, emit, snapshots, from);
         result = m.finish(out, last);
-        save_finished(out, m, last, snapshots, *result);
+        save_finished(out, m, key, last, snapshots, *result);
     }
     done.files.insert(done.files.end(), snapshots.begin(), snapshots.end());
     done.final_files[m.output()] = result->files.front();
@@ -365,22 +386,48 @@ nlohmann::json bake_output(ProgressiveMethod& m, const ResumePoint& from, const 
     return std::move(result->manifest);
 }
 
-// scene.lit.glb from the final lightmap: its RGB (irradiance/pi), RGBM-encoded.
-// `lightmap` is the final image where the method still held it, else (an
-// output an earlier run finished) it is read from the file.
-void write_lit_scene(const BakeJob& job, const Scene& atlas_scene, const fs::path& lightmap_exr,
-                     std::shared_ptr<const FloatImage> lightmap) {
-    if (!lightmap) lightmap = std::make_shared<const FloatImage>(read_exr(lightmap_exr));
-    const FloatImage& image = *lightmap;
-    const auto &r = image.at("R"), &g = image.at("G"), &b = image.at("B");
-    std::vector<float> rgb(r.size() * 3);
-    for (size_t i = 0; i < r.size(); ++i) {
-        rgb[3 * i] = r[i];
-        rgb[3 * i + 1] = g[i];
-        rgb[3 * i + 2] = b[i];
+// The final image of `output`: the one its method still held, else (an
+// output an earlier run finished) read from its file.
+FloatImage final_image(const fs::path& file, std::shared_ptr<const FloatImage> held) {
+    return held ? *held : read_exr(file);
+}
+
+// scene.lit.glb from the final images of the outputs that have a place in
+// it (protocol::OutputKind::lit_scene_slot): the lightmap's RGB
+// (irradiance/pi) RGBM-encoded, the occlusion's R as 8 bits. Returns
+// whether it was written (some output had a slot), and what it holds.
+std::optional<std::string> write_lit_scene(const BakeJob& job, const Scene& atlas_scene,
+                                           const protocol::DoneEvent& done,
+                                           const std::map<std::string, std::shared_ptr<const FloatImage>>& held) {
+    std::optional<protocol::RgbmImage> lightmap;
+    std::optional<GreyImage> occlusion;
+    std::string holds;
+    for (const protocol::OutputKind& o : protocol::output_registry()) {
+        const auto file = done.final_files.find(o.name);
+        if (o.lit_scene_slot.empty() || file == done.final_files.end()) continue;
+        const FloatImage image = final_image(job.out / file->second, held.at(o.name));
+        const std::vector<float>& r = image.at("R");
+        if (o.lit_scene_slot == "lightmap") {
+            const auto &g = image.at("G"), &b = image.at("B");
+            std::vector<float> rgb(r.size() * 3);
+            for (size_t i = 0; i < r.size(); ++i) {
+                rgb[3 * i] = r[i];
+                rgb[3 * i + 1] = g[i];
+                rgb[3 * i + 2] = b[i];
+            }
+            lightmap = protocol::encode_rgbm(rgb, image.width, image.height);
+            holds += ", the final lightmap (MOZ_lightmap, RGBM PNG; see README)";
+        } else if (o.lit_scene_slot == "occlusion") {
+            occlusion = GreyImage{image.width, image.height, std::vector<uint8_t>(r.size())};
+            for (size_t i = 0; i < r.size(); ++i)
+                occlusion->values[i] = uint8_t(std::lround(255.0f * std::clamp(r[i], 0.0f, 1.0f)));
+            holds += ", the ambient occlusion (occlusionTexture on TEXCOORD_1)";
+        }
     }
-    write_lit_glb(job.scene, atlas_scene, protocol::encode_rgbm(rgb, image.width, image.height),
+    if (holds.empty()) return std::nullopt;
+    write_lit_glb(job.scene, atlas_scene, {lightmap ? &*lightmap : nullptr, occlusion ? &*occlusion : nullptr},
                   job.out / "scene.lit.glb");
+    return "scene.lightmapped.glb with" + holds.substr(1);
 }
 
 }  // namespace
@@ -401,9 +448,11 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     for (const auto& m : methods) started.outputs[m->output()] = m->description();
     // Each output from where an interrupted run of this job left it; a
     // fresh run first drops any state an older run left behind.
+    std::vector<std::string> keys;
+    for (const auto& m : methods) keys.push_back(state_key(job, prepared->scene, m->output()));
     std::vector<ResumePoint> resumed(methods.size());
     if (job.resume)
-        for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], started);
+        for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], keys[i], started);
     else fs::remove_all(resume_dir(job.out));
     emit(started);
     // The geometry a viewer needs to show the lightmap's snapshots on the
@@ -433,23 +482,20 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     for (size_t i = 0; i < methods.size(); ++i) {
         manifest["prepared"]["outputs"].push_back(methods[i]->output());
         manifest[methods[i]->output()] =
-            bake_output(*methods[i], resumed[i], job.out, emit, done, final_images[methods[i]->output()]);
+            bake_output(*methods[i], keys[i], resumed[i], job.out, emit, done, final_images[methods[i]->output()]);
     }
+    std::optional<std::string> lit_scene;
     if (prepared->atlas_scene) {
         done.files.push_back("scene.lightmapped.glb");
-        if (const auto lightmap = done.final_files.find("lightmap"); lightmap != done.final_files.end()) {
-            write_lit_scene(job, *prepared->atlas_scene, job.out / lightmap->second, final_images["lightmap"]);
-            done.files.push_back("scene.lit.glb");
-        }
+        lit_scene = write_lit_scene(job, *prepared->atlas_scene, done, final_images);
+        if (lit_scene) done.files.push_back("scene.lit.glb");
     }
     done.files.push_back("manifest.json");
     manifest["files"] = describe_files(done.files, manifest);
     manifest["files"]["manifest.json"] = "this file; its \"settings\" are a spec for `lightfarm bake --spec`";
     if (prepared->atlas_scene)
         manifest["files"]["scene.lightmapped.glb"] = "the input scene with TEXCOORD_1 = the lightmap's UVs";
-    if (done.final_files.count("lightmap"))
-        manifest["files"]["scene.lit.glb"] =
-            "scene.lightmapped.glb with the final lightmap embedded (MOZ_lightmap, RGBM PNG; see README)";
+    if (lit_scene) manifest["files"]["scene.lit.glb"] = *lit_scene;
     write_file_atomic(job.out / "manifest.json", manifest.dump(2) + "\n");
     fs::remove_all(resume_dir(job.out));  // the job is done: nothing to resume
     emit(done);

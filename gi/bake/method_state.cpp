@@ -45,21 +45,6 @@ nlohmann::json header_of(const MethodState& s) {
 
 }  // namespace
 
-uint64_t hash_bytes(const void* data, size_t bytes, uint64_t seed) {
-    constexpr uint64_t kPrime = 0x100000001b3ull;
-    const auto* p = static_cast<const unsigned char*>(data);
-    uint64_t h = seed;
-    size_t i = 0;
-    for (; i + 8 <= bytes; i += 8) {
-        uint64_t word;
-        std::memcpy(&word, p + i, 8);
-        h = (h ^ word) * kPrime;
-        h ^= h >> 29;  // FNV's multiply only moves bits up: fold the high ones down
-    }
-    for (; i < bytes; ++i) h = (h ^ p[i]) * kPrime;
-    return h;
-}
-
 void write_method_state(const fs::path& path, const MethodState& state) {
     fs::create_directories(path.parent_path());
     write_file_atomic(path, [&](std::ostream& out) {

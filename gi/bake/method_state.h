@@ -15,6 +15,7 @@
 #pragma once
 
 #include "bake/progressive.h"
+#include "util/hash.h"
 #include "gpu/shader.h"
 
 #include <nlohmann/json.hpp>
@@ -57,13 +58,6 @@ void write_method_state(const std::filesystem::path& path, const MethodState& st
 // Throws MethodStateMismatch (naming the file) for a file that is not a
 // complete state.
 MethodState read_method_state(const std::filesystem::path& path);
-
-// A 64-bit hash of bytes (FNV-1a over 8-byte words): layouts and checksums.
-uint64_t hash_bytes(const void* data, size_t bytes, uint64_t seed = 0xcbf29ce484222325ull);
-template <class T>
-uint64_t hash_vector(const std::vector<T>& v, uint64_t seed = 0xcbf29ce484222325ull) {
-    return hash_bytes(v.data(), v.size() * sizeof(T), seed);
-}
 
 // A GPU buffer's bytes (on the GL thread), and back: restore_buffers
 // uploads a state's buffers into a method's (named, for the message) once

@@ -25,14 +25,7 @@ double seconds_since(Clock::time_point start) { return std::chrono::duration<dou
 // Captures probes at `points` for `passes` passes, not downsampled (M = R).
 ProbeSet capture(const PreparedScene& prepared, const std::vector<glm::vec3>& points, int r, int passes, uint32_t seed,
                  PassStats* stats) {
-    protocol::BakeSettings settings;
-    protocol::ProbesSettings probes;
-    for (const glm::vec3& p : points) probes.positions.push_back({p.x, p.y, p.z});
-    probes.res = r;
-    probes.m = r;
-    settings.probes = probes;
-    settings.seed = seed;
-    ProbesMethod method(prepared, settings);
+    ProbesMethod method(prepared, probes_at(points, r, r, seed));
     for (int p = 0; p < passes; ++p) *stats = method.step();
     return method.probe_set();
 }

@@ -17,12 +17,30 @@ uint64_t capture_texels(size_t probes, int r) { return uint64_t(probes) * 6u * u
 
 }  // namespace
 
-std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::ProbesSettings& settings,
-                                           float* spacing) {
+ProbesSettings ProbesSettings::from(const protocol::OutputSettings& o) {
+    ProbesSettings p;
+    for (const nlohmann::json& point : o.values.at("probe_positions"))
+        p.positions.emplace_back(point["position"][0].get<float>(), point["position"][1].get<float>(),
+                                 point["position"][2].get<float>());
+    p.spacing = o.number_or_auto("probe_spacing");
+    p.res = o.integer("probe_res");
+    p.m = o.integer("probe_m");
+    return p;
+}
+
+protocol::BakeSettings probes_at(const std::vector<glm::vec3>& points, int r, int m, uint32_t seed) {
+    nlohmann::json positions = nlohmann::json::array();
+    for (const glm::vec3& p : points) positions.push_back({{"position", {p.x, p.y, p.z}}});
+    return protocol::parse_bake_settings(
+        {{"outputs", {{"probes", {{"probe_positions", positions}, {"probe_res", r}, {"probe_m", m}}}}},
+         {"seed", seed}});
+}
+
+std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const ProbesSettings& settings, float* spacing) {
     *spacing = 0.0f;
     std::vector<glm::vec3> points;
     if (!settings.positions.empty()) {
-        for (const auto& p : settings.positions) points.emplace_back(p[0], p[1], p[2]);
+        points = settings.positions;
         return points;
     }
     if (!scene.probe_points.empty()) return scene.probe_points;  // the file's nodes marked lightfarm_probe
@@ -48,8 +66,8 @@ std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const protocol::P
 
 ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
     : prepared_(prepared),
-      settings_(*settings.probes),
-      stop_(stop_rule_from(settings.probes->stop)),
+      settings_(ProbesSettings::from(*settings.output("probes"))),
+      stop_(stop_rule_from(settings.output("probes")->stop())),
       seed_(settings.seed),
       shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
       surface_textures_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene) {

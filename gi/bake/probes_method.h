@@ -18,12 +18,27 @@
 #include "bake/scene_shading.h"
 #include "bake/surface_textures.h"
 #include "bake_settings.h"
+
+#include <optional>
 #include "gpu/shader.h"
 #include "probes/probe_set.h"
 
 #include <vector>
 
 namespace lf {
+
+// The probes output's settings (the catalog's "probes" group) as the method runs them.
+struct ProbesSettings {
+    std::vector<glm::vec3> positions;  // explicit reference points; empty: a grid
+    std::optional<double> spacing;     // grid spacing in metres; empty: auto (from the scene's extent)
+    int res = 0;                       // R: capture texels per cube face side
+    int m = 0;                         // M: texels per face side after downsampling (divides R)
+    static ProbesSettings from(const protocol::OutputSettings& settings);
+};
+
+// A job's settings for probes at `points` only, captured at R = `r` and
+// downsampled to `m`, the catalog's defaults for the rest (tests and benches).
+protocol::BakeSettings probes_at(const std::vector<glm::vec3>& points, int r, int m, uint32_t seed = 1);
 
 class ProbesMethod : public ProgressiveMethod {
 public:
@@ -50,7 +65,7 @@ public:
 
     // The reference points a job's settings place in a scene (explicit, or
     // the grid), before validity is known. Public for tests.
-    static std::vector<glm::vec3> place(const Scene& scene, const protocol::ProbesSettings& settings, float* spacing);
+    static std::vector<glm::vec3> place(const Scene& scene, const ProbesSettings& settings, float* spacing);
 
     // The set as captured so far (reads the GPU's accumulators back).
     ProbeSet probe_set() const { return probe_set(texels_.read<glm::vec4>()); }
@@ -61,7 +76,7 @@ private:
     ProbeSet probe_set(const std::vector<glm::vec4>& accumulators) const;
     uint64_t state_layout() const { return hash_vector(positions_, uint64_t(settings_.res)); }
     const PreparedScene& prepared_;
-    protocol::ProbesSettings settings_;
+    ProbesSettings settings_;
     StopRule stop_;
     uint32_t seed_;
     glm::vec3 background_{0.0f};

@@ -26,7 +26,7 @@ struct MethodState;  // bake/method_state.h
 using PassStats = protocol::Progress;
 
 struct StopRule {
-    int max_passes = 256;
+    int max_passes = 0;         // the settings say (stop_rule_from): no default of its own
     double target_error = 0.0;  // stop once error_estimate <= this (0 = never)
     double time_limit = 0.0;    // seconds (0 = none)
     int min_passes = 4;         // an error estimate from fewer passes is not trusted

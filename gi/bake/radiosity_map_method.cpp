@@ -38,29 +38,30 @@ std::vector<SeamEdge> smooth_seams(const Scene& scene) {
 }  // namespace
 
 RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) {
-    const protocol::LightmapSettings& l = *settings.lightmap;
+    const protocol::OutputSettings& l = *settings.output("lightmap");
     RadiosityMapSettings r;
-    r.scheme = parse_radiosity_scheme(l.scheme);
-    r.light_samples = l.light_samples;
-    r.light_sampling = parse_light_sampling(l.light_sampling);
+    r.scheme = parse_radiosity_scheme(l.choice("scheme"));
+    r.light_samples = l.integer("light_samples");
+    r.light_sampling = parse_light_sampling(l.choice("light_sampling"));
     r.seed = settings.seed;
     if (settings.env.sky)
         r.background = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     // Adaptive sampling: a texel well below the target stops tracing.
-    if (l.stop.target_error > 0.0) r.converged_texel_error = 0.5 * l.stop.target_error;
-    r.directional = l.directional;
-    r.passes_per_dispatch = l.passes_per_dispatch.value_or(0);
+    if (l.stop().target_error > 0.0) r.converged_texel_error = 0.5 * l.stop().target_error;
+    r.directional = l.flag("directional");
+    r.passes_per_dispatch = l.integer_or_auto("passes_per_dispatch").value_or(0);
     return r;
 }
 
 RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
     : prepared_(prepared),
-      stop_(stop_rule_from(settings.lightmap->stop)),
+      stop_(stop_rule_from(settings.output("lightmap")->stop())),
       baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer, radiosity_settings(settings)),
       seams_(smooth_seams(*prepared.atlas_scene)) {
-    if (settings.lightmap->stitch && !seams_.empty())
+    const protocol::OutputSettings& lightmap = *settings.output("lightmap");
+    if (lightmap.flag("stitch") && !seams_.empty())
         stitcher_.emplace(seams_, prepared.atlas.width, prepared.atlas.height);
-    if (settings.lightmap->denoise) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
+    if (lightmap.flag("denoise")) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
     const RadiosityMapSettings r = radiosity_settings(settings);
     settings_json_ = {
         {"method", "radiosity_map"},
@@ -69,9 +70,9 @@ RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const prot
         {"light_samples", r.light_samples},
         {"light_sampling", to_string(r.light_sampling)},
         {"subsamples_per_texel", settings.atlas.subsamples * settings.atlas.subsamples},
-        {"stitch", settings.lightmap->stitch},
-        {"denoise", settings.lightmap->denoise},
-        {"directional", settings.lightmap->directional},
+        {"stitch", lightmap.flag("stitch")},
+        {"denoise", lightmap.flag("denoise")},
+        {"directional", lightmap.flag("directional")},
         {"seed", r.seed},
         {"max_passes", stop_.max_passes},
         {"target_error", stop_.target_error},

@@ -108,14 +108,25 @@ FloatImage sh_texel_image(const TexelSamples& texels, const ShTexelReceivers& re
     return image;
 }
 
+ShSettings ShSettings::from(const protocol::OutputSettings& o) {
+    ShSettings sh;
+    sh.bands = o.integer_or_auto("sh_bands");
+    sh.bounces = o.integer("sh_bounces");
+    sh.window = o.choice("sh_window");
+    sh.occluders = o.values.at("sh_occluders").get<std::vector<int>>();
+    sh.receivers = o.values.at("sh_receivers").get<std::vector<int>>();
+    sh.per_texel = o.flag("sh_per_texel");
+    return sh;
+}
+
 namespace {
 
-ShTransferSettings transfer_settings(const protocol::BakeSettings& settings) {
+ShTransferSettings transfer_settings(const ShSettings& sh, uint32_t seed) {
     ShTransferSettings t;
-    t.bounces = settings.sh->bounces;
-    t.seed = settings.seed;
-    t.occluder_meshes = settings.sh->occluders;
-    t.receiver_meshes = settings.sh->receivers;
+    t.bounces = sh.bounces;
+    t.seed = seed;
+    t.occluder_meshes = sh.occluders;
+    t.receiver_meshes = sh.receivers;
     return t;
 }
 
@@ -131,7 +142,7 @@ std::optional<Environment> sh_environment(const protocol::EnvironmentSetting& en
 }
 
 // Occluder and receiver sets name glTF meshes: every one must be drawn.
-void check_mesh_sets(const PreparedScene& prepared, const protocol::ShSettings& sh) {
+void check_mesh_sets(const PreparedScene& prepared, const ShSettings& sh) {
     std::set<int> meshes;
     for (const PrimitiveInstance& i : prepared.scene.instances) meshes.insert(i.mesh);
     for (const auto& [field, list] :
@@ -147,11 +158,11 @@ void check_mesh_sets(const PreparedScene& prepared, const protocol::ShSettings& 
 
 ShTransferMethod::ShTransferMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
     : prepared_(prepared),
-      settings_(*settings.sh),
-      transfer_(transfer_settings(settings)),
-      stop_(stop_rule_from(settings.sh->stop)),
+      settings_(ShSettings::from(*settings.output("sh"))),
+      transfer_(transfer_settings(settings_, settings.seed)),
+      stop_(stop_rule_from(settings.output("sh")->stop())),
       environment_(sh_environment(settings.env)),
-      window_(parse_sh_window(settings.sh->window)),
+      window_(parse_sh_window(settings_.window)),
       subsamples_(settings.atlas.subsamples) {
     check_mesh_sets(prepared, settings_);
     // Per texel: the atlas's texel sample points are extra receivers of the same baker.

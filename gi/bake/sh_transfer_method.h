@@ -44,6 +44,16 @@ ShTexelReceivers sh_texel_receivers(const Scene& atlas_scene, const TexelSamples
 FloatImage sh_texel_image(const TexelSamples& texels, const ShTexelReceivers& receivers,
                           const std::vector<ShCoefficients>& point_transfer, int bands);
 
+// The SH output's settings (the catalog's "sh" group) as the method runs them.
+struct ShSettings {
+    std::optional<int> bands;  // empty: auto
+    int bounces = 0;
+    std::string window;
+    std::vector<int> occluders, receivers;  // glTF mesh indices, empty = all
+    bool per_texel = false;
+    static ShSettings from(const protocol::OutputSettings& settings);
+};
+
 // The SH output of a bake job. Writes:
 //   scene.sh.glb                the input with _SH_TRANSFER_k attributes
 //   sh_transfer.bin             float32 coefficients (format: gi/sh/transfer_file.h)
@@ -77,7 +87,7 @@ private:
     FloatImage texel_image(const ShVertexTransfer& t, int bands, const PassStats& s) const;
 
     const PreparedScene& prepared_;
-    protocol::ShSettings settings_;
+    ShSettings settings_;
     ShTransferSettings transfer_;
     StopRule stop_;
     std::optional<Environment> environment_;

@@ -114,7 +114,7 @@ std::string without_exception_tag(const std::string& message) {
 Document read_document(const fs::path& file, const LoadLimits& limits, const Errors& errors, SceneFiles& files) {
     Document doc;
     doc.bytes = read_file_limited(file, files.remaining(), errors, "");
-    files.charge(doc.bytes.size());
+    files.charge(doc.bytes);
     if (doc.bytes.empty()) errors.fail("file is empty (0 bytes), not a glTF or GLB file");
 
     const bool glb_magic = doc.bytes.size() >= 4 && read_u32(doc.bytes, 0) == kGlbMagic;

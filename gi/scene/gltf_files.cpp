@@ -279,7 +279,7 @@ bool SceneFiles::read_whole_file(std::vector<unsigned char>* out, std::string* e
         if (err) *err = why + " (remaining byte budget of the scene)";
         return false;
     }
-    self.charge(out->size());
+    self.charge(*out);
     return true;
 }
 

@@ -13,6 +13,7 @@
 #pragma once
 
 #include "scene/gltf_errors.h"
+#include "util/hash.h"
 
 #include <tiny_gltf.h>
 
@@ -72,7 +73,13 @@ public:
 
     // Bytes the budget still allows; the scene file itself is charged by the caller.
     uint64_t remaining() const { return budget_; }
-    void charge(uint64_t bytes) { budget_ -= std::min(budget_, bytes); }
+    // Charges a file's bytes to the budget and adds them to the content hash.
+    void charge(const std::vector<unsigned char>& bytes) {
+        budget_ -= std::min<uint64_t>(budget_, bytes.size());
+        content_hash_ = hash_bytes(bytes.data(), bytes.size(), content_hash_ * 31 + bytes.size());
+    }
+    // A hash of every byte read so far, file by file (Scene::content_hash).
+    uint64_t content_hash() const { return content_hash_; }
 
     // Callbacks for tinygltf::TinyGLTF::SetFsCallbacks; `this` must outlive the load.
     tinygltf::FsCallbacks callbacks();
@@ -87,6 +94,7 @@ private:
     fs::path scene_dir_;
     std::string base_dir_;
     uint64_t budget_;
+    uint64_t content_hash_ = kHashSeed;
     // tinygltf's path string (base_dir joined with its own decoding of the URI) -> approved file.
     std::map<std::string, fs::path> approved_;
 };

@@ -101,6 +101,7 @@ Scene load_scene(const std::filesystem::path& file, const LoadLimits& limits) {
     Scene scene;
     scene.source = file.string();
     scene.warnings = std::move(doc.warnings);
+    scene.content_hash = files.content_hash();
     const uint64_t max_elements = std::min<uint64_t>(3 * limits.max_triangles, std::numeric_limits<uint32_t>::max());
     const AccessorReader reader(model, errors, max_elements);
     reader.check_buffer_views();

@@ -119,6 +119,9 @@ struct Scene {
     std::vector<glm::vec3> probe_points;
 
     Bounds bounds;
+    // A hash of the bytes the scene was loaded from (the file and every
+    // buffer and image it names): two loads bake the same exactly when equal.
+    uint64_t content_hash = 0;
     // Things the user should know that do not make the file invalid
     // ("no light source", "no geometry with area", ignored extensions).
     std::vector<std::string> warnings;
