@@ -114,6 +114,15 @@ std::vector<Setting> build_catalog() {
         number("probes", "probe_time_limit", 0, 0, false, 1e7, "time_limit",
                "stop after this many seconds of passes (0: none)"),
 
+        with_auto(number("ao", "ao_distance", 0, 0, true, 1e6, "",
+                         "how far a surface occludes, in metres (auto: a tenth of the scene's largest extent)")),
+        integer("ao", "ao_passes", 256, 1, kMaxPasses, "passes",
+                "stop after this many passes of one ray per sample point"),
+        number("ao", "ao_target_error", 0, 0, false, 1e3, "",
+               "stop when the occlusion's relative standard error falls below this (0: no target)"),
+        number("ao", "ao_time_limit", 0, 0, false, 1e7, "time_limit",
+               "stop after this many seconds of passes (0: none)"),
+
         with_auto(
             integer("atlas", "res", 0, 1, 16384, "res",
                     "atlas width and height in texels (auto: from texel_density, or from the scene's charts and the "

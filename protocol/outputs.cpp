@@ -43,7 +43,16 @@ std::vector<OutputKind> build_registry() {
     probes.files = {
         {"probes.json", json}, {"probes.exr", exr}, {"probes.pass-NNNN.json", json}, {"probes.pass-NNNN.exr", exr}};
 
-    return {lightmap, sh, probes};
+    OutputKind ao;
+    ao.name = "ao";
+    ao.help = "ambient occlusion of the atlas (1 in the open, 0 enclosed; glTF's occlusionTexture)";
+    ao.domain = OutputDomain::Texel;
+    ao.stop_prefix = "ao_";
+    ao.pass_unit = "one cosine-weighted ray per sample point";
+    ao.lit_scene_slot = "occlusion";
+    ao.files = {{"ao.exr", exr}, {"ao.pass-NNNN.exr", exr}};
+
+    return {lightmap, sh, probes, ao};
 }
 
 }  // namespace

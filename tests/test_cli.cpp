@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <algorithm>
 #include <chrono>
@@ -532,6 +533,58 @@ TEST(CliOutputs, EveryGlbPassesTheKhronosValidator) {
         << report;
     EXPECT_EQ(std::count(report.begin(), report.end(), '\n'), 4) << report;
     fs::remove_all(out);
+}
+
+// The JSON chunk of a .glb.
+nlohmann::json glb_json(const fs::path& glb) {
+    const std::string bytes = read_file(glb);
+    uint32_t length = 0;
+    std::memcpy(&length, bytes.data() + 12, 4);
+    return nlohmann::json::parse(bytes.substr(20, length));
+}
+
+// The ao output needs no light: a scene without one (and without UVs, so
+// the atlas is generated) bakes it alone, into ao.exr and scene.lit.glb's
+// occlusionTexture on TEXCOORD_1, a valid glb; beside the lightmap, the lit
+// scene carries both, from one atlas.
+TEST(CliBake, AmbientOcclusionBakesWithoutALightIntoTheLitScene) {
+    const fs::path out = fresh_dir("ao");
+    const CliRun alone = run_lightfarm("bake " + test::shared_scene("packuv.glb") +
+                                       " --ao --ao-passes 4 --res 64 --out " + out.string());
+    ASSERT_EQ(alone.exit_code, 0) << alone.err;
+    const FloatImage ao = read_exr(out / "ao.exr");
+    const auto &r = ao.at("R"), &covered = ao.at("covered");
+    size_t surface = 0;
+    for (size_t i = 0; i < r.size(); ++i) {
+        EXPECT_GE(r[i], 0.0f);
+        EXPECT_LE(r[i], 1.0f);
+        surface += covered[i] > 0.5f;
+    }
+    EXPECT_GT(surface, 100u);
+    const nlohmann::json lit = glb_json(out / "scene.lit.glb");
+    ASSERT_FALSE(lit["materials"].empty());
+    for (const nlohmann::json& m : lit["materials"]) {
+        ASSERT_TRUE(m.contains("occlusionTexture")) << m.dump();
+        EXPECT_EQ(m["occlusionTexture"]["texCoord"], 1);
+        EXPECT_LT(m["occlusionTexture"]["index"].get<size_t>(), lit["textures"].size());
+        EXPECT_FALSE(m.contains("extensions") && m["extensions"].contains("MOZ_lightmap")) << "no lightmap was baked";
+    }
+    const nlohmann::json manifest = nlohmann::json::parse(read_file(out / "manifest.json"));
+    EXPECT_TRUE(manifest["files"].contains("ao.exr"));
+    EXPECT_NE(manifest["files"]["scene.lit.glb"].get<std::string>().find("ambient occlusion"), std::string::npos);
+
+    const fs::path both = fresh_dir("ao_and_lightmap");
+    const CliRun lit_too = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") +
+                                         " --lightmap --ao --passes 2 --ao-passes 2 --res 64 --out " + both.string());
+    ASSERT_EQ(lit_too.exit_code, 0) << lit_too.err;
+    for (const nlohmann::json& m : glb_json(both / "scene.lit.glb")["materials"]) {
+        EXPECT_TRUE(m.contains("occlusionTexture")) << m.dump();
+        EXPECT_TRUE(m["extensions"].contains("MOZ_lightmap")) << m.dump();
+    }
+    std::string report;
+    EXPECT_TRUE(khronos_valid({out / "scene.lit.glb", both / "scene.lit.glb"}, report)) << report;
+    fs::remove_all(out);
+    fs::remove_all(both);
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 #include "bake/output_methods.h"
 
+#include "bake/ambient_occlusion_method.h"
 #include "bake/probes_method.h"
 #include "bake/radiosity_map_method.h"
 #include "bake/sh_transfer_method.h"
@@ -22,6 +23,7 @@ MethodFactory method_factory(const std::string& name) {
         {"lightmap", &make<RadiosityMapMethod>},
         {"sh", &make<ShTransferMethod>},
         {"probes", &make<ProbesMethod>},
+        {"ao", &make<AmbientOcclusionMethod>},
     };
     const auto it = factories.find(name);
     return it == factories.end() ? nullptr : it->second;

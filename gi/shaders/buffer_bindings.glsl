@@ -64,6 +64,12 @@
 #define LF_BINDING_SURFACE_POINTS 2  // raybench.comp
 #define LF_BINDING_HIT_COUNTS 3      // raybench.comp
 
+// Ambient occlusion (ambient_occlusion.comp): its parameters
+// (ambient_occlusion_params.glsl), sample points and counts.
+#define LF_BINDING_AO_PARAMS 2
+#define LF_BINDING_AO_POINTS 3
+#define LF_BINDING_AO_UNOCCLUDED 4
+
 // The lightmap denoiser (lightmap_denoise.comp).
 #define LF_BINDING_DENOISE_GUIDE 0
 #define LF_BINDING_DENOISE_IN 1
