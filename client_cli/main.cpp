@@ -276,12 +276,21 @@ private:
     std::string drawing_;
 };
 
+// A --spec file that cannot be read whole (protocol::kExitSpecUnreadable):
+// its writer's trouble, not its settings'.
+struct SpecUnreadable : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
 // `--spec FILE`: a job spec (as the service stores it, or a manifest's "settings").
 nlohmann::json read_spec_file(const std::string& path) {
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) throw UsageError("--spec: cannot read " + path + " (no such file)");
     std::ifstream in(path);
-    if (!in) throw UsageError("--spec: cannot read " + path);
+    if (!in) throw SpecUnreadable("--spec: cannot read " + path);
     nlohmann::json spec = nlohmann::json::parse(in, nullptr, false);
-    if (spec.is_discarded() || !spec.is_object()) throw UsageError("--spec: " + path + " is not a JSON object");
+    if (spec.is_discarded()) throw SpecUnreadable("--spec: " + path + " is not whole JSON (empty, or cut short)");
+    if (!spec.is_object()) throw UsageError("--spec: " + path + " is not a JSON object");
     return spec;
 }
 
@@ -420,6 +429,9 @@ int main(int argc, char** argv) {
     } catch (const UsageError& e) {
         std::cerr << "lightfarm: " << e.what() << "\n(lightfarm --help lists the commands and options)\n";
         return lf::protocol::kExitUsage;
+    } catch (const SpecUnreadable& e) {
+        std::cerr << "lightfarm: " << e.what() << "\n";
+        return lf::protocol::kExitSpecUnreadable;
     } catch (const lf::SceneError& e) {  // the file cannot be loaded: an input error, not a crash
         std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
         return lf::protocol::kExitInputError;

@@ -241,6 +241,9 @@ json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
         return v;
     case SettingType::MeshList: {
         if (!v.is_array()) throw SpecError(field, "must be an array of glTF mesh indices, not " + type_name(v));
+        if (v.size() > kMaxMeshList)
+            throw SpecError(
+                field, std::to_string(v.size()) + " mesh indices exceed the maximum " + std::to_string(kMaxMeshList));
         json out = json::array();
         for (const json& m : v) {
             if (!(m.is_number_integer() || m.is_number_unsigned()) || m.get<int64_t>() < 0 ||

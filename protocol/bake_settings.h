@@ -55,6 +55,10 @@ struct SpecLimits {
     double cap(const std::string& key) const;  // +infinity when absent
 };
 
+// The most entries a list of glTF meshes may hold (a spec is small: a list
+// is bounded like every other value).
+inline constexpr size_t kMaxMeshList = 65536;
+
 enum class SettingType {
     Integer,      // JSON integer; CLI "12"
     Number,       // JSON number; CLI "0.5"

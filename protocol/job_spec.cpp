@@ -1,5 +1,7 @@
 #include "job_spec.h"
 
+#include <algorithm>
+#include <cmath>
 #include <sstream>
 
 namespace lf::protocol {
@@ -22,15 +24,20 @@ std::string number_text(double v) {
     return s.str();
 }
 
-// A job limit: a number in (0, cap] (max_seconds) or an integer in [1, cap] (max_attempts).
+// The shortest deadline an attempt may have: a worker takes longer than
+// this to start, so a shorter one could only fail (three times).
+constexpr double kMinMaxSeconds = 1.0;
+
+// A job limit: a number in [1, cap] seconds (max_seconds) or an integer in [1, cap] (max_attempts).
 double check_limit(const json& v, bool integer, const SpecLimits& limits, const std::string& key) {
     const std::string field = "limits." + key;
     if (!v.is_number() || (integer && !(v.is_number_integer() || v.is_number_unsigned())))
         throw SpecError(field,
                         std::string("must be ") + (integer ? "an integer" : "a number") + ", not " + type_name(v));
     const double x = v.get<double>();
-    if (!(integer ? x >= 1.0 : x > 0.0))
-        throw SpecError(field, std::string("must be ") + (integer ? "at least 1" : "positive"));
+    if (!(integer ? x >= 1.0 : x >= kMinMaxSeconds))
+        throw SpecError(field, std::string("must be at least 1") +
+                                   (integer ? "" : " (seconds: a worker takes longer than that to start)"));
     if (x > limits.cap(key))
         throw SpecError(field, number_text(x) + " exceeds this server's limit " + number_text(limits.cap(key)));
     if (integer && x > 1e6) throw SpecError(field, number_text(x) + " exceeds the maximum 1000000");
@@ -91,6 +98,68 @@ std::string lit_outputs(const BakeSettings& bake) {
 
 }  // namespace
 
+std::array<uint64_t, 3> probe_grid_counts(const std::array<double, 3>& extent, double spacing) {
+    std::array<uint64_t, 3> counts{1, 1, 1};
+    for (int a = 0; a < 3; ++a) {
+        const double n = std::floor(extent[a] / spacing);
+        counts[a] = n >= 1.0 ? (n < 1e9 ? uint64_t(n) : uint64_t(1e9)) : 1;
+    }
+    return counts;
+}
+
+namespace {
+
+// Mesh indices the scene does not draw (its summary's "meshes": drawn meshes).
+void check_mesh_lists(const OutputSettings& sh, const SceneSummary& scene, const std::string& name) {
+    if (!scene.details.contains("meshes")) return;
+    const int64_t meshes = scene.details["meshes"].get<int64_t>();
+    for (const char* list : {"sh_occluders", "sh_receivers"})
+        for (const json& m : sh.values.at(list))
+            if (m.get<int64_t>() >= meshes)
+                throw SpecError(std::string("sh.") + list, "mesh " + m.dump() + " is not drawn by " + name +
+                                                               " (it has " + std::to_string(meshes) + " meshes: 0 to " +
+                                                               std::to_string(meshes - 1) + ")");
+}
+
+// The probes a job would place: its own points, else (a file without probe
+// nodes) the grid over the scene's bounds; 0 when the summary cannot tell.
+uint64_t probe_count(const OutputSettings& probes, const SceneSummary& scene, std::string* grid) {
+    const size_t given = probes.values.at("probe_positions").size();
+    if (given > 0) return given;
+    const json& d = scene.details;
+    if (!d.contains("probe_nodes") || !d.contains("bounds") || !d["bounds"].is_object()) return 0;
+    if (d["probe_nodes"].get<uint64_t>() > 0) return d["probe_nodes"].get<uint64_t>();
+    std::array<double, 3> extent{};
+    for (int a = 0; a < 3; ++a) extent[a] = d["bounds"]["hi"][a].get<double>() - d["bounds"]["lo"][a].get<double>();
+    const double spacing =
+        probes.number_or_auto("probe_spacing").value_or(std::max({extent[0], extent[1], extent[2]}) / 4.0);
+    if (!(spacing > 0.0)) return 0;
+    const std::array<uint64_t, 3> n = probe_grid_counts(extent, spacing);
+    *grid = std::to_string(n[0]) + " x " + std::to_string(n[1]) + " x " + std::to_string(n[2]);
+    return n[0] * n[1] * n[2];
+}
+
+void check_probes(const OutputSettings& probes, const SceneSummary& scene, const std::string& name) {
+    std::string grid;
+    const uint64_t count = probe_count(probes, scene, &grid);
+    if (count > kMaxProbes)
+        throw SpecError("probes.probe_spacing", "a grid of " + grid + " = " + std::to_string(count) + " probes over " +
+                                                    name + " exceeds the maximum " + std::to_string(kMaxProbes) +
+                                                    "; raise probe_spacing (or leave it auto)");
+    const uint64_t r = uint64_t(probes.integer("probe_res"));
+    if (count * 6 * r * r > kMaxCaptureTexels) {
+        uint64_t fits = 16;
+        while ((fits * 2) * (fits * 2) * 6 * count <= kMaxCaptureTexels) fits *= 2;
+        throw SpecError("probes.probe_res", std::to_string(count) + " probes at probe_res " + std::to_string(r) +
+                                                " are " + std::to_string(count * 6 * r * r) +
+                                                " capture texels, more than " + std::to_string(kMaxCaptureTexels) +
+                                                "; lower probe_res (" + std::to_string(fits) +
+                                                " fits) or place fewer probes");
+    }
+}
+
+}  // namespace
+
 void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scene) {
     const std::string name = scene.source.empty() ? "the scene" : scene.source;
     if (bake.needs_light() && !scene.has_light() && !bake.env.given())
@@ -101,6 +170,13 @@ void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scen
         throw SpecError("atlas.res", std::to_string(*bake.atlas.res) + " is too small for " + name + "'s " +
                                          "generated atlas; the smallest that fits is " +
                                          std::to_string(scene.min_atlas_res) + " (or leave res auto)");
+    if (bake.uses_atlas() && !scene.has_lightmap_uvs && scene.min_atlas_res > 0 && !bake.atlas.res &&
+        bake.atlas.max_res && *bake.atlas.max_res < scene.min_atlas_res)
+        throw SpecError("atlas.max_res", std::to_string(*bake.atlas.max_res) + " is too small for " + name +
+                                             "'s generated atlas; the smallest that fits is " +
+                                             std::to_string(scene.min_atlas_res));
+    if (const OutputSettings* sh = bake.output("sh")) check_mesh_lists(*sh, scene, name);
+    if (const OutputSettings* probes = bake.output("probes")) check_probes(*probes, scene, name);
 }
 
 std::string bake_identity(const JobSpec& spec) {

@@ -15,6 +15,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <array>
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -42,10 +44,21 @@ nlohmann::json to_json(const JobSpec& spec);
 // limits), as canonical JSON text: equal text = equal bake.
 std::string bake_identity(const JobSpec& spec);
 
-// What can be known before a worker runs: a bake that the scene makes
-// impossible (a lightmap with no light and no environment; a generated atlas
-// smaller than the scene's charts need). Throws SpecError naming the field
-// and the fix; `scene_name` is the file as the user uploaded it.
+// Probes: the most a job may place, and the capture texels (probes x 6 x
+// R², 32 bytes each on the GPU) it may ask for.
+inline constexpr uint64_t kMaxProbes = 4096;
+inline constexpr uint64_t kMaxCaptureTexels = uint64_t(1) << 25;
+
+// Probes per axis of a grid of cells `spacing` metres wide over a box of
+// `extent` (each at least 1; saturating, never overflowing). The engine
+// places its grid by it and the server checks a spec by it.
+std::array<uint64_t, 3> probe_grid_counts(const std::array<double, 3>& extent, double spacing);
+
+// What can be known before a worker runs, from the scene's summary: a bake
+// that the scene makes impossible or too large (a lightmap with no light and
+// no environment; a generated atlas smaller than the scene's charts need,
+// by res or by max_res; a mesh index the scene does not draw; a probe grid
+// or capture over the limits). Throws SpecError naming the field and the fix.
 void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scene);
 
 }  // namespace lf::protocol

@@ -29,6 +29,11 @@ enum WorkerExit : int {
     kExitFailure = 1,     // the engine's own trouble: retry
     kExitUsage = 2,       // bad command line or settings
     kExitInputError = 3,  // the scene or the settings cannot be baked (no light, atlas cannot fit, bad file)
+    // The --spec file could not be read, or is not whole JSON (empty, cut
+    // short): the trouble of whoever wrote it (the server, on a full disk),
+    // never the job's settings. The server requeues the job without
+    // counting the attempt.
+    kExitSpecUnreadable = 4,
 };
 inline bool is_input_error_exit(int code) { return code == kExitUsage || code == kExitInputError; }
 

@@ -34,7 +34,7 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
   --lease-seconds S      a job claimed by a node is its for S seconds after each renewal
                          (renewed every S/3); a killed node's job goes to another after
                          at most S (default 30)
-  --limit KEY=VALUE      upload_bytes, triangles, texture_size, queued_jobs,
+  --limit KEY=VALUE      upload_bytes, spec_bytes, triangles, texture_size, queued_jobs, free_disk_bytes,
                          res, passes, time_limit, max_seconds, max_attempts;
                          HTTP: header_seconds, request_seconds, keep_alive_seconds,
                          header_bytes, connections, connections_per_address,
@@ -60,9 +60,11 @@ void set_limit(ServerLimits& limits, const std::string& assignment) {
     const std::string key = assignment.substr(0, eq);
     const double v = parse_number("--limit " + key, assignment.substr(eq + 1));
     if (key == "upload_bytes") limits.upload_bytes = uint64_t(v);
+    else if (key == "spec_bytes") limits.spec_bytes = uint64_t(v);
     else if (key == "triangles") limits.triangles = int64_t(v);
     else if (key == "texture_size") limits.texture_size = int64_t(v);
     else if (key == "queued_jobs") limits.queued_jobs = int(v);
+    else if (key == "free_disk_bytes") limits.free_disk_bytes = uint64_t(v);
     else if (key == "header_seconds") limits.header_seconds = v;
     else if (key == "request_seconds") limits.request_seconds = v;
     else if (key == "keep_alive_seconds") limits.keep_alive_seconds = v;

@@ -11,11 +11,15 @@
 namespace lf::server {
 
 struct ServerLimits {
-    uint64_t upload_bytes = 256ull << 20;  // one request body
+    uint64_t upload_bytes = 256ull << 20;  // one upload's body
+    uint64_t spec_bytes = 1ull << 20;      // any other request's body (a job spec)
     int64_t triangles = 5'000'000;         // per scene, from `lightfarm inspect`
     int64_t texture_size = 8192;           // width or height of any texture
     int queued_jobs = 100;                 // queued jobs per token
-    protocol::SpecLimits spec;             // res, passes, time_limit, max_seconds, max_attempts
+    // Below this much free space on the data directory's disk the server
+    // takes no new work (503) and starts no worker: queued jobs wait.
+    uint64_t free_disk_bytes = 64ull << 20;
+    protocol::SpecLimits spec;  // res, passes, time_limit, max_seconds, max_attempts
 
     // The HTTP layer (docs/service.md, "Slow and idle clients"). A request's
     // line and headers are gathered off the request threads, and must arrive

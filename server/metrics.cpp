@@ -53,6 +53,10 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     m << "# HELP lightfarm_worker_failures_total Worker attempts that crashed, hung or ran out of time.\n";
     m << "# TYPE lightfarm_worker_failures_total counter\n";
     m << "lightfarm_worker_failures_total " << worker_failures.load() << "\n";
+    m << "# HELP lightfarm_server_faults_total Attempts given back to the queue for a fault of this machine (a full "
+         "disk), not counted against the job.\n";
+    m << "# TYPE lightfarm_server_faults_total counter\n";
+    m << "lightfarm_server_faults_total " << server_faults.load() << "\n";
     m << "# HELP lightfarm_rays_total Rays traced by finished passes.\n# TYPE lightfarm_rays_total counter\n";
     m << "lightfarm_rays_total " << rays_total.load() << "\n";
 

@@ -16,6 +16,7 @@ class Metrics {
 public:
     std::atomic<uint64_t> worker_starts{0};
     std::atomic<uint64_t> worker_failures{0};  // attempts that crashed, hung or timed out
+    std::atomic<uint64_t> server_faults{0};    // attempts given back for a fault of this machine (a full disk)
     std::atomic<uint64_t> rays_total{0};
     // The HTTP layer: open connections, those still sending their request
     // line and headers, open event streams.

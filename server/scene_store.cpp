@@ -16,8 +16,40 @@ namespace lf::server {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
+namespace {
+
+// Whether `text` is well-formed UTF-8 without the characters that make a
+// name read other than it is: bidirectional controls (U+061C, U+200E,
+// U+200F, U+202A..U+202E, U+2066..U+2069: "gpj.exe" shown as "exe.jpg").
+std::string text_reason(const std::string& text) {
+    for (size_t i = 0; i < text.size();) {
+        const unsigned char c = static_cast<unsigned char>(text[i]);
+        const int extra = c < 0x80 ? 0 : (c >> 5) == 6 ? 1 : (c >> 4) == 14 ? 2 : (c >> 3) == 30 ? 3 : -1;
+        if (extra < 0 || text.size() - i <= size_t(extra)) return "is not UTF-8";
+        uint32_t code = extra == 0 ? c : c & (0x3f >> extra);
+        for (int k = 1; k <= extra; ++k) {
+            const unsigned char next = static_cast<unsigned char>(text[i + size_t(k)]);
+            if ((next >> 6) != 2) return "is not UTF-8";
+            code = (code << 6) | (next & 0x3f);
+        }
+        if (code == 0x061c || code == 0x200e || code == 0x200f || (code >= 0x202a && code <= 0x202e) ||
+            (code >= 0x2066 && code <= 0x2069))
+            return "contains a bidirectional-text control character (U+" + [&] {
+                char hex[8];
+                std::snprintf(hex, sizeof hex, "%04X", code);
+                return std::string(hex);
+            }() + "), which makes a name read other than it is";
+        i += size_t(extra) + 1;
+    }
+    return "";
+}
+
+}  // namespace
+
 std::string unsafe_path_reason(const std::string& path) {
     if (path.empty()) return "is empty";
+    if (path.size() > 1024) return "is longer than 1024 bytes";
+    if (const std::string why = text_reason(path); !why.empty()) return why;
     if (path[0] == '/') return "is an absolute path";
     if (path.size() > 1 && path[1] == ':') return "is an absolute path";
     if (path.find(':') != std::string::npos) return "names a scheme or drive (':')";
@@ -32,6 +64,7 @@ std::string unsafe_path_reason(const std::string& path) {
         const std::string part = path.substr(start, slash - start);
         if (part == "..") return "leaves the upload ('..')";
         if (part.empty() || part == ".") return "has an empty or '.' path segment";
+        if (part.size() > 255) return "has a segment longer than 255 bytes (a file system's limit)";
         start = slash + 1;
     }
     return "";
@@ -128,6 +161,12 @@ const UploadFile& checked_main_file(const std::vector<UploadFile>& files) {
             throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
         if (ends_with(name, ".gltf") || ends_with(name, ".glb")) mains.push_back(&f);
     }
+    // A name that is also another's folder ("a" and "a/b") cannot be both.
+    for (const std::string& name : names)
+        if (const auto inside = names.lower_bound(name + "/");
+            inside != names.end() && inside->rfind(name + "/", 0) == 0)
+            throw HttpError(400, "file '" + name + "' is also the folder of '" + *inside + "' in the upload",
+                            {{"field", name}});
     if (mains.size() != 1)
         throw HttpError(
             400, "an upload holds exactly one .gltf or .glb file, this one holds " + std::to_string(mains.size()));

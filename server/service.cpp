@@ -1,5 +1,6 @@
 #include "service.h"
 
+#include "disk_space.h"
 #include "hash.h"
 #include "http_error.h"
 #include "log.h"
@@ -687,12 +688,29 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     http_ = std::make_unique<GatedServer>(config_.limits, config_.http_threads, metrics_);
     for (const Route& r : routes()) route_regexes_.emplace_back(route_regex(r.path));
 
-    // Keep the listening socket, to raise its backlog in bind().
+    // Keep the listening socket, to raise its backlog in bind(). SO_REUSEADDR
+    // only (a restart binds at once past TIME_WAIT): cpp-httplib's default
+    // adds SO_REUSEPORT, with which a second lightfarmd (another data
+    // directory) bound the same port and the kernel split the traffic
+    // between the two, one job 200 on one and 404 on the other.
     http_->set_socket_options([this](socket_t sock) {
-        httplib::default_socket_options(sock);
+        const int yes = 1;
+        ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
         listen_socket_ = int(sock);
     });
     http_->set_payload_max_length(size_t(config_.limits.upload_bytes));
+    // Every answer: no page of ours in another site's frame, no content type
+    // guessed from the bytes, and the status page's scripts and fetches from
+    // this server only (blob: and data: for the 3D view's embedded images).
+    http_->set_default_headers({
+        {"X-Content-Type-Options", "nosniff"},
+        {"X-Frame-Options", "DENY"},
+        {"Referrer-Policy", "no-referrer"},
+        {"Content-Security-Policy",
+         "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+         "img-src 'self' data: blob:; connect-src 'self' blob: data:; object-src 'none'; base-uri 'none'; "
+         "frame-ancestors 'none'"},
+    });
 
     for (const Route& route : routes()) {
         auto handler = [this, &route](const httplib::Request& req, httplib::Response& res) {
@@ -867,11 +885,15 @@ bool Service::check_before_body(const httplib::Request& req, httplib::Response& 
             return answer(400,
                           {{"error", "Content-Length: '" + text + "' is not a length"}, {"field", "Content-Length"}});
         length = std::stoull(text);
-        if (length > config_.limits.upload_bytes)
+        // Only an upload carries a scene; every other body is a small JSON
+        // object (a job spec), under a limit of its own.
+        const bool upload = std::string(route->path) == "/v1/scenes";
+        const uint64_t limit = upload ? config_.limits.upload_bytes : config_.limits.spec_bytes;
+        if (length > limit)
             return answer(413, {{"error", "request body of " + text + " bytes exceeds the limit of " +
-                                              std::to_string(config_.limits.upload_bytes) + " bytes"},
-                                {"field", "upload_bytes"},
-                                {"limit", config_.limits.upload_bytes}});
+                                              std::to_string(limit) + " bytes"},
+                                {"field", upload ? "upload_bytes" : "spec_bytes"},
+                                {"limit", limit}});
     }
     const std::string type = req.get_header_value("Content-Type");
     if (type.rfind("application/x-www-form-urlencoded", 0) == 0) {
@@ -898,7 +920,9 @@ Service::~Service() {
 int Service::bind() {
     const int port = config_.port == 0 ? http_->bind_to_any_port(config_.host)
                                        : (http_->bind_to_port(config_.host, config_.port) ? config_.port : -1);
-    if (port < 0) throw std::runtime_error("cannot listen on " + config_.host + ":" + std::to_string(config_.port));
+    if (port < 0)
+        throw std::runtime_error("cannot listen on " + config_.host + ":" + std::to_string(config_.port) +
+                                 " (in use by another process? --listen HOST:PORT picks another)");
     // cpp-httplib (Debian's is a shared library, so its macro cannot be
     // changed) listens with a backlog of 5. Many clients connecting at once
     // (200 readers in the load test) then overflow it: the kernel drops their
@@ -1016,18 +1040,55 @@ void Service::metrics(const httplib::Request&, httplib::Response& res, const Cal
                     "text/plain; version=0.0.4");
 }
 
+// JSON to inline in an HTML <script>: every character that HTML's script
+// parsing reacts to (<, >, &: "</script>", "<!--" which would swallow the
+// rest of the page) and JavaScript's line separators (U+2028, U+2029) as
+// \u escapes, which mean the same inside JSON strings, the only place they
+// can occur in dump()'s output.
+std::string json_for_script(const json& value) {
+    const std::string text = value.dump();
+    std::string out;
+    out.reserve(text.size());
+    for (size_t i = 0; i < text.size(); ++i) {
+        const char c = text[i];
+        if (c == '<') out += "\\u003c";
+        else if (c == '>') out += "\\u003e";
+        else if (c == '&') out += "\\u0026";
+        else if (c == '\xe2' && i + 2 < text.size() && text[i + 1] == '\x80' &&
+                 (text[i + 2] == '\xa8' || text[i + 2] == '\xa9')) {
+            out += text[i + 2] == '\xa8' ? "\\u2028" : "\\u2029";
+            i += 2;
+        } else out += c;
+    }
+    return out;
+}
+
 void Service::status_page(const httplib::Request&, httplib::Response& res, const Caller& caller) {
     // The caller's jobs come with the page, so it shows them at once instead
-    // of after its first fetch; "</" escaped so that no value ends the script.
-    std::string jobs = jobs_json(caller.owner).dump();
-    for (size_t at = jobs.find("</"); at != std::string::npos; at = jobs.find("</", at + 3)) jobs.insert(at + 1, "\\");
+    // of after its first fetch, escaped so that no value can end the script
+    // or open a comment (a file named "<!--<script>.gltf" blanked the page).
+    const std::string jobs = json_for_script(jobs_json(caller.owner));
     std::string page = kStatusPage;
     const std::string slot = "/*JOBS*/null";
     page.replace(page.find(slot), slot.size(), jobs);
     res.set_content(page, "text/html; charset=utf-8");
 }
 
+// New work waits while the data directory's disk is full: a 503 stores
+// nothing, so nothing accepted is ever lost to the full disk.
+void Service::refuse_when_disk_full(httplib::Response& res) {
+    const uint64_t free = free_disk_bytes(config_.data_dir);
+    if (free >= config_.limits.free_disk_bytes) return;
+    metrics_.count_refusal("free_disk_bytes");
+    res.set_header("Retry-After", "30");
+    throw HttpError(
+        503,
+        "free_disk_bytes: the server's disk is full (" + megabytes(free) + " free); nothing was stored, retry later",
+        {{"field", "free_disk_bytes"}});
+}
+
 void Service::post_scene(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    refuse_when_disk_full(res);
     std::vector<UploadFile> files;
     if (req.is_multipart_form_data()) {
         for (const auto& [field, part] : req.files)
@@ -1054,6 +1115,7 @@ void Service::get_scene(const httplib::Request& req, httplib::Response& res, con
 }
 
 void Service::post_job(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    refuse_when_disk_full(res);
     const json body = json::parse(req.body, nullptr, false);
     if (body.is_discarded()) throw HttpError(400, "the request body is not JSON");
     // The one validity rule (protocol/bake_settings.h) under this server's

@@ -39,6 +39,10 @@ std::unique_ptr<JobStore> open_job_store(const ServerConfig& config);
 // The one of `jobs` whose id starts with `prefix` (nullopt: none, or not a
 // prefix); throws HttpError 409 when several do.
 std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector<JobRecord> jobs);
+// JSON to inline in an HTML <script>: the same value, with no character that
+// HTML's script parsing or JavaScript's line breaks react to (<, >, &,
+// U+2028, U+2029 as \u escapes).
+std::string json_for_script(const nlohmann::json& value);
 
 class Service {
 public:
@@ -95,6 +99,8 @@ private:
     void healthz(const httplib::Request&, httplib::Response&, const Caller&);
     void metrics(const httplib::Request&, httplib::Response&, const Caller&);
     void status_page(const httplib::Request&, httplib::Response&, const Caller&);
+    // 503 (with Retry-After) while the data directory's disk is below --limit free_disk_bytes.
+    void refuse_when_disk_full(httplib::Response&);
     void post_scene(const httplib::Request&, httplib::Response&, const Caller&);
     void get_scene(const httplib::Request&, httplib::Response&, const Caller&);
     void post_job(const httplib::Request&, httplib::Response&, const Caller&);

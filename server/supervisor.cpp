@@ -1,5 +1,7 @@
 #include "supervisor.h"
 
+#include "disk_space.h"
+
 #include "log.h"
 #include "subprocess.h"
 
@@ -8,6 +10,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 #include <variant>
@@ -231,6 +234,7 @@ void Supervisor::compact_events() {
 }
 
 void Supervisor::worker_loop(const std::string& device) {
+    std::chrono::milliseconds fault_backoff(0);
     while (!stopping_) {
         const uint64_t seen = changes_.generation();
         const int64_t now = std::chrono::duration_cast<std::chrono::seconds>(Clock::now().time_since_epoch()).count();
@@ -249,14 +253,23 @@ void Supervisor::worker_loop(const std::string& device) {
             continue;
         }
         changes_.notify();
+        bool machine_fault = false;
         try {
-            run_attempt(*job, device);
+            machine_fault = run_attempt(*job, device);
         } catch (const std::exception& e) {
-            // The server's own trouble (disk full, store error) still ends the
+            // The server's own trouble (a store error) still ends the
             // attempt cleanly rather than leaving the job running forever.
             log_line("job " + job->status.id + ": " + e.what());
             attempt_failed(*job, std::string("lightfarmd: ") + e.what());
         }
+        // After a fault of this machine (a full disk) the slot waits, 0.5 s
+        // doubling up to 30 s, before it takes a job again: the job it gave
+        // back is not retried in a tight loop while the fault lasts.
+        fault_backoff = machine_fault ? std::clamp(fault_backoff * 2, std::chrono::milliseconds(500),
+                                                   std::chrono::milliseconds(30000))
+                                      : std::chrono::milliseconds(0);
+        for (const auto until = Clock::now() + fault_backoff; !stopping_ && Clock::now() < until;)
+            std::this_thread::sleep_for(std::chrono::milliseconds(20));
         {
             std::lock_guard lock(cancel_mutex_);
             cancelled_.erase(job->status.id);
@@ -285,6 +298,27 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
                               {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", attempts}}});
         });
     }
+}
+
+void Supervisor::server_fault(const JobRecord& job, const std::string& cause) {
+    const std::string& id = job.status.id;
+    ++metrics_.server_faults;
+    log_line("job " + id + ": " + cause +
+             "; the machine's fault, not the job's: queued again, the attempt not counted");
+    persist("job " + id + ": requeue", [&] {
+        store_.requeue(id,
+                       {0,
+                        "retrying",
+                        {{"attempt", job.status.attempts}, {"cause", "lightfarmd: " + cause}, {"server_fault", true}}},
+                       true);
+    });
+}
+
+std::string Supervisor::disk_full() const {
+    const uint64_t free = free_disk_bytes(config_.data_dir);
+    if (free >= config_.limits.free_disk_bytes) return "";
+    return "the data directory's disk has " + megabytes(free) + " free, less than --limit free_disk_bytes (" +
+           megabytes(config_.limits.free_disk_bytes) + ")";
 }
 
 void Supervisor::fail_now(const JobRecord& job, const std::string& error, const std::string& cause) {
@@ -409,7 +443,9 @@ std::string user_facing(std::string line, const fs::path& scene_path, const std:
 std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const protocol::JobSpec& spec,
                                                      const SceneRecord& scene, const std::string& device) {
     const fs::path dir = job_dir(job.status.id);
-    fs::create_directories(dir);
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    if (ec) throw ServerFault("cannot make the job's directory: " + ec.message());
     // The worker reads the job's own spec: no translation into flags.
     const fs::path spec_file = dir / kSpecFile;
     {
@@ -419,9 +455,17 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
             dir / (std::string(kSpecFile) + "." + store_.node().name + "." + std::to_string(::getpid()) + ".tmp");
         std::ofstream out(tmp);
         out << protocol::to_json(spec).dump() << "\n";
-        if (!out) throw std::runtime_error("cannot write " + tmp.string());
-        out.close();
-        fs::rename(tmp, spec_file);
+        out.close();  // the bytes reach the disk here: a full disk fails now, not before
+        if (!out) {
+            fs::remove(tmp, ec);
+            throw ServerFault("cannot write the job's spec (" + std::string(std::strerror(errno)) + ")");
+        }
+        fs::rename(tmp, spec_file, ec);
+        if (ec) {
+            const std::string why = ec.message();
+            fs::remove(tmp, ec);
+            throw ServerFault("cannot put the job's spec in place (" + why + ")");
+        }
     }
     std::vector<std::string> argv = {engine_,  "bake",   scene_path(scene).string(), "--out", dir.string(),
                                      "--json", "--spec", spec_file.string()};
@@ -494,7 +538,7 @@ struct Supervisor::WorkerEnd {
     bool stopped = false;    // lightfarmd stops: the job went back to the queue, and nothing else is to be done
 };
 
-void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
+bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     const std::string& id = job.status.id;
     // Validated once, at submit, against the limits of that day: a lower
     // --limit since then applies to new jobs, not to this one.
@@ -506,12 +550,12 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         spec = protocol::parse_job_spec(job.status.spec, stored);
     } catch (const protocol::SpecError& e) {
         fail_now(job, "the job's stored spec is not valid any more", e.what());
-        return;
+        return false;
     }
     const std::optional<SceneRecord> scene = store_.scene(spec.scene);
     if (!scene) {
         fail_now(job, "scene " + spec.scene + " is missing", "");
-        return;
+        return false;
     }
 
     // Known to the lease loop while it runs here.
@@ -529,16 +573,23 @@ void Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         }
     } running_here{*this, id};
 
+    if (const std::string full = disk_full(); !full.empty()) {
+        server_fault(job, full);
+        return true;
+    }
     std::unique_ptr<Subprocess> child;
     try {
         child = start_worker(job, spec, *scene, device);
+    } catch (const ServerFault& e) {
+        server_fault(job, e.what());
+        return true;
     } catch (const std::exception& e) {
         attempt_failed(job, e.what());
-        return;
+        return false;
     }
 
     const WorkerEnd end = supervise_worker(job, spec.bake, *child);
-    if (!end.stopped) end_attempt(job, *scene, *child, end);
+    return !end.stopped && end_attempt(job, *scene, *child, end);
 }
 
 Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const protocol::BakeSettings& bake,
@@ -625,12 +676,12 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
     return end;
 }
 
-void Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker,
+bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker,
                              const WorkerEnd& end) {
     const std::string& id = job.status.id;
     if (end.cancelled) {
         log_line("job " + id + ": cancelled, worker killed");
-        return;  // the cancel route already recorded the final state
+        return false;  // the cancel route already recorded the final state
     }
     if (end.lost) {
         // Cancelled on another node, or taken over after this node could not
@@ -638,11 +689,11 @@ void Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
         log_line("job " + id +
                  ": no longer runs on this node (cancelled elsewhere, or taken over after its lease "
                  "expired); worker killed");
-        return;
+        return false;
     }
     if (!end.cause.empty()) {
         attempt_failed(job, end.cause);
-        return;
+        return false;
     }
     if (end.status.success() && end.state.done) {
         json done = *end.state.done;
@@ -655,24 +706,34 @@ void Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
         });
         log_line("job " + id +
                  (still_ours ? ": succeeded" : ": finished, but no longer runs on this node; not stored"));
-        return;
+        return false;
     }
     const std::string scene_name =
         scene.main_file.empty() ? scene.summary.value("source", "the scene") : scene.main_file;
     const std::string last =
         user_facing(worker.stderr_last_line(), scene_path(scene), scene_name,
                     fs::path(config_.data_dir) / "scenes" / scene.id, job_dir(id), config_.data_dir);
+    if (end.status.exited && end.status.code == protocol::kExitSpecUnreadable) {
+        server_fault(job, "the worker could not read the spec lightfarmd wrote" + (last.empty() ? "" : ": " + last));
+        return true;
+    }
+    // A worker that failed while the disk is full failed for the machine.
+    if (const std::string full = disk_full(); !full.empty() && !end.status.success()) {
+        server_fault(job, "worker " + end.status.describe() + " while " + full);
+        return true;
+    }
     if (end.status.exited && protocol::is_input_error_exit(end.status.code)) {
         // The scene or the settings cannot be baked: another run cannot help.
         ++metrics_.worker_failures;
         fail_now(job, "the bake cannot run on this scene with these settings (not retried)",
                  last.empty() ? "worker " + end.status.describe() : last);
-        return;
+        return false;
     }
     std::string failure =
         end.status.success() ? "worker exited without reporting done" : "worker " + end.status.describe();
     if (!last.empty()) failure += ": " + last;
     attempt_failed(job, failure);
+    return false;
 }
 
 }  // namespace lf::server

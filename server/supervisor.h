@@ -68,6 +68,14 @@ std::string user_facing(std::string line, const std::filesystem::path& scene_pat
 
 class Subprocess;
 
+// A failure of this server's machine (its disk, a file it wrote for the
+// worker), never the job's: the job goes back to the queue without costing
+// an attempt, and the worker slot backs off before it takes another.
+class ServerFault : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
 class Supervisor {
 public:
     using Clock = std::chrono::steady_clock;
@@ -93,16 +101,25 @@ private:
     // `device`: the engine's --device for this worker ("" = its default).
     void worker_loop(const std::string& device);
     int count_gpus() const;
-    // One worker run of a claimed job, start to end state.
-    void run_attempt(const JobRecord& job, const std::string& device);
+    // One worker run of a claimed job, start to end state. True when it
+    // ended on a fault of this machine (server_fault): the slot backs off.
+    bool run_attempt(const JobRecord& job, const std::string& device);
+    // Requeues the job without counting the attempt: `cause` is this
+    // machine's, not the job's (ServerFault).
+    void server_fault(const JobRecord& job, const std::string& cause);
+    // Why this machine cannot run a worker now ("" = it can): the data
+    // directory's disk below --limit free_disk_bytes.
+    std::string disk_full() const;
     struct WorkerEnd;
     // Reads the worker's events until it ends or must be ended (cancelled,
     // lost, past a limit, lightfarmd stopping), storing what each asks for.
     WorkerEnd supervise_worker(const JobRecord& job, const protocol::BakeSettings& bake, Subprocess& worker);
     // The job's state after its worker ended: succeeded, failed, retried, or
     // left to whoever cancelled or took it.
-    void end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker, const WorkerEnd& end);
+    // True when it ended on a fault of this machine.
+    bool end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker, const WorkerEnd& end);
     // Writes the spec into the job directory and starts the engine on it.
+    // Throws ServerFault when the spec cannot be written whole.
     std::unique_ptr<Subprocess> start_worker(const JobRecord& job, const protocol::JobSpec& spec,
                                              const SceneRecord& scene, const std::string& device);
     // Stores what apply_worker_event asked for; throws StoreError.

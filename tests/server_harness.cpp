@@ -108,6 +108,7 @@ case "$mode" in
   hang_first) if [ $runs -eq 1 ]; then sleep 60; fi;;
   hang_always) sleep 60;;
   input_error) echo "lightfarm bake: error: $scene: nothing to bake: no emissive surface (spec $spec)" >&2; exit 3;;
+  spec_unreadable_first) if [ $runs -eq 1 ]; then echo "lightfarm: --spec $spec is not whole JSON (empty, or cut short)" >&2; exit 4; fi;;
 esac
 snap() {  # snap OUTPUT FILE PASS
   cp "$state/snapshot.exr" "$out/.$2.tmp" && mv "$out/.$2.tmp" "$out/$2"

@@ -37,6 +37,7 @@ void write_exr(const fs::path& path, int w, int h, float r, float g, float b);
 // state directory at every run, so a test can change it:
 //   mode     ok | crash_first (exit 1 once) | always_crash | hang_first | hang_always
 //            | no_done | input_error (one stderr line naming the scene, exit 3)
+//            | spec_unreadable_first (exit 4 once, as a worker whose spec was cut short)
 //   delay    seconds between passes (default 0)
 //   snapshot_passes  e.g. "2048 16384": lightmap snapshots at exactly these passes
 //   runs     incremented at every `bake` (how many workers were started)

@@ -5,6 +5,7 @@
 
 #include "io/image_files.h"
 #include "io/reference_error.h"
+#include "worker_protocol.h"
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -294,6 +295,17 @@ TEST(CliBake, FailuresAreOneClearLine) {
                          kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --spec /no/such/spec.json", "spec.json",
                          kUsage);
+    // A spec that is there but not whole (a writer's full disk: empty, or cut
+    // short) is its writer's trouble, not bad settings: its own exit code,
+    // which the service counts as its own fault, never the job's.
+    const fs::path cut = fresh_dir("cut-spec");
+    fs::create_directories(cut);
+    for (const std::string& text : {std::string(""), std::string("{\"outputs\": {\"lightmap\": {\"pass")}) {
+        std::ofstream(cut / "spec.json") << text;
+        expect_clean_failure(
+            "bake " + test::shared_scene("cornell_box.gltf") + " --spec " + (cut / "spec.json").string(),
+            "not whole JSON", lf::protocol::kExitSpecUnreadable);
+    }
 }
 
 // 9,121 charts cannot fit 64² even at one texel each: the message says which

@@ -935,7 +935,9 @@ json schema_of(const Setting& s) {
     case SettingType::Choice: range = {{"type", "string"}, {"enum", s.choices}}; break;
     case SettingType::Flag: range = {{"type", "boolean"}}; break;
     case SettingType::MeshList:
-        range = {{"type", "array"}, {"items", {{"type", "integer"}, {"minimum", 0}, {"maximum", 1 << 30}}}};
+        range = {{"type", "array"},
+                 {"items", {{"type", "integer"}, {"minimum", 0}, {"maximum", 1 << 30}}},
+                 {"maxItems", kMaxMeshList}};
         break;
     case SettingType::Environment:
         range = {{"type", "array"}, {"items", {{"type", "number"}, {"minimum", 0}}}, {"minItems", 3}, {"maxItems", 3}};
@@ -1140,9 +1142,9 @@ TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
             ++checked;
         }
     }
-    for (const json& limits :
-         {json{{"max_seconds", 0}}, json{{"max_seconds", 0.5}}, json{{"max_seconds", "1"}}, json{{"max_attempts", 0}},
-          json{{"max_attempts", 1}}, json{{"max_attempts", 1.5}}, json{{"gpu", 1}}, json(3)}) {
+    for (const json& limits : {json{{"max_seconds", 0}}, json{{"max_seconds", 0.5}}, json{{"max_seconds", 1}},
+                               json{{"max_seconds", "1"}}, json{{"max_seconds", 1e-9}}, json{{"max_attempts", 0}},
+                               json{{"max_attempts", 1}}, json{{"max_attempts", 1.5}}, json{{"gpu", 1}}, json(3)}) {
         json spec = base;
         spec["limits"] = limits;
         EXPECT_EQ(valid_against(doc, schema, spec), accepted(spec)) << limits.dump();

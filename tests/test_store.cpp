@@ -787,6 +787,26 @@ TEST_F(DataDirTest, ASecondServerOnTheSameDataDirectoryRefusesToStart) {
     server->start();
 }
 
+// Another lightfarmd, with a data directory of its own, cannot take the
+// port of a running one (with SO_REUSEPORT it could, and the kernel split
+// the traffic between them).
+TEST_F(DataDirTest, ASecondServerCannotShareThePortOfARunningOne) {
+    server = make();
+    server->start();
+    Lightfarmd other(tmp.path / "other", tmp.path / "tokens", engine.script,
+                     {"--listen", "127.0.0.1:" + std::to_string(server->port)});
+    try {
+        other.start();
+        ADD_FAILURE() << "a second lightfarmd listens on the same port";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find("cannot listen on 127.0.0.1:" + std::to_string(server->port)),
+                  std::string::npos)
+            << e.what();
+    }
+    EXPECT_FALSE(other.running());
+    upload_and_bake();  // the first one serves on
+}
+
 TEST_F(DataDirTest, AStoreThatLostItsWalAfterKill9IsRefusedAtStart) {
     server = make();
     server->start();

@@ -51,12 +51,12 @@ std::vector<glm::vec3> ProbesMethod::place(const Scene& scene, const ProbesSetti
     const float step = settings.spacing ? float(*settings.spacing) : largest / 4.0f;
     if (!(step > 0.0f)) return points;
     *spacing = step;
-    glm::ivec3 counts;
-    for (int a = 0; a < 3; ++a) counts[a] = std::max(1, int(std::floor(extent[a] / step)));
-    const uint64_t total = uint64_t(counts.x) * uint64_t(counts.y) * uint64_t(counts.z);
-    if (total > 4096)
+    const std::array<uint64_t, 3> n = protocol::probe_grid_counts({extent.x, extent.y, extent.z}, step);
+    const uint64_t total = n[0] * n[1] * n[2];
+    if (total > protocol::kMaxProbes)
         throw BakeInputError("probes: a grid at " + std::to_string(step) + " m spacing has " + std::to_string(total) +
-                             " probes, more than 4096; raise --probe-spacing");
+                             " probes, more than " + std::to_string(protocol::kMaxProbes) + "; raise --probe-spacing");
+    const glm::ivec3 counts{int(n[0]), int(n[1]), int(n[2])};
     const glm::vec3 lo = scene.bounds.centre() - 0.5f * glm::vec3(counts) * step;
     for (int z = 0; z < counts.z; ++z)
         for (int y = 0; y < counts.y; ++y)
@@ -77,10 +77,10 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
     if (positions_.empty())
         throw BakeInputError(prepared.file.filename().string() + ": probes: no point to place a probe at");
     const uint64_t texels = capture_texels(positions_.size(), settings_.res);
-    if (texels > kMaxCaptureTexels)
+    if (texels > protocol::kMaxCaptureTexels)
         throw BakeInputError("probes: " + std::to_string(positions_.size()) + " probes at --probe-res " +
                              std::to_string(settings_.res) + " are " + std::to_string(texels) +
-                             " capture texels, more than " + std::to_string(kMaxCaptureTexels) +
+                             " capture texels, more than " + std::to_string(protocol::kMaxCaptureTexels) +
                              "; lower --probe-res or place fewer probes");
     std::vector<glm::vec4> points;
     for (const glm::vec3& p : positions_) points.emplace_back(p, 0.0f);

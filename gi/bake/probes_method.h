@@ -18,6 +18,7 @@
 #include "bake/scene_shading.h"
 #include "bake/surface_textures.h"
 #include "bake_settings.h"
+#include "job_spec.h"
 
 #include <optional>
 #include "gpu/shader.h"
@@ -47,8 +48,6 @@ public:
     // A grid probe is far from every surface when its nearest hit is farther
     // than this many grid spacings.
     static constexpr float kFarInSpacings = 1.5f;
-    // Capture texels (probes x 6 x R²) a job may ask for: 32 bytes each on the GPU.
-    static constexpr uint64_t kMaxCaptureTexels = uint64_t(1) << 25;
 
     // Throws BakeInputError for a grid or capture too large.
     ProbesMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings);

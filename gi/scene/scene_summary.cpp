@@ -45,6 +45,7 @@ protocol::SceneSummary summarize(const Scene& scene) {
         {"vertices", scene.positions.size()},
         {"meshes", meshes.size()},
         {"primitive_instances", scene.instances.size()},
+        {"probe_nodes", scene.probe_points.size()},
         {"materials", scene.materials.size()},
         {"punctual_lights", {{"point", point}, {"spot", spot}, {"directional", directional}}},
         {"textures", scene.textures.size()},

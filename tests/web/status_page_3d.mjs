@@ -42,10 +42,16 @@ try {
   await page.reload();  // the hash alone does not reload the page
 
   const drawn = async (mode, file = null, after = 0) => {
-    await page.waitForFunction(([m, f, n]) => {
-      const v = window.lightfarmView;
-      return v && (v.state.error || (v.state.ready && v.state.mode === m && v.state.file === f && v.state.frames > n));
-    }, [mode, file, after], { timeout: 90_000 });
+    // Polled with evaluate(), not waitForFunction(): the page's
+    // Content-Security-Policy forbids eval, which waitForFunction's poller uses.
+    for (const deadline = Date.now() + 90_000; ; await new Promise((r) => setTimeout(r, 100))) {
+      const done = await page.evaluate(([m, f, n]) => {
+        const v = window.lightfarmView;
+        return !!v && !!(v.state.error || (v.state.ready && v.state.mode === m && v.state.file === f && v.state.frames > n));
+      }, [mode, file, after]);
+      if (done) break;
+      if (Date.now() > deadline) throw new Error(`3D view: not drawn in mode ${mode} within 90 s`);
+    }
     const state = await page.evaluate(() => ({ ...window.lightfarmView.state }));
     if (state.error) throw new Error("3D view: " + state.error);
     // The canvas's pixels (preserveDrawingBuffer): how many distinct colours.
