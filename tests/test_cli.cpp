@@ -547,6 +547,25 @@ TEST(CliOutputs, EveryGlbPassesTheKhronosValidator) {
     fs::remove_all(out);
 }
 
+// Every shared scene's glbs pass it, those of scenes without any UVs too
+// (spheres.glb has no TEXCOORD_0: a TEXCOORD_1 alone was an error).
+TEST(CliOutputs, EverySharedScenesGlbsPassTheKhronosValidator) {
+    std::vector<fs::path> glbs;
+    const fs::path out = fresh_dir("validator-every");
+    for (const char* name :
+         {"cornell_box.gltf", "monkey.glb", "spheres.glb", "packuv.glb", "flower.glb", "random.glb", "noisy.glb"}) {
+        const fs::path dir = out / name;
+        const CliRun bake = run_lightfarm("bake " + test::shared_scene(name) + " --lightmap --ao --env 0.5,0.5,0.5" +
+                                          " --max-res 256 --passes 1 --ao-passes 1 --no-stitch --out " + dir.string());
+        ASSERT_EQ(bake.exit_code, 0) << name << ": " << bake.err;
+        glbs.push_back(dir / "scene.lit.glb");
+        if (fs::exists(dir / "scene.lightmapped.glb")) glbs.push_back(dir / "scene.lightmapped.glb");
+    }
+    std::string report;
+    EXPECT_TRUE(khronos_valid(glbs, report)) << report;
+    fs::remove_all(out);
+}
+
 // The JSON chunk of a .glb.
 nlohmann::json glb_json(const fs::path& glb) {
     const std::string bytes = read_file(glb);

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <set>
 #include <fstream>
@@ -244,6 +245,22 @@ std::vector<uint32_t> instance_sources(const Scene& scene, const PrimitiveInstan
     return sources;
 }
 
+// glTF numbers an indexed semantic without gaps (the validator's
+// MESH_PRIMITIVE_INDEXED_SEMANTIC_CONTINUITY): TEXCOORD_1, the lightmap's
+// UVs, only beside a TEXCOORD_0. A primitive that had none gets the next
+// set's accessor as its TEXCOORD_0 as well (one accessor, two names): no
+// material of the file read TEXCOORD_0, since it had none.
+void fill_texcoord_gaps(tinygltf::Primitive& primitive) {
+    int highest = -1;
+    for (const auto& [name, accessor] : primitive.attributes)
+        if (name.rfind("TEXCOORD_", 0) == 0) highest = std::max(highest, std::atoi(name.c_str() + 9));
+    for (int n = highest - 1; n >= 0; --n) {
+        const std::string name = "TEXCOORD_" + std::to_string(n);
+        if (!primitive.attributes.count(name))
+            primitive.attributes[name] = primitive.attributes.at("TEXCOORD_" + std::to_string(n + 1));
+    }
+}
+
 void add_vertex_attributes(tinygltf::Model& model, tinygltf::Primitive& primitive, const Scene& scene,
                            const PrimitiveInstance& inst, const std::vector<VertexAttribute>& attributes,
                            const std::filesystem::path& source) {
@@ -279,6 +296,7 @@ void add_vertex_attributes(tinygltf::Model& model, tinygltf::Primitive& primitiv
                              e.what());
         }
     }
+    fill_texcoord_gaps(primitive);
 }
 
 uint32_t read_u32(const std::string& s, size_t at) {
