@@ -1,5 +1,7 @@
 #include "probes/probe_set.h"
 
+#include "probes/probe_eval.h"
+
 #include "io/image_files.h"
 
 #include <fstream>
@@ -29,23 +31,29 @@ void downsample_faces(int r, const std::vector<glm::vec3>& radiance, const std::
     const int block = r / m;
     radiance_out.assign(size_t(6) * m * m, glm::vec3(0.0f));
     distance_out.assign(size_t(6) * m * m, 0.0f);
+    // Each fine texel's solid angle (the same on every face).
+    std::vector<double> solid(size_t(r) * r);
+    for (int y = 0; y < r; ++y)
+        for (int x = 0; x < r; ++x) solid[size_t(y) * r + x] = cube_texel_solid_angle(r, x, y);
     for (int face = 0; face < 6; ++face)
         for (int j = 0; j < m; ++j)
             for (int i = 0; i < m; ++i) {
-                glm::vec3 l(0.0f);
-                double hit_sum = 0.0;
+                glm::dvec3 l(0.0);
+                double omega = 0.0, hit_sum = 0.0;
                 int hits = 0;
                 for (int y = j * block; y < (j + 1) * block; ++y)
                     for (int x = i * block; x < (i + 1) * block; ++x) {
                         const size_t fine = (size_t(face) * r + size_t(y)) * r + size_t(x);
-                        l += radiance[fine];
+                        const double w = solid[size_t(y) * r + x];
+                        l += glm::dvec3(radiance[fine]) * w;
+                        omega += w;
                         if (distance[fine] < kMissDistance) {
                             hit_sum += distance[fine];
                             ++hits;
                         }
                     }
                 const size_t coarse = (size_t(face) * m + size_t(j)) * m + size_t(i);
-                radiance_out[coarse] = l / float(block * block);
+                radiance_out[coarse] = glm::vec3(l / omega);
                 distance_out[coarse] = hits > 0 ? float(hit_sum / hits) : kMissDistance;
             }
 }
