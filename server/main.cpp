@@ -209,11 +209,15 @@ void open_data_dir(ServerConfig& config) {
     check_store_against_data_dir(config);
 }
 
-// A first start's token, and how to use it.
+// A first start's token, and how to use it: commands that run as printed,
+// from any directory (the CLI by the path it was found at: nothing puts a
+// source build's binaries on PATH).
 void print_new_token(const ServerConfig& config, const std::string& token, const std::string& url) {
     log_line("no --tokens file given: created " + config.tokens_file + " with a new token");
+    std::string cli = find_engine(config.engine);
+    if (cli.find_first_of(" '\"\\$`") != std::string::npos) cli = "'" + cli + "'";
     std::cout << "lightfarmd: token: " << token << "\n"
-              << "  submit a bake:  LIGHTFARM_TOKEN=" << token << " lightfarm submit scene.glb --server " << url
+              << "  submit a bake:  LIGHTFARM_TOKEN=" << token << " " << cli << " submit scene.glb --server " << url
               << " --wait\n"
               << "  with curl:      curl -H 'Authorization: Bearer " << token
               << "' -H 'Content-Type: model/gltf-binary' --data-binary @scene.glb " << url << "/v1/scenes\n"

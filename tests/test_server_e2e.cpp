@@ -20,6 +20,7 @@
 #include <fstream>
 #include <map>
 #include <set>
+#include <sstream>
 #include <thread>
 
 namespace lf::test {
@@ -228,6 +229,37 @@ pid_t worker_pid(const fs::path& dir) {
     pid_t pid = 0;
     in >> pid;
     return pid;
+}
+
+// The commands a first start prints run as printed from any directory
+// (they named `lightfarm`, which nothing put on PATH: "command not found").
+TEST(FirstStart, TheBannersCommandsRunAsPrinted) {
+    TempDir tmp;
+    const fs::path data = tmp.path / "data", log = tmp.path / "lightfarmd.log";
+    pid_t pid = spawn_lightfarmd({"--listen", "127.0.0.1:0", "--data", data.string()}, log);
+    wait_until_ready(pid, log, [&] { return !read_text(data / "lightfarmd.url").empty(); });
+    std::string submit, upload;
+    for (int tries = 0; tries < 100 && (submit.empty() || upload.empty()); ++tries) {
+        std::istringstream lines(read_text(log));
+        for (std::string line; std::getline(lines, line);) {
+            if (line.find("submit a bake:") != std::string::npos) submit = line.substr(line.find(':') + 1);
+            if (line.find("with curl:") != std::string::npos) upload = line.substr(line.find(':') + 1);
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    ASSERT_FALSE(submit.empty()) << read_text(log);
+    ASSERT_FALSE(upload.empty()) << read_text(log);
+    fs::copy_file(scenes_dir() / "monkey.glb", tmp.path / "scene.glb");
+    // As a person pastes them, in the scene's folder, with a short bake's options added.
+    const std::string in_dir = "cd '" + tmp.path.string() + "' && env -u LIGHTFARM_TOKEN PATH=/usr/bin:/bin ";
+    EXPECT_EQ(std::system((in_dir + "bash -c \"" + upload + " -s -o /dev/null -w '%{http_code}' > code\"").c_str()), 0);
+    EXPECT_TRUE(read_text(tmp.path / "code") == "201" || read_text(tmp.path / "code") == "200")
+        << read_text(tmp.path / "code");
+    EXPECT_EQ(
+        std::system((in_dir + "bash -c '" + submit + " --passes 2 --res 64 --out result > out.txt 2>&1'").c_str()), 0)
+        << read_text(tmp.path / "out.txt");
+    EXPECT_TRUE(fs::exists(tmp.path / "result" / "lightmap.exr")) << read_text(tmp.path / "out.txt");
+    stop_process(pid);
 }
 
 TEST_F(EndToEnd, EveryBadSceneIsAClear4xxAndTheServerStaysHealthy) {
