@@ -8,6 +8,7 @@
 #include "bake/bake_job.h"
 #include "bake/probe_bench.h"
 #include "job_spec.h"
+#include "job_status.h"
 #include "sh/sh_glb.h"
 #include "sh/transfer_file.h"
 #include "gpu/context.h"
@@ -220,22 +221,12 @@ int compare(int argc, char** argv) {
     return 0;
 }
 
-// One progress line, redrawn in place on a terminal.
-void draw_progress(const std::string& output, const lf::protocol::Progress& p, int max_passes) {
-    const int width = 30;
-    const int filled = std::min(width, p.pass * width / std::max(1, max_passes));
-    std::fprintf(stderr, "\r%s [%s%s] pass %d/%d  %.3g rays  %.1f s  error %s  ", output.c_str(),
-                 std::string(size_t(filled), '#').c_str(), std::string(size_t(width - filled), '.').c_str(), p.pass,
-                 max_passes, double(p.rays), p.seconds,
-                 p.error_estimate ? (std::to_string(100.0 * *p.error_estimate).substr(0, 5) + "%").c_str() : "-");
-}
-
 // Prints bake events: JSON lines (the worker protocol) or a progress bar.
 class BakeReporter {
 public:
     BakeReporter(bool json, const lf::protocol::BakeSettings& settings)
         : json_(json), terminal_(!json && isatty(STDERR_FILENO)) {
-        for (const auto& [output, o] : settings.outputs) max_passes_[output] = o.stop().passes;
+        for (const auto& [output, o] : settings.outputs) stop_[output] = o.stop();
     }
 
     void operator()(const lf::protocol::WorkerEvent& e) {
@@ -254,6 +245,7 @@ public:
                                   ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
                                   : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
             std::cerr << " on " << start->renderer << ", prepared in " << start->prepare_seconds << " s\n";
+            prepare_seconds_ = start->prepare_seconds;
             for (const auto& [output, at] : start->resumed)
                 std::cerr << output << ": resumed after pass " << at.pass << "\n";
             for (const auto& [output, why] : start->not_resumed)
@@ -261,7 +253,12 @@ public:
         } else if (const auto* progress = std::get_if<p::ProgressEvent>(&e); progress && terminal_) {
             if (progress->output != drawing_ && !drawing_.empty()) std::cerr << "\n";
             drawing_ = progress->output;
-            draw_progress(progress->output, progress->progress, max_passes_[progress->output]);
+            // The same line as `submit --wait` and `watch` draw: the share done by
+            // whichever stop rule ends the output first, preparation included.
+            lf::protocol::Progress shown = progress->progress;
+            shown.eta_seconds = lf::protocol::estimate_eta(stop_[progress->output], shown);
+            shown.prepare_seconds = prepare_seconds_;
+            std::cerr << "\r" << lf::cli::progress_line("", progress->output, shown) << "    " << std::flush;
         } else if (const auto* done = std::get_if<p::DoneEvent>(&e)) {
             if (terminal_) std::cerr << "\n";
             std::cout << "done: " << done->progress.pass << " passes, " << done->progress.rays << " rays, "
@@ -272,7 +269,8 @@ public:
 
 private:
     bool json_, terminal_;
-    std::map<std::string, int> max_passes_;
+    std::map<std::string, lf::protocol::StopSettings> stop_;
+    double prepare_seconds_ = 0.0;
     std::string drawing_;
 };
 

@@ -158,9 +158,10 @@ std::string progress_line(const std::string& job, const std::string& output, con
     const int width = 24, filled = int(std::lround(fraction * width));
     char percent[16];
     std::snprintf(percent, sizeof percent, "%3d%%", int(std::lround(100.0 * fraction)));
-    std::string line = job.substr(0, 12) + (output.empty() ? "" : " " + output) + "  [" +
-                       std::string(size_t(filled), '#') + std::string(size_t(width - filled), '-') + "] " + percent +
-                       "  pass " + std::to_string(p.pass);
+    std::string who = job.substr(0, 12);
+    if (!output.empty()) who += (who.empty() ? "" : " ") + output;
+    std::string line = who + "  [" + std::string(size_t(filled), '#') + std::string(size_t(width - filled), '-') +
+                       "] " + percent + "  pass " + std::to_string(p.pass);
     if (p.error_estimate) {
         char error[32];
         std::snprintf(error, sizeof error, "  error %.4f", *p.error_estimate);

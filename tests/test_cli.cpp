@@ -308,6 +308,27 @@ TEST(CliBake, FailuresAreOneClearLine) {
     }
 }
 
+// A second bake into the same folder leaves none of the first one's
+// snapshots (its higher pass numbers read as this bake's newest), and
+// nothing else of the folder is touched.
+TEST(CliBake, ABakeIntoAnOlderBakesFolderRemovesItsSnapshots) {
+    const fs::path out = fresh_dir("rebake");
+    const std::string scene = test::shared_scene("cornell_box.gltf");
+    ASSERT_EQ(run_lightfarm("bake " + scene + " --res 32 --passes 8 --out " + out.string()).exit_code, 0);
+    // An older bake's snapshots of every kind, at passes this one does not reach.
+    for (const char* old :
+         {"lightmap.pass-0512.exr", "sh_transfer.pass-0064.bin", "probes.pass-0016.json", "ao.pass-0128.exr"})
+        fs::copy_file(out / "lightmap.exr", out / old);
+    std::ofstream(out / "notes.pass-0008.txt") << "mine";
+    ASSERT_EQ(run_lightfarm("bake " + scene + " --res 32 --passes 2 --out " + out.string()).exit_code, 0);
+    for (const char* old :
+         {"lightmap.pass-0512.exr", "sh_transfer.pass-0064.bin", "probes.pass-0016.json", "ao.pass-0128.exr"})
+        EXPECT_FALSE(fs::exists(out / old)) << old;
+    EXPECT_TRUE(fs::exists(out / "lightmap.pass-0001.exr"));
+    EXPECT_TRUE(fs::exists(out / "notes.pass-0008.txt")) << "not a lightfarm file";
+    fs::remove_all(out);
+}
+
 // 9,121 charts cannot fit 64² even at one texel each: the message says which
 // resolution would, and that answer holds (the same number the service's
 // upload summary reports as min_atlas_res).

@@ -119,6 +119,21 @@ TEST(ProgressLine, ABarWithItsPercentageAndTheEta) {
     EXPECT_NE(cli::progress_line("3cfd1af2a543", "", p).find("[############------------]  50%"), std::string::npos);
 }
 
+// `lightfarm bake`'s own bar is the same line, its ETA from the output's
+// stop rules: under --time-limit it fills by time (it stayed empty at
+// "pass 32/100000"), under --target-error by the error's 1/sqrt(passes).
+TEST(ProgressLine, TheLocalBarFollowsWhicheverStopRuleEndsFirst) {
+    protocol::Progress p;
+    p.pass = 32;
+    p.seconds = 2.0;
+    p.eta_seconds = protocol::estimate_eta({100000, 0.0, 10.0}, p);
+    EXPECT_EQ(cli::progress_line("", "lightmap", p), "lightmap  [#####-------------------]  20%  pass 32  ETA 8s");
+    p.error_estimate = 0.02;
+    p.eta_seconds = protocol::estimate_eta({100000, 0.01, 0.0}, p);  // 4x the passes: 6 s left of 8
+    EXPECT_NE(cli::progress_line("", "sh", p).find("[######------------------]  25%"), std::string::npos)
+        << cli::progress_line("", "sh", p);
+}
+
 TEST_F(RemoteTest, SubmitsAGltfWithItsFiles) {
     const CliRun r = run(with_common({"submit", (tmp.path / "gltf" / "scene.gltf").string()}));
     ASSERT_EQ(r.status, 0) << r.err;

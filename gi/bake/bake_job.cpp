@@ -212,6 +212,20 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
     return out;
 }
 
+// A fresh bake into a folder that holds an older bake: the older one's
+// snapshots go (the files that fit an output's snapshot pattern, nothing
+// else), so that its higher pass numbers are not taken for this bake's.
+void remove_old_snapshots(const fs::path& out) {
+    std::error_code ec;
+    for (const fs::directory_entry& e : fs::directory_iterator(out, ec)) {
+        const std::string name = e.path().filename().string(), pattern = file_pattern(name);
+        if (pattern == name || !e.is_regular_file()) continue;
+        for (const protocol::OutputKind& o : protocol::output_registry())
+            for (const protocol::OutputFile& f : o.files)
+                if (f.name == pattern) fs::remove(e.path(), ec);
+    }
+}
+
 // Where a method's saved state and its finished result live (bake/method_state.h).
 fs::path resume_dir(const fs::path& out) { return out / protocol::kResumeDir; }
 fs::path state_path(const fs::path& out, const std::string& output) { return resume_dir(out) / (output + ".state"); }
@@ -451,9 +465,12 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     std::vector<std::string> keys;
     for (const auto& m : methods) keys.push_back(state_key(job, prepared->scene, m->output()));
     std::vector<ResumePoint> resumed(methods.size());
-    if (job.resume)
+    if (job.resume) {
         for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], keys[i], started);
-    else fs::remove_all(resume_dir(job.out));
+    } else {
+        fs::remove_all(resume_dir(job.out));
+        remove_old_snapshots(job.out);
+    }
     emit(started);
     // The geometry a viewer needs to show the lightmap's snapshots on the
     // scene (the status page's 3D view), there before the first snapshot.
