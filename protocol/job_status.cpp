@@ -45,6 +45,15 @@ std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p) 
     return eta;
 }
 
+json to_json(const JobDone& d) {
+    json j = to_json(d.progress);
+    j["files"] = d.files;
+    j["final"] = d.final_files;
+    j["cached"] = d.cached;
+    if (d.cached_from) j["cached_from"] = *d.cached_from;
+    return j;
+}
+
 json to_json(const LatestFile& f) { return {{"file", f.file}, {"pass", f.pass}, {"final", f.final_file}}; }
 
 json to_json(const std::map<std::string, LatestFile>& latest) {

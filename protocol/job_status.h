@@ -56,6 +56,19 @@ struct JobStatus {
     double created_at = 0, started_at = 0, finished_at = 0;  // Unix seconds, 0 = not yet
 };
 nlohmann::json to_json(const JobStatus& s);
+
+// The data of a job's "done" event: its final progress, every file (final
+// and intermediate), each output's final file, and whether the result was
+// copied from an earlier job of the same bake. One type, whether a worker
+// finished the job or the cache did.
+struct JobDone {
+    Progress progress;
+    std::vector<std::string> files;
+    std::map<std::string, std::string> final_files;  // output -> its main file
+    bool cached = false;
+    std::optional<std::string> cached_from;  // the earlier job, told to its own owner only
+};
+nlohmann::json to_json(const JobDone& d);
 JobStatus status_from_json(const nlohmann::json& j);
 
 // One event of a job's stream. Ids count 1, 2, 3 ... per job.

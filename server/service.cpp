@@ -1166,7 +1166,7 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
         const fs::path tmp = fs::path(config_.data_dir) / "tmp" / ("cache-" + job.status.id);
         std::error_code ec;
         fs::create_directories(tmp, ec);
-        json files = json::array();
+        std::vector<std::string> files;
         for (const Artifact& a : artifacts_in(from)) {
             fs::create_hard_link(from / a.name, tmp / a.name, ec);
             if (ec) fs::copy_file(from / a.name, tmp / a.name, fs::copy_options::overwrite_existing, ec);
@@ -1180,16 +1180,15 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
             job.status.progress = earlier->status.progress;
             job.status.latest = earlier->status.latest;
             job.status.started_at = job.status.finished_at = job.status.created_at;
-            json done = protocol::to_json(job.status.progress);
-            done["files"] = files;
-            json finals = json::object();
+            protocol::JobDone done;
+            done.progress = job.status.progress;
+            done.files = files;
             for (const auto& [output, latest] : job.status.latest)
-                if (latest.final_file) finals[output] = latest.file;
-            done["final"] = finals;
-            done["cached"] = true;
+                if (latest.final_file) done.final_files[output] = latest.file;
+            done.cached = true;
             // Another token's job is not this caller's to know of.
-            if (earlier->owner == caller.owner) done["cached_from"] = earlier->status.id;
-            store_->insert_job(job, {{0, "done", done}});
+            if (earlier->owner == caller.owner) done.cached_from = earlier->status.id;
+            store_->insert_job(job, {{0, "done", protocol::to_json(done)}});
             changes_.notify();
             send_json(res, 201, {{"id", job.status.id}, {"state", "succeeded"}, {"cached", true}});
             return;

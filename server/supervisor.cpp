@@ -395,21 +395,18 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         p.eta_seconds = 0.0;
         p.prepare_seconds = state.prepare_seconds;
         u.progress = p;
-        json files = json::array();
+        protocol::JobDone job_done;
+        job_done.progress = p;
         for (const std::string& f : done.files)
-            if (plain_file_name(f)) files.push_back(f);
-        json finals = json::object();
+            if (plain_file_name(f)) job_done.files.push_back(f);
         for (const auto& [output, file] : done.final_files) {
             if (!plain_file_name(file)) continue;
-            finals[output] = file;
+            job_done.final_files[output] = file;
             // The pass the output's final file holds: its last progress.
             const int pass = state.passes.count(output) ? state.passes.at(output) : p.pass;
             u.latest[output] = LatestFile{file, pass, true};
         }
-        json data = protocol::to_json(p);
-        data["files"] = files;
-        data["final"] = finals;
-        u.state.done = data;
+        u.state.done = protocol::to_json(job_done);
     }
     return u;
 }
@@ -696,8 +693,7 @@ bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
         return false;
     }
     if (end.status.success() && end.state.done) {
-        json done = *end.state.done;
-        done["cached"] = false;
+        const json& done = *end.state.done;
         bool still_ours = true;
         persist("job " + id + ": succeeded state", [&] {
             // Not if the job was cancelled or taken over meanwhile: the store's state stands.

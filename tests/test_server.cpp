@@ -712,6 +712,14 @@ TEST_F(ServerTest, TheSameBakeTwiceIsServedFromTheCache) {
     ASSERT_EQ(exr->status, 200);
     EXPECT_EQ(exr->body, read_text(engine.dir / "snapshot.exr"));
     EXPECT_EQ(events(second).back().type, "done");
+    // One payload, whoever finished the job: the same fields, the same files.
+    const json baked = events(first).back().data, cached = events(second).back().data;
+    for (auto it = baked.begin(); it != baked.end(); ++it)
+        EXPECT_TRUE(cached.contains(it.key())) << it.key() << " missing from the cached job's done event";
+    EXPECT_EQ(baked["cached"], false);
+    EXPECT_EQ(cached["cached"], true);
+    EXPECT_EQ(cached["cached_from"], first);
+    EXPECT_EQ(baked["final"], cached["final"]);
 
     // Another seed is another bake.
     const std::string third = submit(scene, {{"passes", 2}}, 6);
