@@ -42,4 +42,26 @@ std::string bake_help() {
            bake_outputs_help() + "\n" + bake_settings_help();
 }
 
+std::string command_usage(const std::string& usage, const std::string& command) {
+    std::string out;
+    size_t at = 0;
+    bool inside = false;
+    while (at < usage.size()) {
+        const size_t end = std::min(usage.find('\n', at), usage.size());
+        const std::string line = usage.substr(at, end - at);
+        at = end + 1;
+        const bool entry = line.rfind("  " + command + " ", 0) == 0 || line == "  " + command;
+        const bool continuation = line.rfind("       ", 0) == 0;  // deeper than an entry's two spaces
+        if (entry) {
+            inside = true;
+            out += "usage: lightfarm " + line.substr(2) + "\n";
+        } else if (inside && continuation) {
+            out += line + "\n";
+        } else if (inside) {
+            break;
+        }
+    }
+    return out;
+}
+
 }  // namespace lf::cli

@@ -10,5 +10,9 @@ namespace lf::cli {
 std::string bake_settings_help();
 // The bake command's usage line, then bake_settings_help().
 std::string bake_help();
+// One command's entry of a usage text ("  COMMAND …" and its indented
+// continuation lines) as "usage: lightfarm COMMAND …"; "" when the text has
+// no such command.
+std::string command_usage(const std::string& usage, const std::string& command);
 
 }  // namespace lf::cli

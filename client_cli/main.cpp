@@ -404,9 +404,11 @@ int main(int argc, char** argv) {
     const std::string command = argv[1];
     for (int i = 2; i < argc; ++i)
         if (std::string(argv[i]) == "--help") {  // every command answers --help
+            // The command's own entry (every command has one); the whole usage for an unknown one.
+            const std::string own =
+                lf::cli::command_usage(lf::cli::is_remote_command(command) ? lf::cli::kRemoteUsage : kUsage, command);
             if (command == "bake") std::cout << lf::cli::bake_help();
-            else if (lf::cli::is_remote_command(command)) std::cout << lf::cli::kRemoteUsage;
-            else std::cout << kUsage;
+            else std::cout << (own.empty() ? std::string(kUsage) : own);
             if (command == "submit") std::cout << "\n" << lf::cli::bake_settings_help();
             return 0;
         }

@@ -381,8 +381,10 @@ int run_remote_command(const std::string& command, int argc, char** argv) {
         if (command == "jobs") return jobs(argc, argv);
         throw UsageError("unknown command '" + command + "'");
     } catch (const UsageError& e) {
-        std::cerr << "lightfarm " << command << ": " << e.what() << "\n" << kRemoteUsage;
-        if (command == "submit") std::cerr << "\n" << bake_settings_help();
+        // The mistake and the command's own usage, not every option there is.
+        std::cerr << "lightfarm " << command << ": " << e.what() << "\n"
+                  << command_usage(kRemoteUsage, command) << "(lightfarm " << command << " --help lists its options"
+                  << (command == "submit" ? ", every bake setting among them" : "") << ")\n";
         return 2;
     } catch (const std::exception& e) {
         std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
