@@ -267,8 +267,16 @@ void fetch(Remote& remote, const std::string& job, const fs::path& dir, Files wh
     }
 }
 
+// Ends with the job's final state, said on stderr (stdout stays the job id
+// or the JSON lines): done, failed with its cause, or cancelled.
 int finish_with(const protocol::JobEvent& e, const std::string& job) {
-    if (e.type == "done") return 0;
+    if (e.type == "done") {
+        std::cerr << "lightfarm: job " << job << " succeeded"
+                  << (e.data.value("cached", false) ? " (from the cache)" : "") << ": " << e.data.value("pass", 0)
+                  << " passes, " << e.data.value("seconds", 0.0) << " s, "
+                  << e.data.value("files", json::array()).size() << " files\n";
+        return 0;
+    }
     if (e.type == "failed")
         std::cerr << "lightfarm: job " << job << " failed: " << e.data.value("error", "") << ": "
                   << e.data.value("cause", "") << "\n";

@@ -78,11 +78,15 @@ std::map<std::string, LatestFile> latest_from_json(const json& j) {
 }
 
 json to_json(const JobStatus& s) {
+    // A job that ended without finishing (failed, cancelled) has no time left:
+    // the ETA of its last progress is not shown as if it still ran.
+    Progress progress = s.progress;
+    if (s.state == JobState::Failed || s.state == JobState::Cancelled) progress.eta_seconds.reset();
     json j = {{"id", s.id},
               {"scene", s.scene},
               {"state", to_string(s.state)},
               {"spec", s.spec},
-              {"progress", to_json(s.progress)},
+              {"progress", to_json(progress)},
               {"attempts", s.attempts},
               {"max_attempts", s.max_attempts},
               {"cached", s.cached},

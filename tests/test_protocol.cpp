@@ -1263,4 +1263,19 @@ TEST(FuzzFindings, ProgressCountsAreReadOnlyWhenTheyAreCounts) {
 }
 
 }  // namespace
+// A failed or cancelled job has no ETA (a cancelled one kept its last);
+// a queued, running or succeeded one shows what it has.
+TEST(JobStatusJson, AJobThatEndedUnfinishedHasNoEta) {
+    JobStatus s;
+    s.progress.pass = 10;
+    s.progress.seconds = 2.0;
+    s.progress.eta_seconds = 30.0;
+    for (JobState state :
+         {JobState::Queued, JobState::Running, JobState::Succeeded, JobState::Failed, JobState::Cancelled}) {
+        s.state = state;
+        const bool ended_unfinished = state == JobState::Failed || state == JobState::Cancelled;
+        EXPECT_EQ(to_json(s)["progress"]["eta_seconds"].is_null(), ended_unfinished) << to_string(state);
+    }
+}
+
 }  // namespace lf::protocol

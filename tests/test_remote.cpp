@@ -140,6 +140,8 @@ TEST_F(RemoteTest, SubmitsAGltfWithItsFiles) {
     const std::string id = r.out.substr(0, r.out.find('\n'));
     const CliRun w = run(with_common({"watch", id}));
     EXPECT_EQ(w.status, 0) << w.err;
+    // watch ends by saying how the job ended (it printed nothing after the bar).
+    EXPECT_NE(w.err.find("lightfarm: job " + id + " succeeded"), std::string::npos) << w.err;
 }
 
 TEST_F(RemoteTest, CancelAndErrorsAreOneLine) {
