@@ -664,7 +664,7 @@ const std::vector<Service::Route>& Service::routes() {
         {"GET", "/v1/jobs/{id}/preview.png", Auth::Token, &Service::preview},
         {"GET", "/v1/jobs/{id}/lightmap.rgbm.png", Auth::Token, &Service::lightmap_rgbm},
         {"GET", "/v1/jobs/{id}/error.png", Auth::Token, &Service::error_map},
-        {"GET", "/ui/three/{path}", Auth::None, &Service::web_library},
+        {"GET", "/ui/three/{path}", Auth::Token, &Service::web_library},
         {"POST", "/v1/jobs/{id}/cancel", Auth::Token, &Service::cancel_job},
     };
     return table;
@@ -678,6 +678,10 @@ std::vector<Service::RouteInfo> Service::route_table() {
 
 Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : config_(std::move(config)) {
     if (config_.limits.event_streams <= 0) config_.limits.event_streams = std::max(1, config_.http_threads / 2);
+    // No two tokens may hold every stream between them: one token gets at
+    // most a quarter of them (with the default 64 threads: 8 of 32).
+    config_.limits.event_streams_per_token =
+        std::max(1, std::min(config_.limits.event_streams_per_token, config_.limits.event_streams / 4));
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
     fs::create_directories(fs::path(config_.data_dir) / "jobs");
     fs::create_directories(fs::path(config_.data_dir) / "scenes");
@@ -1474,9 +1478,9 @@ void Service::web_library(const httplib::Request& req, httplib::Response& res, c
     std::error_code ec;
     const std::string extension = path.extension().string();
     if (extension != ".js" || !fs::is_regular_file(path, ec)) {
-        if (!fs::is_directory(root, ec))
-            throw HttpError(404, "three.js is not installed in " + root.string() +
-                                     ": run scripts/run (or `npm ci` in web/) to install it");
+        if (!fs::is_directory(root, ec))  // where it was looked for is the server's business, not the caller's
+            throw HttpError(404,
+                            "three.js is not installed on this server: run scripts/run (or `npm ci` in web/) there");
         throw HttpError(404, "no such file: three/" + relative);
     }
     std::ifstream in(path, std::ios::binary);

@@ -765,6 +765,21 @@ TEST_F(ServerTest, MetricsAndTheStatusPage) {
     EXPECT_EQ(browser.Post("/v1/jobs/" + id + "/cancel", with_cookie, "", "application/json")->status, 401);
 }
 
+// The page's three.js is behind the API's rules (a token or the page's
+// cookie), and when it is missing the answer names no server path.
+TEST_F(ServerTest, TheViewersLibraryNeedsATokenAndNamesNoPath) {
+    const fs::path web = tmp.path / "empty-web";
+    fs::create_directories(web);
+    start({"--web-dir", web.string()});
+    httplib::Client anonymous(server->host, server->port);
+    EXPECT_EQ(anonymous.Get("/ui/three/build/three.module.js")->status, 401);
+    auto r = client().Get("/ui/three/build/three.module.js");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404);
+    EXPECT_NE(r->body.find("three.js is not installed"), std::string::npos) << r->body;
+    EXPECT_EQ(r->body.find(tmp.path.string()), std::string::npos) << "no server path: " << r->body;
+}
+
 // The jobs inlined in the status page cannot end its script or open a
 // comment, whatever a name holds; every answer says how it may be shown.
 TEST(StatusPage, InlinedJsonCannotEndTheScriptOrOpenAComment) {

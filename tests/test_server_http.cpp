@@ -160,6 +160,28 @@ protected:
     }
 };
 
+// With the defaults (64 threads: 32 streams) one token holds at most a
+// quarter of the streams, so no two tokens can take them all (the per-token
+// default of 16 let two). Other tokens' streams still open.
+TEST_F(HttpTest, NoTwoTokensCanHoldEveryEventStream) {
+    start();
+    const std::string scene = upload(kAlice, "streams");
+    engine.set("delay", "0.05");
+    const std::string job = submit(scene, 400, 1);
+    ASSERT_FALSE(job.empty());
+    std::vector<std::unique_ptr<RawSocket>> streams;
+    int accepted = 0;
+    for (int i = 0; i < 20; ++i) {
+        auto s = std::make_unique<RawSocket>(server->port);
+        s->send(request("GET", "/v1/jobs/" + job + "/events", kAlice));
+        if (s->status() == 200) ++accepted;
+        streams.push_back(std::move(s));
+    }
+    EXPECT_EQ(accepted, 8) << "a quarter of the 32 streams";
+    auto c = client();
+    EXPECT_EQ(c.Get("/healthz")->status, 200);
+}
+
 // The first test: 100 clients trickling header lines and 100 event
 // streams (then vanishing) leave /healthz, GET /v1/jobs and a submission
 // answering within 1 s, and the streams that remain get their events.
