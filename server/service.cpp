@@ -7,7 +7,7 @@
 #include "postgres_job_store.h"
 #include "preview.h"
 #include "sqlite_job_store.h"
-#include "status_page.h"
+#include "web_files.h"
 
 #include <arpa/inet.h>
 #include <fcntl.h>
@@ -741,7 +741,7 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
                 }
                 if (route.auth == Auth::Page && caller.owner.empty()) {
                     res.status = 401;
-                    res.set_content(kLoginPage, "text/html; charset=utf-8");
+                    res.set_content(std::string(embedded_web_files().at("login.html")), "text/html; charset=utf-8");
                     return;
                 }
                 (this->*route.handler)(req, res, caller);
@@ -1072,7 +1072,7 @@ void Service::status_page(const httplib::Request&, httplib::Response& res, const
     // of after its first fetch, escaped so that no value can end the script
     // or open a comment (a file named "<!--<script>.gltf" blanked the page).
     const std::string jobs = json_for_script(jobs_json(caller.owner));
-    std::string page = kStatusPage;
+    std::string page(embedded_web_files().at("status.html"));
     const std::string slot = "/*JOBS*/null";
     page.replace(page.find(slot), slot.size(), jobs);
     res.set_content(page, "text/html; charset=utf-8");

@@ -1,4 +1,4 @@
-// GLSL sources under gi/shaders, embedded at build time (cmake/embed_shaders.cmake).
+// GLSL sources under gi/shaders, embedded at build time (cmake/embed_files.cmake).
 #pragma once
 
 #include <map>
