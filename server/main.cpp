@@ -3,6 +3,7 @@
 // ~/.local/share/lightfarm) and a token it creates there, so `scripts/run`
 // gives a working local service.
 #include "config.h"
+#include "data_dir.h"
 #include "hash.h"
 #include "log.h"
 #include "service.h"
@@ -68,9 +69,10 @@ void lock_data_dir(const std::string& data_dir) {
 // Directories under DATA/jobs and DATA/scenes (the stored jobs' and scenes').
 std::vector<fs::path> record_dirs(const std::string& data_dir) {
     std::vector<fs::path> dirs;
-    for (const char* kind : {"jobs", "scenes"}) {
+    const DataDir data(data_dir);
+    for (const fs::path& kind : {data.jobs(), data.scenes()}) {
         std::error_code ec;
-        for (fs::directory_iterator it(fs::path(data_dir) / kind, ec), end; !ec && it != end; it.increment(ec))
+        for (fs::directory_iterator it(kind, ec), end; !ec && it != end; it.increment(ec))
             if (it->is_directory(ec)) dirs.push_back(it->path());
     }
     return dirs;
@@ -145,10 +147,10 @@ void check_store_against_data_dir(const ServerConfig& config) {
     }
     std::vector<std::string> unknown;
     for (const fs::path& dir : dirs)
-        if (dir.parent_path().filename() == "jobs" && !store.has_job(dir.filename().string()))
+        if (dir.parent_path() == DataDir(data).jobs() && !store.has_job(dir.filename().string()))
             unknown.push_back(dir.filename().string());
     if (!unknown.empty())
-        log_line("warning: " + std::to_string(unknown.size()) + " job directories in " + (data / "jobs").string() +
+        log_line("warning: " + std::to_string(unknown.size()) + " job directories in " + DataDir(data).jobs().string() +
                  " are not in the job store (lost records?), e.g. " + unknown.front() + "; they are left alone");
 }
 

@@ -1,5 +1,6 @@
 #include "scene_store.h"
 
+#include "data_dir.h"
 #include "hash.h"
 #include "http_error.h"
 #include "log.h"
@@ -281,7 +282,8 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
 
     // Write into a private temporary directory, validate there, then move it
     // into place in one rename: a scene directory is never half written.
-    const fs::path tmp = fs::path(config_.data_dir) / "tmp" / ("upload-" + random_hex(8));
+    const DataDir data(config_.data_dir);
+    const fs::path tmp = data.tmp("upload-" + random_hex(8));
     struct Cleanup {
         fs::path dir;
         ~Cleanup() {
@@ -294,7 +296,7 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
 
     const json summary = inspect(tmp / main_name);
 
-    const fs::path final_dir = fs::path(config_.data_dir) / "scenes" / id;
+    const fs::path final_dir = data.scene(id);
     fs::create_directories(final_dir.parent_path());
     std::error_code ec;
     fs::rename(tmp, final_dir, ec);  // fails harmlessly when a concurrent upload of the same bytes won

@@ -1,9 +1,10 @@
 #include "service.h"
 
+#include "data_dir.h"
 #include "disk_space.h"
 #include "hash.h"
-#include "http_gate.h"
 #include "http_error.h"
+#include "http_gate.h"
 #include "log.h"
 #include "postgres_job_store.h"
 #include "preview.h"
@@ -186,9 +187,7 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     config_.limits.event_streams_per_token =
         std::max(1, std::min(config_.limits.event_streams_per_token, config_.limits.event_streams / 4));
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
-    fs::create_directories(fs::path(config_.data_dir) / "jobs");
-    fs::create_directories(fs::path(config_.data_dir) / "scenes");
-    fs::create_directories(fs::path(config_.data_dir) / "tmp");
+    DataDir(config_.data_dir).create();
     store_ = open_job_store(config_);
     scenes_ = std::make_unique<SceneStore>(config_, *store_);
     supervisor_ = std::make_unique<Supervisor>(*store_, config_, changes_, metrics_);
@@ -670,7 +669,7 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
     if (std::optional<JobRecord> earlier = store_->succeeded_with_key(job.cache_key)) {
         const fs::path from = supervisor_->job_dir(earlier->status.id);
         const fs::path to = supervisor_->job_dir(job.status.id);
-        const fs::path tmp = fs::path(config_.data_dir) / "tmp" / ("cache-" + job.status.id);
+        const fs::path tmp = DataDir(config_.data_dir).tmp("cache-" + job.status.id);
         std::error_code ec;
         fs::create_directories(tmp, ec);
         std::vector<std::string> files;

@@ -1,5 +1,6 @@
 #include "supervisor.h"
 
+#include "data_dir.h"
 #include "disk_space.h"
 
 #include "log.h"
@@ -57,10 +58,10 @@ Supervisor::Supervisor(JobStore& store, const ServerConfig& config, ChangeSignal
 
 Supervisor::~Supervisor() { stop(); }
 
-fs::path Supervisor::job_dir(const std::string& job_id) const { return fs::path(config_.data_dir) / "jobs" / job_id; }
+fs::path Supervisor::job_dir(const std::string& job_id) const { return DataDir(config_.data_dir).job(job_id); }
 
 fs::path Supervisor::scene_path(const SceneRecord& scene) const {
-    return fs::path(config_.data_dir) / "scenes" / scene.id / scene.main_file;
+    return DataDir(config_.data_dir).scene(scene.id) / scene.main_file;
 }
 
 void Supervisor::start() {
@@ -706,9 +707,8 @@ bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
     }
     const std::string scene_name =
         scene.main_file.empty() ? scene.summary.value("source", "the scene") : scene.main_file;
-    const std::string last =
-        user_facing(worker.stderr_last_line(), scene_path(scene), scene_name,
-                    fs::path(config_.data_dir) / "scenes" / scene.id, job_dir(id), config_.data_dir);
+    const std::string last = user_facing(worker.stderr_last_line(), scene_path(scene), scene_name,
+                                         DataDir(config_.data_dir).scene(scene.id), job_dir(id), config_.data_dir);
     if (end.status.exited && end.status.code == protocol::kExitSpecUnreadable) {
         server_fault(job, "the worker could not read the spec lightfarmd wrote" + (last.empty() ? "" : ": " + last));
         return true;
