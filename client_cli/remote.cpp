@@ -116,7 +116,14 @@ std::string upload_scene(Remote& remote, const fs::path& scene) {
     std::string ext = scene.extension().string();
     for (char& c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
     if (ext == ".glb") {
-        return remote.call(remote.http().Post("/v1/scenes", bytes, "model/gltf-binary"),
+        // Named by the file's own name (?name=), percent-encoded.
+        std::string name;
+        for (const unsigned char c : scene.filename().string()) {
+            char hex[4];
+            std::snprintf(hex, sizeof hex, "%%%02X", c);
+            name += std::isalnum(c) || c == '.' || c == '-' || c == '_' ? std::string(1, char(c)) : std::string(hex);
+        }
+        return remote.call(remote.http().Post("/v1/scenes?name=" + name, bytes, "model/gltf-binary"),
                            "upload " + scene.string())["id"];
     }
     if (ext == ".gltf") {

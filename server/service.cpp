@@ -600,10 +600,19 @@ void Service::post_scene(const httplib::Request& req, httplib::Response& res, co
         for (const auto& [field, part] : req.files)
             files.push_back({part.filename.empty() ? field : part.filename, part.content});
     } else {
-        // A bare body is one file: a .glb, or a .gltf whose buffers are data: URIs.
+        // A bare body is one file: a .glb, or a .gltf whose buffers are data:
+        // URIs, named by ?name= (the file's own name, shown in the summary and
+        // the job list; it was always "scene.glb") or by its kind.
         const size_t first = req.body.find_first_not_of(" \t\r\n");
         const bool json_body = first != std::string::npos && req.body[first] == '{';
-        files.push_back({json_body ? "scene.gltf" : "scene.glb", req.body});
+        const std::string kind = json_body ? ".gltf" : ".glb";
+        std::string name = req.has_param("name") ? req.get_param_value("name") : "scene" + kind;
+        if (name.size() < kind.size() || name.compare(name.size() - kind.size(), kind.size(), kind) != 0)
+            throw HttpError(400,
+                            "name: '" + name + "' must end in " + kind + " for this body (a " +
+                                (json_body ? "JSON glTF" : "binary glTF") + ")",
+                            {{"field", "name"}});
+        files.push_back({name, req.body});
     }
     const SceneStore::Result r = scenes_->upload(files, caller.owner);
     json body = r.scene.summary;

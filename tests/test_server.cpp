@@ -204,6 +204,25 @@ TEST_F(ServerTest, ScenesAreStoredByContentHash) {
     EXPECT_EQ(json::parse(r->body)["triangles"], 12);
 }
 
+// A bare .glb body keeps its own name (?name=): the summary and the job
+// list showed every such upload as scene.glb. A name of the wrong kind, or
+// one no upload may have, is a 400.
+TEST_F(ServerTest, ABareUploadIsListedUnderItsOwnName) {
+    start();
+    auto r = client().Post("/v1/scenes?name=stairs%20v2.glb", glb("named"), "model/gltf-binary");
+    ASSERT_TRUE(r);
+    ASSERT_TRUE(r->status == 201 || r->status == 200) << r->body;
+    EXPECT_EQ(json::parse(r->body)["source"], "stairs v2.glb") << r->body;
+    const std::string id = submit(json::parse(r->body)["id"]);
+    wait_finished(id);
+    EXPECT_EQ(json::parse(client().Get("/v1/jobs/" + id)->body)["scene_name"], "stairs v2.glb");
+    auto wrong = client().Post("/v1/scenes?name=stairs.gltf", glb("named2"), "model/gltf-binary");
+    EXPECT_EQ(wrong->status, 400) << wrong->body;
+    EXPECT_EQ(json::parse(wrong->body)["field"], "name");
+    auto unsafe = client().Post("/v1/scenes?name=..%2Fx.glb", glb("named3"), "model/gltf-binary");
+    EXPECT_EQ(unsafe->status, 400) << unsafe->body;
+}
+
 // Names that cannot be stored, or read other than they are, are a 400
 // naming the file (a 300-byte name and a file that is also a folder were
 // 500s; U+202E was accepted).
