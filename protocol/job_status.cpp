@@ -54,6 +54,20 @@ json to_json(const JobDone& d) {
     return j;
 }
 
+JobEvent job_event(const JobDone& e) { return {0, "done", to_json(e)}; }
+
+JobEvent job_event(const JobRetrying& e) {
+    json data = {{"attempt", e.attempt}, {"cause", e.cause}};
+    if (e.server_fault) data["server_fault"] = true;
+    return {0, "retrying", data};
+}
+
+JobEvent job_event(const JobFailed& e) {
+    return {0, "failed", {{"error", e.error}, {"cause", e.cause}, {"attempts", e.attempts}}};
+}
+
+JobEvent job_event(const JobCancelled& e) { return {0, "cancelled", {{"previous_state", e.previous_state}}}; }
+
 json to_json(const LatestFile& f) { return {{"file", f.file}, {"pass", f.pass}, {"final", f.final_file}}; }
 
 json to_json(const std::map<std::string, LatestFile>& latest) {

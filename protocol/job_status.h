@@ -82,6 +82,30 @@ struct JobEvent {
 };
 bool is_final_event(const std::string& type);
 
+// The server's job events, one type each, so that no payload is written by
+// hand in two places: "done" (JobDone, above), "retrying", "failed",
+// "cancelled". job_event() makes the event to store (its id is the store's).
+// "retrying": the attempt that ended and why; server_fault when the machine
+// failed, not the job (that attempt is not counted).
+struct JobRetrying {
+    int attempt = 0;
+    std::string cause;
+    bool server_fault = false;
+};
+// "failed": what failed (the job's error), why, after how many attempts.
+struct JobFailed {
+    std::string error, cause;
+    int attempts = 0;
+};
+// "cancelled": the state the job was in.
+struct JobCancelled {
+    std::string previous_state;
+};
+JobEvent job_event(const JobDone& e);
+JobEvent job_event(const JobRetrying& e);
+JobEvent job_event(const JobFailed& e);
+JobEvent job_event(const JobCancelled& e);
+
 // "id: 3\nevent: progress\ndata: {...}\n\n"
 std::string format_sse(const JobEvent& e);
 

@@ -703,7 +703,7 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
             done.cached = true;
             // Another token's job is not this caller's to know of.
             if (earlier->owner == caller.owner) done.cached_from = earlier->status.id;
-            store_->insert_job(job, {{0, "done", protocol::to_json(done)}});
+            store_->insert_job(job, {protocol::job_event(done)});
             changes_.notify();
             send_json(res, 201, {{"id", job.status.id}, {"state", "succeeded"}, {"cached", true}});
             return;
@@ -1005,7 +1005,7 @@ void Service::cancel_job(const httplib::Request& req, httplib::Response& res, co
     const std::string& id = job.status.id;
     const std::string was = protocol::to_string(job.status.state);
     if (!store_->finish(id, JobState::Cancelled, "cancelled by request", "",
-                        {0, "cancelled", {{"previous_state", was}}})) {
+                        protocol::job_event(protocol::JobCancelled{was}))) {
         const std::string state = protocol::to_string(store_->job(id)->status.state);
         throw HttpError(409, "job " + id + " already " + state, {{"id", id}, {"state", state}});
     }

@@ -94,11 +94,11 @@ void Supervisor::end_abandoned_attempts(const std::vector<JobRecord>& jobs) {
                                        : "node " + job.node + " stopped renewing its lease during attempt " + attempt;
         const bool last = job.status.attempts >= job.status.max_attempts;
         if (last) {
-            store_.finish(
-                id, JobState::Failed, "bake failed after " + attempt + " attempts", cause,
-                {0, "failed", {{"error", "bake failed"}, {"cause", cause}, {"attempts", job.status.attempts}}});
+            const std::string error = "bake failed after " + attempt + " attempts";
+            store_.finish(id, JobState::Failed, error, cause,
+                          protocol::job_event(protocol::JobFailed{error, cause, job.status.attempts}));
         } else {
-            store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", cause}}}, false);
+            store_.requeue(id, protocol::job_event(protocol::JobRetrying{job.status.attempts, cause}), false);
         }
         log_line("job " + id + ": " + cause + ", " + (last ? "no attempt left" : "queued again"));
     }
@@ -287,7 +287,7 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
     if (attempts < job.status.max_attempts) {
         log_line("job " + id + ": attempt " + std::to_string(attempts) + " failed (" + cause + "), retrying");
         persist("job " + id + ": requeue", [&] {
-            store_.requeue(id, {0, "retrying", {{"attempt", attempts}, {"cause", cause}}}, false);
+            store_.requeue(id, protocol::job_event(protocol::JobRetrying{attempts, cause}), false);
         });
     } else {
         const std::string error =
@@ -296,7 +296,7 @@ void Supervisor::attempt_failed(const JobRecord& job, const std::string& cause) 
         persist("job " + id + ": failed state", [&] {
             if (store_.renew_lease(id))  // still ours: not cancelled or taken over meanwhile
                 store_.finish(id, JobState::Failed, error, cause,
-                              {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", attempts}}});
+                              protocol::job_event(protocol::JobFailed{error, cause, attempts}));
         });
     }
 }
@@ -307,11 +307,8 @@ void Supervisor::server_fault(const JobRecord& job, const std::string& cause) {
     log_line("job " + id + ": " + cause +
              "; the machine's fault, not the job's: queued again, the attempt not counted");
     persist("job " + id + ": requeue", [&] {
-        store_.requeue(id,
-                       {0,
-                        "retrying",
-                        {{"attempt", job.status.attempts}, {"cause", "lightfarmd: " + cause}, {"server_fault", true}}},
-                       true);
+        store_.requeue(
+            id, protocol::job_event(protocol::JobRetrying{job.status.attempts, "lightfarmd: " + cause, true}), true);
     });
 }
 
@@ -327,7 +324,7 @@ void Supervisor::fail_now(const JobRecord& job, const std::string& error, const 
     persist("job " + job.status.id + ": failed state", [&] {
         if (store_.renew_lease(job.status.id))  // still ours: not cancelled or taken over meanwhile
             store_.finish(job.status.id, JobState::Failed, error, cause,
-                          {0, "failed", {{"error", error}, {"cause", cause}, {"attempts", job.status.attempts}}});
+                          protocol::job_event(protocol::JobFailed{error, cause, job.status.attempts}));
     });
 }
 
@@ -612,8 +609,8 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
             end.status = worker.wait();
             try {
                 flush_updates(id, unsaved);
-                store_.requeue(id, {0, "retrying", {{"attempt", job.status.attempts}, {"cause", "lightfarmd stopped"}}},
-                               true);
+                store_.requeue(
+                    id, protocol::job_event(protocol::JobRetrying{job.status.attempts, "lightfarmd stopped"}), true);
             } catch (const StoreError& e) {
                 log_line("job " + id + ": " + e.what() +
                          "; it stays running in the store and the next start queues it again");
@@ -699,7 +696,7 @@ bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
         persist("job " + id + ": succeeded state", [&] {
             // Not if the job was cancelled or taken over meanwhile: the store's state stands.
             still_ours = store_.renew_lease(id);
-            if (still_ours) store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});
+            if (still_ours) store_.finish(id, JobState::Succeeded, "", "", {0, "done", done});  // JobDone's JSON
         });
         log_line("job " + id +
                  (still_ours ? ": succeeded" : ": finished, but no longer runs on this node; not stored"));
