@@ -527,6 +527,32 @@ TEST(GeneratedScenes, EmissiveStrengthMultipliesTheFactor) {
     EXPECT_TRUE(s.warnings.empty()) << s.warnings.front();
 }
 
+// A material a viewer shows as see-through is named in a warning saying
+// what the bake does with it (issue #35: a cut-out, a blended surface and a
+// window block light like opaque ones), each kind per material; an opaque
+// material gets none.
+TEST(GeneratedScenes, SeeThroughMaterialsAreNamedWithWhatTheBakeDoes) {
+    GltfWriter w;
+    w.add("materials", {{"name", "leaves"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.5}});
+    w.add("materials", {{"name", "curtain"}, {"alphaMode", "BLEND"}});
+    w.add("materials",
+          {{"name", "window"}, {"extensions", {{"KHR_materials_transmission", {{"transmissionFactor", 1.0}}}}}});
+    w.add("materials", {{"name", "wall"}, {"alphaMode", "OPAQUE"}});
+    w.doc["extensionsUsed"] = {"KHR_materials_transmission"};
+    std::vector<int> nodes;
+    for (int m = 0; m < 4; ++m)
+        nodes.push_back(
+            w.add("nodes", {{"mesh", w.mesh(primitive(w.vec3(kQuad), w.scalars(kQuadIndices, test::kUnsignedShort),
+                                                      {{"material", m}}))}}));
+    w.scene(nodes);
+    TempDir dir;
+    const Scene s = load_written(w, dir);
+    EXPECT_TRUE(has_warning(s, "material 0 \"leaves\": alphaMode MASK (cut-out)"));
+    EXPECT_TRUE(has_warning(s, "material 1 \"curtain\": alphaMode BLEND"));
+    EXPECT_TRUE(has_warning(s, "material 2 \"window\": KHR_materials_transmission (glass) blocks light"));
+    EXPECT_FALSE(has_warning(s, "\"wall\""));
+}
+
 TEST(GeneratedScenes, PrimitiveWithoutMaterialGetsAWhiteDefault) {
     GltfWriter w;
     w.add("materials", {{"pbrMetallicRoughness", {{"baseColorFactor", {0.5, 0.25, 0.125, 1.0}}}}});

@@ -28,6 +28,8 @@ private:
                      bool clamp_to_one) const;
     // Scene texture for a material's texture reference, or -1.
     int texture(const tinygltf::TextureInfo& info, const std::string& where, const char* slot);
+    // Warns when the material is see-through in a viewer (MASK, BLEND, transmission).
+    void warn_about_see_through(const tinygltf::Material& m, const std::string& where) const;
 
     tinygltf::Model& model_;
     const Errors& errors_;
@@ -125,7 +127,21 @@ Material MaterialBuilder::convert(const tinygltf::Material& m, int index) {
     out.emission = emissive * strength;  // radiance in W/(sr·m²), DESIGN.md "Conventions"
     out.emissive_texture = texture(m.emissiveTexture, where, "emissive");
     out.double_sided = m.doubleSided;
+    warn_about_see_through(m, where);
     return out;
+}
+
+// What a bake does with a material a viewer shows as see-through (issue
+// #35): said per material, so that a user knows where the light will differ
+// from the viewer's picture. Light passing through is not modelled yet.
+void MaterialBuilder::warn_about_see_through(const tinygltf::Material& m, const std::string& where) const {
+    const char* kBlocks = "blocks light in the bake as if opaque (see-through surfaces are not modelled yet)";
+    if (m.alphaMode == "MASK")
+        warnings_->push_back(where + ": alphaMode MASK (cut-out) " + kBlocks + ": its shadow and bounce stay");
+    else if (m.alphaMode == "BLEND") warnings_->push_back(where + ": alphaMode BLEND (partly transparent) " + kBlocks);
+    if (m.extensions.count("KHR_materials_transmission"))
+        warnings_->push_back(where + ": KHR_materials_transmission (glass) " + std::string(kBlocks) +
+                             ": a window is a wall to the light");
 }
 
 const char* kLightTypes[] = {"point", "spot", "directional"};
