@@ -610,10 +610,11 @@ json bake_json_from_flags(const std::map<std::string, std::string>& flags, const
     return j;
 }
 
-uint64_t estimated_bake_bytes(uint64_t atlas_texels) {
-    constexpr uint64_t kBytesPerTexel = 520;  // 505 measured, rounded up
-    constexpr uint64_t kBase = 100ull << 20;
-    return kBase + kBytesPerTexel * atlas_texels;
+uint64_t estimated_bake_bytes(uint64_t atlas_texels, int subsamples) {
+    constexpr uint64_t kBytesPerTexel = 260, kBytesPerSample = 72;
+    constexpr uint64_t kBase = 130ull << 20;
+    const uint64_t samples = uint64_t(std::max(1, subsamples)) * uint64_t(std::max(1, subsamples));
+    return kBase + (kBytesPerTexel + kBytesPerSample * samples) * atlas_texels;
 }
 
 std::vector<std::pair<std::string, bool>> bake_flags() {

@@ -177,12 +177,15 @@ nlohmann::json bake_json_from_flags(const std::map<std::string, std::string>& fl
 // Every flag bake_json_from_flags knows: {flag, takes a value}.
 std::vector<std::pair<std::string, bool>> bake_flags();
 
-// Host memory a bake of an atlas of `atlas_texels` texels needs at its peak
-// (texel samples, GPU buffers — host memory on llvmpipe — and the snapshot
-// images). Measured on 2026-11-23 (llvmpipe, the Cornell box at 512², 1024²,
-// 2048², one pass, peak RSS 0.22, 0.62, 2.21 GB): 505 bytes per texel above
-// a base of about 90 MB. The engine refuses a bake whose estimate exceeds the
-// memory available, with this figure in the message.
-uint64_t estimated_bake_bytes(uint64_t atlas_texels);
+// Host memory a bake of an atlas of `atlas_texels` texels with `subsamples`²
+// sample points per texel needs at its peak (texel samples, GPU buffers —
+// host memory on llvmpipe — and the snapshot images). Measured (llvmpipe,
+// the Cornell box, one pass, peak RSS): at 2 subsamples on 2026-11-23 at
+// 512², 1024², 2048²: 0.22, 0.62, 2.21 GB; at 1024² on 2026-11-27 with 1, 2,
+// 4 subsamples: 0.46, 0.63, 1.46 GB, about 70 bytes per sample point and
+// atlas texel. The estimate, 130 MB + (260 + 72 s²) bytes per texel, is at or
+// above every one of those. The engine refuses a bake whose estimate exceeds
+// the memory available, with this figure in the message.
+uint64_t estimated_bake_bytes(uint64_t atlas_texels, int subsamples);
 
 }  // namespace lf::protocol

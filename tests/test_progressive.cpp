@@ -4,7 +4,10 @@
 #include "bake/progressive.h"
 #include "bake/snapshot_writer.h"
 
+#include "bake/bake_job.h"
 #include <gtest/gtest.h>
+#include <unistd.h>
+#include <fstream>
 
 #include <algorithm>
 #include <atomic>
@@ -173,4 +176,35 @@ TEST(SnapshotWriter, AFailedWriteReachesTheDriver) {
 }
 
 }  // namespace
+// The memory a bake may use: MemAvailable, and inside a container no more
+// than what is left of its cgroup's memory.max (the estimate ignored the
+// container's limit); an unlimited cgroup ("max") changes nothing.
+TEST(AvailableMemory, TheContainersLimitBoundsMemAvailable) {
+    const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("lf-mem-" + std::to_string(::getpid()));
+    std::filesystem::create_directories(dir / "cg");
+    std::ofstream(dir / "meminfo")
+        << "MemTotal:       24000000 kB\nMemFree:        1000 kB\nMemAvailable:   20000000 kB\n"
+           "HugePages_Total:       0\n";
+    EXPECT_EQ(available_memory(dir / "meminfo", dir / "none"), 20000000ull * 1024);
+    std::ofstream(dir / "cg" / "memory.max") << "max\n";
+    std::ofstream(dir / "cg" / "memory.current") << "1000000\n";
+    EXPECT_EQ(available_memory(dir / "meminfo", dir / "cg"), 20000000ull * 1024);
+    std::ofstream(dir / "cg" / "memory.max") << "4000000000\n";
+    EXPECT_EQ(available_memory(dir / "meminfo", dir / "cg"), 4000000000ull - 1000000ull);
+    EXPECT_EQ(available_memory(dir / "nothing", dir / "cg"), 4000000000ull - 1000000ull);
+    std::filesystem::remove_all(dir);
+}
+
+// The estimate grows with the sample points per texel (it counted texels
+// only), and is at or above every peak measured (bake_settings.h).
+TEST(AvailableMemory, TheEstimateCountsSubsamplesAndCoversTheMeasuredPeaks) {
+    const uint64_t mb = 1ull << 20;
+    EXPECT_GE(protocol::estimated_bake_bytes(1024 * 1024, 1), 462000ull * 1024);
+    EXPECT_GE(protocol::estimated_bake_bytes(1024 * 1024, 2), 633000ull * 1024);
+    EXPECT_GE(protocol::estimated_bake_bytes(1024 * 1024, 4), 1458000ull * 1024);
+    EXPECT_GE(protocol::estimated_bake_bytes(512 * 512, 2), 220 * mb);
+    EXPECT_GE(protocol::estimated_bake_bytes(2048 * 2048, 2), 2210 * mb);
+    EXPECT_GT(protocol::estimated_bake_bytes(1024 * 1024, 4), 2 * protocol::estimated_bake_bytes(1024 * 1024, 1));
+}
+
 }  // namespace lf

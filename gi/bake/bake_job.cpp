@@ -16,6 +16,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <future>
@@ -33,16 +34,26 @@ namespace {
 
 double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
-// Bytes of memory this machine has available now (MemAvailable), or 0 when unknown.
-uint64_t available_memory() {
-    std::ifstream meminfo("/proc/meminfo");
-    std::string key;
-    uint64_t kb = 0;
-    std::string unit;
-    while (meminfo >> key >> kb >> unit)
-        if (key == "MemAvailable:") return kb * 1024;
-    return 0;
+}  // namespace
+
+uint64_t available_memory(const fs::path& meminfo_file, const fs::path& cgroup_dir) {
+    uint64_t available = 0;
+    std::ifstream meminfo(meminfo_file);
+    for (std::string line; std::getline(meminfo, line);)
+        if (line.rfind("MemAvailable:", 0) == 0) available = std::strtoull(line.c_str() + 13, nullptr, 10) * 1024;
+    // A container's limit (cgroup v2): what is left of memory.max.
+    std::ifstream max_file(cgroup_dir / "memory.max"), current_file(cgroup_dir / "memory.current");
+    std::string max_text;
+    uint64_t current = 0;
+    if (max_file >> max_text && max_text != "max" && current_file >> current) {
+        const uint64_t limit = std::strtoull(max_text.c_str(), nullptr, 10);
+        const uint64_t left = limit > current ? limit - current : 0;
+        available = available == 0 ? left : std::min(available, left);
+    }
+    return available;
 }
+
+namespace {
 
 std::string gigabytes(uint64_t bytes) {
     char text[32];
@@ -52,15 +63,17 @@ std::string gigabytes(uint64_t bytes) {
 
 // Refuses, before anything large is allocated, an atlas whose bake would not
 // fit in memory, naming the largest resolution that would.
-void check_bake_memory(const std::string& name, int width, int height) {
+void check_bake_memory(const std::string& name, int width, int height, int subsamples) {
     const uint64_t available = available_memory();
-    const uint64_t needed = protocol::estimated_bake_bytes(uint64_t(width) * uint64_t(height));
+    const uint64_t needed = protocol::estimated_bake_bytes(uint64_t(width) * uint64_t(height), subsamples);
     if (available == 0 || needed <= available) return;
     int fits = 0;
-    while (protocol::estimated_bake_bytes(uint64_t(fits + 64) * uint64_t(fits + 64)) <= available) fits += 64;
+    while (protocol::estimated_bake_bytes(uint64_t(fits + 64) * uint64_t(fits + 64), subsamples) <= available)
+        fits += 64;
     throw BakeInputError(name + ": a " + std::to_string(width) + "x" + std::to_string(height) + " atlas needs about " +
                          gigabytes(needed) + " to bake and this machine has " + gigabytes(available) +
-                         " available; bake at --res " + std::to_string(fits) + " or less (or a lower --texel-density)");
+                         " available; bake at --res " + std::to_string(fits) + " or less (or a lower --texel-density" +
+                         (subsamples > 1 ? ", or fewer --subsamples" : "") + ")");
 }
 
 // With neither a resolution nor a texel density, the atlas takes its density
@@ -122,7 +135,7 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                                                  ": " + flag + " " + std::to_string(smallest) + ")"
                                            : ""));
     }
-    check_bake_memory(name, p.atlas.width, p.atlas.height);
+    check_bake_memory(name, p.atlas.width, p.atlas.height, settings.atlas.subsamples);
 }
 
 // The atlas's texels: double-sided charts turned to face the scene first

@@ -43,4 +43,11 @@ using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;
 // output's state is saved with its snapshots, for a run with `resume`.
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit);
 
+// Bytes of memory a bake may use now: MemAvailable of `meminfo`, and under a
+// container's limit (cgroup v2 memory.max of `cgroup_dir`, less its
+// memory.current) no more than what is left of that; 0 when neither says.
+// A bake refuses up front an atlas whose estimate exceeds it.
+uint64_t available_memory(const std::filesystem::path& meminfo = "/proc/meminfo",
+                          const std::filesystem::path& cgroup_dir = "/sys/fs/cgroup");
+
 }  // namespace lf
