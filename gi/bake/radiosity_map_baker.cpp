@@ -15,8 +15,6 @@ namespace lf {
 
 namespace {
 
-constexpr int kAccumulatorVec4s = 5;  // per covered texel, see radiosity_texels.glsl
-
 float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
 }  // namespace
@@ -125,12 +123,12 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
     std::vector<glm::vec4> points;  // radiosity_texels.glsl's sample_points
     points.reserve(2 * texels.samples.size());
     std::vector<glm::uvec4> covered(covered_count_);
-    std::vector<glm::vec4> accumulators(kAccumulatorVec4s * covered_count_, glm::vec4(0.0f));
+    std::vector<glm::vec4> accumulators(LF_TEXEL_ACCUMULATORS * covered_count_, glm::vec4(0.0f));
     covered_atlas_index_ = texels.texels;
     layout_ = hash_vector(texels.first_sample, hash_vector(texels.texels));
     for (size_t i = 0; i < covered_count_; ++i) {
         covered[i] = glm::uvec4(texels.first_sample[i], texels.sample_count(i), texels.texels[i], 0u);
-        accumulators[kAccumulatorVec4s * i + 4] = glm::vec4(texels.albedo[i], 0.0f);
+        accumulators[LF_TEXEL_ACCUMULATORS * i + LF_ACC_ALBEDO] = glm::vec4(texels.albedo[i], 0.0f);
         for (uint32_t k = texels.first_sample[i]; k < texels.first_sample[i + 1]; ++k) {
             const TexelSample& s = texels.samples[k];
             // The geometric normal on the shading normal's side: rays leave from there.
@@ -446,8 +444,10 @@ FloatImage RadiosityMapBaker::image(const Readback& readback) const {
     // (and everywhere else): what a comparison counts (gi/io/reference_error.h).
     std::vector<float>& covered = image.channel(kCoveredChannel);
     for (size_t i = 0; i < covered_count_; ++i) {
-        const glm::vec4 d = acc[kAccumulatorVec4s * i], moments = acc[kAccumulatorVec4s * i + 1];
-        const glm::vec4 cur = acc[kAccumulatorVec4s * i + 2], prev = acc[kAccumulatorVec4s * i + 3];
+        const glm::vec4 d = acc[LF_TEXEL_ACCUMULATORS * i + LF_ACC_DIRECT],
+                        moments = acc[LF_TEXEL_ACCUMULATORS * i + LF_ACC_MOMENTS];
+        const glm::vec4 cur = acc[LF_TEXEL_ACCUMULATORS * i + LF_ACC_INDIRECT],
+                        prev = acc[LF_TEXEL_ACCUMULATORS * i + LF_ACC_PREVIOUS];
         const glm::vec3 direct_mean = d.w > 0.0f ? glm::vec3(d) / d.w : glm::vec3(0.0f);
         // The indirect estimate with more samples behind it: the running
         // epoch once it has caught up with the previous one.

@@ -28,6 +28,14 @@
 #define LF_BINDING_REFLECTED_INDIRECT 19  // per atlas texel, under a final gather
 #define LF_BINDING_MOVED_SAMPLES 20       // texel_relocate.comp, texel_anchor.comp: a bit per sample point
 #define LF_BINDING_TEXEL_TOTALS 21        // per pass of a dispatch and covered texel (radiosity_gather.comp, radiosity_totals.comp)
+// The record of one covered texel in LF_BINDING_TEXEL_ACCUMULATORS: this
+// many vec4s, at these offsets (radiosity_texels.glsl says what each sums).
+#define LF_TEXEL_ACCUMULATORS 5u
+#define LF_ACC_DIRECT 0u
+#define LF_ACC_MOMENTS 1u
+#define LF_ACC_INDIRECT 2u
+#define LF_ACC_PREVIOUS 3u
+#define LF_ACC_ALBEDO 4u
 // What an atlas texel is, in w of LF_BINDING_TEXEL_ANCHORS (read back by
 // RadiosityMapBaker to count the texels geometry touched).
 #define LF_ANCHOR_UNCOVERED 0.0

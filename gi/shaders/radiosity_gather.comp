@@ -152,13 +152,13 @@ void accumulate_pass(uint i, vec3 direct, vec3 indirect) {
     directional_accumulators[3u * i + 1u] += vec4(lf_directional[1], 0.0);
     directional_accumulators[3u * i + 2u] += vec4(lf_directional[2], 0.0);
 #endif
-    vec4 acc_direct = accumulators[5u * i];
-    vec4 moments = accumulators[5u * i + 1u];
-    vec4 acc_indirect = accumulators[5u * i + 2u];
+    vec4 acc_direct = accumulators[lf_accumulator(i, LF_ACC_DIRECT)];
+    vec4 moments = accumulators[lf_accumulator(i, LF_ACC_MOMENTS)];
+    vec4 acc_indirect = accumulators[lf_accumulator(i, LF_ACC_INDIRECT)];
     float d = channel_mean(direct), g = channel_mean(indirect);
-    accumulators[5u * i] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
-    accumulators[5u * i + 1u] = vec4(moments.x + d * d, moments.y + g * g, moments.zw);
-    accumulators[5u * i + 2u] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
+    accumulators[lf_accumulator(i, LF_ACC_DIRECT)] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
+    accumulators[lf_accumulator(i, LF_ACC_MOMENTS)] = vec4(moments.x + d * d, moments.y + g * g, moments.zw);
+    accumulators[lf_accumulator(i, LF_ACC_INDIRECT)] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);
 }
 
 // Pass `pass` of covered texel i: its rays, added to its accumulators;
@@ -240,7 +240,7 @@ uint gather_texel(uint i, uint pass) {
 void gather_and_resolve(uint i, uint k) {
     uint extra_rays = 0u;
     // A converged texel costs no more rays.
-    if (accumulators[5u * i + 1u].w == 0.0) extra_rays = gather_texel(i, first_pass + k);
+    if (accumulators[lf_accumulator(i, LF_ACC_MOMENTS)].w == 0.0) extra_rays = gather_texel(i, first_pass + k);
     texel_totals[k * covered_count + i] = resolve_texel(i, end_epoch != 0u && k + 1u == pass_count, float(extra_rays));
 }
 

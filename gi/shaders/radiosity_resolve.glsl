@@ -35,10 +35,10 @@ uniform uint min_samples;       // before which no texel is called converged
 // estimate has fewer than two samples, its variance unknown). Touches texel
 // i's accumulators only.
 vec4 resolve_texel(uint i, bool end_epoch, float extra_rays) {
-    vec4 direct = accumulators[5u * i];
-    vec4 moments = accumulators[5u * i + 1u];
-    vec4 current = accumulators[5u * i + 2u];
-    vec4 previous = accumulators[5u * i + 3u];
+    vec4 direct = accumulators[lf_accumulator(i, LF_ACC_DIRECT)];
+    vec4 moments = accumulators[lf_accumulator(i, LF_ACC_MOMENTS)];
+    vec4 current = accumulators[lf_accumulator(i, LF_ACC_INDIRECT)];
+    vec4 previous = accumulators[lf_accumulator(i, LF_ACC_PREVIOUS)];
 
     float current_var = variance_of_mean(channel_mean(current.rgb), moments.y, current.w);
     if (end_epoch && current.w > 0.0) {
@@ -52,8 +52,8 @@ vec4 resolve_texel(uint i, bool end_epoch, float extra_rays) {
         }
         current = vec4(0.0);
         moments.y = 0.0;
-        accumulators[5u * i + 2u] = current;
-        accumulators[5u * i + 3u] = previous;
+        accumulators[lf_accumulator(i, LF_ACC_INDIRECT)] = current;
+        accumulators[lf_accumulator(i, LF_ACC_PREVIOUS)] = previous;
     }
 
     // The error and convergence are those of what a snapshot delivers
@@ -68,7 +68,7 @@ vec4 resolve_texel(uint i, bool end_epoch, float extra_rays) {
     bool converged = converged_error > 0.0 && direct.w >= float(min_samples) && level > 0.0 &&
                      sqrt(var) < converged_error * level;
     moments.w = converged ? 1.0 : 0.0;
-    accumulators[5u * i + 1u] = moments;
+    accumulators[lf_accumulator(i, LF_ACC_MOMENTS)] = moments;
 
     bool unknown_variance = (deliver_current ? current.w : previous.w) < 2.0 || direct.w < 2.0;
     return vec4(var, level, extra_rays, (converged ? 0.0 : 1.0) + (unknown_variance ? 2.0 : 0.0));
@@ -76,9 +76,9 @@ vec4 resolve_texel(uint i, bool end_epoch, float extra_rays) {
 
 // Publishes texel i's albedo x value where indirect rays read it.
 void publish_texel(uint i) {
-    vec4 direct = accumulators[5u * i];
-    vec3 indirect = texel_indirect(accumulators[5u * i + 2u], accumulators[5u * i + 3u]);
-    vec3 albedo = accumulators[5u * i + 4u].rgb;
+    vec4 direct = accumulators[lf_accumulator(i, LF_ACC_DIRECT)];
+    vec3 indirect = texel_indirect(accumulators[lf_accumulator(i, LF_ACC_INDIRECT)], accumulators[lf_accumulator(i, LF_ACC_PREVIOUS)]);
+    vec3 albedo = accumulators[lf_accumulator(i, LF_ACC_ALBEDO)].rgb;
     reflected_radiance[covered_texels[i].z] = vec4(albedo * (texel_direct(direct) + indirect), 1.0);
 #ifdef LF_FINAL_GATHER
     // A final gather computes the first bounce where its ray lands: the map

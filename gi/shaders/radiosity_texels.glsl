@@ -24,14 +24,17 @@ bool sample_was_moved(uint s) { return (moved_samples[s / 32u] & (1u << (s % 32u
 // Per covered texel: (first sample point, sample count, atlas index, 0).
 layout(std430, binding = LF_BINDING_COVERED_TEXELS) readonly buffer CoveredTexels { uvec4 covered_texels[]; };
 
-// Per covered texel, five vec4 of running sums (thesis Algorithm 4.1's
-// accumulators Eu_e, Eu_i, with second moments for the error estimate):
-//   [0] direct:   sum of E/pi samples (rgb), sample count
-//   [1] second moments (of the channel mean): direct, current indirect; previous epoch's variance of the mean; active flag
-//   [2] indirect, current epoch: sum (rgb), sample count
-//   [3] indirect, previous epoch: mean (rgb), sample count
-//   [4] albedo (rgb), 0
+// Per covered texel, LF_TEXEL_ACCUMULATORS (5) vec4 of running sums (thesis
+// Algorithm 4.1's accumulators Eu_e, Eu_i, with second moments for the
+// error estimate), at the offsets buffer_bindings.glsl names:
+//   LF_ACC_DIRECT:   sum of E/pi samples (rgb), sample count
+//   LF_ACC_MOMENTS:  second moments (of the channel mean): direct, current indirect; previous epoch's variance of the mean; active flag
+//   LF_ACC_INDIRECT: indirect, current epoch: sum (rgb), sample count
+//   LF_ACC_PREVIOUS: indirect, previous epoch: mean (rgb), sample count
+//   LF_ACC_ALBEDO:   albedo (rgb), 0
 layout(std430, binding = LF_BINDING_TEXEL_ACCUMULATORS) buffer TexelAccumulators { vec4 accumulators[]; };
+// Where covered texel i's `field` (LF_ACC_…) is in `accumulators`.
+uint lf_accumulator(uint i, uint field) { return LF_TEXEL_ACCUMULATORS * i + field; }
 
 uniform uint covered_count;
 
