@@ -382,6 +382,13 @@ TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
         {{"scene", upload_cornell_box()}, {"outputs", {{"lightmap", {{"passes", 32}}}}}, {"atlas", {{"res", 96}}}});
     ASSERT_FALSE(id.empty());
     ASSERT_EQ(wait_finished(id)["state"], "succeeded");
+    // A newer job, which the page would show first: the view must show the
+    // one the URL names by the 12 characters the page shows (#job=).
+    const std::string newer = submit({{"scene", upload_cornell_box()},
+                                      {"outputs", {{"lightmap", {{"passes", 2}}}}},
+                                      {"atlas", {{"res", 32}}},
+                                      {"seed", 9}});
+    ASSERT_EQ(wait_finished(newer)["state"], "succeeded");
 
     std::string report;
     const fs::path lit = download(id, "scene.lit.glb", "studio");

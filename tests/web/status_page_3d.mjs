@@ -38,7 +38,8 @@ try {
   page.on("requestfailed", (r) => problems.push("request failed: " + r.url() + " " + r.failure()?.errorText));
 
   await page.goto(`${url}/?token=${encodeURIComponent(token)}`);  // sets the cookie, redirects to /
-  await page.goto(`${url}/#job=${job}`);
+  // The 12-character id the page shows selects the job (it needed all 24).
+  await page.goto(`${url}/#job=${job.slice(0, 12)}`);
   await page.reload();  // the hash alone does not reload the page
 
   const drawn = async (mode, file = null, after = 0) => {
@@ -54,6 +55,7 @@ try {
     }
     const state = await page.evaluate(() => ({ ...window.lightfarmView.state }));
     if (state.error) throw new Error("3D view: " + state.error);
+    if (!file && state.job !== job) throw new Error(`3D view: shows job ${state.job}, not ${job}`);
     // The canvas's pixels (preserveDrawingBuffer): how many distinct colours.
     const pixels = await page.evaluate(() => {
       const gl = document.querySelector("#view3d-canvas canvas");
