@@ -386,6 +386,28 @@ std::string read_file(const fs::path& path) {
     return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
+// --sh-bands auto under a uniform sky keeps one band (it shades that sky
+// exactly) and says so, with what to do for relighting (it was silent).
+TEST(CliBake, AutoShBandsSayWhyTheyChoseOne) {
+    const fs::path out = fresh_dir("sh-bands");
+    ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("monkey.glb") +
+                            " --sh --sh-passes 2 --env 0.5,0.5,0.5 --out " + out.string())
+                  .exit_code,
+              0);
+    nlohmann::json sh = nlohmann::json::parse(read_file(out / "manifest.json"))["sh"];
+    EXPECT_EQ(sh["bands"], 1);
+    EXPECT_NE(sh["bands_why"].get<std::string>().find("uniform sky has no direction"), std::string::npos) << sh;
+    EXPECT_NE(sh["bands_why"].get<std::string>().find("--sh-bands 4"), std::string::npos) << sh;
+    ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --sh --sh-passes 2 --sh-bands 3 --out " +
+                            out.string())
+                  .exit_code,
+              0);
+    sh = nlohmann::json::parse(read_file(out / "manifest.json"))["sh"];
+    EXPECT_EQ(sh["bands"], 3);
+    EXPECT_EQ(sh["bands_why"], "as asked (sh_bands 3)");
+    fs::remove_all(out);
+}
+
 // The worker gets the job's spec, not a translation: --spec bakes the same
 // pixels as the same settings given as flags, flags beside it win, and a
 // manifest's "settings" is itself a spec that reproduces the bake.

@@ -163,7 +163,8 @@ ShTransferMethod::ShTransferMethod(const PreparedScene& prepared, const protocol
       stop_(stop_rule_from(settings.output("sh")->stop())),
       environment_(sh_environment(settings.env)),
       window_(parse_sh_window(settings_.window)),
-      subsamples_(settings.atlas.subsamples) {
+      subsamples_(settings.atlas.subsamples),
+      uniform_light_(settings.env.sky.has_value()) {
     check_mesh_sets(prepared, settings_);
     // Per texel: the atlas's texel sample points are extra receivers of the same baker.
     if (settings_.per_texel)
@@ -236,6 +237,21 @@ SnapshotWrite ShTransferMethod::snapshot(const fs::path& dir, const PassStats& s
     };
 }
 
+// Why the transfer has the bands it has (manifest.json's sh.bands_why):
+// auto chooses under the job's light, and a uniform sky (or none) has no
+// direction, so one band shades it exactly and auto keeps one, useless for
+// relighting under another light: said, with what to do.
+std::string ShTransferMethod::bands_why(int bands) const {
+    if (settings_.bands) return "as asked (sh_bands " + std::to_string(*settings_.bands) + ")";
+    std::string why = "auto: the fewest bands whose shading is within " +
+                      std::to_string(int(std::lround(kAutoBandsError * 100))) + "% of 4 bands' under the job's light";
+    if (uniform_light_ && bands == 1)
+        why +=
+            "; a uniform sky has no direction, so one band shades it exactly: to relight under other "
+            "environments, give sh_bands 4 (--sh-bands 4) or bake with the environment map you will use";
+    return why;
+}
+
 MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stats) {
     const Scene& scene = prepared_.scene;
     const ShVertexTransfer transfer = baker_->snapshot();
@@ -291,6 +307,7 @@ MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stat
         {"settings", settings_json_},
         {"result", protocol::to_json(stats)},
         {"bands", bands},
+        {"bands_why", bands_why(bands)},
         {"band_errors", {{"light", band_light.source}, {"relative_rms_vs_4_bands", band_errors}}},
         {"samples_per_vertex", baker_->samples_per_vertex()},
         {"vertices", scene.positions.size()},

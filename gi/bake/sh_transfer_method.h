@@ -85,6 +85,7 @@ public:
 
 private:
     FloatImage texel_image(const ShVertexTransfer& t, int bands, const PassStats& s) const;
+    std::string bands_why(int bands) const;
 
     const PreparedScene& prepared_;
     ShSettings settings_;
@@ -93,6 +94,7 @@ private:
     std::optional<Environment> environment_;
     ShWindow window_;
     int subsamples_;
+    bool uniform_light_;  // a uniform sky (--env R,G,B): the same radiance from every direction
     ShTexelReceivers texel_receivers_;
     std::unique_ptr<ShTransferBaker> baker_;
     nlohmann::json settings_json_;
