@@ -346,6 +346,16 @@ int fetch_command(int argc, char** argv) {
     const std::string id = one_job(args, "fetch");
     if (args.flag("--latest") && args.flag("--snapshots")) throw UsageError("fetch: --latest or --snapshots, not both");
     Remote remote(args);
+    // A job that did not succeed has no final files, whatever else its
+    // folder holds (a cancelled lightmap job's scene.lightmapped.glb was
+    // fetched alone, quietly): say so, and what can be fetched instead.
+    if (!args.flag("--latest") && !args.flag("--snapshots")) {
+        const std::string state = remote.call(remote.http().Get("/v1/jobs/" + id), "read job " + id).value("state", "");
+        if (state != "succeeded")
+            throw RemoteError("job " + id + " " + (state == "failed" || state == "cancelled" ? "was " : "is ") + state +
+                              ": it has no final files (--latest: the newest file of each output; --snapshots: "
+                              "every file it wrote)");
+    }
     fetch(remote, id, args.get("--out", id),
           args.flag("--latest")      ? Files::Latest
           : args.flag("--snapshots") ? Files::FinalAndSnapshots

@@ -156,6 +156,10 @@ TEST_F(RemoteTest, CancelAndErrorsAreOneLine) {
     EXPECT_EQ(again.status, 1);
     EXPECT_EQ(again.err, "lightfarm cancel: error: job " + id + " already cancelled (HTTP 409)\n");
     EXPECT_EQ(run(with_common({"watch", id})).status, 1);
+    // fetch says the job has no final files (it quietly fetched what there was).
+    const CliRun f = run(with_common({"fetch", id, "--out", (tmp.path / "cancelled").string()}));
+    EXPECT_EQ(f.status, 1);
+    EXPECT_NE(f.err.find("job " + id + " was cancelled: it has no final files"), std::string::npos) << f.err;
 
     const CliRun bad_token = run({"jobs", "--server", server->url, "--token", "wrong"});
     EXPECT_EQ(bad_token.status, 1);
