@@ -145,6 +145,40 @@ TEST(AmbientOcclusion, AFloorInACornerMatchesTheDiskLessTwoSegments) {
                         [&](glm::vec3 p) { return ao_in_corner(double(p.x), double(p.z), double(d)); });
 }
 
+// --ao-target-error stops the passes once the occlusion's relative standard
+// error is below it (the counts are read back for that only: without a
+// target no estimate is made).
+TEST(AmbientOcclusion, StopsAtItsTargetError) {
+    test::gpu();
+    Scene s;
+    const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
+    test::add_quad(s, {0, 0, 1}, {1.5f, 0, 0}, {0, 0, -2}, grey, {0, 0, 0.5f, 1});
+    test::add_quad(s, {0, 0, -3}, {0, 3, 0}, {0, 0, 6}, grey, {0.5f, 0, 1, 1});
+    PreparedScene p;
+    p.file = "test.glb";
+    p.scene = s;
+    p.atlas_scene = s;
+    p.atlas.width = p.atlas.height = 32;
+    p.texels = rasterize_texel_samples(*p.atlas_scene, 32, 32, 2);
+    p.tracer = std::make_unique<Tracer>(p.scene);
+    for (const double target : {0.0, 0.02}) {
+        SCOPED_TRACE("target " + std::to_string(target));
+        AmbientOcclusionMethod method(
+            p, protocol::parse_bake_settings(
+                   {{"outputs", {{"ao", {{"ao_distance", 1.0}, {"ao_passes", 2000}, {"ao_target_error", target}}}}}}));
+        PassStats stats;
+        while (!stop_reached(method.stop_rule(), stats)) stats = method.run_passes(8).back();
+        if (target == 0.0) {
+            EXPECT_EQ(stats.pass, 2000);
+            EXPECT_FALSE(stats.error_estimate);
+        } else {
+            ASSERT_TRUE(stats.error_estimate);
+            EXPECT_LE(*stats.error_estimate, target);
+            EXPECT_LT(stats.pass, 2000) << "stopped by the target, not the pass count";
+        }
+    }
+}
+
 // Inside a closed box whose every wall is within the AO distance: 0.
 TEST(AmbientOcclusion, AClosedBoxIsFullyOccluded) {
     Scene s;

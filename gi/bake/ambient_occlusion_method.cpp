@@ -79,8 +79,14 @@ std::vector<PassStats> AmbientOcclusionMethod::run_passes(int count) {
     unoccluded_.bind(LF_BINDING_AO_UNOCCLUDED);
     if (point_count_ > 0) program_.dispatch_1d(point_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
-    // Reading the counts back waits for the passes; the error is the last pass's.
-    const std::vector<float> unoccluded = unoccluded_.read<float>();
+    // The error estimate needs every point's count on the CPU (4 bytes a
+    // point: 1 GB at 4096² with 16 points a texel): read back only when a
+    // target error stops the bake; else wait for the device alone. The
+    // error is the batch's last pass's; the snapshots carry it per texel.
+    const bool estimate = stop_.target_error > 0.0;
+    std::vector<float> unoccluded;
+    if (estimate) unoccluded = unoccluded_.read<float>();
+    else glFinish();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::vector<PassStats> out;
     for (int k = 0; k < count; ++k) {
@@ -88,7 +94,7 @@ std::vector<PassStats> AmbientOcclusionMethod::run_passes(int count) {
         stats_.rays += point_count_;
         stats_.seconds += seconds / count;
         stats_.error_estimate.reset();
-        if (k == count - 1) stats_.error_estimate = error_estimate(unoccluded, stats_.pass);
+        if (estimate && k == count - 1) stats_.error_estimate = error_estimate(unoccluded, stats_.pass);
         out.push_back(stats_);
     }
     return out;
