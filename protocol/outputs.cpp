@@ -1,7 +1,8 @@
 #include "outputs.h"
 
+#include "worker_protocol.h"
+
 #include <filesystem>
-#include <regex>
 
 namespace lf::protocol {
 
@@ -78,8 +79,7 @@ const std::vector<std::string>& output_names() {
 }
 
 std::string content_type_of(const std::string& file) {
-    static const std::regex pass(R"(\.pass-\d+\.)");
-    const std::string pattern = std::regex_replace(file, pass, ".pass-NNNN.");
+    const std::string pattern = snapshot_pattern(file);
     for (const OutputKind& o : output_registry())
         for (const OutputFile& f : o.files)
             if (f.name == file || f.name == pattern) return f.content_type;

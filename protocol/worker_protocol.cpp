@@ -52,6 +52,12 @@ std::string snapshot_file_name(const std::string& stem, int pass, const std::str
     return stem + ".pass-" + number + "." + extension;
 }
 
+std::string snapshot_pattern(const std::string& name) {
+    if (!is_snapshot_file(name)) return name;
+    const size_t at = name.find(".pass-") + 6;
+    return name.substr(0, at) + "NNNN" + name.substr(name.find('.', at));
+}
+
 bool is_snapshot_file(const std::string& name) {
     const size_t at = name.find(".pass-");
     if (at == std::string::npos) return false;

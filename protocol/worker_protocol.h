@@ -47,6 +47,10 @@ inline constexpr const char* kResumeDir = ".resume";
 // files by it (`lightfarm fetch` without --snapshots).
 std::string snapshot_file_name(const std::string& stem, int pass, const std::string& extension);
 bool is_snapshot_file(const std::string& name);
+// A snapshot's name with its pass as "NNNN" ("lightmap.pass-0004.exr" ->
+// "lightmap.pass-NNNN.exr"): how outputs name their snapshot files; any
+// other name as it is.
+std::string snapshot_pattern(const std::string& name);
 
 // Where a progressive bake stands: totals after the latest pass. The engine's
 // pass statistics and the server's progress are this one type.

@@ -120,6 +120,9 @@ TEST(SnapshotNames, AreStemPassNumberExtension) {
     EXPECT_EQ(snapshot_file_name("sh_transfer", 16384, "bin"), "sh_transfer.pass-16384.bin");
     EXPECT_TRUE(is_snapshot_file("lightmap.pass-0004.exr"));
     EXPECT_TRUE(is_snapshot_file(snapshot_file_name("probes", 12, "json")));
+    EXPECT_EQ(snapshot_pattern("lightmap.pass-0004.exr"), "lightmap.pass-NNNN.exr");
+    EXPECT_EQ(snapshot_pattern("sh_transfer.pass-16384.bin"), "sh_transfer.pass-NNNN.bin");
+    EXPECT_EQ(snapshot_pattern("lightmap.exr"), "lightmap.exr");
     for (const char* final_file : {"lightmap.exr", "manifest.json", "scene.lightmapped.glb", "probes.exr",
                                    "lightmap.pass-.exr", "lightmap.pass-12", "x.pass-1a.exr"})
         EXPECT_FALSE(is_snapshot_file(final_file)) << final_file;

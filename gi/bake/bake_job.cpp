@@ -23,7 +23,6 @@
 #include <map>
 #include <memory>
 #include <optional>
-#include <regex>
 
 namespace lf {
 
@@ -205,12 +204,6 @@ std::vector<std::unique_ptr<ProgressiveMethod>> methods_that_fit(const PreparedS
     }
 }
 
-// "lightmap.pass-0004.exr" -> "lightmap.pass-NNNN.exr": how methods describe their snapshots.
-std::string file_pattern(const std::string& name) {
-    static const std::regex pass(R"(\.pass-\d+\.)");
-    return std::regex_replace(name, pass, ".pass-NNNN.");
-}
-
 nlohmann::json describe_files(const std::vector<std::string>& files, const nlohmann::json& manifest) {
     nlohmann::json out = nlohmann::json::object();
     for (const std::string& f : files) {
@@ -219,7 +212,7 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
             if (!manifest.contains(output)) continue;
             const nlohmann::json& known = manifest[output]["files"];
             if (known.contains(f)) out[f] = known[f];
-            else if (known.contains(file_pattern(f))) out[f] = known[file_pattern(f)];
+            else if (known.contains(protocol::snapshot_pattern(f))) out[f] = known[protocol::snapshot_pattern(f)];
         }
     }
     return out;
@@ -231,7 +224,7 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
 void remove_old_snapshots(const fs::path& out) {
     std::error_code ec;
     for (const fs::directory_entry& e : fs::directory_iterator(out, ec)) {
-        const std::string name = e.path().filename().string(), pattern = file_pattern(name);
+        const std::string name = e.path().filename().string(), pattern = protocol::snapshot_pattern(name);
         if (pattern == name || !e.is_regular_file()) continue;
         for (const protocol::OutputKind& o : protocol::output_registry())
             for (const protocol::OutputFile& f : o.files)
