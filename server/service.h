@@ -10,6 +10,8 @@
 #include "scene_store.h"
 #include "supervisor.h"
 
+#include <chrono>
+#include <cstdint>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -20,6 +22,7 @@
 #include <vector>
 
 namespace httplib {
+class DataSink;
 class Server;
 struct Request;
 struct Response;
@@ -27,7 +30,7 @@ struct Response;
 
 namespace lf::server {
 
-class GatedServer;  // cpp-httplib's server behind lightfarmd's connection gate (service.cpp)
+class GatedServer;  // cpp-httplib's server behind lightfarmd's connection gate (http_gate.h)
 
 // Short job ids: kMinJobIdPrefix or more lower-case hex digits.
 constexpr size_t kMinJobIdPrefix = 6;
@@ -87,6 +90,8 @@ private:
     // Answers (fills `res`, returns true) when the request must go no further.
     bool check_before_body(const httplib::Request& req, httplib::Response& res);
     const Route* match_route(const std::string& method, const std::string& path) const;
+    void serve(const Route& route, const httplib::Request& req, httplib::Response& res);
+    void install_http_hooks();
     // The caller's job the path's {id} names: its whole id, or an unambiguous
     // prefix (job_by_id_prefix; 404 when no job of the caller's has it).
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
@@ -110,6 +115,15 @@ private:
     nlohmann::json nodes_json(const std::string& owner) const;
     void get_job(const httplib::Request&, httplib::Response&, const Caller&);
     void job_events(const httplib::Request&, httplib::Response&, const Caller&);
+    // Where a job's event stream is: the last event sent, and when it last wrote.
+    struct EventCursor {
+        int64_t last_id;
+        std::chrono::steady_clock::time_point last_write;
+    };
+    // Takes one of the event streams' own budget of request threads, in total
+    // and per token, or answers 503.
+    void reserve_event_stream(httplib::Response& res, const Caller& caller, const std::string& job_id);
+    bool send_new_events(const std::string& job_id, EventCursor& cursor, httplib::DataSink& sink);
     void list_artifacts(const httplib::Request&, httplib::Response&, const Caller&);
     void get_artifact(const httplib::Request&, httplib::Response&, const Caller&);
     void preview(const httplib::Request&, httplib::Response&, const Caller&);

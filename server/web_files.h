@@ -1,6 +1,6 @@
 // The status page's files (web/ui: status.html, login.html), embedded in the
 // binary at build time (cmake/embed_files.cmake), by file name. GET / serves
-// status.html with the caller's jobs inlined (service.cpp); a page request
+// status.html with the caller's jobs inlined (service_status.cpp); a page request
 // without a token gets login.html. The page loads three.js from /ui/three.
 #pragma once
 

@@ -1,0 +1,75 @@
+// The scene routes: uploads (POST /v1/scenes) and their summaries.
+#include "service.h"
+#include "service_rooms.h"
+
+#include "disk_space.h"
+#include "http_error.h"
+
+#include <httplib.h>
+
+#include <filesystem>
+
+namespace lf::server {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// New work waits while the data directory's disk is full: a 503 stores
+// nothing, so nothing accepted is ever lost to the full disk.
+void Service::refuse_when_disk_full(httplib::Response& res) {
+    const uint64_t free = free_disk_bytes(config_.data_dir);
+    if (free >= config_.limits.free_disk_bytes) return;
+    metrics_.count_refusal("free_disk_bytes");
+    res.set_header("Retry-After", "30");
+    throw HttpError(
+        503,
+        "free_disk_bytes: the server's disk is full (" + megabytes(free) + " free); nothing was stored, retry later",
+        {{"field", "free_disk_bytes"}});
+}
+
+void Service::post_scene(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    refuse_when_disk_full(res);
+    std::vector<UploadFile> files;
+    if (req.is_multipart_form_data()) {
+        for (const auto& [field, part] : req.files)
+            files.push_back({part.filename.empty() ? field : part.filename, part.content});
+    } else {
+        // A bare body is one file: a .glb, or a .gltf whose buffers are data:
+        // URIs, named by ?name= (the file's own name, shown in the summary and
+        // the job list; it was always "scene.glb") or by its kind.
+        const size_t first = req.body.find_first_not_of(" \t\r\n");
+        const bool json_body = first != std::string::npos && req.body[first] == '{';
+        const std::string kind = json_body ? ".gltf" : ".glb";
+        std::string name = req.has_param("name") ? req.get_param_value("name") : "scene" + kind;
+        if (name.size() < kind.size() || name.compare(name.size() - kind.size(), kind.size(), kind) != 0)
+            throw HttpError(400,
+                            "name: '" + name + "' must end in " + kind + " for this body (a " +
+                                (json_body ? "JSON glTF" : "binary glTF") + ")",
+                            {{"field", "name"}});
+        files.push_back({name, req.body});
+    }
+    const SceneStore::Result r = scenes_->upload(files, caller.owner);
+    json body = r.scene.summary;
+    body["id"] = r.scene.id;
+    send_json(res, r.created ? 201 : 200, body);
+}
+
+void Service::get_scene(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    const std::string id = req.matches[1].str();
+    std::optional<SceneRecord> scene = store_->scene(id);
+    if (!scene || !store_->scene_owned_by(id, caller.owner)) throw HttpError(404, "no scene " + id, {{"id", id}});
+    json body = scene->summary;
+    body["id"] = scene->id;
+    send_json(res, 200, body);
+}
+
+json Service::scene_brief(const std::string& scene_id) const {
+    json brief = json::object();
+    if (const std::optional<SceneRecord> scene = store_->scene(scene_id)) {
+        const protocol::SceneSummary summary = summary_of(*scene);
+        brief = {{"scene_name", summary.source}, {"scene_triangles", summary.triangles}};
+    }
+    return brief;
+}
+
+}  // namespace lf::server

@@ -1,0 +1,148 @@
+// The status page and what it reads beside the API: the page, health,
+// metrics, previews of a job's lightmap, and the 3D view's three.js.
+#include "service.h"
+#include "service_rooms.h"
+
+#include "http_error.h"
+#include "preview.h"
+#include "web_files.h"
+
+#include <httplib.h>
+
+#include <filesystem>
+#include <fstream>
+
+namespace lf::server {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+void Service::healthz(const httplib::Request&, httplib::Response& res, const Caller&) {
+    send_json(res, 200, {{"status", "ok"}});
+}
+
+void Service::metrics(const httplib::Request&, httplib::Response& res, const Caller&) {
+    std::vector<Metrics::NodeGauge> nodes;
+    std::map<std::string, int> running;
+    for (const JobRecord& job : store_->running_jobs()) ++running[job.node];
+    for (const NodeRecord& n : store_->nodes()) {
+        const double lease = n.info.is_object() ? n.info.value("lease_seconds", 30.0) : 30.0;
+        nodes.push_back({n.name, n.heartbeat_age < lease, running[n.name], std::max(0.0, n.heartbeat_age)});
+    }
+    res.set_content(metrics_.render(store_->count_by_state()) + Metrics::render_nodes(store_->node().name, nodes),
+                    "text/plain; version=0.0.4");
+}
+
+// JSON to inline in an HTML <script>: every character that HTML's script
+// parsing reacts to (<, >, &: "</script>", "<!--" which would swallow the
+// rest of the page) and JavaScript's line separators (U+2028, U+2029) as
+// \u escapes, which mean the same inside JSON strings, the only place they
+// can occur in dump()'s output.
+std::string json_for_script(const json& value) {
+    const std::string text = value.dump();
+    std::string out;
+    out.reserve(text.size());
+    for (size_t i = 0; i < text.size(); ++i) {
+        const char c = text[i];
+        if (c == '<') out += "\\u003c";
+        else if (c == '>') out += "\\u003e";
+        else if (c == '&') out += "\\u0026";
+        else if (c == '\xe2' && i + 2 < text.size() && text[i + 1] == '\x80' &&
+                 (text[i + 2] == '\xa8' || text[i + 2] == '\xa9')) {
+            out += text[i + 2] == '\xa8' ? "\\u2028" : "\\u2029";
+            i += 2;
+        } else out += c;
+    }
+    return out;
+}
+
+void Service::status_page(const httplib::Request&, httplib::Response& res, const Caller& caller) {
+    // The caller's jobs come with the page, so it shows them at once instead
+    // of after its first fetch, escaped so that no value can end the script
+    // or open a comment (a file named "<!--<script>.gltf" blanked the page).
+    const std::string jobs = json_for_script(jobs_json(caller.owner));
+    std::string page(embedded_web_files().at("status.html"));
+    const std::string slot = "/*JOBS*/null";
+    page.replace(page.find(slot), slot.size(), jobs);
+    res.set_content(page, "text/html; charset=utf-8");
+}
+
+void Service::preview(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    send_preview(req, res, caller, PreviewKind::Tonemapped);
+}
+
+void Service::lightmap_rgbm(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    send_preview(req, res, caller, PreviewKind::Rgbm);
+}
+
+void Service::error_map(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
+    send_preview(req, res, caller, PreviewKind::Error);
+}
+
+void Service::send_preview(const httplib::Request& req, httplib::Response& res, const Caller& caller,
+                           PreviewKind kind) {
+    const JobRecord job = owned_job(req, caller);
+    // The newest lightmap, as the worker's events named it (its final file
+    // once done, else its latest snapshot): never guessed from file names.
+    const auto latest = job.status.latest.find("lightmap");
+    if (latest == job.status.latest.end() || !is_artifact_name(latest->second.file))
+        throw HttpError(404, "job " + job.status.id + " has no lightmap snapshot yet", {{"id", job.status.id}});
+    const std::string chosen = latest->second.file;
+
+    const fs::path path = supervisor_->job_dir(job.status.id) / chosen;
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec))
+        throw HttpError(404, "job " + job.status.id + " has no artifact " + chosen, {{"id", job.status.id}});
+    const std::string source = path.string() + ":" + std::to_string(fs::file_size(path, ec)) + ":" +
+                               std::to_string(fs::last_write_time(path, ec).time_since_epoch().count());
+    std::map<PreviewKind, Preview> previews;
+    {
+        std::lock_guard lock(preview_mutex_);
+        auto it = previews_.find(job.status.id);
+        if (it != previews_.end() && it->second.source == source) previews = it->second.previews;
+    }
+    if (previews.empty()) {
+        try {
+            previews = render_previews(path.string());
+        } catch (const std::exception& e) {
+            throw HttpError(500, e.what(), {{"id", job.status.id}});
+        }
+        std::lock_guard lock(preview_mutex_);
+        previews_[job.status.id] = {source, previews};
+    }
+    const auto found = previews.find(kind);
+    if (found == previews.end())
+        throw HttpError(404, "job " + job.status.id + ": " + chosen + " has no \"error\" channel",
+                        {{"id", job.status.id}});
+    const Preview& preview = found->second;
+    res.set_header("X-Lightfarm-Source", chosen);
+    res.set_header("X-Lightfarm-Pass", std::to_string(latest->second.pass));
+    for (const auto& [name, value] : preview.headers) res.set_header(name.c_str(), value);
+    res.set_header("Cache-Control", "no-cache");
+    res.set_content(preview.png, "image/png");
+}
+
+// GET /ui/three/{path}: three.js from the npm registry (web/node_modules,
+// installed by the scripts), for the status page's 3D view. Only files
+// under that folder, only the kinds a page loads.
+void Service::web_library(const httplib::Request& req, httplib::Response& res, const Caller&) {
+    const std::string relative = req.matches[1];
+    if (relative.find("..") != std::string::npos || relative.empty() || relative.front() == '/')
+        throw HttpError(404, "no such file: " + relative);
+    const fs::path root = fs::path(config_.web_dir) / "node_modules" / "three";
+    const fs::path path = root / relative;
+    std::error_code ec;
+    const std::string extension = path.extension().string();
+    if (extension != ".js" || !fs::is_regular_file(path, ec)) {
+        if (!fs::is_directory(root, ec))  // where it was looked for is the server's business, not the caller's
+            throw HttpError(404,
+                            "three.js is not installed on this server: run scripts/run (or `npm ci` in web/) there");
+        throw HttpError(404, "no such file: three/" + relative);
+    }
+    std::ifstream in(path, std::ios::binary);
+    std::string body((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    res.set_header("Cache-Control", "max-age=3600");
+    res.set_content(body, "text/javascript; charset=utf-8");
+}
+
+}  // namespace lf::server
