@@ -129,6 +129,44 @@ TEST(AmbientOcclusion, AFloorBesideAWallMatchesTheDiskSegment) {
     EXPECT_GT(texels, 300u);
 }
 
+// The same wall see-through (issue #35): it occludes in proportion to the
+// share of it that stops light, 1 - its transmittance. Cut out or clear
+// glass: 1 everywhere, exactly (every ray passes); blended at alpha 0.4:
+// 1 - 0.4 x the disk segment.
+TEST(AmbientOcclusion, ASeeThroughWallOccludesWhatItStops) {
+    struct Case {
+        const char* name;
+        Material::AlphaMode mode;
+        float alpha, transmission;
+        double stops;
+    };
+    for (const Case& c : {Case{"cut out", Material::AlphaMode::Mask, 0.0f, 0.0f, 0.0},
+                          Case{"clear glass", Material::AlphaMode::Opaque, 1.0f, 1.0f, 0.0},
+                          Case{"blended", Material::AlphaMode::Blend, 0.4f, 0.0f, 0.4}}) {
+        SCOPED_TRACE(c.name);
+        Scene s;
+        const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
+        const uint32_t wall = test::add_material(s, glm::vec3(0.5f));
+        s.materials[wall].alpha_mode = c.mode;
+        s.materials[wall].base_color.a = c.alpha;
+        s.materials[wall].transmission = c.transmission;
+        test::add_quad(s, {0, 0, 1}, {1.5f, 0, 0}, {0, 0, -2}, grey, {0, 0, 0.5f, 1});
+        test::add_quad(s, {0, 0, -3}, {0, 3, 0}, {0, 0, 6}, wall, {0.5f, 0, 1, 1});
+        const AoBake bake = bake_ao(s, 48, {{"ao_distance", 1.0}}, c.stops == 0.0 ? 8 : 256);
+        if (c.stops == 0.0) {
+            const TexelSamples& t = bake.prepared->texels;
+            for (size_t i = 0; i < t.covered_count(); ++i) {
+                if (t.samples[t.first_sample[i]].normal.y > 0.99f) {
+                    ASSERT_EQ(bake.image.at("R")[t.texels[i]], 1.0f);
+                }
+            }
+        } else {
+            expect_texels_match(bake, {0, 1, 0},
+                                [&](glm::vec3 p) { return 1.0 - c.stops * (1.0 - ao_beside_wall(double(p.x), 1.0)); });
+        }
+    }
+}
+
 // A floor in the corner of two walls: the two segments less their overlap;
 // a quarter at the corner itself.
 TEST(AmbientOcclusion, AFloorInACornerMatchesTheDiskLessTwoSegments) {

@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -43,15 +44,19 @@ void expect_inside(const std::vector<glm::vec3>& points) {
         for (int a = 0; a < 3; ++a) EXPECT_LT(std::abs(p[a]), 1.0f);
 }
 
-// Captures probes at `points` of `scene` for `passes` passes and reads back
-// the written set (the files are part of what is tested).
-ProbeSet capture(const Scene& scene, const std::vector<glm::vec3>& points, int r, int m, int passes) {
+// Captures probes at `points` of `scene` for `passes` passes, under a
+// uniform sky of radiance `sky`, and reads back the written set (the files
+// are part of what is tested).
+ProbeSet capture(const Scene& scene, const std::vector<glm::vec3>& points, int r, int m, int passes,
+                 glm::vec3 sky = glm::vec3(0.0f)) {
     gpu();
     PreparedScene prepared;
     prepared.file = "test.glb";
     prepared.scene = scene;
     prepared.tracer = std::make_unique<Tracer>(prepared.scene);
-    ProbesMethod method(prepared, probes_at(points, r, m));
+    protocol::BakeSettings settings = probes_at(points, r, m);
+    if (sky != glm::vec3(0.0f)) settings.env.sky = std::array<float, 3>{sky.x, sky.y, sky.z};
+    ProbesMethod method(prepared, settings);
     PassStats stats;
     for (int p = 0; p < passes; ++p) stats = method.step();
     const std::filesystem::path dir =
@@ -111,6 +116,52 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
                                                                            {{0, -0.9f, 0}, {0, -1, 0}}}) {
         const ProbeEvaluation e = eval.evaluate(x, n);
         EXPECT_NEAR(e.polygon_to_point.g, expected, 0.05 * expected) << x.x << "," << x.y << "," << x.z;
+    }
+}
+
+// A probe under a sheet 1 m above it, 200 m wide, under a uniform sky of
+// radiance 1 (issue #35): every texel of the face looking up sees the sky
+// through the sheet, its transmittance times 1; the face looking down, the
+// open sky. Clear and tinted glass and a cut-out pass every ray, so those
+// texels are exact; a blend draws per ray, so its face's mean is within its
+// noise (64 x 64 fine texels per face and 16 passes: 0.4%); a solid cut-out
+// stops everything (its black underside reflects nothing).
+TEST(ProbeCapture, AProbeSeesTheSkyThroughASheetTimesItsTransmittance) {
+    struct Case {
+        const char* name;
+        Material::AlphaMode mode;
+        float alpha, transmission;
+        glm::vec3 color, passes;
+        bool drawn;
+    };
+    const glm::vec3 tint(1.0f, 0.5f, 0.25f);
+    for (const Case& c :
+         {Case{"tinted glass", Material::AlphaMode::Opaque, 1.0f, 1.0f, tint, tint, false},
+          Case{"cut out", Material::AlphaMode::Mask, 0.0f, 0.0f, glm::vec3(0.0f), glm::vec3(1.0f), false},
+          Case{"solid cut-out", Material::AlphaMode::Mask, 1.0f, 0.0f, glm::vec3(0.0f), glm::vec3(0.0f), false},
+          Case{"blended", Material::AlphaMode::Blend, 0.3f, 0.0f, glm::vec3(0.0f), glm::vec3(0.7f), true}}) {
+        SCOPED_TRACE(c.name);
+        Scene s;
+        const uint32_t sheet = test::add_material(s, c.color);
+        s.materials[sheet].alpha_mode = c.mode;
+        s.materials[sheet].base_color.a = c.alpha;
+        s.materials[sheet].transmission = c.transmission;
+        test::add_quad(s, {-100, 1, -100}, {200, 0, 0}, {0, 0, 200}, sheet);  // facing down
+        const ProbeSet set = capture(s, {glm::vec3(0.0f)}, 64, 4, 16, glm::vec3(1.0f));
+        ASSERT_EQ(set.probes.size(), 1u);
+        const Probe& p = set.probes[0];
+        ASSERT_TRUE(p.valid) << p.why;
+        // Faces in cube_direction's order: +x, -x, +y, -y, +z, -z.
+        glm::dvec3 up(0.0), down(0.0);
+        for (int j = 0; j < set.m; ++j)
+            for (int i = 0; i < set.m; ++i) {
+                up += glm::dvec3(p.radiance[set.texel(2, i, j)]) / double(set.m * set.m);
+                down += glm::dvec3(p.radiance[set.texel(3, i, j)]) / double(set.m * set.m);
+            }
+        for (int k = 0; k < 3; ++k) {
+            EXPECT_NEAR(up[k], c.passes[k], c.drawn ? 0.02 : 1e-5) << "looking up, channel " << k;
+            EXPECT_NEAR(down[k], 1.0, 1e-5) << "looking down, channel " << k;
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 // The radiosity-map method against answers known in closed form, against
 // properties every correct bake has, and against an independent renderer.
 #include "gpu_fixture.h"
+#include "lightmap_closed_forms.h"
 #include "scene_builders.h"
 
 #include "atlas/atlas.h"
@@ -9,7 +10,7 @@
 #include "bake/double_sided.h"
 #include "bake/lightmap_denoiser.h"
 #include "bake/radiosity_map_baker.h"
-#include "bake/surface_textures.h"
+#include "trace/surface_textures.h"
 #include "bake/unlit_charts.h"
 #include "io/image_files.h"
 #include "io/reference_error.h"
@@ -27,7 +28,12 @@
 namespace lf {
 namespace {
 
+using test::bake;
+using test::BakeResult;
+using test::corner_form_factor;
 using test::gpu;
+using test::grid_cell;
+using test::rectangle_form_factor;
 
 // From the measured convergence curve (docs/BENCHMARKS.md): the default
 // scheme reaches 2.7% relative RMSE against Cycles after 256 passes at 256²
@@ -35,65 +41,6 @@ using test::gpu;
 // bound leaves 30% for another seed or device, and would catch a bias or a
 // lost factor (a 2% bias alone already adds 2% here).
 constexpr double kCornellRelativeRmseBound256 = 0.035;
-
-// Lays out n quads' lightmap rectangles in a grid with a padding of 3 texels at `res`.
-glm::vec4 grid_cell(int index, int per_row, int res) {
-    const float cell = 1.0f / float(per_row), pad = 3.0f / float(res);
-    const int cx = index % per_row, cy = index / per_row;
-    return {cx * cell + pad, cy * cell + pad, (cx + 1) * cell - pad, (cy + 1) * cell - pad};
-}
-
-struct BakeResult {
-    FloatImage image;
-    TexelSamples texels;
-    PassStats stats;
-    size_t moved_texels = 0, cut_texels = 0;
-};
-
-BakeResult bake(const Scene& scene, int res, int passes, RadiosityMapSettings settings = {}) {
-    gpu();
-    BakeResult r;
-    r.texels = rasterize_texel_samples(scene, res, res, 2);
-    Tracer tracer(scene);
-    RadiosityMapBaker baker(scene, r.texels, tracer, settings);
-    // In batches, so that a dispatch runs as many passes as its cell
-    // (BatchedPassesAreThePassesOneAtATime: the same pixels as one at a time).
-    for (int done = 0; done < passes;) {
-        const int count = std::min(baker.max_batch(), passes - done);
-        r.stats = baker.run_passes(count).back();
-        done += count;
-    }
-    r.image = baker.snapshot();
-    r.moved_texels = baker.texels_moved_out_of_geometry();
-    r.cut_texels = baker.texels_cut_by_geometry();
-    return r;
-}
-
-// Irradiance/pi at a point on a plane from a parallel rectangle of radiance 1
-// whose corner lies straight above it at height c, sides a, b: the
-// differential-area-to-rectangle form factor (Howell's catalogue, C-11).
-double corner_form_factor(double a, double b, double c) {
-    const double x = a / c, y = b / c;
-    const double sx = std::sqrt(1 + x * x), sy = std::sqrt(1 + y * y);
-    return (x / sx * std::atan(y / sx) + y / sy * std::atan(x / sy)) / (2.0 * M_PI);
-}
-
-// Any point under a rectangle [x0,x1]x[z0,z1] at height h, by splitting it at the point.
-double rectangle_form_factor(double px, double pz, double x0, double x1, double z0, double z1, double h) {
-    // Signed rectangles from the point to each corner: F = F(x1,z1) - F(x0,z1) - F(x1,z0) + F(x0,z0).
-    auto part = [&](double a, double b) {
-        return (a == 0.0 || b == 0.0) ? 0.0 : corner_form_factor(std::abs(a), std::abs(b), h);
-    };
-    auto sgn = [](double v) { return v < 0 ? -1.0 : 1.0; };
-    double f = 0.0;
-    for (double xe : {x0, x1})
-        for (double ze : {z0, z1}) {
-            const double a = xe - px, b = ze - pz;
-            const double s = sgn(a) * sgn(b) * (xe == x0 ? -1.0 : 1.0) * (ze == z0 ? -1.0 : 1.0);
-            f += s * part(a, b);
-        }
-    return f;
-}
 
 // A black floor at y = 0 facing up under a black rectangular emitter of
 // radiance 1 facing down: direct light only, known in closed form. By
@@ -1278,15 +1225,27 @@ Scene randomly_textured_quads() {
     Texture t;
     t.width = 37;
     t.height = 23;
-    for (int i = 0; i < t.width * t.height; ++i) t.texels.push_back(glm::vec4(u(rng), u(rng), u(rng), 1.0f));
+    for (int i = 0; i < t.width * t.height; ++i) t.texels.push_back(glm::vec4(u(rng), u(rng), u(rng), u(rng)));
     s.textures.push_back(t);
     const uint32_t reflecting = test::add_material(s, glm::vec3(0.9f, 0.5f, 0.7f));
     s.materials[reflecting].base_color_texture = 0;
     const uint32_t emitting = test::add_material(s, glm::vec3(0.5f), glm::vec3(3.0f, 2.0f, 1.0f));
     s.materials[emitting].base_color_texture = 0;
     s.materials[emitting].emissive_texture = 0;
+    // See-through: a cut-out, a blend and a tinted glass, each textured.
+    const uint32_t cut_out = test::add_material(s, glm::vec3(0.7f));
+    s.materials[cut_out].alpha_mode = Material::AlphaMode::Mask;
+    s.materials[cut_out].alpha_cutoff = 0.4f;
+    const uint32_t blended = test::add_material(s, glm::vec3(0.6f, 0.8f, 1.0f));
+    s.materials[blended].alpha_mode = Material::AlphaMode::Blend;
+    s.materials[blended].base_color.a = 0.6f;
+    const uint32_t glass = test::add_material(s, glm::vec3(0.9f, 0.7f, 0.5f));
+    s.materials[glass].transmission = 0.7f;
+    s.materials[glass].transmission_tint = glm::vec3(0.8f, 0.6f, 0.9f);
+    for (uint32_t m : {cut_out, blended, glass}) s.materials[m].base_color_texture = 0;
     test::add_quad(s, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}, reflecting);
     test::add_quad(s, {0, 0, 1}, {1, 0, 0}, {0, 1, 0}, emitting);
+    for (uint32_t m : {cut_out, blended, glass}) test::add_quad(s, {0, 0, 2.0f + float(m)}, {1, 0, 0}, {0, 1, 0}, m);
     for (size_t v = 0; v < s.uv0.size(); ++v) s.uv0[v] = glm::vec2(3.1f * u(rng) - 1.3f, 2.7f * u(rng) - 1.1f);
     return s;
 }
@@ -1451,16 +1410,34 @@ TEST(SurfaceTextures, GlslMatchesTheSceneOnTheCpu) {
             cases.push_back(glm::vec4(uint_bits(t), bary, 0.0f));
         }
         textures.bind();
-        const auto got = test::run_check_program(program, cases, 2);
+        const auto got = test::run_check_program(program, cases, 3);
+        size_t see_through = 0;
         for (size_t i = 0; i < cases.size(); ++i) {
             const size_t t = glm::floatBitsToUint(cases[i].x);
             const glm::vec2 bary(cases[i].y, cases[i].z);
             const glm::vec3 albedo = scene.albedo_at(t, bary), emission = scene.emission_at(t, bary);
+            const glm::vec3 passes = scene.transmittance_at(t, bary);
+            const Material& m = scene.materials[scene.triangle_material[t]];
+            // A cut-out's alpha within the half floats' rounding of its cutoff may fall either way.
+            const glm::uvec3 tri = scene.triangles[t];
+            const glm::vec2 uv =
+                (1 - bary.x - bary.y) * scene.uv0[tri.x] + bary.x * scene.uv0[tri.y] + bary.y * scene.uv0[tri.z];
+            const float alpha =
+                m.base_color.a *
+                (m.base_color_texture >= 0 ? scene.textures[size_t(m.base_color_texture)].sample(uv).a : 1.0f);
+            const bool at_cutoff =
+                m.alpha_mode == Material::AlphaMode::Mask && std::abs(alpha - m.alpha_cutoff) < 2e-3f;
+            see_through += m.is_see_through();
             for (int c = 0; c < 3; ++c) {
                 // Half floats: 2^-11 relative, and the bilinear weights' float rounding.
-                ASSERT_NEAR(got[2 * i][c], albedo[c], 1e-3f * albedo[c] + 1e-5f) << "triangle " << t;
-                ASSERT_NEAR(got[2 * i + 1][c], emission[c], 1e-3f * emission[c] + 1e-5f) << "triangle " << t;
+                ASSERT_NEAR(got[3 * i][c], albedo[c], 1e-3f * albedo[c] + 1e-5f) << "triangle " << t;
+                ASSERT_NEAR(got[3 * i + 1][c], emission[c], 1e-3f * emission[c] + 1e-5f) << "triangle " << t;
+                if (at_cutoff) continue;
+                ASSERT_NEAR(got[3 * i + 2][c], passes[c], 1e-3f * passes[c] + 1e-5f) << "triangle " << t;
             }
+        }
+        if (name == "random textures") {
+            EXPECT_GT(see_through, cases.size() / 2) << "cut-outs, blends and glass tried";
         }
     }
 }

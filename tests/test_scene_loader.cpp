@@ -527,30 +527,90 @@ TEST(GeneratedScenes, EmissiveStrengthMultipliesTheFactor) {
     EXPECT_TRUE(s.warnings.empty()) << s.warnings.front();
 }
 
-// A material a viewer shows as see-through is named in a warning saying
-// what the bake does with it (issue #35: a cut-out, a blended surface and a
-// window block light like opaque ones), each kind per material; an opaque
-// material gets none.
-TEST(GeneratedScenes, SeeThroughMaterialsAreNamedWithWhatTheBakeDoes) {
+// See-through materials (issue #35): alphaMode and alphaCutoff,
+// KHR_materials_transmission's factor and KHR_materials_volume's absorption
+// read into the Material, and a note per material saying how light passes
+// it; an opaque material gets none. Absorption: attenuationColor per
+// attenuationDistance, over thicknessFactor (0.25^(0.5 / 0.25) = 0.0625).
+TEST(GeneratedScenes, SeeThroughMaterialsAreReadAndSaidHowLightPasses) {
     GltfWriter w;
-    w.add("materials", {{"name", "leaves"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.5}});
-    w.add("materials", {{"name", "curtain"}, {"alphaMode", "BLEND"}});
+    w.add("materials", {{"name", "leaves"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.3}});
+    w.add("materials", {{"name", "curtain"},
+                        {"alphaMode", "BLEND"},
+                        {"pbrMetallicRoughness", {{"baseColorFactor", {1.0, 1.0, 1.0, 0.4}}}}});
     w.add("materials",
-          {{"name", "window"}, {"extensions", {{"KHR_materials_transmission", {{"transmissionFactor", 1.0}}}}}});
+          {{"name", "window"}, {"extensions", {{"KHR_materials_transmission", {{"transmissionFactor", 0.9}}}}}});
     w.add("materials", {{"name", "wall"}, {"alphaMode", "OPAQUE"}});
-    w.doc["extensionsUsed"] = {"KHR_materials_transmission"};
+    w.add("materials",
+          {{"name", "bottle"},
+           {"extensions",
+            {{"KHR_materials_transmission", {{"transmissionFactor", 1.0}}},
+             {"KHR_materials_volume",
+              {{"thicknessFactor", 0.5}, {"attenuationDistance", 0.25}, {"attenuationColor", {0.25, 0.5, 1.0}}}}}}});
+    w.doc["extensionsUsed"] = {"KHR_materials_transmission", "KHR_materials_volume"};
     std::vector<int> nodes;
-    for (int m = 0; m < 4; ++m)
+    for (int m = 0; m < 5; ++m)
         nodes.push_back(
             w.add("nodes", {{"mesh", w.mesh(primitive(w.vec3(kQuad), w.scalars(kQuadIndices, test::kUnsignedShort),
                                                       {{"material", m}}))}}));
     w.scene(nodes);
     TempDir dir;
     const Scene s = load_written(w, dir);
-    EXPECT_TRUE(has_warning(s, "material 0 \"leaves\": alphaMode MASK (cut-out)"));
-    EXPECT_TRUE(has_warning(s, "material 1 \"curtain\": alphaMode BLEND"));
-    EXPECT_TRUE(has_warning(s, "material 2 \"window\": KHR_materials_transmission (glass) blocks light"));
+    ASSERT_EQ(s.materials.size(), 5u);
+    EXPECT_EQ(s.materials[0].alpha_mode, Material::AlphaMode::Mask);
+    EXPECT_FLOAT_EQ(s.materials[0].alpha_cutoff, 0.3f);
+    EXPECT_EQ(s.materials[1].alpha_mode, Material::AlphaMode::Blend);
+    EXPECT_FLOAT_EQ(s.materials[1].base_color.a, 0.4f);
+    EXPECT_FLOAT_EQ(s.materials[2].transmission, 0.9f);
+    EXPECT_FALSE(s.materials[3].is_see_through());
+    EXPECT_FLOAT_EQ(s.materials[4].transmission, 1.0f);
+    expect_near(s.materials[4].transmission_tint, glm::vec3(0.0625f, 0.25f, 1.0f));
+    // Every point of a quad: 1 - alpha through the curtain, 0.9 through the window.
+    expect_near(s.transmittance_at(s.instances[1].first_triangle, glm::vec2(0.25f)), glm::vec3(0.6f));
+    expect_near(s.transmittance_at(s.instances[2].first_triangle, glm::vec2(0.25f)), glm::vec3(0.9f));
+    expect_near(s.transmittance_at(s.instances[3].first_triangle, glm::vec2(0.25f)), glm::vec3(0.0f));
+    EXPECT_TRUE(
+        has_warning(s, "material 0 \"leaves\": alphaMode MASK (cut-out): light passes where base colour alpha"));
+    EXPECT_TRUE(has_warning(s, "material 1 \"curtain\": alphaMode BLEND: light passes in proportion"));
+    EXPECT_TRUE(has_warning(s, "material 2 \"window\": KHR_materials_transmission: 0.9"));
+    EXPECT_TRUE(has_warning(s, "KHR_materials_volume's absorption"));
     EXPECT_FALSE(has_warning(s, "\"wall\""));
+    EXPECT_FALSE(has_warning(s, "not supported")) << "both extensions are read";
+}
+
+// Out-of-range see-through values are errors naming the material and the field.
+TEST(GeneratedScenes, BadSeeThroughValuesAreErrorsNamingTheField) {
+    const std::vector<std::pair<nlohmann::json, std::string>> cases = {
+        {{{"alphaMode", "CLEAR"}}, "alphaMode \"CLEAR\" is not OPAQUE, MASK or BLEND"},
+        {{{"alphaMode", "MASK"}, {"alphaCutoff", -0.5}}, "alphaCutoff"},
+        {{{"extensions", {{"KHR_materials_transmission", {{"transmissionFactor", 1.5}}}}}}, "transmissionFactor"},
+        {{{"extensions", {{"KHR_materials_transmission", {{"transmissionFactor", "all"}}}}}}, "transmissionFactor"},
+        {{{"extensions",
+           {{"KHR_materials_transmission", {{"transmissionFactor", 1.0}}},
+            {"KHR_materials_volume", {{"attenuationDistance", 0.0}}}}}},
+         "attenuationDistance"},
+        {{{"extensions",
+           {{"KHR_materials_transmission", {{"transmissionFactor", 1.0}}},
+            {"KHR_materials_volume", {{"attenuationColor", {2.0, 0.5, 0.5}}}}}}},
+         "attenuationColor"},
+    };
+    for (const auto& [material, message] : cases) {
+        SCOPED_TRACE(material.dump());
+        GltfWriter w;
+        nlohmann::json m = material;
+        m["name"] = "glass";
+        w.add("materials", m);
+        w.scene({w.add("nodes", {{"mesh", w.mesh(primitive(w.vec3(kQuad), w.scalars(kQuadIndices, test::kUnsignedShort),
+                                                           {{"material", 0}}))}})});
+        TempDir dir;
+        try {
+            load_written(w, dir);
+            ADD_FAILURE() << "loaded";
+        } catch (const SceneError& e) {
+            EXPECT_NE(std::string(e.what()).find("material 0 \"glass\""), std::string::npos) << e.what();
+            EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+        }
+    }
 }
 
 TEST(GeneratedScenes, PrimitiveWithoutMaterialGetsAWhiteDefault) {

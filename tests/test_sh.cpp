@@ -196,6 +196,49 @@ TEST(ShTransfer, FloorUnderParallelRectangleMatchesFormFactor) {
     EXPECT_EQ(checked, 81);
 }
 
+// The same rectangle see-through (issue #35): a ray through it is blocked
+// by the share of it that stops light, so the vertex's DC transfer is
+// sqrt(pi)/2 (1 - F (1 - k)), k the mean of its transmittance over the
+// channels (the transfer is one channel). Without bounces the shadow ray
+// takes the transmittance itself; with one, the ray's drawn choice
+// (trace_closest), the sheet being black: no bounce light. Binomial noise
+// of a blocked share q = F (1 - k) bounds both, 4 sigma.
+TEST(ShTransfer, ASeeThroughRectangleBlocksWhatItStops) {
+    struct Case {
+        const char* name;
+        Material::AlphaMode mode;
+        float alpha, transmission;
+        glm::vec3 color;
+        double k;
+        int bounces;
+    };
+    for (const Case& c :
+         {Case{"blended", Material::AlphaMode::Blend, 0.4f, 0.0f, glm::vec3(0.0f), 0.6, 0},
+          Case{"tinted glass", Material::AlphaMode::Opaque, 1.0f, 1.0f, glm::vec3(1.0f, 0.5f, 0.25f), 1.75 / 3.0, 0},
+          Case{"cut out", Material::AlphaMode::Mask, 0.0f, 0.0f, glm::vec3(0.0f), 1.0, 0},
+          Case{"blended, one bounce", Material::AlphaMode::Blend, 0.4f, 0.0f, glm::vec3(0.0f), 0.6, 1}}) {
+        SCOPED_TRACE(c.name);
+        Scene s;
+        const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
+        const uint32_t sheet = test::add_material(s, c.color);
+        s.materials[sheet].alpha_mode = c.mode;
+        s.materials[sheet].base_color.a = c.alpha;
+        s.materials[sheet].transmission = c.transmission;
+        test::add_grid(s, {-2, 0, 2}, {4, 0, 0}, {0, 0, -4}, 8, 8, grey);
+        const double x0 = -0.5, x1 = 0.5, z0 = -0.25, z1 = 1.25, h = 1.0;
+        test::add_quad(s, {float(x0), float(h), float(z0)}, {0, 0, float(z1 - z0)}, {float(x1 - x0), 0, 0}, sheet);
+        const int passes = 32, per_pass = 64, n = passes * per_pass;
+        const ShVertexTransfer t = bake_transfer(s, passes, settings(per_pass, c.bounces));
+        for (size_t v = 0; v < 81; ++v) {
+            const glm::vec3 p = s.positions[v];
+            const double q = rectangle_form_factor(p.x, p.z, x0, x1, z0, z1, h) * (1.0 - c.k);
+            const double sigma = kSqrtPiOver2 * std::sqrt(q * (1.0 - q) / n);
+            EXPECT_NEAR(t.coefficients[v][0], kSqrtPiOver2 * (1.0 - q), 4.0 * sigma + 2e-3)
+                << "floor vertex at " << p.x << ", " << p.z;
+        }
+    }
+}
+
 // The seed's Figure 3.1: adjacent triangles of a flat surface must not
 // shadow its vertices ("blackout"), far from the origin and tilted too.
 TEST(ShTransfer, FinelyTessellatedPlaneDoesNotShadowItself) {

@@ -169,7 +169,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
     // first to trace waits for it ("bvh": that wait and the upload).
     std::future<Bvh> bvh = std::async(std::launch::async, [&scene = p->scene] { return build_bvh(scene); });
     const auto tracer = [&]() -> const Tracer& {
-        if (!p->tracer) p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(bvh.get()); });
+        if (!p->tracer) p->tracer = p->timed("bvh", [&] { return std::make_unique<Tracer>(bvh.get(), p->scene); });
         return *p->tracer;
     };
     if (s.uses_atlas()) {

@@ -16,7 +16,7 @@
 #include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "bake/scene_shading.h"
-#include "bake/surface_textures.h"
+#include "trace/surface_textures.h"
 #include "bake_settings.h"
 #include "job_spec.h"
 

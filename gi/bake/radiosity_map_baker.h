@@ -7,7 +7,7 @@
 #include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "bake/scene_shading.h"
-#include "bake/surface_textures.h"
+#include "trace/surface_textures.h"
 #include "gpu/shader.h"
 #include "io/image_files.h"
 #include "scene/scene.h"

@@ -131,8 +131,12 @@ void ShTransferBaker::build_occluders(const Scene& scene) {
     std::sort(occluders.begin(), occluders.end());
     if (!settings_.occluder_meshes.empty()) {
         // A BVH of the occluders alone; its triangle indices count occluders.
+        // (Materials, textures and UVs as the scene's: see-through occluders pass light.)
         Scene subset;
         subset.positions = scene.positions;
+        subset.uv0 = scene.uv0;
+        subset.materials = scene.materials;
+        subset.textures = scene.textures;
         for (uint32_t t : occluders) {
             subset.triangles.push_back(scene.triangles[t]);
             subset.triangle_material.push_back(scene.triangle_material[t]);

@@ -12,9 +12,11 @@ namespace {
 
 using nlohmann::json;
 
-constexpr std::array<std::string_view, 2> kImplementedExtensions = {
+constexpr std::array<std::string_view, 4> kImplementedExtensions = {
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
 };
 
 // Walks the whole document (depth already bounded) and refuses integers that

@@ -28,8 +28,15 @@ private:
                      bool clamp_to_one) const;
     // Scene texture for a material's texture reference, or -1.
     int texture(const tinygltf::TextureInfo& info, const std::string& where, const char* slot);
-    // Warns when the material is see-through in a viewer (MASK, BLEND, transmission).
-    void warn_about_see_through(const tinygltf::Material& m, const std::string& where) const;
+    // alphaMode and alphaCutoff, KHR_materials_transmission and
+    // KHR_materials_volume's absorption: how light passes through.
+    void read_see_through(const tinygltf::Material& m, const std::string& where, Material& out) const;
+    // A number in an extension's object, or `fallback` when absent; fails
+    // outside [lo, hi].
+    double extension_number(const tinygltf::Value& ext, const char* key, double fallback, double lo, double hi,
+                            const std::string& where) const;
+    // Says per material what the bake does with a see-through surface.
+    void describe_see_through(const Material& m, const std::string& where) const;
 
     tinygltf::Model& model_;
     const Errors& errors_;
@@ -127,21 +134,73 @@ Material MaterialBuilder::convert(const tinygltf::Material& m, int index) {
     out.emission = emissive * strength;  // radiance in W/(sr·m²), DESIGN.md "Conventions"
     out.emissive_texture = texture(m.emissiveTexture, where, "emissive");
     out.double_sided = m.doubleSided;
-    warn_about_see_through(m, where);
+    read_see_through(m, where, out);
+    describe_see_through(out, where);
     return out;
 }
 
-// What a bake does with a material a viewer shows as see-through (issue
-// #35): said per material, so that a user knows where the light will differ
-// from the viewer's picture. Light passing through is not modelled yet.
-void MaterialBuilder::warn_about_see_through(const tinygltf::Material& m, const std::string& where) const {
-    const char* kBlocks = "blocks light in the bake as if opaque (see-through surfaces are not modelled yet)";
-    if (m.alphaMode == "MASK")
-        warnings_->push_back(where + ": alphaMode MASK (cut-out) " + kBlocks + ": its shadow and bounce stay");
-    else if (m.alphaMode == "BLEND") warnings_->push_back(where + ": alphaMode BLEND (partly transparent) " + kBlocks);
-    if (m.extensions.count("KHR_materials_transmission"))
-        warnings_->push_back(where + ": KHR_materials_transmission (glass) " + std::string(kBlocks) +
-                             ": a window is a wall to the light");
+double MaterialBuilder::extension_number(const tinygltf::Value& ext, const char* key, double fallback, double lo,
+                                         double hi, const std::string& where) const {
+    if (!ext.IsObject() || !ext.Has(key)) return fallback;
+    const tinygltf::Value& v = ext.Get(key);
+    const double x = v.IsNumber() ? v.GetNumberAsDouble() : std::nan("");
+    if (!(x >= lo && x <= hi))
+        errors_.fail(where + ": " + key + " is " + (v.IsNumber() ? std::to_string(x) : std::string("not a number")) +
+                     ", outside [" + std::to_string(lo) + ", " + (std::isinf(hi) ? "inf" : std::to_string(hi)) + "]");
+    return x;
+}
+
+void MaterialBuilder::read_see_through(const tinygltf::Material& m, const std::string& where, Material& out) const {
+    if (m.alphaMode == "MASK") out.alpha_mode = Material::AlphaMode::Mask;
+    else if (m.alphaMode == "BLEND") out.alpha_mode = Material::AlphaMode::Blend;
+    else if (!m.alphaMode.empty() && m.alphaMode != "OPAQUE")
+        errors_.fail(where + ": alphaMode " + in_quotes(m.alphaMode, 20) + " is not OPAQUE, MASK or BLEND");
+    if (!std::isfinite(m.alphaCutoff) || m.alphaCutoff < 0.0)
+        errors_.fail(where + ": alphaCutoff " + std::to_string(m.alphaCutoff) + " is not a non-negative number");
+    out.alpha_cutoff = float(m.alphaCutoff);
+
+    const auto transmission = m.extensions.find("KHR_materials_transmission");
+    if (transmission == m.extensions.end()) return;
+    const tinygltf::Value& ext = transmission->second;
+    out.transmission = float(extension_number(ext, "transmissionFactor", 0.0, 0.0, 1.0 + kFactorSlack, where));
+    out.transmission = std::min(out.transmission, 1.0f);
+    if (ext.IsObject() && ext.Has("transmissionTexture"))
+        warnings_->push_back(where + ": KHR_materials_transmission's transmissionTexture is ignored (its factor, " +
+                             std::to_string(out.transmission) + ", holds over the whole surface)");
+    // Absorption inside the volume (KHR_materials_volume): Beer-Lambert over
+    // the thickness, attenuationColor being what is left after
+    // attenuationDistance. A thin surface (thickness 0) absorbs nothing.
+    const auto volume = m.extensions.find("KHR_materials_volume");
+    if (volume == m.extensions.end()) return;
+    const tinygltf::Value& vol = volume->second;
+    const double thickness = extension_number(vol, "thicknessFactor", 0.0, 0.0, HUGE_VAL, where);
+    const double distance = extension_number(vol, "attenuationDistance", HUGE_VAL, 1e-30, HUGE_VAL, where);
+    glm::vec3 color(1.0f);
+    if (vol.IsObject() && vol.Has("attenuationColor")) {
+        const tinygltf::Value& c = vol.Get("attenuationColor");
+        std::vector<double> values;
+        for (size_t i = 0; c.IsArray() && i < c.ArrayLen(); ++i)
+            values.push_back(c.Get(int(i)).IsNumber() ? c.Get(int(i)).GetNumberAsDouble() : -1.0);
+        color = factor(values, 3, where, "KHR_materials_volume attenuationColor", true);
+    }
+    if (thickness > 0.0 && std::isfinite(distance))
+        out.transmission_tint = glm::pow(color, glm::vec3(float(thickness / distance)));
+}
+
+// What a bake does with a see-through material, said per material so that a
+// user knows how the light will pass (issue #35).
+void MaterialBuilder::describe_see_through(const Material& m, const std::string& where) const {
+    if (m.alpha_mode == Material::AlphaMode::Mask)
+        warnings_->push_back(where + ": alphaMode MASK (cut-out): light passes where base colour alpha < " +
+                             std::to_string(m.alpha_cutoff) + ", and the rest casts shadows and bounces light");
+    else if (m.alpha_mode == Material::AlphaMode::Blend)
+        warnings_->push_back(where +
+                             ": alphaMode BLEND: light passes in proportion to 1 - base colour alpha, untinted");
+    if (m.transmission > 0.0f)
+        warnings_->push_back(where + ": KHR_materials_transmission: " + std::to_string(m.transmission) +
+                             " of the light passes through, tinted by the base colour" +
+                             (m.transmission_tint != glm::vec3(1.0f) ? " and KHR_materials_volume's absorption" : "") +
+                             " (thin: no refraction or reflection off the glass)");
 }
 
 const char* kLightTypes[] = {"point", "spot", "directional"};

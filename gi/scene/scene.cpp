@@ -75,6 +75,18 @@ glm::vec3 Scene::albedo_at(size_t t, glm::vec2 bary) const {
     return albedo;
 }
 
+glm::vec3 Scene::transmittance_at(size_t t, glm::vec2 bary) const {
+    const Material& m = materials[triangle_material[t]];
+    if (!m.is_see_through()) return glm::vec3(0.0f);
+    glm::vec4 base = m.base_color;
+    if (m.base_color_texture >= 0)
+        base *= textures[size_t(m.base_color_texture)].sample(interpolate_uv0(*this, t, bary));
+    float coverage = 1.0f;
+    if (m.alpha_mode == Material::AlphaMode::Mask) coverage = base.a >= m.alpha_cutoff ? 1.0f : 0.0f;
+    else if (m.alpha_mode == Material::AlphaMode::Blend) coverage = base.a;
+    return glm::vec3(1.0f - coverage) + coverage * m.transmission * glm::vec3(base) * m.transmission_tint;
+}
+
 glm::vec3 Scene::emission_at(size_t t, glm::vec2 bary) const {
     const Material& m = materials[triangle_material[t]];
     if (!m.is_emissive()) return glm::vec3(0.0f);

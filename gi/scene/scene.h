@@ -55,7 +55,22 @@ struct Material {
     glm::vec3 emission{0.0f};
     int emissive_texture = -1;  // index into Scene::textures, sampled with TEXCOORD_0
     bool double_sided = false;  // emits (and receives) on both sides
+    // How much of the surface is there (glTF alphaMode, with base_color.a
+    // times the texture's alpha): all of it (Opaque), where alpha >=
+    // alpha_cutoff (Mask: a cut-out), or the fraction alpha (Blend).
+    enum class AlphaMode { Opaque, Mask, Blend };
+    AlphaMode alpha_mode = AlphaMode::Opaque;
+    float alpha_cutoff = 0.5f;
+    // KHR_materials_transmission's transmissionFactor: of the light that
+    // meets the surface, the fraction that passes through, tinted by the base
+    // colour and by transmission_tint (KHR_materials_volume's absorption over
+    // its thickness; 1 for a thin surface). Thin and straight through: no
+    // refraction, no Fresnel reflection, as a lightmapper reads a window.
+    float transmission = 0.0f;
+    glm::vec3 transmission_tint{1.0f};
     bool is_emissive() const { return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f; }
+    // Light may pass through some of it: the tracer tests its rays' hits.
+    bool is_see_through() const { return alpha_mode != AlphaMode::Opaque || transmission > 0.0f; }
 };
 
 // KHR_lights_punctual, read radiometrically (DESIGN.md "Conventions").
@@ -135,6 +150,11 @@ struct Scene {
     // Albedo and emission of triangle t at barycentrics (b1, b2), textures included.
     glm::vec3 albedo_at(size_t t, glm::vec2 bary) const;
     glm::vec3 emission_at(size_t t, glm::vec2 bary) const;
+    // The share of the light arriving at triangle t at (b1, b2) that passes
+    // through it, per channel: 1 - coverage + coverage x transmission x
+    // (base colour x texture) x transmission_tint, where coverage is how much
+    // of the surface is there (Material::alpha_mode). 0 for an opaque surface.
+    glm::vec3 transmittance_at(size_t t, glm::vec2 bary) const;
     // Their means over triangle t (textures averaged by the midpoint rule on
     // 16 equal sub-triangles; exact without a texture): what one constant per
     // triangle should be, where one texture sample at the centroid could be

@@ -138,14 +138,16 @@ vec3 sample_emitters(vec3 x, vec3 n, vec3 origin, vec2 u_choose, vec2 u_point, f
 #if LF_LIGHT_SAMPLING != 0
     cosine_strategy = false;  // light sampling alone
 #endif
-    // Stop just short of the light's surface so the light does not occlude itself.
-    if (trace_occluded(origin, y - origin, 0.9999)) return vec3(0.0);
+    // Stop just short of the light's surface so the light does not occlude
+    // itself; what passes through cut-outs and glass on the way arrives.
+    vec3 passes = trace_transmittance(origin, y - origin, 0.9999);
+    if (passes == vec3(0.0)) return vec3(0.0);
 #ifdef LF_EXACT_TEXTURES
     // The emission texture where the sample landed (the choice of emitter
     // follows the mean: any choice density is unbiased).
     le.rgb = surface_emission(emitter_bits >> 1u, triangle_barycentrics(y, a.xyz, b.xyz, c.xyz));
 #endif
-    vec3 irradiance = le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);
+    vec3 irradiance = passes * le.rgb * cos_x * mis_weight(pdf_light, cosine_strategy ? cos_x / PI : 0.0, light_samples);
     lf_add_directional(irradiance, w, n);
     return irradiance;
 }
@@ -157,7 +159,8 @@ float spot_attenuation(vec3 light_dir, vec3 to_point, float cos_inner, float cos
     return t * t;
 }
 
-// Irradiance from every punctual light, with a shadow ray each.
+// Irradiance from every punctual light, with a shadow ray each (the share
+// that passes see-through surfaces on the way).
 vec3 punctual_irradiance(vec3 x, vec3 n, vec3 origin, float far) {
     vec3 e = vec3(0.0);
     for (uint l = 0u; l < punctual_count; ++l) {
@@ -167,9 +170,9 @@ vec3 punctual_irradiance(vec3 x, vec3 n, vec3 origin, float far) {
         if (type == LIGHT_DIRECTIONAL) {
             float cos_x = -dot(n, p1.xyz);
             if (cos_x <= 0.0) continue;
-            if (trace_occluded(origin, -p1.xyz, far)) continue;
-            e += p2.rgb * cos_x;  // intensity is irradiance (W/m²) for directional lights
-            lf_add_directional(p2.rgb * cos_x, -p1.xyz, n);
+            vec3 passes = trace_transmittance(origin, -p1.xyz, far);
+            e += passes * p2.rgb * cos_x;  // intensity is irradiance (W/m²) for directional lights
+            lf_add_directional(passes * p2.rgb * cos_x, -p1.xyz, n);
             continue;
         }
         vec3 d = p0.xyz - x;
@@ -184,9 +187,9 @@ vec3 punctual_irradiance(vec3 x, vec3 n, vec3 origin, float far) {
         }
         if (type == LIGHT_SPOT) falloff *= spot_attenuation(p1.xyz, -w, p2.w, p3.x);
         if (falloff <= 0.0) continue;
-        if (trace_occluded(origin, p0.xyz - origin, 1.0)) continue;
-        e += p2.rgb * cos_x * falloff;
-        lf_add_directional(p2.rgb * cos_x * falloff, w, n);
+        vec3 passes = trace_transmittance(origin, p0.xyz - origin, 1.0);
+        e += passes * p2.rgb * cos_x * falloff;
+        lf_add_directional(passes * p2.rgb * cos_x * falloff, w, n);
     }
     return e;
 }

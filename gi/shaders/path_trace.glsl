@@ -30,6 +30,7 @@ vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint ray
         origin = y;
         dir = sample_cosine_hemisphere(ny, rng_next2(rng));
         hit = trace_closest(origin, dir, far);
+        throughput *= hit.tint;  // through the see-through surfaces it passed
         rays += 1u;
         if (hit.triangle == LF_NO_HIT) { result += throughput * background; break; }
         if (!(hit.front || hit_is_double_sided(hit))) break;

@@ -51,11 +51,11 @@ void main() {
     uint rays = 1u;
     Hit h = trace_closest(origin, dir, far);
     if (h.triangle == LF_NO_HIT) {
-        radiance = background;
+        radiance = h.tint * background;
     } else if (h.front || hit_is_double_sided(h)) {
         distance = h.t;
         hit = 1.0;
-        radiance = hit_emission(h) + path_radiance(h, origin, dir, rng, rays);
+        radiance = h.tint * (hit_emission(h) + path_radiance(h, origin, dir, rng, rays));
     } else {
         // The back of a one-sided surface: the probe sees the inside of something.
         distance = h.t;

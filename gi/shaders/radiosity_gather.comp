@@ -40,7 +40,7 @@ layout(std430, binding = LF_BINDING_DIRECTIONAL_ACCUMULATORS) buffer Directional
 vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
     if (background == vec3(0.0)) return vec3(0.0);
     rays += 1u;
-    return trace_occluded(y, sample_cosine_hemisphere(ny, rng_next2(rng)), far) ? vec3(0.0) : background;
+    return trace_transmittance(y, sample_cosine_hemisphere(ny, rng_next2(rng)), far) * background;
 }
 
 // The radiance the front of a surface reflects towards the texel at the
@@ -103,6 +103,7 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
         radiance += throughput * e * (1.0 / PI);
         vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
         Hit next = trace_closest(y, dir, far);
+        throughput *= next.tint;  // through the see-through surfaces it passed
         rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
         if (next.triangle == LF_NO_HIT) return radiance + throughput * background;
         if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
@@ -194,7 +195,7 @@ uint gather_texel(uint i, uint pass) {
         Hit hit = trace_closest(origin, dir, far);
         if (hit.triangle == LF_NO_HIT) {
             indirect = vec3(0.0);
-            sky = background;
+            sky = hit.tint * background;  // through any window on the way
         } else if (hit.front || hit_is_double_sided(hit)) {
             // The hit point, lifted off its surface on the ray's side.
             vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);
@@ -206,6 +207,7 @@ uint gather_texel(uint i, uint pass) {
             bool answered = map_may_say(hit, near) && map_radiance(hit, y, n_hit, rng, path_rays, indirect);
             if (!answered) indirect = gather_at_hit(hit, y, n_hit, near, rng, path_rays);
 #endif
+            indirect *= hit.tint;  // through the see-through surfaces the ray passed
             // Landing on an emitter: its light, MIS-weighted against emitter
             // sampling (which alone counts emitters when LF_LIGHT_SAMPLING != 0).
             float area_pdf = LF_LIGHT_SAMPLING == 0 ? hit_emitter_area_pdf(hit) : 0.0;
@@ -213,7 +215,7 @@ uint gather_texel(uint i, uint pass) {
                 float cos_x = dot(n, dir);
                 float cos_y = abs(dot(normalize(hit.normal), dir));
                 float pdf_light = emitter_pdf(hit_emitter_index(hit), x, hit.t * hit.t, cos_y);
-                vec3 e = hit_emission(hit) * cos_x * mis_weight(pdf_light, cos_x / PI, float(light_samples));
+                vec3 e = hit.tint * hit_emission(hit) * cos_x * mis_weight(pdf_light, cos_x / PI, float(light_samples));
                 direct += e;
 #ifdef LF_DIRECTIONAL
                 lf_directional_on = true;

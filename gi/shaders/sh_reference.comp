@@ -41,7 +41,7 @@ void main() {
     vec3 sum = vec3(0.0);
     for (uint s = 0u; s < samples; ++s) {
         vec3 dir = sample_cosine_hemisphere(n, rng_next2(rng));
-        if (!trace_occluded(origin, dir, 1e30)) sum += environment(dir);
+        sum += trace_transmittance(origin, dir, 1e30) * environment(dir);
     }
     irradiance[i] += vec4(sum * weight, 0.0);
 }

@@ -69,10 +69,14 @@ void main() {
         vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass * samples_per_pass + sample_first + s));
         vec3 o = origin + near_dist * dir;
         vec4 f[4] = vec4[4](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
+        // The transfer is one channel: light through a see-through surface
+        // counts by the mean of its tint.
 #if LF_SH_BOUNCES == 0
-        bool escaped = !trace_occluded(o, dir, far_dist);
+        vec3 tint = trace_transmittance(o, dir, far_dist);
+        bool escaped = tint != vec3(0.0);
 #else
         Hit hit = trace_closest(o, dir, far_dist);
+        vec3 tint = hit.tint;
         bool escaped = hit.triangle == LF_NO_HIT;
         // Only a front face reflects what its vertices' transfer describes;
         // a back face is the inside of something (or the unknown back of a
@@ -80,7 +84,7 @@ void main() {
         if (!escaped && hit.front) {
             uvec4 ids = sh_triangle_ids[hit.triangle];
             vec3 b = vec3(1.0 - hit.bary.x - hit.bary.y, hit.bary.x, hit.bary.y);
-            float albedo = dot(b, sh_triangle_albedo[hit.triangle].xyz);
+            float albedo = dot(b, sh_triangle_albedo[hit.triangle].xyz) * (tint.r + tint.g + tint.b) / 3.0;
             // Bounce k reads block k-1, which has samples from pass k-1 on:
             // starting bounce k at pass k keeps every bounce unbiased.
             for (uint k = 1u; k <= uint(LF_SH_BOUNCES) && k <= pass; ++k) {
@@ -98,9 +102,10 @@ void main() {
         if (escaped) {
             vec4 y[4];
             sh_evaluate(dir, y);
+            float passes = (tint.r + tint.g + tint.b) / 3.0;
             for (int c = 0; c < 4; ++c) {
-                sum[c] += PI * y[c];
-                f[c] += PI * y[c];
+                sum[c] += PI * passes * y[c];
+                f[c] += PI * passes * y[c];
             }
         }
         for (int c = 0; c < 4; ++c) squares[c] += f[c] * f[c];

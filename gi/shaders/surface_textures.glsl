@@ -9,25 +9,23 @@
 #ifndef LF_SURFACE_TEXTURES_GLSL
 #define LF_SURFACE_TEXTURES_GLSL
 #include "buffer_bindings.glsl"
+#include "material_layout.glsl"
 
 // Per scene triangle, two vec4: (uv0 of vertex 0, uv0 of vertex 1), (uv0 of vertex 2, material index bits, 0).
 layout(std430, binding = LF_BINDING_SURFACE_TEXCOORDS) readonly buffer SurfaceTexCoords { vec4 surface_texcoords[]; };
 // material_textures[0] = M materials, [1] = where the texture table starts;
-// material m at 2 + 8m: base colour rgb, emission rgb (float bits), then
-// base-colour texture + 1 and emissive texture + 1 (0: none);
+// material m's record at LF_MATERIALS_FIRST + LF_MATERIAL_UINTS m (material_layout.glsl);
 // texture k in the table: first texel, width, height, 0;
 // a texel: two uints, packHalf2x16(r, g) and packHalf2x16(b, a).
 layout(std430, binding = LF_BINDING_MATERIAL_TEXTURES) readonly buffer MaterialTextures { uint material_textures[]; };
 
-const uint MATERIAL_UINTS = 8u;
-
-vec3 texture_fetch(uint first, uint width, int x, int y) {
+vec4 texture_fetch(uint first, uint width, int x, int y) {
     uint t = first + 2u * (uint(y) * width + uint(x));
-    return vec3(unpackHalf2x16(material_textures[t]), unpackHalf2x16(material_textures[t + 1u]).x);
+    return vec4(unpackHalf2x16(material_textures[t]), unpackHalf2x16(material_textures[t + 1u]));
 }
 
 // Texture k (an index into the table) at uv: Texture::sample.
-vec3 texture_sample(uint k, vec2 uv) {
+vec4 texture_sample(uint k, vec2 uv) {
     uint entry = material_textures[1u] + 4u * k;
     uint first = material_textures[entry];
     int width = int(material_textures[entry + 1u]), height = int(material_textures[entry + 2u]);
@@ -40,8 +38,8 @@ vec3 texture_sample(uint k, vec2 uv) {
     ivec2 size = ivec2(width, height);
     ivec2 i0 = ivec2(p0) + ivec2(lessThan(p0, vec2(0.0))) * size;
     ivec2 i1 = ivec2(notEqual(i0 + 1, size)) * (i0 + 1);
-    vec3 top = mix(texture_fetch(first, uint(width), i0.x, i0.y), texture_fetch(first, uint(width), i1.x, i0.y), f.x);
-    vec3 bottom = mix(texture_fetch(first, uint(width), i0.x, i1.y), texture_fetch(first, uint(width), i1.x, i1.y), f.x);
+    vec4 top = mix(texture_fetch(first, uint(width), i0.x, i0.y), texture_fetch(first, uint(width), i1.x, i0.y), f.x);
+    vec4 bottom = mix(texture_fetch(first, uint(width), i0.x, i1.y), texture_fetch(first, uint(width), i1.x, i1.y), f.x);
     return mix(top, bottom, f.y);
 }
 
@@ -52,26 +50,43 @@ vec2 surface_uv0(uint triangle, vec2 bary) {
     return (1.0 - bary.x - bary.y) * a.xy + bary.x * a.zw + bary.y * b.xy;
 }
 
+uint material_uint(uint m, uint at) { return material_textures[LF_MATERIALS_FIRST + LF_MATERIAL_UINTS * m + at]; }
+float material_float(uint m, uint at) { return uintBitsToFloat(material_uint(m, at)); }
 vec3 material_vec3(uint m, uint at) {
-    uint base = 2u + MATERIAL_UINTS * m + at;
-    return uintBitsToFloat(uvec3(material_textures[base], material_textures[base + 1u], material_textures[base + 2u]));
+    return vec3(material_float(m, at), material_float(m, at + 1u), material_float(m, at + 2u));
 }
 
 // Scene::albedo_at: the base colour times its texture at the point.
 vec3 surface_albedo(uint triangle, vec2 bary) {
     uint m = surface_material(triangle);
-    uint texture = material_textures[2u + MATERIAL_UINTS * m + 6u];
-    vec3 albedo = material_vec3(m, 0u);
-    return texture == 0u ? albedo : albedo * texture_sample(texture - 1u, surface_uv0(triangle, bary));
+    uint texture = material_uint(m, LF_MAT_BASE_TEXTURE);
+    vec3 albedo = material_vec3(m, LF_MAT_BASE_COLOR);
+    return texture == 0u ? albedo : albedo * texture_sample(texture - 1u, surface_uv0(triangle, bary)).rgb;
 }
 
 // Scene::emission_at: the emitted radiance times its texture at the point.
 vec3 surface_emission(uint triangle, vec2 bary) {
     uint m = surface_material(triangle);
-    uint texture = material_textures[2u + MATERIAL_UINTS * m + 7u];
-    vec3 emission = material_vec3(m, 3u);
+    uint texture = material_uint(m, LF_MAT_EMISSIVE_TEXTURE);
+    vec3 emission = material_vec3(m, LF_MAT_EMISSION);
     if (texture == 0u || emission == vec3(0.0)) return emission;
-    return emission * texture_sample(texture - 1u, surface_uv0(triangle, bary));
+    return emission * texture_sample(texture - 1u, surface_uv0(triangle, bary)).rgb;
+}
+
+// How a see-through surface (Material::is_see_through) passes light at a
+// point: the share of the surface that is there (coverage: alphaMode against
+// base colour alpha x its texture's), and the tint of the light that passes
+// through what is there (transmission x base colour x volume absorption).
+// Scene::transmittance_at is 1 - coverage + coverage x that tint.
+void surface_see_through(uint triangle, vec2 bary, out float coverage, out vec3 transmitted) {
+    uint m = surface_material(triangle);
+    uint texture = material_uint(m, LF_MAT_BASE_TEXTURE);
+    vec4 base = vec4(material_vec3(m, LF_MAT_BASE_COLOR), material_float(m, LF_MAT_ALPHA));
+    if (texture != 0u) base *= texture_sample(texture - 1u, surface_uv0(triangle, bary));
+    uint mode = material_uint(m, LF_MAT_ALPHA_MODE);
+    coverage = mode == LF_ALPHA_MASK ? (base.a >= material_float(m, LF_MAT_ALPHA_CUTOFF) ? 1.0 : 0.0)
+             : mode == LF_ALPHA_BLEND ? base.a : 1.0;
+    transmitted = material_float(m, LF_MAT_TRANSMISSION) * base.rgb * material_vec3(m, LF_MAT_TRANSMISSION_TINT);
 }
 
 #endif

@@ -23,7 +23,7 @@ vec3 lifted(uint s) { return sample_position(s) + 0.1 * sample_texel_size(s) * s
 
 bool sees(uint a, uint b) {
     vec3 from = lifted(a);
-    return !trace_occluded(from, lifted(b) - from, 1.0);
+    return !trace_occluded_geometry(from, lifted(b) - from, 1.0);
 }
 
 void main() {

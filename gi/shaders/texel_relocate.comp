@@ -30,7 +30,7 @@ void main() {
     for (int k = 0; k < 8; ++k) {
         float phi = float(k) * (PI / 4.0);
         vec3 dir = normalize(cos(phi) * t + sin(phi) * b + 0.05 * ng) * texel_size;
-        Hit hit = trace_closest(origin, dir, 1.0);
+        Hit hit = trace_closest_geometry(origin, dir, 1.0);
         if (hit.triangle != LF_NO_HIT && !hit.front && hit.t < best_t) {
             best_t = hit.t;
             best_dir = dir;

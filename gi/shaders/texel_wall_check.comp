@@ -25,7 +25,7 @@ void main() {
         vec4 other = texel_anchors[uint(n.y) * atlas_size.x + uint(n.x)];
         if (other.w == LF_ANCHOR_UNCOVERED) continue;
         vec3 from = self.xyz + lift;
-        if (trace_occluded(from, other.xyz + lift - from, 1.0)) {
+        if (trace_occluded_geometry(from, other.xyz + lift - from, 1.0)) {
             texel_anchors[texel.z].w = LF_ANCHOR_NEXT_TO_CUT;
             return;
         }

@@ -1,11 +1,34 @@
 // The one ray tracer: BVH traversal and watertight ray/triangle tests.
 // Every method includes this file and traces from its own shader; the
-// scene's BVH is bound at its two binding points (buffer_bindings.glsl).
+// scene's BVH is bound at its two binding points (buffer_bindings.glsl),
+// and the see-through surfaces' materials beside it (surface_textures.glsl).
+//
+// Light passes through see-through surfaces (Material::is_see_through):
+// where alpha cuts a surface out (MASK), in proportion to 1 - alpha (BLEND),
+// and through glass (KHR_materials_transmission) tinted by its colour. The
+// queries, for every method alike:
+//  * trace_closest: the first surface that stops the ray; each see-through
+//    surface before it was passed by a choice drawn with its transmittance's
+//    odds (a hash of the ray and the triangle: the same ray chooses alike in
+//    every query), and Hit.tint is the colour of the light that came through
+//    them (1 on a ray that passed none): light from the hit, or from the sky
+//    on a miss, arrives times tint. Unbiased: the choice's expected weight
+//    is the transmittance (Scene::transmittance_at).
+//  * trace_transmittance: the share of light that passes from the origin to
+//    t_max, per channel, as an expectation: 0 past an opaque surface, the
+//    product of the transmittances past see-through ones. Shadow rays.
+//  * trace_occluded: whether something stops the ray, see-through surfaces
+//    passed by the same choice as trace_closest (a yes/no estimate, for
+//    occlusion counts).
+//  * trace_closest_geometry, trace_occluded_geometry: every triangle stops
+//    the ray: where geometry is, not how light passes (texel placement).
 #ifndef LF_TRACE_GLSL
 #define LF_TRACE_GLSL
 
 #include "buffer_bindings.glsl"
 #include "bvh_layout.glsl"
+#include "random.glsl"
+#include "surface_textures.glsl"
 
 // BvhNode (64 bytes, 4-wide; trace/bvh.h): the low corner of the node's box
 // and its three steps' exponents; the children's planes, one byte each, in
@@ -23,6 +46,7 @@ struct Hit {
     vec2 bary;      // (b1, b2): weights of the triangle's 2nd and 3rd vertex
     bool front;     // the ray met the side the triangle's counter-clockwise normal faces
     vec3 normal;    // the triangle's geometric normal (counter-clockwise), not normalized
+    vec3 tint;      // trace_closest: the light through the see-through surfaces the ray passed
 };
 
 // Per-ray constants of the watertight test (Woop, Benthin & Wald 2013):
@@ -121,10 +145,61 @@ void lf_order(inout vec4 t, inout uvec4 node, int a, int b) {
     }
 }
 
-// The traversal, shared by both queries. any_hit: stop at the first hit
-// (occlusion). Returns the closest hit found below t_max.
-Hit lf_traverse(vec3 org, vec3 dir, float t_max, bool any_hit) {
-    Hit hit = Hit(t_max, LF_NO_HIT, vec2(0.0), false, vec3(0.0));
+// What a traversal looks for (see the queries at the top).
+const uint LF_QUERY_CLOSEST = 0u;        // the first surface that stops the ray
+const uint LF_QUERY_ANY = 1u;            // any surface that stops it
+const uint LF_QUERY_TRANSMITTANCE = 2u;  // the expected share of light through everything to t_max
+const uint LF_QUERY_PASSED_TINT = 3u;    // the tint of the choices LF_QUERY_CLOSEST made before t_max
+const uint LF_QUERY_GEOMETRY = 4u;       // flag: every triangle stops the ray
+
+// A hash of the ray, for its see-through choices.
+uint lf_ray_hash(vec3 org, vec3 dir) {
+    uvec3 o = floatBitsToUint(org), d = floatBitsToUint(dir);
+    return pcg_hash(o.x ^ pcg_hash(o.y ^ pcg_hash(o.z ^ pcg_hash(d.x ^ pcg_hash(d.y ^ pcg_hash(d.z))))));
+}
+
+// Where a ray meets a see-through surface: its material and t to 2^-13. A
+// ray through an edge or a vertex meets every triangle that shares it (the
+// watertight test's promise), but they are one surface there: met once, by
+// one choice (a sun straight down through a window's diagonal, on texels'
+// sample points in a row, found it squared).
+uint lf_surface_key(uint triangle, float t) {
+    return pcg_hash(surface_material(triangle) ^ pcg_hash(floatBitsToUint(t) >> 10u));
+}
+
+// A see-through surface's choice for one ray: passed (true, with the
+// light's tint: 1 through a hole, the glass's colour through glass) or not.
+// u is uniform per ray and surface point (lf_surface_key): passed with odds
+// 1 - coverage (a hole) plus coverage x transmission (glass), so the
+// expected tint is Scene::transmittance_at. The glass branch's tint is base
+// colour x absorption, its odds the transmission factor: their product is
+// the glass's transmittance.
+bool lf_passes(uint triangle, vec2 bary, uint choice, out vec3 tint) {
+    float coverage;
+    vec3 transmitted;
+    surface_see_through(triangle, bary, coverage, transmitted);
+    float u = float(pcg_hash(choice) >> 8) * (1.0 / 16777216.0);
+    float odds = material_float(surface_material(triangle), LF_MAT_TRANSMISSION);
+    tint = u < 1.0 - coverage ? vec3(1.0) : (odds > 0.0 ? transmitted / odds : vec3(0.0));
+    return u < 1.0 - coverage + coverage * odds;
+}
+
+// The traversal, shared by every query. Returns the closest hit found below
+// t_max that the query stops at; under LF_QUERY_TRANSMITTANCE and
+// LF_QUERY_PASSED_TINT, tint holds the product and t stays t_max (all of the
+// ray is visited). passed: whether a see-through surface was passed.
+Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
+    Hit hit = Hit(t_max, LF_NO_HIT, vec2(0.0), false, vec3(0.0), vec3(1.0));
+    passed = false;
+    bool materials = (query & LF_QUERY_GEOMETRY) == 0u;
+    query &= ~LF_QUERY_GEOMETRY;
+    bool any_hit = query == LF_QUERY_ANY;
+    bool whole_ray = query == LF_QUERY_TRANSMITTANCE || query == LF_QUERY_PASSED_TINT;
+    // The last two see-through surface points a whole-ray query counted:
+    // a ray through an edge meets its two triangles in one leaf, nearly
+    // always one after the other (a list would cost every traversal its
+    // registers, 4x on llvmpipe).
+    uvec2 counted = uvec2(0u);
     RayShear sh = ray_shear(dir);
     vec3 inv_dir = safe_inverse(dir);
     uint stack[LF_BVH_STACK_SIZE];
@@ -145,19 +220,45 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, bool any_hit) {
             t_enter[c] = LF_INFINITY;
             for (uint i = child[c]; i < child[c] + count[c]; ++i) {
                 float t; vec2 b;
-                vec3 v0 = lf_bvh_tris[3u * i].xyz, v1 = lf_bvh_tris[3u * i + 1u].xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
-                if (intersect_triangle(org, sh, v0, v1, v2, hit.t, t, b)) {
-                    vec3 ng = cross(v1 - v0, v2 - v0);
-                    hit = Hit(t, floatBitsToUint(lf_bvh_tris[3u * i].w), b, dot(ng, dir) < 0.0, ng);
-                    if (any_hit) return hit;
+                vec4 w0 = lf_bvh_tris[3u * i], w1 = lf_bvh_tris[3u * i + 1u];
+                vec3 v0 = w0.xyz, v1 = w1.xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
+                if (!intersect_triangle(org, sh, v0, v1, v2, hit.t, t, b)) continue;
+                uint triangle = floatBitsToUint(w0.w);
+                if (materials && floatBitsToUint(w1.w) != 0u) {  // a see-through triangle (Tracer)
+                    uint key = lf_surface_key(triangle, t);
+                    if (whole_ray) {
+                        if (key == counted.x || key == counted.y) continue;
+                        counted = uvec2(key, counted.x);
+                    }
+                    vec3 tint;
+                    if (query == LF_QUERY_TRANSMITTANCE) {
+                        float coverage;
+                        vec3 transmitted;
+                        surface_see_through(triangle, b, coverage, transmitted);
+                        hit.tint *= vec3(1.0 - coverage) + coverage * transmitted;
+                        if (hit.tint != vec3(0.0)) continue;
+                    } else if (lf_passes(triangle, b, key ^ lf_ray_hash(org, dir), tint)) {
+                        passed = true;
+                        if (query == LF_QUERY_PASSED_TINT) hit.tint *= tint;
+                        continue;
+                    }
                 }
+                if (query == LF_QUERY_PASSED_TINT) continue;  // LF_QUERY_CLOSEST stopped nowhere before t_max
+                vec3 ng = cross(v1 - v0, v2 - v0);
+                if (query == LF_QUERY_TRANSMITTANCE) {
+                    hit.tint = vec3(0.0);
+                    hit.triangle = triangle;
+                    return hit;
+                }
+                hit = Hit(t, triangle, b, dot(ng, dir) < 0.0, ng, vec3(1.0));
+                if (any_hit) return hit;
             }
         }
         // Interior children that start before the closest hit so far, nearest
         // first (a sorting network): the nearest is visited next, the others
-        // wait on the stack. An occlusion query takes any hit, in any order.
+        // wait on the stack. The other queries take every hit, in any order.
         t_enter = mix(t_enter, vec4(LF_INFINITY), greaterThan(t_enter, vec4(hit.t)));
-        if (!any_hit) {
+        if (!any_hit && !whole_ray) {
             lf_order(t_enter, child, 0, 1);
             lf_order(t_enter, child, 2, 3);
             lf_order(t_enter, child, 0, 2);
@@ -182,13 +283,36 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, bool any_hit) {
     return hit;
 }
 
-// Closest hit along org + t dir, 0 < t < t_max (dir need not be unit length;
-// t is in units of |dir|).
-Hit trace_closest(vec3 org, vec3 dir, float t_max) { return lf_traverse(org, dir, t_max, false); }
+// Closest hit along org + t dir, 0 < t < t_max, that stops the ray (dir
+// need not be unit length; t is in units of |dir|), with the tint of the
+// light through the see-through surfaces passed on the way.
+Hit trace_closest(vec3 org, vec3 dir, float t_max) {
+    bool passed, unused;
+    Hit hit = lf_traverse(org, dir, t_max, LF_QUERY_CLOSEST, passed);
+    if (passed) hit.tint = lf_traverse(org, dir, hit.t, LF_QUERY_PASSED_TINT, unused).tint;
+    return hit;
+}
 
-// True if anything lies along org + t dir, 0 < t < t_max.
+// True if something along org + t dir, 0 < t < t_max, stops the ray.
 bool trace_occluded(vec3 org, vec3 dir, float t_max) {
-    return lf_traverse(org, dir, t_max, true).triangle != LF_NO_HIT;
+    bool passed;
+    return lf_traverse(org, dir, t_max, LF_QUERY_ANY, passed).triangle != LF_NO_HIT;
+}
+
+// The expected share of light that passes along org + t dir, 0 < t < t_max, per channel.
+vec3 trace_transmittance(vec3 org, vec3 dir, float t_max) {
+    bool passed;
+    return lf_traverse(org, dir, t_max, LF_QUERY_TRANSMITTANCE, passed).tint;
+}
+
+// The same as trace_closest and trace_occluded with every triangle stopping the ray.
+Hit trace_closest_geometry(vec3 org, vec3 dir, float t_max) {
+    bool passed;
+    return lf_traverse(org, dir, t_max, LF_QUERY_CLOSEST | LF_QUERY_GEOMETRY, passed);
+}
+bool trace_occluded_geometry(vec3 org, vec3 dir, float t_max) {
+    bool passed;
+    return lf_traverse(org, dir, t_max, LF_QUERY_ANY | LF_QUERY_GEOMETRY, passed).triangle != LF_NO_HIT;
 }
 
 // Moves a ray origin on a surface off it along the geometric normal by an

@@ -1,6 +1,7 @@
 #version 450 core
 // Batched tracing: rays in, hits out. For tools, tests and any caller that
 // has its rays on the CPU; the bake methods trace from their own shaders.
+// Geometry alone: every triangle stops a ray, see-through or not.
 #include "buffer_bindings.glsl"
 #include "trace.glsl"
 
@@ -17,6 +18,7 @@ void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     if (i >= ray_count) return;
     vec4 o = rays[2u * i], d = rays[2u * i + 1u];
-    Hit h = lf_traverse(o.xyz, d.xyz, o.w, floatBitsToUint(d.w) != 0u);
+    Hit h = floatBitsToUint(d.w) != 0u ? Hit(0.0, trace_occluded_geometry(o.xyz, d.xyz, o.w) ? 0u : LF_NO_HIT, vec2(0.0), false, vec3(0.0), vec3(1.0))
+                                       : trace_closest_geometry(o.xyz, d.xyz, o.w);
     hits[i] = vec4(h.t, uintBitsToFloat(h.triangle), h.bary);
 }

@@ -56,7 +56,7 @@ struct BvhTriangle {
     glm::vec3 v0;
     uint32_t scene_triangle;
     glm::vec3 v1;
-    float pad1;
+    float pad1;  // the Tracer's: uint bits 1 for a see-through triangle
     glm::vec3 v2;
     float pad2;
 };

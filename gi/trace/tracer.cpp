@@ -5,10 +5,17 @@
 
 namespace lf {
 
-Tracer::Tracer(const Bvh& bvh) {
-    stats_ = bvh.stats;
+Tracer::Tracer(const Bvh& bvh, const Scene& scene)
+    : stats_(bvh.stats), see_through_(scene, SurfaceTextures::Which::SeeThrough) {
     nodes_ = GpuBuffer(bvh.nodes);
-    triangles_ = GpuBuffer(bvh.triangles);
+    // A see-through triangle is marked in its record (trace.glsl tests its
+    // material only there); the others cost the traversal nothing more.
+    std::vector<BvhTriangle> triangles = bvh.triangles;
+    for (BvhTriangle& t : triangles) {
+        const bool see_through = scene.materials[scene.triangle_material.at(t.scene_triangle)].is_see_through();
+        t.pad1 = uint_bits(see_through ? 1u : 0u);
+    }
+    triangles_ = GpuBuffer(triangles);
 }
 
 void Tracer::rewind(const Scene& scene) {
@@ -25,6 +32,7 @@ void Tracer::rewind(const Scene& scene) {
 void Tracer::bind() const {
     nodes_.bind(LF_BINDING_BVH_NODES);
     triangles_.bind(LF_BINDING_BVH_TRIANGLES);
+    see_through_.bind();
 }
 
 std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {

@@ -2,17 +2,22 @@
 //
 // Two ways to use it:
 //  * from a method's own compute shader, which includes trace.glsl and calls
-//    trace_closest / trace_occluded after Tracer::bind(). This is how the bake
+//    trace_closest / trace_occluded / trace_transmittance after
+//    Tracer::bind(). This is how the bake
 //    methods use it: a ray is generated, traced and shaded in one invocation,
 //    so rays and hits never travel through memory (32-48 bytes per ray each
 //    way would cost more bandwidth than the traversal itself on small scenes).
 //  * batched, Tracer::trace(rays): rays from the CPU, hits back. For tests,
 //    tools, and the rare caller whose rays come from the CPU.
+// Light passes through see-through surfaces (alpha cut-outs, blending,
+// transmission: Material::is_see_through) as trace.glsl says; the batched
+// queries and the texel placement checks see the geometry alone.
 #pragma once
 
 #include "gpu/shader.h"
 #include "scene/scene.h"
 #include "trace/bvh.h"
+#include "trace/surface_textures.h"
 
 #include <glm/glm.hpp>
 
@@ -38,10 +43,11 @@ struct RayHit {
 
 class Tracer {
 public:
-    explicit Tracer(const Scene& scene) : Tracer(build_bvh(scene)) {}
-    // A tree built elsewhere (build_bvh runs on any thread; this uploads it).
-    explicit Tracer(const Bvh& bvh);
-    // Binds the BVH at LF_BINDING_BVH_NODES and LF_BINDING_BVH_TRIANGLES (shaders/buffer_bindings.glsl).
+    explicit Tracer(const Scene& scene) : Tracer(build_bvh(scene), scene) {}
+    // A tree built elsewhere from `scene` (build_bvh runs on any thread; this uploads it).
+    Tracer(const Bvh& bvh, const Scene& scene);
+    // Binds the BVH at LF_BINDING_BVH_NODES and LF_BINDING_BVH_TRIANGLES, and
+    // the see-through surfaces' materials (shaders/buffer_bindings.glsl).
     void bind() const;
     std::vector<RayHit> trace(const std::vector<Ray>& rays) const;
     // Takes the winding of `scene`'s triangles: the scene this tracer was
@@ -57,6 +63,7 @@ private:
     BvhStats stats_;
     GpuBuffer nodes_;
     GpuBuffer triangles_;
+    SurfaceTextures see_through_;                            // Which::SeeThrough
     mutable std::unique_ptr<ComputeProgram> trace_program_;  // built on first use
 };
 

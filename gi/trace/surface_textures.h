@@ -1,7 +1,12 @@
-// The scene's materials and textures on the GPU, for shaders that read albedo
-// and emission at the exact point a ray lands (gi/shaders/surface_textures.glsl,
-// LF_EXACT_TEXTURES): the path tracer that serves as the lightmap's reference,
-// and the probes' capture. Methods that only read the lightmap do not need it.
+// The scene's materials and textures on the GPU (gi/shaders/surface_textures.glsl):
+//  * every ray's: the tracer holds the materials and the base-colour
+//    textures of the see-through surfaces (Which::SeeThrough), to let light
+//    through cut-outs and glass (trace.glsl);
+//  * for shaders that read albedo and emission at the exact point a ray lands
+//    (LF_EXACT_TEXTURES): the path tracer that serves as the lightmap's
+//    reference, and the probes' capture, bind every texture (Which::All)
+//    after Tracer::bind(), at the same bindings: the same records, more
+//    textures.
 #pragma once
 
 #include "gpu/shader.h"
@@ -13,7 +18,8 @@ namespace lf {
 
 class SurfaceTextures {
 public:
-    explicit SurfaceTextures(const Scene& scene);
+    enum class Which { All, SeeThrough };
+    explicit SurfaceTextures(const Scene& scene, Which which = Which::All);
 
     // Binds the two buffers at the bindings surface_textures.glsl declares.
     void bind() const;
