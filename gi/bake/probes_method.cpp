@@ -88,6 +88,23 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
     texels_ = GpuBuffer(size_t(texels) * 2 * sizeof(glm::vec4));
     texels_.clear_zero();
     rays_ = GpuBuffer(std::vector<uint32_t>{0u});
+    corner_distances_ = trace_corner_distances();
+}
+
+std::vector<float> ProbesMethod::trace_corner_distances() const {
+    const size_t side = size_t(settings_.m) + 1, count = positions_.size() * 6 * side * side;
+    GpuBuffer corners(count * sizeof(float));
+    const ComputeProgram program("probe_corners.comp");
+    prepared_.tracer->bind();
+    positions_buffer_.bind(LF_BINDING_PROBE_POSITIONS);
+    corners.bind(LF_BINDING_PROBE_CORNERS);
+    program.use();
+    glUniform1ui(program.uniform("corner_count"), GLuint(count));
+    glUniform1ui(program.uniform("m"), GLuint(settings_.m));
+    glUniform1f(program.uniform("miss_distance"), kMissDistance);
+    program.dispatch_1d(count);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    return corners.read<float>();
 }
 
 nlohmann::json ProbesMethod::description() const {
@@ -195,6 +212,9 @@ ProbeSet ProbesMethod::probe_set(const std::vector<glm::vec4>& acc) const {
         if (p.valid) {
             p.sh9 = project_cube_to_sh9(r, radiance);
             downsample_faces(r, radiance, distance, m, p.radiance, p.distance);
+            const size_t corners = size_t(6) * (m + 1) * (m + 1);
+            p.corner_distance.assign(corner_distances_.begin() + std::ptrdiff_t(k * corners),
+                                     corner_distances_.begin() + std::ptrdiff_t((k + 1) * corners));
         }
         set.probes.push_back(std::move(p));
     }
@@ -224,7 +244,8 @@ MethodResult ProbesMethod::finish(const std::filesystem::path& dir, const PassSt
         {"files",
          {{"probes.json", "probe positions, validity and why, SH9 per probe, settings (gi/probes/probe_set.h)"},
           {"probes.exr",
-           "every probe's M x M cube faces: R,G,B radiance and Z distance (layout in probes.json's header)"},
+           "every probe's M x M cube faces: R,G,B radiance and Z distance per texel, C the distance along each "
+           "corner of the grid (layout in the file's lightfarm.layout)"},
           {"probes.pass-NNNN.json", "intermediate probe set"},
           {"probes.pass-NNNN.exr", "intermediate probe images"}}},
     };

@@ -73,6 +73,8 @@ private:
     // The set from read-back accumulators (any thread: reads only what the
     // constructor set).
     ProbeSet probe_set(const std::vector<glm::vec4>& accumulators) const;
+    // Every probe's corner distances by one ray each (probe_corners.comp).
+    std::vector<float> trace_corner_distances() const;
     uint64_t state_layout() const { return hash_vector(positions_, uint64_t(settings_.res)); }
     const PreparedScene& prepared_;
     ProbesSettings settings_;
@@ -85,6 +87,7 @@ private:
     SurfaceTextures surface_textures_;  // paths reflect the textures where they land
     ComputeProgram capture_{"probe_capture.comp", {{"LF_EXACT_TEXTURES", "1"}}};
     GpuBuffer positions_buffer_, texels_, rays_;
+    std::vector<float> corner_distances_;  // per probe 6·(M+1)² (Probe::corner_distance)
     PassStats stats_;
 };
 

@@ -203,6 +203,14 @@ std::vector<float> cube_corner_distances(int m, const std::vector<float>& distan
     return out;
 }
 
+std::vector<float> probe_corner_distances(const Probe& probe, int m) {
+    std::vector<float> corners = cube_corner_distances(m, probe.distance);
+    if (probe.corner_distance.size() != corners.size()) return corners;
+    for (size_t c = 0; c < corners.size(); ++c)
+        if (probe.corner_distance[c] < kMissDistance) corners[c] = probe.corner_distance[c];
+    return corners;
+}
+
 PreparedProbe prepare_probe(const Probe& probe, int m) {
     const size_t texels = size_t(6) * m * m;
     if (m < 1 || probe.radiance.size() != texels || probe.distance.size() != texels)
@@ -212,7 +220,7 @@ PreparedProbe prepare_probe(const Probe& probe, int m) {
     p.m = m;
     p.sh9 = probe.sh9;
     p.texels.resize(texels);
-    const std::vector<float> corner = cube_corner_distances(m, probe.distance);
+    const std::vector<float> corner = probe_corner_distances(probe, m);
     const std::vector<float> depth = cube_texel_depths(m, probe.distance);
     const int side = m + 1;
     for (int face = 0; face < 6; ++face)
@@ -497,7 +505,7 @@ std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
         if (!p.valid || p.radiance.size() != texels || p.distance.size() != texels) continue;
         glm::vec4* block = out.data() + k * stride;
         for (size_t t = 0; t < texels; ++t) block[t] = glm::vec4(p.radiance[t], p.distance[t]);
-        const std::vector<float> corners = cube_corner_distances(m, p.distance);
+        const std::vector<float> corners = probe_corner_distances(p, m);
         for (size_t c = 0; c < corners.size(); ++c) block[texels + c / 4][int(c % 4)] = corners[c];
         glm::vec4* sh9 = block + stride - 9;
         for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], 0.0f);

@@ -17,7 +17,13 @@
 //                    backface × Chebyshev-visibility weights from the
 //                    mean / mean² distance towards x.
 //
-// Corner distances. Each texel's (mean) distance is read as the depth z of a
+// Corner distances. Each corner of the cube grid lies where its own
+// direction meets the scene: one ray per corner at capture
+// (Probe::corner_distance, probe_corners.comp), so a polygon's corners are on
+// the surfaces at any angle to the cube's faces (a floor seen through a side
+// face, a slope, a wall edge-on). Where a corner's ray escaped, or for files
+// written before corners were traced, the texels around it say, as follows.
+// Each texel's (mean) distance is read as the depth z of a
 // plane facing the probe across the texel's cube face: z = distance / mean|q|
 // over the texel, |q| = sqrt(1 + s² + t²) for face coordinates s, t in
 // [-1, 1] (the capture spreads its rays evenly in (s, t)), which is exact for
@@ -102,6 +108,13 @@ std::vector<float> cube_texel_depths(int m, const std::vector<float>& distance);
 // 0..M, at face coordinates (a/M, b/M)) at index (f·(M+1) + b)·(M+1) + a.
 std::vector<float> cube_corner_distances(int m, const std::vector<float>& distance);
 
+// The corner distances evaluation uses, in the same order: each corner's own
+// ray (Probe::corner_distance) where it met a surface, so that a corner lies
+// on the surface its direction meets, at any angle to the faces; where it
+// escaped, or the file has no corners, cube_corner_distances' value (the
+// texels around it: a corner between texels that hit stays at their depth).
+std::vector<float> probe_corner_distances(const Probe& probe, int m);
+
 struct ProbeEvaluation {
     glm::vec3 sh9{0.0f};
     glm::vec3 point_to_point{0.0f};
@@ -183,7 +196,7 @@ ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const Pr
 
 // The SSBO gi/shaders/probe_eval.glsl reads: per probe, 6·M·M vec4 texels
 // (radiance RGB, distance) in ProbeSet::texel order, then the 6·(M+1)² corner
-// distances of cube_corner_distances packed four to a vec4, then the 9 SH9
+// distances of probe_corner_distances packed four to a vec4, then the 9 SH9
 // coefficients (RGB); probe k starts at vec4 k · probe_buffer_stride(M).
 // Invalid probes' blocks are zero.
 size_t probe_buffer_stride(int m);

@@ -72,40 +72,46 @@ glm::vec3 json_vec3(const nlohmann::json& j, const std::string& what) {
 
 std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const ProbeSet& set,
                                          const std::string& stem) {
-    const int m = set.m, n = int(set.probes.size());
+    const int m = set.m, n = int(set.probes.size()), cell = m + 1;
     FloatImage image;
-    image.width = 6 * m;
-    image.height = std::max(1, m * n);
+    image.width = 6 * cell;
+    image.height = std::max(1, cell * n);
     std::vector<float>* rgb[3] = {&image.channel("R"), &image.channel("G"), &image.channel("B")};
     std::vector<float>& z = image.channel("Z");
+    std::vector<float>& c = image.channel("C");
     nlohmann::json probes = nlohmann::json::array();
     for (int k = 0; k < n; ++k) {
         const Probe& p = set.probes[size_t(k)];
         nlohmann::json sh9 = nlohmann::json::array();
-        for (const glm::vec3& c : p.sh9) sh9.push_back(vec3_json(c));
+        for (const glm::vec3& coefficient : p.sh9) sh9.push_back(vec3_json(coefficient));
         probes.push_back({{"position", vec3_json(p.position)},
                           {"valid", p.valid},
                           {"why", p.why},
                           {"backface_fraction", p.backface_fraction},
                           {"sh9", sh9}});
         if (!p.valid || p.radiance.size() != size_t(6) * m * m) continue;
+        const bool corners = p.corner_distance.size() == size_t(6) * cell * cell;
         for (int face = 0; face < 6; ++face)
-            for (int j = 0; j < m; ++j)
-                for (int i = 0; i < m; ++i) {
+            for (int j = 0; j <= m; ++j)
+                for (int i = 0; i <= m; ++i) {
+                    const size_t to = size_t(k * cell + j) * size_t(image.width) + size_t(face * cell + i);
+                    // Without traced corners, misses: the reader falls back to the texels.
+                    c[to] = corners ? p.corner_distance[(size_t(face) * cell + j) * cell + i] : kMissDistance;
+                    if (i == m || j == m) continue;
                     const size_t from = set.texel(face, i, j);
-                    const size_t to = size_t(k * m + j) * size_t(image.width) + size_t(face * m + i);
-                    for (int c = 0; c < 3; ++c) (*rgb[c])[to] = p.radiance[from][c];
+                    for (int ch = 0; ch < 3; ++ch) (*rgb[ch])[to] = p.radiance[from][ch];
                     z[to] = p.distance[from];
                 }
     }
     image.number_attributes["lightfarm.probeM"] = m;
     image.string_attributes["lightfarm.layout"] =
-        "faces +X,-X,+Y,-Y,+Z,-Z side by side (M columns each), probe k in rows [k*M, (k+1)*M); R,G,B radiance, Z "
-        "distance (m)";
+        "cells of (M+1)x(M+1): faces +X,-X,+Y,-Y,+Z,-Z side by side, probe k in rows [k*(M+1), (k+1)*(M+1)); pixel "
+        "(i,j) < M of a cell: R,G,B radiance, Z distance (m) of texel (i,j); pixel (a,b) <= M: C distance (m) along "
+        "corner (a,b)";
     const std::string exr = stem + ".exr", json = stem + ".json";
     write_exr(dir / exr, image);
     const nlohmann::json doc = {{"format", "lightfarm.probes"},
-                                {"version", 1},
+                                {"version", 2},
                                 {"image", exr},
                                 {"m", m},
                                 {"capture_resolution", set.capture_resolution},
@@ -126,12 +132,17 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
     set.m = doc.value("m", 0);
     set.capture_resolution = doc.value("capture_resolution", 0);
     if (set.m < 1 || set.m > 256) throw std::runtime_error(name + ": m must be 1..256");
+    const int version = doc.value("version", 1);
+    if (version != 1 && version != 2)
+        throw std::runtime_error(name + ": version " + std::to_string(version) + " is not 1 or 2");
     set.settings = doc.value("settings", nlohmann::json::object());
     const FloatImage image = read_exr(probes_json.parent_path() / doc.value("image", "probes.exr"));
     const auto& probes = doc.at("probes");
-    if (image.width != 6 * set.m || image.height < set.m * int(probes.size()))
+    const int m = set.m, cell = version == 2 ? m + 1 : m;
+    if (image.width != 6 * cell || image.height < cell * int(probes.size()))
         throw std::runtime_error(name + ": the image's size does not match m and the probe count");
     const std::vector<float>*rgb[3] = {&image.at("R"), &image.at("G"), &image.at("B")}, &z = image.at("Z");
+    const std::vector<float>* c = version == 2 ? &image.at("C") : nullptr;
     for (size_t k = 0; k < probes.size(); ++k) {
         const nlohmann::json& j = probes[k];
         Probe p;
@@ -140,17 +151,22 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
         p.why = j.value("why", "");
         p.backface_fraction = j.value("backface_fraction", 0.0f);
         if (j.contains("sh9") && j["sh9"].is_array() && j["sh9"].size() == 9)
-            for (size_t c = 0; c < 9; ++c) p.sh9[c] = json_vec3(j["sh9"][c], name + ": sh9");
-        p.radiance.assign(size_t(6) * set.m * set.m, glm::vec3(0.0f));
-        p.distance.assign(size_t(6) * set.m * set.m, 0.0f);
+            for (size_t s = 0; s < 9; ++s) p.sh9[s] = json_vec3(j["sh9"][s], name + ": sh9");
+        p.radiance.assign(size_t(6) * m * m, glm::vec3(0.0f));
+        p.distance.assign(size_t(6) * m * m, 0.0f);
+        if (c) p.corner_distance.assign(size_t(6) * cell * cell, 0.0f);
         for (int face = 0; face < 6; ++face)
-            for (int jj = 0; jj < set.m; ++jj)
-                for (int i = 0; i < set.m; ++i) {
-                    const size_t from = size_t(int(k) * set.m + jj) * size_t(image.width) + size_t(face * set.m + i);
+            for (int jj = 0; jj < cell; ++jj)
+                for (int i = 0; i < cell; ++i) {
+                    const size_t from = size_t(int(k) * cell + jj) * size_t(image.width) + size_t(face * cell + i);
+                    if (c) p.corner_distance[(size_t(face) * cell + jj) * cell + i] = (*c)[from];
+                    if (i == m || jj == m) continue;
                     const size_t to = set.texel(face, i, jj);
                     p.radiance[to] = glm::vec3((*rgb[0])[from], (*rgb[1])[from], (*rgb[2])[from]);
                     p.distance[to] = z[from];
                 }
+        // A probe written without its corners (invalid) reads as one.
+        if (c && !p.valid) p.corner_distance.clear();
         set.probes.push_back(std::move(p));
     }
     return set;

@@ -10,12 +10,16 @@
 // cube_direction(face, u, v) gives the direction through (u, v). The same
 // mapping is gi/shaders/probe_cube.glsl's lf_cube_direction (tested equal).
 //
-// probes.exr: width 6·M (the faces side by side, in the order above),
-// height M·N (probe k in rows [k·M, (k+1)·M)); channels R, G, B (radiance,
-// W/(sr·m²), linear) and Z (distance in metres from the probe's position to
-// the surface seen through the texel centre, the mean over the texel's rays;
-// kMissDistance where rays escape the scene). Invalid probes' rows are 0.
-// probes.json: {"format": "lightfarm.probes", "version": 1, "image": "probes.exr",
+// probes.exr (version 2): cells of (M+1) x (M+1) pixels, width 6·(M+1) (the
+// faces side by side, in the order above), height (M+1)·N (probe k in rows
+// [k·(M+1), (k+1)·(M+1))). In a cell, pixel (i, j) < M holds texel (i, j):
+// channels R, G, B (radiance, W/(sr·m²), linear) and Z (distance in metres
+// from the probe's position to the surface seen through the texel, the mean
+// over the texel's rays; kMissDistance where rays escape the scene); pixel
+// (a, b) <= M holds corner (a, b)'s distance in channel C
+// (Probe::corner_distance). Invalid probes' rows are 0. Version 1 (read
+// only): cells of M x M, no C.
+// probes.json: {"format": "lightfarm.probes", "version": 2, "image": "probes.exr",
 //   "m", "capture_resolution", "probes": [{"position": [x,y,z], "valid", "why",
 //   "backface_fraction", "sh9": [[r,g,b] x 9]}], "settings": {…}}.
 #pragma once
@@ -41,7 +45,13 @@ struct Probe {
     float backface_fraction = 0.0f;   // of the capture's rays that hit the back of a one-sided surface
     std::vector<glm::vec3> radiance;  // 6·M·M, face-major, rows from the top
     std::vector<float> distance;      // 6·M·M
-    std::array<glm::vec3, 9> sh9{};   // radiance at the reference point on SH bands 0..2 (index l(l+1)+m), unconvolved
+    // 6·(M+1)²: along each corner of the faces' M x M grids (face f, column
+    // a, row b at (f·(M+1) + b)·(M+1) + a; direction cube_direction(f, a/M,
+    // b/M)), the distance to the surface the corner's own ray met at capture,
+    // kMissDistance where it escaped. Empty in files written before it
+    // (evaluation then reads corners from the texels: cube_corner_distances).
+    std::vector<float> corner_distance;
+    std::array<glm::vec3, 9> sh9{};  // radiance at the reference point on SH bands 0..2 (index l(l+1)+m), unconvolved
 };
 
 struct ProbeSet {

@@ -51,10 +51,11 @@
 #define LF_BINDING_SURFACE_TEXCOORDS 17
 #define LF_BINDING_MATERIAL_TEXTURES 18
 
-// The probes' capture (probe_capture.comp), beside the scene's shading.
+// The probes' capture (probe_capture.comp, probe_corners.comp), beside the scene's shading.
 #define LF_BINDING_PROBE_POSITIONS 12
 #define LF_BINDING_PROBE_TEXELS 13
 #define LF_BINDING_PROBE_RAYS 14
+#define LF_BINDING_PROBE_CORNERS 22  // probe_corners.comp
 
 // SH transfer (sh_transfer.comp, sh_resolve.comp) and its reference (sh_reference.comp).
 #define LF_BINDING_SH_VERTICES 2
