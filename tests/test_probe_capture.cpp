@@ -109,12 +109,19 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
         for (int c = 1; c < 9; ++c) EXPECT_LT(std::abs(p.sh9[size_t(c)].g), 0.03 * expected) << "coefficient " << c;
     }
     // Irradiance/pi is L everywhere inside, whatever the normal: the
-    // polygon-to-point estimate holds it from the probe out to 5 cm from a
-    // wall facing it, where texels are large in the point's hemisphere.
+    // polygon-to-point estimate holds it from the probe out to 1 cm from a
+    // wall facing it (away from the room's edges), where texels are large in
+    // the point's hemisphere; 5% is the capture's noise at 48 passes. (Within
+    // 10 cm of a room's edge it does not: a texel seeing the edge has corners
+    // on both walls, its polygon cuts across the edge, and a point in the cut
+    // is behind it: -26% 1 cm above the floor 10 cm from two walls, with
+    // corners traced or from the texels' depths alike; issue #34.)
     const ProbeEvaluator eval(set);
     for (const auto& [x, n] : std::vector<std::pair<glm::vec3, glm::vec3>>{{centre, {0, 1, 0}},
                                                                            {{0.3f, -0.4f, 0.2f}, {1, 0, 0}},
                                                                            {{0.95f, 0.0f, 0.0f}, {1, 0, 0}},
+                                                                           {{0.99f, 0.3f, -0.5f}, {1, 0, 0}},
+                                                                           {{0.4f, 0.5f, -0.99f}, {0, 0, -1}},
                                                                            {{0, -0.9f, 0}, {0, -1, 0}}}) {
         const ProbeEvaluation e = eval.evaluate(x, n);
         EXPECT_NEAR(e.polygon_to_point.g, expected, 0.05 * expected) << x.x << "," << x.y << "," << x.z;
