@@ -105,7 +105,7 @@ std::vector<Setting> build_catalog() {
         with_auto(number("probes", "probe_spacing", 0, 0, true, 1e4, "",
                          "grid spacing in metres (auto: a quarter of the scene's largest extent)")),
         integer("probes", "probe_res", 32, 16, 256, "", "capture texels per cube face side (R)"),
-        integer("probes", "probe_m", 4, 1, 256, "",
+        integer("probes", "probe_m", 8, 1, 256, "",
                 "texels per face side after downsampling (M, divides R; M = R: not downsampled)"),
         integer("probes", "probe_passes", 64, 1, kMaxPasses, "passes",
                 "stop after this many passes of one path per texel"),
