@@ -378,8 +378,17 @@ int run_node(const std::string& script, const std::vector<std::string>& args, st
 // from disk by its own embedded lightmap, with no console error; three.js is
 // served from the npm install and nothing outside it.
 TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
-    const std::string id = submit(
-        {{"scene", upload_cornell_box()}, {"outputs", {{"lightmap", {{"passes", 32}}}}}, {"atlas", {{"res", 96}}}});
+    // With three probes in the box (issue #34): the view shows them too, and
+    // their probes.json opens there alone.
+    const json probes = {
+        {"probe_positions",
+         {{{"position", {0.2, 0.3, 0.2}}}, {{"position", {0.4, 0.1, 0.35}}}, {{"position", {0.1, 0.45, 0.3}}}}},
+        {"probe_res", 16},
+        {"probe_m", 4},
+        {"probe_passes", 4}};
+    const std::string id = submit({{"scene", upload_cornell_box()},
+                                   {"outputs", {{"lightmap", {{"passes", 32}}}, {"probes", probes}}},
+                                   {"atlas", {{"res", 96}}}});
     ASSERT_FALSE(id.empty());
     ASSERT_EQ(wait_finished(id)["state"], "succeeded");
     // A newer job, which the page would show first: the view must show the
@@ -411,11 +420,15 @@ TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
     }
 
     const fs::path screenshot = tmp.path / "view3d.png";
+    const fs::path probes_json = download(id, "probes.json", "studio");
     const std::string url = "http://" + server->host + ":" + std::to_string(server->port);
     std::string browser;
-    EXPECT_EQ(run_node("status_page_3d.mjs", {url, kToken, id, screenshot.string(), lit.string()}, browser), 0)
+    EXPECT_EQ(run_node("status_page_3d.mjs", {url, kToken, id, screenshot.string(), lit.string(), probes_json.string()},
+                       browser),
+              0)
         << browser;
     EXPECT_NE(browser.find("\"file\":{"), std::string::npos) << "the lit glb opened in the view: " << browser;
+    EXPECT_NE(browser.find("\"probes_file\":{"), std::string::npos) << "probes.json opened in the view: " << browser;
     EXPECT_GT(fs::exists(screenshot) ? fs::file_size(screenshot) : 0u, 1000u) << browser;
 }
 

@@ -1,4 +1,4 @@
-// node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png [SCENE.lit.glb]
+// node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png [SCENE.lit.glb [PROBES.json]]
 // Opens lightfarmd's status page in a real headless Chromium (Debian's
 // /usr/bin/chromium, or $LIGHTFARM_CHROMIUM) driven by playwright-core, selects
 // the job, waits for the 3D view to draw its latest lightmap, switches through
@@ -6,6 +6,8 @@
 // scene (its pixels are not one colour), and no error reached the console.
 // With SCENE.lit.glb, also opens that file in the view, as a person would, and
 // checks that it draws by its own embedded lightmap (MOZ_lightmap, RGBM).
+// With PROBES.json (the job's), checks that the job's view shows every one of
+// its probes, and opens that file in the view alone: its probes, drawn.
 // Saves the lit view to SCREENSHOT.png. Prints one JSON line; exits 1 on any
 // failure, 2 on bad use.
 import { createRequire } from "node:module";
@@ -16,7 +18,9 @@ const here = path.dirname(fileURLToPath(import.meta.url));
 const require = createRequire(path.join(here, "../../web/package.json"));
 const { chromium } = require("playwright-core");
 
-const [url, token, job, screenshot, litGlb] = process.argv.slice(2);
+const [url, token, job, screenshot, litGlb, probesJson] = process.argv.slice(2);
+const fs = await import("node:fs");
+const probeCount = probesJson ? JSON.parse(fs.readFileSync(probesJson, "utf8")).probes.length : 0;
 if (!screenshot) {
   console.error("usage: node tests/web/status_page_3d.mjs URL TOKEN JOB_ID SCREENSHOT.png");
   process.exit(2);
@@ -73,10 +77,14 @@ try {
       }
       return { distinct: colours.size, scene_fraction: 1 - background / (data.length / 4) };
     });
-    const name = file ? "file" : mode;
-    result[name] = { pass: state.pass, frames: state.frames, ...pixels };
+    const name = file ? (file.endsWith(".json") ? "probes_file" : "file") : mode;
+    result[name] = { pass: state.pass, frames: state.frames, probes: state.probes, ...pixels };
+    if (probeCount && name !== "file" && state.probes !== probeCount)
+      problems.push(`${name}: ${state.probes} probes shown, not ${probeCount}`);
     if (pixels.distinct < 16) problems.push(`${name}: the canvas has ${pixels.distinct} colours`);
-    if (pixels.scene_fraction < 0.05) problems.push(`${name}: the scene covers ${pixels.scene_fraction} of the canvas`);
+    // A few probes alone are small spheres in a large frame.
+    const least = name === "probes_file" ? 0.01 : 0.05;
+    if (pixels.scene_fraction < least) problems.push(`${name}: the scene covers ${pixels.scene_fraction} of the canvas`);
   };
 
   await drawn("lit");
@@ -89,6 +97,11 @@ try {
     const before = await page.evaluate(() => window.lightfarmView.state.frames);
     await page.setInputFiles("#view3d-file", litGlb);
     await drawn("lit", path.basename(litGlb), before);
+  }
+  if (probesJson) {
+    const before = await page.evaluate(() => window.lightfarmView.state.frames);
+    await page.setInputFiles("#view3d-file", probesJson);
+    await drawn("lit", path.basename(probesJson), before);
   }
 } catch (e) {
   problems.push(e.message);
