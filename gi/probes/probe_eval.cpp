@@ -203,11 +203,60 @@ std::vector<float> cube_corner_distances(int m, const std::vector<float>& distan
     return out;
 }
 
+namespace {
+
+// Where the ray along `d` meets the line through p and q (all three in one
+// plane through the probe: a grid line's directions span one), or 0 when it
+// does not ahead of the probe.
+double ray_meets_line(dvec3 d, dvec3 p, dvec3 q) {
+    const dvec3 u = p - q, across = glm::cross(d, u);
+    const double along = glm::dot(across, across);
+    if (along <= 1e-24 * glm::dot(u, u)) return 0.0;
+    const double t = glm::dot(glm::cross(p, u), across) / along;  // d·t = p + u·s
+    return t > 0.0 ? t : 0.0;
+}
+
+}  // namespace
+
 std::vector<float> probe_corner_distances(const Probe& probe, int m) {
     std::vector<float> corners = cube_corner_distances(m, probe.distance);
     if (probe.corner_distance.size() != corners.size()) return corners;
-    for (size_t c = 0; c < corners.size(); ++c)
-        if (probe.corner_distance[c] < kMissDistance) corners[c] = probe.corner_distance[c];
+    const int side = m + 1;
+    const auto at = [&](int face, int a, int b) { return (size_t(face) * side + size_t(b)) * side + size_t(a); };
+    const auto point = [&](int face, int a, int b) {
+        return dvec3(cube_direction(face, float(a) / m, float(b) / m)) * double(probe.corner_distance[at(face, a, b)]);
+    };
+    const auto hit = [&](int face, int a, int b) {
+        return a >= 0 && b >= 0 && a <= m && b <= m && probe.corner_distance[at(face, a, b)] < kMissDistance;
+    };
+    for (int face = 0; face < 6; ++face)
+        for (int b = 0; b <= m; ++b)
+            for (int a = 0; a <= m; ++a) {
+                const size_t c = at(face, a, b);
+                if (probe.corner_distance[c] < kMissDistance) {
+                    corners[c] = probe.corner_distance[c];
+                    continue;
+                }
+                // Its ray escaped past the edge of a surface the corners
+                // beside it met: the surface's plane, continued along the
+                // grid line from the two nearest corners on it, where the
+                // corner's direction meets it (so the edge texel's polygon
+                // lies in the surface's plane, as its hits do); else, the
+                // texels around it (cube_corner_distances).
+                const dvec3 d(cube_direction(face, float(a) / m, float(b) / m));
+                double sum = 0.0;
+                int found = 0;
+                for (const auto& [da, db] : {std::pair{1, 0}, std::pair{-1, 0}, std::pair{0, 1}, std::pair{0, -1}}) {
+                    if (!hit(face, a + da, b + db) || !hit(face, a + 2 * da, b + 2 * db)) continue;
+                    const double t =
+                        ray_meets_line(d, point(face, a + da, b + db), point(face, a + 2 * da, b + 2 * db));
+                    if (t > 0.0 && t < kMissDistance) {
+                        sum += t;
+                        ++found;
+                    }
+                }
+                if (found > 0) corners[c] = float(sum / found);
+            }
     return corners;
 }
 
