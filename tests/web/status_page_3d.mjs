@@ -7,7 +7,9 @@
 // With SCENE.lit.glb, also opens that file in the view, as a person would, and
 // checks that it draws by its own embedded lightmap (MOZ_lightmap, RGBM).
 // With PROBES.json (the job's), checks that the job's view shows every one of
-// its probes, and opens that file in the view alone: its probes, drawn.
+// its probes, and opens that file in the view alone: its probes, drawn; then
+// the lit glb, whose exposure must be its own lightmap's (the job's, within
+// RGBM's rounding), not the probes' before it.
 // Saves the lit view to SCREENSHOT.png. Prints one JSON line; exits 1 on any
 // failure, 2 on bad use.
 import { createRequire } from "node:module";
@@ -78,7 +80,7 @@ try {
       return { distinct: colours.size, scene_fraction: 1 - background / (data.length / 4) };
     });
     const name = file ? (file.endsWith(".json") ? "probes_file" : "file") : mode;
-    result[name] = { pass: state.pass, frames: state.frames, probes: state.probes, ...pixels };
+    result[name] = { pass: state.pass, frames: state.frames, probes: state.probes, exposure: state.exposure, ...pixels };
     if (probeCount && name !== "file" && state.probes !== probeCount)
       problems.push(`${name}: ${state.probes} probes shown, not ${probeCount}`);
     if (pixels.distinct < 16) problems.push(`${name}: the canvas has ${pixels.distinct} colours`);
@@ -93,15 +95,20 @@ try {
     await drawn(mode);
   }
   await page.locator("#view3d-canvas canvas").screenshot({ path: screenshot });
+  // Probes first, then the lit glb: each sets its own exposure, the glb's
+  // from its embedded lightmap, the same bake's as the job's (the view kept
+  // the previous one's, issue #36).
+  const open = async (file) => {
+    const before = await page.evaluate(() => window.lightfarmView.state.frames);
+    await page.setInputFiles("#view3d-file", file);
+    await drawn("lit", path.basename(file), before);
+  };
+  if (probesJson) await open(probesJson);
   if (litGlb) {
-    const before = await page.evaluate(() => window.lightfarmView.state.frames);
-    await page.setInputFiles("#view3d-file", litGlb);
-    await drawn("lit", path.basename(litGlb), before);
-  }
-  if (probesJson) {
-    const before = await page.evaluate(() => window.lightfarmView.state.frames);
-    await page.setInputFiles("#view3d-file", probesJson);
-    await drawn("lit", path.basename(probesJson), before);
+    await open(litGlb);
+    const own = result.file.exposure / result.lit.exposure;
+    if (!(Math.abs(own - 1) < 0.05))
+      problems.push(`file: exposure ${result.file.exposure}, the job's own ${result.lit.exposure}`);
   }
 } catch (e) {
   problems.push(e.message);
