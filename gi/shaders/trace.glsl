@@ -184,6 +184,35 @@ bool lf_passes(uint triangle, vec2 bary, uint choice, out vec3 tint) {
     return u < 1.0 - coverage + coverage * odds;
 }
 
+// What a see-through triangle met at (t, b) does to the ray under `query`
+// (LF_QUERY_GEOMETRY cleared): true when the ray goes on past it, `tint`
+// times what passes (the expectation under LF_QUERY_TRANSMITTANCE, the
+// draw's tint under LF_QUERY_PASSED_TINT) and `passed` set when a draw
+// passed; false when it stops the ray there. `counted`: the last two surface
+// points a whole-ray query counted (a ray through an edge meets its two
+// triangles in one leaf, nearly always one after the other; a list would
+// cost every traversal its registers, 4x on llvmpipe).
+bool lf_goes_past(uint triangle, float t, vec2 b, vec3 org, vec3 dir, uint query, inout vec3 tint, inout bool passed,
+                  inout uvec2 counted) {
+    uint key = lf_surface_key(triangle, t);
+    if (query == LF_QUERY_TRANSMITTANCE || query == LF_QUERY_PASSED_TINT) {
+        if (key == counted.x || key == counted.y) return true;  // met already
+        counted = uvec2(key, counted.x);
+    }
+    if (query == LF_QUERY_TRANSMITTANCE) {
+        float coverage;
+        vec3 transmitted;
+        surface_see_through(triangle, b, coverage, transmitted);
+        tint *= vec3(1.0 - coverage) + coverage * transmitted;
+        return tint != vec3(0.0);
+    }
+    vec3 drawn;
+    if (!lf_passes(triangle, b, key ^ lf_ray_hash(org, dir), drawn)) return false;
+    passed = true;
+    if (query == LF_QUERY_PASSED_TINT) tint *= drawn;
+    return true;
+}
+
 // The traversal, shared by every query. Returns the closest hit found below
 // t_max that the query stops at; under LF_QUERY_TRANSMITTANCE and
 // LF_QUERY_PASSED_TINT, tint holds the product and t stays t_max (all of the
@@ -195,11 +224,7 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
     query &= ~LF_QUERY_GEOMETRY;
     bool any_hit = query == LF_QUERY_ANY;
     bool whole_ray = query == LF_QUERY_TRANSMITTANCE || query == LF_QUERY_PASSED_TINT;
-    // The last two see-through surface points a whole-ray query counted:
-    // a ray through an edge meets its two triangles in one leaf, nearly
-    // always one after the other (a list would cost every traversal its
-    // registers, 4x on llvmpipe).
-    uvec2 counted = uvec2(0u);
+    uvec2 counted = uvec2(0u);  // lf_goes_past's
     RayShear sh = ray_shear(dir);
     vec3 inv_dir = safe_inverse(dir);
     uint stack[LF_BVH_STACK_SIZE];
@@ -224,25 +249,8 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
                 vec3 v0 = w0.xyz, v1 = w1.xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
                 if (!intersect_triangle(org, sh, v0, v1, v2, hit.t, t, b)) continue;
                 uint triangle = floatBitsToUint(w0.w);
-                if (materials && floatBitsToUint(w1.w) != 0u) {  // a see-through triangle (Tracer)
-                    uint key = lf_surface_key(triangle, t);
-                    if (whole_ray) {
-                        if (key == counted.x || key == counted.y) continue;
-                        counted = uvec2(key, counted.x);
-                    }
-                    vec3 tint;
-                    if (query == LF_QUERY_TRANSMITTANCE) {
-                        float coverage;
-                        vec3 transmitted;
-                        surface_see_through(triangle, b, coverage, transmitted);
-                        hit.tint *= vec3(1.0 - coverage) + coverage * transmitted;
-                        if (hit.tint != vec3(0.0)) continue;
-                    } else if (lf_passes(triangle, b, key ^ lf_ray_hash(org, dir), tint)) {
-                        passed = true;
-                        if (query == LF_QUERY_PASSED_TINT) hit.tint *= tint;
-                        continue;
-                    }
-                }
+                bool see_through = materials && floatBitsToUint(w1.w) != 0u;  // marked by the Tracer
+                if (see_through && lf_goes_past(triangle, t, b, org, dir, query, hit.tint, passed, counted)) continue;
                 if (query == LF_QUERY_PASSED_TINT) continue;  // LF_QUERY_CLOSEST stopped nowhere before t_max
                 vec3 ng = cross(v1 - v0, v2 - v0);
                 if (query == LF_QUERY_TRANSMITTANCE) {
