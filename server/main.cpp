@@ -145,13 +145,11 @@ void check_store_against_data_dir(const ServerConfig& config) {
                  " orphaned job and scene directories to " + aside.string());
         return;
     }
-    std::vector<std::string> unknown;
-    for (const fs::path& dir : dirs)
-        if (dir.parent_path() == DataDir(data).jobs() && !store.has_job(dir.filename().string()))
-            unknown.push_back(dir.filename().string());
+    const std::vector<std::string> unknown = jobs_without_records(config.data_dir, store);
     if (!unknown.empty())
         log_line("warning: " + std::to_string(unknown.size()) + " job directories in " + DataDir(data).jobs().string() +
-                 " are not in the job store (lost records?), e.g. " + unknown.front() + "; they are left alone");
+                 " are not in the job store (lost records?), e.g. " + unknown.front() +
+                 "; they are left alone, GET of their jobs answers 410 and /healthz counts them");
 }
 
 // The tokens to accept: --tokens FILE, else DATA/tokens, created with one new

@@ -182,6 +182,7 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
     DataDir(config_.data_dir).create();
     store_ = open_job_store(config_);
+    for (const std::string& id : jobs_without_records(config_.data_dir, *store_)) lost_jobs_.insert(id);
     scenes_ = std::make_unique<SceneStore>(config_, *store_);
     supervisor_ = std::make_unique<Supervisor>(*store_, config_, changes_, metrics_);
     http_ = std::make_unique<GatedServer>(config_.limits, config_.http_threads, metrics_);
@@ -475,6 +476,16 @@ std::optional<Service::Caller> Service::authenticate(const httplib::Request& req
     return Caller{owner};
 }
 
+std::vector<std::string> jobs_without_records(const std::string& data_dir, JobStore& store) {
+    std::vector<std::string> lost;
+    std::error_code ec;
+    for (fs::directory_iterator it(DataDir(data_dir).jobs(), ec), end; !ec && it != end; it.increment(ec))
+        if (it->is_directory(ec) && !store.has_job(it->path().filename().string()))
+            lost.push_back(it->path().filename().string());
+    std::sort(lost.begin(), lost.end());
+    return lost;
+}
+
 JobRecord Service::owned_job(const httplib::Request& req, const Caller& caller) {
     const std::string id = req.matches[1].str();
     std::optional<JobRecord> job = store_->job(id);
@@ -484,6 +495,14 @@ JobRecord Service::owned_job(const httplib::Request& req, const Caller& caller) 
     // characters): an unambiguous prefix of one of the caller's jobs.
     if (is_job_id_prefix(id))
         if (std::optional<JobRecord> named = job_by_id_prefix(id, store_->jobs_of(caller.owner))) return *named;
+    // Its directory is here but its record is not (nobody can say whose it
+    // was, so anyone who knows the unguessable id is told).
+    if (lost_jobs_.count(id))
+        throw HttpError(410,
+                        "job " + id +
+                            ": the job store lost its record (its files are still in the server's data directory); "
+                            "the server's operator can restore the store from a backup",
+                        {{"id", id}, {"record_lost", true}});
     throw HttpError(404, "no job " + id, {{"id", id}});
 }
 

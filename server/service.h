@@ -42,6 +42,11 @@ std::unique_ptr<JobStore> open_job_store(const ServerConfig& config);
 // The one of `jobs` whose id starts with `prefix` (nullopt: none, or not a
 // prefix); throws HttpError 409 when several do.
 std::optional<JobRecord> job_by_id_prefix(const std::string& prefix, std::vector<JobRecord> jobs);
+// The job directories under DATA/jobs whose jobs `store` has no record of:
+// records lost with the store's newest writes (a SQLite WAL lost after a
+// checkpoint, a database restored from an older backup).
+std::vector<std::string> jobs_without_records(const std::string& data_dir, JobStore& store);
+
 // JSON to inline in an HTML <script>: the same value, with no character that
 // HTML's script parsing or JavaScript's line breaks react to (<, >, &,
 // U+2028, U+2029 as \u escapes).
@@ -142,6 +147,7 @@ private:
     std::unique_ptr<Supervisor> supervisor_;
     std::unique_ptr<GatedServer> http_;
     std::vector<std::regex> route_regexes_;  // routes()[i]'s path as a regex
+    std::set<std::string> lost_jobs_;        // jobs_without_records at start: 410, not a silent 404
 
     // Open event streams, in total and by owner (their own budget of request threads).
     std::mutex streams_mutex_;

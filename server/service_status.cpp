@@ -18,7 +18,10 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 void Service::healthz(const httplib::Request&, httplib::Response& res, const Caller&) {
-    send_json(res, 200, {{"status", "ok"}});
+    json body = {{"status", "ok"}};
+    // Serving, but with job records lost before it started (jobs_without_records).
+    if (!lost_jobs_.empty()) body["jobs_without_records"] = lost_jobs_.size();
+    send_json(res, 200, body);
 }
 
 void Service::metrics(const httplib::Request&, httplib::Response& res, const Caller&) {
@@ -29,8 +32,14 @@ void Service::metrics(const httplib::Request&, httplib::Response& res, const Cal
         const double lease = n.info.is_object() ? n.info.value("lease_seconds", 30.0) : 30.0;
         nodes.push_back({n.name, n.heartbeat_age < lease, running[n.name], std::max(0.0, n.heartbeat_age)});
     }
-    res.set_content(metrics_.render(store_->count_by_state()) + Metrics::render_nodes(store_->node().name, nodes),
-                    "text/plain; version=0.0.4");
+    const std::string lost =
+        "# HELP lightfarm_jobs_without_records job directories whose records the store lost "
+        "(counted at start)\n# TYPE lightfarm_jobs_without_records gauge\n"
+        "lightfarm_jobs_without_records " +
+        std::to_string(lost_jobs_.size()) + "\n";
+    res.set_content(
+        metrics_.render(store_->count_by_state()) + Metrics::render_nodes(store_->node().name, nodes) + lost,
+        "text/plain; version=0.0.4");
 }
 
 // JSON to inline in an HTML <script>: every character that HTML's script

@@ -665,6 +665,34 @@ TEST_F(ServerTest, JobsSurviveAKilledServer) {
     EXPECT_EQ(types.back(), "done");
 }
 
+// A store that lost some records while keeping others (a SQLite WAL lost
+// after a checkpoint: the newest jobs' rows gone, their directories still in
+// DATA/jobs). Their ids are not silent 404s (issue #33: a log line was all):
+// GET answers 410 saying the record was lost, /healthz and /metrics count
+// them; the jobs the store kept answer as before.
+TEST_F(ServerTest, JobsWhoseRecordsTheStoreLostAreReportedNotSilent404s) {
+    start();
+    const std::string scene = upload();
+    const std::string kept = submit(scene, {{"passes", 2}}, 1);
+    ASSERT_EQ(wait_finished(kept)["state"], "succeeded");
+    server->stop();
+    const std::string lost = "0123456789abcdef01234567";
+    fs::create_directories(tmp.path / "data" / "jobs" / lost);
+    write_text(tmp.path / "data" / "jobs" / lost / "manifest.json", "{}");
+    server->start();
+    auto c = client();
+    const auto gone = c.Get("/v1/jobs/" + lost);
+    ASSERT_TRUE(gone);
+    EXPECT_EQ(gone->status, 410) << gone->body;
+    EXPECT_EQ(json::parse(gone->body)["record_lost"], true) << gone->body;
+    EXPECT_NE(gone->body.find("lost its record"), std::string::npos) << gone->body;
+    EXPECT_EQ(gone->body.find(tmp.path.string()), std::string::npos) << "no server path in an answer";
+    EXPECT_EQ(c.Get("/v1/jobs/" + kept)->status, 200);
+    EXPECT_EQ(c.Get("/v1/jobs/ffffffffffffffffffffffff")->status, 404) << "an id never seen is still a 404";
+    EXPECT_EQ(json::parse(c.Get("/healthz")->body)["jobs_without_records"], 1);
+    EXPECT_NE(c.Get("/metrics")->body.find("lightfarm_jobs_without_records 1"), std::string::npos);
+}
+
 // A normal stop (SIGTERM, as systemd or `docker stop` send) ends the running
 // worker and puts its job back in the queue without counting the attempt: the
 // interruption is not the job's fault. A queued job stays queued. Both finish
