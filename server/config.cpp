@@ -1,8 +1,9 @@
 #include "config.h"
 
-#include <algorithm>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
@@ -36,7 +37,7 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
                          at most S (default 30)
   --limit KEY=VALUE      upload_bytes, spec_bytes, triangles, texture_size, queued_jobs, free_disk_bytes,
                          res, passes, time_limit, max_seconds, max_attempts;
-                         HTTP: header_seconds, request_seconds, keep_alive_seconds,
+                         HTTP: header_seconds, request_seconds, keep_alive_seconds, drain_seconds,
                          header_bytes, connections, connections_per_address,
                          event_streams, event_streams_per_token
 )";
@@ -68,6 +69,7 @@ void set_limit(ServerLimits& limits, const std::string& assignment) {
     else if (key == "header_seconds") limits.header_seconds = v;
     else if (key == "request_seconds") limits.request_seconds = v;
     else if (key == "keep_alive_seconds") limits.keep_alive_seconds = v;
+    else if (key == "drain_seconds") limits.drain_seconds = v;
     else if (key == "header_bytes") limits.header_bytes = int64_t(v);
     else if (key == "connections") limits.connections = int(v);
     else if (key == "connections_per_address") limits.connections_per_address = int(v);
@@ -133,6 +135,8 @@ ServerConfig parse_server_args(const std::vector<std::string>& args, bool& help)
     if (c.node_name.find_first_of(" \t\n\"\\") != std::string::npos || c.node_name.size() > 128)
         throw std::invalid_argument("--node-name: at most 128 characters, without spaces, quotes or backslashes");
     const ServerLimits& l = c.limits;
+    if (!(l.drain_seconds >= 0) || !std::isfinite(l.drain_seconds))
+        throw std::invalid_argument("--limit: drain_seconds must be a number of seconds, 0 or more");
     if (!(l.header_seconds > 0) || !(l.request_seconds >= l.header_seconds) || !(l.keep_alive_seconds > 0))
         throw std::invalid_argument(
             "--limit: header_seconds and keep_alive_seconds must be positive, request_seconds at least header_seconds");

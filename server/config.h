@@ -29,6 +29,7 @@ struct ServerLimits {
     double header_seconds = 10;
     double request_seconds = 300;
     double keep_alive_seconds = 5;      // an idle kept-alive connection is closed after this
+    double drain_seconds = 5;           // on SIGTERM, requests in flight have this long to finish
     int64_t header_bytes = 64 << 10;    // request line + headers (the request line alone: 8192)
     int connections = 512;              // open connections, in total
     int connections_per_address = 256;  // open connections from one client address

@@ -15,9 +15,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
+#include <limits>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -144,6 +146,15 @@ public:
         pool_ = std::make_unique<httplib::ThreadPool>(size_t(threads_));
         gate_ = std::thread([this] { gate_loop(); });
     }
+    // From a stop: requests in flight have `seconds` more to read and write,
+    // then their reads and writes fail (a slow upload held SIGTERM for 32 s).
+    void drain_within(double seconds) {
+        drain_deadline_ns_ =
+            std::chrono::duration_cast<std::chrono::nanoseconds>(
+                (Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds)))
+                    .time_since_epoch())
+                .count();
+    }
     void stop_gate() {
         {
             std::lock_guard lock(mutex_);
@@ -180,8 +191,9 @@ private:
     // within its byte budget.
     class GateStream : public httplib::Stream {
     public:
-        GateStream(Conn& c, Clock::time_point deadline, uint64_t budget, RequestContext& ctx)
-            : c_(c), deadline_(deadline), budget_(budget), ctx_(ctx) {}
+        GateStream(Conn& c, Clock::time_point deadline, uint64_t budget, RequestContext& ctx,
+                   const std::atomic<int64_t>& drain_deadline_ns)
+            : c_(c), deadline_(deadline), budget_(budget), ctx_(ctx), drain_deadline_ns_(drain_deadline_ns) {}
         bool is_readable() const override {
             if (pos_ < c_.buf.size()) return true;
             pollfd p{c_.fd, POLLIN, 0};
@@ -198,6 +210,10 @@ private:
         ssize_t write(const char* ptr, size_t size) override {
             size_t off = 0;
             while (!failed_ && off < size) {
+                if (drained()) {
+                    failed_ = true;
+                    break;
+                }
                 const ssize_t n = ::send(c_.fd, ptr + off, size - off, MSG_NOSIGNAL | MSG_DONTWAIT);
                 if (n > 0) {
                     off += size_t(n);
@@ -224,8 +240,17 @@ private:
         }
 
     private:
+        // The server stopped and its drain ended (GatedServer::drain_within).
+        bool drained() const { return Clock::now().time_since_epoch().count() >= drain_deadline(); }
+        int64_t drain_deadline() const {
+            return std::chrono::duration_cast<Clock::duration>(std::chrono::nanoseconds(drain_deadline_ns_.load()))
+                .count();
+        }
         int remaining_ms() const {
-            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline_ - Clock::now()).count();
+            const Clock::time_point drain{Clock::duration(drain_deadline())};
+            const auto left =
+                std::chrono::duration_cast<std::chrono::milliseconds>(std::min(deadline_, drain) - Clock::now())
+                    .count();
             return int(std::clamp<int64_t>(left, 0, 1 << 30));
         }
         bool refill() {
@@ -267,6 +292,7 @@ private:
         Clock::time_point deadline_;
         uint64_t budget_;
         RequestContext& ctx_;
+        const std::atomic<int64_t>& drain_deadline_ns_;
         size_t pos_ = 0;
         uint64_t read_ = 0;
         bool failed_ = false;
@@ -495,7 +521,7 @@ private:
         bool ok;
         {
             GateStream strm(*c, c->started + seconds(limits_.request_seconds),
-                            limits_.upload_bytes + (1 << 20) + uint64_t(limits_.header_bytes), ctx);
+                            limits_.upload_bytes + (1 << 20) + uint64_t(limits_.header_bytes), ctx, drain_deadline_ns_);
             tl_request = &ctx;
             ok = process_request(strm, close, closed, nullptr) && !strm.failed();
             tl_request = nullptr;
@@ -527,6 +553,7 @@ private:
 
     std::mutex mutex_;
     bool stopping_ = false;
+    std::atomic<int64_t> drain_deadline_ns_{std::numeric_limits<int64_t>::max()};  // drain_within's, since the epoch
     std::map<int, std::unique_ptr<Conn>> waiting_;  // by fd: gathering headers, or lingering
     int open_ = 0;
     std::map<std::string, int> by_address_;

@@ -454,6 +454,7 @@ void Service::stop() {
     // streams, then the listener, which waits for the request threads.
     supervisor_->stop();
     changes_.shutdown();
+    http_->drain_within(config_.limits.drain_seconds);
     http_->stop();
 }
 

@@ -397,6 +397,40 @@ TEST_F(HttpTest, OversizedRequestsAreRefusedBeforeMemoryGrows) {
 }
 
 // `curl -X POST -H "$T" $S/v1/jobs/JOB/cancel`: no body, no Content-Length.
+// SIGTERM with a slow upload in flight (issue #33): the upload may take up
+// to request_seconds (300 s by default), but a stop gives requests in flight
+// drain_seconds, then closes their connections; it waited 32 s for one.
+// The upload trickles 1 KiB a second towards 64 MiB, so without the bound
+// the stop would wait out request_seconds (60 s here); with drain_seconds 1
+// lightfarmd is gone within a few seconds, and nothing of the upload is stored.
+TEST_F(HttpTest, AStopWaitsForRequestsInFlightNoLongerThanTheDrain) {
+    start({"--limit", "request_seconds=60", "--limit", "drain_seconds=1"});
+    RawSocket slow(server->port);
+    ASSERT_TRUE(slow.connected());
+    slow.send(request("POST", "/v1/scenes?name=slow.glb", kAlice,
+                      "Content-Type: model/gltf-binary\r\nContent-Length: 67108864\r\n") +
+              glb("slow"));
+    std::atomic<bool> trickling{true};
+    std::thread trickle([&] {
+        for (int i = 0; i < 120 && trickling; ++i) {
+            slow.send(std::string(1024, 'x'));
+            std::this_thread::sleep_for(1s);
+        }
+    });
+    std::this_thread::sleep_for(1500ms);  // the upload is being read on a request thread
+    const auto stopping = Clock::now();
+    server->stop();
+    const double took = seconds_since(stopping);
+    trickling = false;
+    trickle.join();
+    EXPECT_LT(took, 4.5) << "the stop waited for the upload";
+    const std::string log = server->log();
+    EXPECT_NE(log.find("lightfarmd: stopped\n"), std::string::npos) << log;
+    EXPECT_TRUE(fs::is_empty(tmp.path / "data" / "scenes")) << "nothing of the cut upload is stored";
+    server->start();  // and it starts again
+    EXPECT_EQ(client().Get("/healthz")->status, 200);
+}
+
 TEST_F(HttpTest, CancelWithoutABody) {
     start();
     engine.set("delay", "0.2");
