@@ -58,6 +58,7 @@ constexpr const char* kFakeEngine = R"sh(#!/bin/sh
 state="$(dirname "$0")"
 cmd="$1"; shift
 if [ "$cmd" = inspect ]; then
+  echo "$1" >> "$state/inspects"
   if grep -q BROKEN "$1"; then echo "lightfarm inspect: error: $1: not a glTF" >&2; exit 1; fi
   if grep -q SEGV "$1"; then kill -SEGV $$; fi
   if [ -f "$state/summary" ]; then cat "$state/summary"; exit 0; fi

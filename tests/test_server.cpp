@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <set>
 #include <thread>
@@ -202,6 +203,11 @@ TEST_F(ServerTest, ScenesAreStoredByContentHash) {
     r = client().Get("/v1/scenes/" + first["id"].get<std::string>());
     EXPECT_EQ(r->status, 200);
     EXPECT_EQ(json::parse(r->body)["triangles"], 12);
+    // Bob's upload of bytes Alice had was checked again, as a first upload
+    // is, so its answer took as long (a 1 ms answer told Bob the bytes were
+    // known, issue #33); Alice's own second upload was not.
+    const std::string inspects = read_text(engine.dir / "inspects");
+    EXPECT_EQ(std::count(inspects.begin(), inspects.end(), '\n'), 2) << inspects;
 }
 
 // A bare .glb body keeps its own name (?name=): the summary and the job
