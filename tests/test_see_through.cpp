@@ -12,6 +12,7 @@
 #include "gpu_fixture.h"
 #include "lightmap_closed_forms.h"
 #include "scene_builders.h"
+#include "trace/tracer.h"
 
 #include <gtest/gtest.h>
 
@@ -265,6 +266,28 @@ TEST(SeeThrough, AnOpaqueSheetStopsEverything) {
     const FloorTexels f = floor_texels(bake(p.scene, kRes, 16), emitter_form_factor);
     ASSERT_GT(f.baked.size(), 500u);
     EXPECT_EQ(floor_ratio(f), glm::dvec3(0.0));
+}
+
+// The traversal carries the material code only for a scene that needs it
+// (Tracer::program: it costs llvmpipe 4x): every kind of sheet turns it on,
+// an opaque one leaves it out, and the same sheet among opaque surfaces of
+// many materials still turns it on.
+TEST(SeeThrough, TheTracerCarriesTheMaterialCodeExactlyWhereASurfaceIsSeeThrough) {
+    test::gpu();
+    for (const Sheet& sheet : sheets()) {
+        SCOPED_TRACE(sheet.name);
+        Plates p = plates(sheet.material, glm::vec3(1.0f));
+        EXPECT_TRUE(Tracer(p.scene).has_see_through());
+        test::add_material(p.scene, glm::vec3(0.5f));  // a material no triangle uses changes nothing
+        EXPECT_TRUE(Tracer(p.scene).has_see_through());
+    }
+    Plates opaque = plates(sheet_material(glm::vec3(0.0f)), glm::vec3(1.0f));
+    EXPECT_FALSE(Tracer(opaque.scene).has_see_through());
+    // A see-through material that no triangle uses costs nothing either.
+    Material unused = sheet_material(glm::vec3(1.0f), 0.0f);
+    unused.alpha_mode = Material::AlphaMode::Mask;
+    opaque.scene.materials.push_back(unused);
+    EXPECT_FALSE(Tracer(opaque.scene).has_see_through());
 }
 
 }  // namespace

@@ -518,6 +518,13 @@ TEST(Shaders, CompileErrorsNameTheFileAndCarryTheLog) {
     } catch (const GpuError& e) {
         EXPECT_NE(std::string(e.what()).find("no_such_shader.comp"), std::string::npos);
     }
+    // A program that traces, built without the Tracer, is told to be.
+    try {
+        ComputeProgram p("trace_rays.comp");
+        FAIL();
+    } catch (const GpuError& e) {
+        EXPECT_NE(std::string(e.what()).find("Tracer::program"), std::string::npos) << e.what();
+    }
     // Includes are resolved once each and carry #line markers.
     auto [source, files] = assemble_shader_source("raybench.comp", {{"EXTRA", "1"}});
     ASSERT_EQ(files.front(), "raybench.comp");

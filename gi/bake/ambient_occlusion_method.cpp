@@ -47,6 +47,7 @@ AmbientOcclusionMethod::AmbientOcclusionMethod(const PreparedScene& prepared, co
       settings_(AmbientOcclusionSettings::from(*settings.output("ao"), settings.seed, *prepared.atlas_scene)),
       stop_(stop_rule_from(settings.output("ao")->stop())),
       point_count_(uint32_t(prepared.texels.samples.size())),
+      program_(prepared.tracer->program("ambient_occlusion.comp")),
       params_(sizeof(AmbientOcclusionParams)),
       points_(sample_points(prepared.texels)),
       unoccluded_(std::max<size_t>(1, point_count_) * sizeof(float)) {

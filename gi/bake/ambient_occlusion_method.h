@@ -59,7 +59,7 @@ private:
     StopRule stop_;
     nlohmann::json settings_json_;
     uint32_t point_count_ = 0;
-    ComputeProgram program_{"ambient_occlusion.comp"};
+    ComputeProgram program_;
     GpuBuffer params_, points_, unoccluded_;
     PassStats stats_;
 };

@@ -70,7 +70,8 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
       stop_(stop_rule_from(settings.output("probes")->stop())),
       seed_(settings.seed),
       shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
-      surface_textures_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene) {
+      surface_textures_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
+      capture_(prepared.tracer->program("probe_capture.comp", {{"LF_EXACT_TEXTURES", "1"}})) {
     if (settings.env.sky)
         background_ = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     positions_ = place(prepared.scene, settings_, &spacing_);
@@ -94,7 +95,7 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
 std::vector<float> ProbesMethod::trace_corner_distances() const {
     const size_t side = size_t(settings_.m) + 1, count = positions_.size() * 6 * side * side;
     GpuBuffer corners(count * sizeof(float));
-    const ComputeProgram program("probe_corners.comp");
+    const ComputeProgram program = prepared_.tracer->program("probe_corners.comp");
     prepared_.tracer->bind();
     positions_buffer_.bind(LF_BINDING_PROBE_POSITIONS);
     corners.bind(LF_BINDING_PROBE_CORNERS);

@@ -85,7 +85,7 @@ private:
     std::vector<glm::vec3> positions_;
     SceneShading shading_;
     SurfaceTextures surface_textures_;  // paths reflect the textures where they land
-    ComputeProgram capture_{"probe_capture.comp", {{"LF_EXACT_TEXTURES", "1"}}};
+    ComputeProgram capture_;
     GpuBuffer positions_buffer_, texels_, rays_;
     std::vector<float> corner_distances_;  // per probe 6·(M+1)² (Probe::corner_distance)
     PassStats stats_;

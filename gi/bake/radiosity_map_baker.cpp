@@ -51,9 +51,8 @@ int choose_passes_per_dispatch(const RadiosityMapSettings& s, size_t covered_tex
 }
 
 // The gather shader's compile-time choices.
-std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityMapSettings& s, int per_dispatch) {
-    std::vector<std::pair<std::string, std::string>> defines = {
-        {"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
+ShaderDefines gather_defines(const RadiosityMapSettings& s, int per_dispatch) {
+    ShaderDefines defines = {{"LF_LIGHT_SAMPLING", std::to_string(int(s.light_sampling))}};
     // Without the loop over passes, which costs llvmpipe a quarter of its speed.
     if (per_dispatch == 1) defines.emplace_back("LF_ONE_PASS_PER_DISPATCH", "1");
     if (s.scheme == RadiosityScheme::PathTracing) {
@@ -67,7 +66,7 @@ std::vector<std::pair<std::string, std::string>> gather_defines(const RadiosityM
 
 // The publish pass publishes what indirect rays read: albedo x the whole
 // value, and under a final gather albedo x the indirect layer too.
-std::vector<std::pair<std::string, std::string>> publish_defines(const RadiosityMapSettings& s) {
+ShaderDefines publish_defines(const RadiosityMapSettings& s) {
     if (s.scheme == RadiosityScheme::FinalGather) return {{"LF_FINAL_GATHER", "1"}};
     return {};
 }
@@ -111,8 +110,8 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
       passes_per_dispatch_(choose_passes_per_dispatch(settings, texels.covered_count())),
       width_(texels.width),
       height_(texels.height),
-      gather_("radiosity_gather.comp", gather_defines(settings, passes_per_dispatch_)),
-      publish_("radiosity_publish.comp", publish_defines(settings)),
+      gather_(tracer.program("radiosity_gather.comp", gather_defines(settings, passes_per_dispatch_))),
+      publish_(tracer.program("radiosity_publish.comp", publish_defines(settings))),
       shading_(scene) {
     if (settings.scheme == RadiosityScheme::PathTracing) surface_textures_.emplace(scene);
     upload_texels(texels);
@@ -180,7 +179,7 @@ void RadiosityMapBaker::upload_texels(const TexelSamples& texels) {
 void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     GpuBuffer moved_samples((sample_count + 31) / 32 * sizeof(uint32_t));  // a bit per sample point
     moved_samples.clear_zero();
-    ComputeProgram relocate("texel_relocate.comp");
+    const ComputeProgram relocate = tracer_.program("texel_relocate.comp");
     relocate.use();
     tracer_.bind();
     sample_points_.bind(LF_BINDING_TEXEL_SAMPLE_POINTS);
@@ -191,14 +190,14 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
 
     texel_anchors_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
     texel_anchors_.clear_zero();
-    ComputeProgram anchor("texel_anchor.comp");
+    const ComputeProgram anchor = tracer_.program("texel_anchor.comp");
     anchor.use();  // the tracer and the sample points are still bound
     covered_.bind(LF_BINDING_COVERED_TEXELS);
     texel_anchors_.bind(LF_BINDING_TEXEL_ANCHORS);
     glUniform1ui(anchor.uniform("covered_count"), GLuint(covered_count_));
     anchor.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-    ComputeProgram wall_check("texel_wall_check.comp");
+    const ComputeProgram wall_check = tracer_.program("texel_wall_check.comp");
     wall_check.use();
     glUniform1ui(wall_check.uniform("covered_count"), GLuint(covered_count_));
     glUniform2ui(wall_check.uniform("atlas_size"), GLuint(width_), GLuint(height_));

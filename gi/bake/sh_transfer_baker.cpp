@@ -53,7 +53,9 @@ ShTransferBaker::ShTransferBaker(const Scene& scene, const Tracer& tracer, const
     : scene_(scene),
       settings_(settings),
       tracer_(&tracer),
-      transfer_("sh_transfer.comp", {{"LF_SH_BOUNCES", std::to_string(settings.bounces)}}),
+      // Built for the whole scene: the occluders' own tracer (build_occluders)
+      // has no see-through surface the scene lacks.
+      transfer_(tracer.program("sh_transfer.comp", {{"LF_SH_BOUNCES", std::to_string(settings.bounces)}})),
       resolve_("sh_resolve.comp", {{"LF_SH_BOUNCES", std::to_string(settings.bounces)}}) {
     if (settings_.samples_per_pass < 1) throw std::invalid_argument("SH transfer: samples per pass must be >= 1");
     if (settings_.bounces < 0 || settings_.bounces > ShTransferSettings::kMaxBounces)

@@ -66,8 +66,8 @@ std::string file_legend(const std::vector<std::string>& files) {
 
 }  // namespace
 
-std::pair<std::string, std::vector<std::string>> assemble_shader_source(
-    const std::string& name, const std::vector<std::pair<std::string, std::string>>& defines) {
+std::pair<std::string, std::vector<std::string>> assemble_shader_source(const std::string& name,
+                                                                        const ShaderDefines& defines) {
     std::string body;
     std::vector<std::string> files;
     std::set<std::string> seen;
@@ -86,8 +86,7 @@ std::pair<std::string, std::vector<std::string>> assemble_shader_source(
     return {out, files};
 }
 
-ComputeProgram::ComputeProgram(const std::string& name, const std::vector<std::pair<std::string, std::string>>& defines)
-    : name_(name) {
+ComputeProgram::ComputeProgram(const std::string& name, const ShaderDefines& defines) : name_(name) {
     auto [source, files] = assemble_shader_source(name, defines);
     GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
     const char* text = source.c_str();

@@ -17,19 +17,21 @@
 
 namespace lf {
 
+// Compile-time choices, `#define NAME VALUE` each, inserted after #version.
+using ShaderDefines = std::vector<std::pair<std::string, std::string>>;
+
 // Resolves `#include "name.glsl"` against the embedded shaders (each file at
 // most once) and inserts `#define`s after the #version line. Each file gets a
 // `#line 1 N` so the driver's messages can be mapped back to file names.
 // Returns the source and the file names in source-string-number order.
-std::pair<std::string, std::vector<std::string>> assemble_shader_source(
-    const std::string& name, const std::vector<std::pair<std::string, std::string>>& defines);
+std::pair<std::string, std::vector<std::string>> assemble_shader_source(const std::string& name,
+                                                                        const ShaderDefines& defines);
 
 class ComputeProgram {
 public:
     // Compiles and links the embedded file `name`; a compile or link failure
     // throws GpuError with the file name and the driver's log.
-    explicit ComputeProgram(const std::string& name,
-                            const std::vector<std::pair<std::string, std::string>>& defines = {});
+    explicit ComputeProgram(const std::string& name, const ShaderDefines& defines = {});
     ~ComputeProgram();
     ComputeProgram(ComputeProgram&& other) noexcept
         : id_(std::exchange(other.id_, 0)), name_(std::move(other.name_)), local_size_x_(other.local_size_x_) {}

@@ -27,7 +27,7 @@ std::vector<glm::vec3> reference_irradiance(const Scene& scene, const Tracer& tr
     for (const glm::vec3& t : env.texels) texels.push_back(glm::vec4(t, 0.0f));
     GpuBuffer vertex_buffer(vertices), env_buffer(texels), out(scene.positions.size() * sizeof(glm::vec4));
 
-    ComputeProgram program("sh_reference.comp");
+    const ComputeProgram program = tracer.program("sh_reference.comp");
     program.use();
     tracer.bind();
     vertex_buffer.bind(LF_BINDING_SH_VERTICES);

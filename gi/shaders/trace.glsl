@@ -25,6 +25,12 @@
 #ifndef LF_TRACE_GLSL
 #define LF_TRACE_GLSL
 
+// LF_SEE_THROUGH: 1 where the scene has a see-through surface, 0 where it
+// has none and the traversal leaves the material code out (Tracer::program).
+#ifndef LF_SEE_THROUGH
+#error "a program that traces is built by Tracer::program (LF_SEE_THROUGH)"
+#endif
+
 #include "buffer_bindings.glsl"
 #include "bvh_layout.glsl"
 #include "random.glsl"
@@ -249,8 +255,10 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
                 vec3 v0 = w0.xyz, v1 = w1.xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
                 if (!intersect_triangle(org, sh, v0, v1, v2, hit.t, t, b)) continue;
                 uint triangle = floatBitsToUint(w0.w);
+#if LF_SEE_THROUGH
                 bool see_through = materials && floatBitsToUint(w1.w) != 0u;  // marked by the Tracer
                 if (see_through && lf_goes_past(triangle, t, b, org, dir, query, hit.tint, passed, counted)) continue;
+#endif
                 if (query == LF_QUERY_PASSED_TINT) continue;  // LF_QUERY_CLOSEST stopped nowhere before t_max
                 vec3 ng = cross(v1 - v0, v2 - v0);
                 if (query == LF_QUERY_TRANSMITTANCE) {

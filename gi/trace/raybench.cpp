@@ -46,6 +46,7 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
     nlohmann::json out = {
         {"scene", scene.source},
         {"triangles", scene.triangle_count()},
+        {"see_through_surfaces", tracer.has_see_through()},  // traced with the material code (Tracer::program)
         {"device", {{"vendor", gpu.info().vendor}, {"renderer", gpu.info().renderer}}},
         {"bvh",
          {{"build_seconds", bvh.build_seconds},
@@ -59,7 +60,7 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
     const std::vector<glm::vec4> points = surface_points(scene, 1u << 20);
     GpuBuffer point_buffer(points);
     GpuBuffer counts(1024 * sizeof(uint32_t));
-    ComputeProgram program("raybench.comp");
+    const ComputeProgram program = tracer.program("raybench.comp");
     program.use();
     tracer.bind();
     point_buffer.bind(LF_BINDING_SURFACE_POINTS);

@@ -14,6 +14,7 @@ Tracer::Tracer(const Bvh& bvh, const Scene& scene)
     for (BvhTriangle& t : triangles) {
         const bool see_through = scene.materials[scene.triangle_material.at(t.scene_triangle)].is_see_through();
         t.pad1 = uint_bits(see_through ? 1u : 0u);
+        has_see_through_ = has_see_through_ || see_through;
     }
     triangles_ = GpuBuffer(triangles);
 }
@@ -35,10 +36,15 @@ void Tracer::bind() const {
     see_through_.bind();
 }
 
+ComputeProgram Tracer::program(const std::string& name, ShaderDefines defines) const {
+    defines.emplace_back("LF_SEE_THROUGH", has_see_through_ ? "1" : "0");
+    return ComputeProgram(name, defines);
+}
+
 std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
     static_assert(sizeof(Ray) == 32 && sizeof(RayHit) == 16);
     if (rays.empty()) return {};
-    if (!trace_program_) trace_program_ = std::make_unique<ComputeProgram>("trace_rays.comp");
+    if (!trace_program_) trace_program_ = std::make_unique<ComputeProgram>(program("trace_rays.comp"));
     GpuBuffer ray_buffer(rays);
     GpuBuffer hit_buffer(rays.size() * sizeof(RayHit));
     bind();

@@ -58,9 +58,19 @@ public:
     // staircase's preparation on 2 cores).
     void rewind(const Scene& scene);
     const BvhStats& bvh_stats() const { return stats_; }
+    // A program that includes trace.glsl, built for this scene: `defines`
+    // plus LF_SEE_THROUGH, 1 where a triangle is see-through and 0 where
+    // none is. The see-through code in the traversal's leaf loop costs
+    // llvmpipe 4x (1.06 M against 0.24 M Cornell rays/s once Mesa's shader
+    // cache serves the program; docs/BENCHMARKS.md), so a scene that has no
+    // use for it is traced without it. trace.glsl stops the compile of a
+    // program built any other way.
+    ComputeProgram program(const std::string& name, ShaderDefines defines = {}) const;
+    bool has_see_through() const { return has_see_through_; }
 
 private:
     BvhStats stats_;
+    bool has_see_through_ = false;
     GpuBuffer nodes_;
     GpuBuffer triangles_;
     SurfaceTextures see_through_;                            // Which::SeeThrough
