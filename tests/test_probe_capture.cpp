@@ -1,5 +1,6 @@
 // The probes through the whole pipeline: the GPU capture (ProbesMethod),
 // downsampling, the files, and the evaluation, against closed forms.
+#include "form_factors.h"
 #include "gpu_fixture.h"
 #include "scene_builders.h"
 
@@ -175,21 +176,9 @@ TEST(ProbeCapture, AProbeSeesTheSkyThroughASheetTimesItsTransmittance) {
 }
 
 // Irradiance/pi at (x, y, z) on a plane parallel to the 1 x 1 m emitter
-// [-0.5, 0.5]² at height h above the plane (Howell C-11 by corners).
+// [-0.5, 0.5]² at height h above the plane.
 double emitter_form_factor(double x, double z, double h) {
-    auto corner = [h](double a, double b) {
-        const double p = a / h, q = b / h, sp = std::sqrt(1 + p * p), sq = std::sqrt(1 + q * q);
-        return (p / sp * std::atan(q / sp) + q / sq * std::atan(p / sq)) / (2.0 * M_PI);
-    };
-    double f = 0.0;
-    for (double xe : {-0.5, 0.5})
-        for (double ze : {-0.5, 0.5}) {
-            const double a = xe - x, b = ze - z;
-            if (a == 0.0 || b == 0.0) continue;
-            f += (a < 0 ? -1.0 : 1.0) * (b < 0 ? -1.0 : 1.0) * (xe < 0 ? -1.0 : 1.0) * (ze < 0 ? -1.0 : 1.0) *
-                 corner(std::abs(a), std::abs(b));
-        }
-    return f;
+    return test::rectangle_form_factor(x, z, -0.5, 0.5, -0.5, 0.5, h);
 }
 
 // Points with the normal n around a probe of `set` against `truth` (irradiance

@@ -1,5 +1,6 @@
 // SH transfer and environment SH against answers known in closed form, and
 // against brute-force ray-traced irradiance (issue 6, "Accuracy and stability").
+#include "form_factors.h"
 #include "gpu_fixture.h"
 #include "scene_builders.h"
 
@@ -33,6 +34,7 @@ namespace lf {
 namespace {
 
 using test::gpu;
+using test::rectangle_form_factor;
 
 const double kSqrtPiOver2 = std::sqrt(M_PI) / 2.0;
 
@@ -148,28 +150,6 @@ TEST(ShTransfer, UnoccludedVertexIsRotatedClampedCosine) {
     std::printf("  unoccluded: %d samples/vertex, worst coefficient error %.2e, error estimate %.2e\n",
                 passes * per_pass, worst, stats.error_estimate.value_or(0.0));
     EXPECT_EQ(stats.rays, uint64_t(passes) * per_pass * s.positions.size());
-}
-
-// Irradiance/pi at a point on a plane from a parallel rectangle whose corner
-// lies straight above it at height c, sides a, b (Howell's catalogue, C-11).
-double corner_form_factor(double a, double b, double c) {
-    const double x = a / c, y = b / c;
-    const double sx = std::sqrt(1 + x * x), sy = std::sqrt(1 + y * y);
-    return (x / sx * std::atan(y / sx) + y / sy * std::atan(x / sy)) / (2.0 * M_PI);
-}
-
-// Any point under the rectangle [x0,x1]x[z0,z1] at height h: signed corner rectangles.
-double rectangle_form_factor(double px, double pz, double x0, double x1, double z0, double z1, double h) {
-    double f = 0.0;
-    for (double xe : {x0, x1})
-        for (double ze : {z0, z1}) {
-            const double a = xe - px, b = ze - pz;
-            if (a == 0.0 || b == 0.0) continue;
-            const double sign =
-                (a < 0 ? -1.0 : 1.0) * (b < 0 ? -1.0 : 1.0) * (xe == x0 ? -1.0 : 1.0) * (ze == z0 ? -1.0 : 1.0);
-            f += sign * corner_form_factor(std::abs(a), std::abs(b), h);
-        }
-    return f;
 }
 
 TEST(ShTransfer, FloorUnderParallelRectangleMatchesFormFactor) {
