@@ -58,8 +58,16 @@ double parse_number(const std::string& option, const std::string& text) {
 void set_limit(ServerLimits& limits, const std::string& assignment) {
     const size_t eq = assignment.find('=');
     if (eq == std::string::npos) throw std::invalid_argument("--limit takes KEY=VALUE, not '" + assignment + "'");
-    const std::string key = assignment.substr(0, eq);
-    const double v = parse_number("--limit " + key, assignment.substr(eq + 1));
+    const std::string key = assignment.substr(0, eq), text = assignment.substr(eq + 1);
+    const double v = parse_number("--limit " + key, text);
+    // Seconds and a job's caps may be fractions; bytes and counts are whole
+    // (a negative one would wrap round to a huge unsigned limit).
+    const bool fraction = key.size() > 8 && key.compare(key.size() - 8, 8, "_seconds") == 0;
+    const bool cap = limits.spec.caps.count(key) > 0;
+    if (!std::isfinite(v)) throw std::invalid_argument("--limit " + key + ": '" + text + "' is not a finite number");
+    if (cap && !(v > 0)) throw std::invalid_argument("--limit " + key + ": a cap must be above 0, not '" + text + "'");
+    if (!fraction && !cap && (v < 0 || v != std::floor(v) || v >= 9.2e18))
+        throw std::invalid_argument("--limit " + key + ": a whole number, 0 or more, not '" + text + "'");
     if (key == "upload_bytes") limits.upload_bytes = uint64_t(v);
     else if (key == "spec_bytes") limits.spec_bytes = uint64_t(v);
     else if (key == "triangles") limits.triangles = int64_t(v);
@@ -75,7 +83,7 @@ void set_limit(ServerLimits& limits, const std::string& assignment) {
     else if (key == "connections_per_address") limits.connections_per_address = int(v);
     else if (key == "event_streams") limits.event_streams = int(v);
     else if (key == "event_streams_per_token") limits.event_streams_per_token = int(v);
-    else if (limits.spec.caps.count(key)) limits.spec.caps[key] = v;
+    else if (cap) limits.spec.caps[key] = v;
     else throw std::invalid_argument("--limit: unknown key '" + key + "'");
 }
 }  // namespace

@@ -394,6 +394,73 @@ TEST(Config, TheScaleOutOptionsAreCheckedWithMessagesThatSayWhatToWrite) {
     EXPECT_NE(refused({"--node-name", "two words"}).find("--node-name"), std::string::npos);
 }
 
+// Every --limit key: a good value is read into its field, and each kind of
+// bad value is refused with a message that names the key (a negative count
+// wrapped round to a huge unsigned limit; a drain of -1 s or of infinity
+// stopped nothing).
+TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
+    bool help = false;
+    auto limits = [&](const std::vector<std::string>& assignments) {
+        std::vector<std::string> args;
+        for (const std::string& a : assignments) args.insert(args.end(), {"--limit", a});
+        return server::parse_server_args(args, help).limits;
+    };
+    const server::ServerLimits l =
+        limits({"upload_bytes=1000", "spec_bytes=2000", "triangles=3000", "texture_size=512", "queued_jobs=7",
+                "free_disk_bytes=1e9", "header_seconds=2.5", "request_seconds=30", "keep_alive_seconds=4",
+                "drain_seconds=0.5", "header_bytes=9000", "connections=100", "connections_per_address=9",
+                "event_streams=2", "event_streams_per_token=3", "passes=99", "res=2048"});
+    EXPECT_EQ(l.upload_bytes, 1000u);
+    EXPECT_EQ(l.spec_bytes, 2000u);
+    EXPECT_EQ(l.triangles, 3000);
+    EXPECT_EQ(l.texture_size, 512);
+    EXPECT_EQ(l.queued_jobs, 7);
+    EXPECT_EQ(l.free_disk_bytes, 1000000000u);
+    EXPECT_EQ(l.header_seconds, 2.5);
+    EXPECT_EQ(l.request_seconds, 30);
+    EXPECT_EQ(l.keep_alive_seconds, 4);
+    EXPECT_EQ(l.drain_seconds, 0.5);
+    EXPECT_EQ(l.header_bytes, 9000);
+    EXPECT_EQ(l.connections, 100);
+    EXPECT_EQ(l.connections_per_address, 9);
+    EXPECT_EQ(l.event_streams, 2);
+    EXPECT_EQ(l.event_streams_per_token, 3);
+    EXPECT_EQ(l.spec.cap("passes"), 99);
+    EXPECT_EQ(l.spec.cap("res"), 2048);
+    EXPECT_EQ(limits({"drain_seconds=0"}).drain_seconds, 0) << "no drain at all is a choice";
+
+    auto refused = [&](const std::string& assignment) {
+        try {
+            limits({assignment});
+        } catch (const std::invalid_argument& e) {
+            return std::string(e.what());
+        }
+        return std::string("accepted");
+    };
+    for (const std::string key :
+         {"upload_bytes", "spec_bytes", "triangles", "texture_size", "queued_jobs", "free_disk_bytes", "header_bytes",
+          "connections", "connections_per_address", "event_streams", "event_streams_per_token"}) {
+        for (const std::string bad : {"-1", "2.5", "inf", "nan", "1e30", "ten", ""}) {
+            const std::string message = refused(key + "=" + bad);
+            EXPECT_NE(message.find(key), std::string::npos) << key << "=" << bad << ": " << message;
+        }
+    }
+    for (const std::string key : {"header_seconds", "request_seconds", "keep_alive_seconds", "drain_seconds"}) {
+        for (const std::string bad : {"-1", "inf", "nan", "soon"}) {
+            const std::string message = refused(key + "=" + bad);
+            EXPECT_NE(message.find(key), std::string::npos) << key << "=" << bad << ": " << message;
+        }
+    }
+    for (const std::string key : {"res", "passes", "time_limit", "max_seconds", "max_attempts"}) {
+        for (const std::string bad : {"0", "-5", "inf"}) {
+            const std::string message = refused(key + "=" + bad);
+            EXPECT_NE(message.find(key), std::string::npos) << key << "=" << bad << ": " << message;
+        }
+    }
+    EXPECT_NE(refused("sparkle=1").find("unknown key 'sparkle'"), std::string::npos);
+    EXPECT_NE(refused("drain_seconds").find("KEY=VALUE"), std::string::npos);
+}
+
 // ------------------------------------------------ what only PostgreSQL has
 
 TEST(PostgresStore, ANewerSchemaIsRefusedWithAClearMessage) {
