@@ -6,6 +6,7 @@
 #include "gpu/context.h"
 #include "gpu/shader.h"
 #include "shaders/buffer_bindings.glsl"
+#include "shaders/check_params.glsl"
 
 #include <glm/vec4.hpp>
 
@@ -31,11 +32,12 @@ inline std::string shared_scene(const std::string& name) {
 }
 
 // Runs a *_check.comp program (gi/shaders) on `cases`, `vec4s_per_case`
-// vec4 each, with whatever else it reads already bound; returns its
-// `results_per_case` vec4 per case. How the tests call a GLSL function to
-// compare it with the C++.
+// vec4 each, with `params` (its item_count set here) and whatever else it
+// reads already bound; returns its `results_per_case` vec4 per case. How
+// the tests call a GLSL function to compare it with the C++.
 inline std::vector<glm::vec4> run_check_program(const ComputeProgram& program, const std::vector<glm::vec4>& cases,
-                                                size_t results_per_case, size_t vec4s_per_case = 1) {
+                                                size_t results_per_case, size_t vec4s_per_case = 1,
+                                                CheckParams params = {}) {
     if (vec4s_per_case == 0 || cases.size() % vec4s_per_case != 0)
         throw std::invalid_argument("run_check_program: " + std::to_string(cases.size()) +
                                     " vec4 are not whole cases of " + std::to_string(vec4s_per_case));
@@ -43,8 +45,8 @@ inline std::vector<glm::vec4> run_check_program(const ComputeProgram& program, c
     GpuBuffer in(cases), out(results_per_case * items * sizeof(glm::vec4));
     in.bind(LF_BINDING_CHECK_CASES);
     out.bind(LF_BINDING_CHECK_RESULTS);
-    program.use();
-    glUniform1ui(program.uniform("item_count"), GLuint(items));
+    params.item_count = uint32_t(items);
+    program.use(params);
     program.dispatch_1d(items);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     return out.read<glm::vec4>();

@@ -576,13 +576,14 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
     const ComputeProgram program("probe_eval_check.comp");
     std::mt19937 rng(17);
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    CheckParams params{};  // the probe and the grid, set by the cases below
     const auto run = [&](unsigned mode, const std::vector<glm::vec4>& cases, size_t items) {
         GpuBuffer in(cases), out(items * sizeof(glm::vec4));
-        program.use();
+        params.item_count = uint32_t(items);
+        params.mode = mode;
+        program.use(params);
         in.bind(LF_BINDING_CHECK_CASES);
         out.bind(LF_BINDING_CHECK_RESULTS);
-        glUniform1ui(program.uniform("item_count"), GLuint(items));
-        glUniform1ui(program.uniform("mode"), mode);
         program.dispatch_1d(items);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         return out.read<glm::vec4>();
@@ -639,10 +640,11 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
             cases.push_back(glm::vec4(0.95f * glm::vec3(u(rng), u(rng), u(rng)), 0));
             cases.push_back(glm::vec4(random_direction(rng), 0));
         }
-        program.use();
-        glUniform1i(program.uniform("m"), 4);
-        glUniform1ui(program.uniform("probe"), 1u);
-        glUniform3fv(program.uniform("probe_position"), 1, &set.probes[1].position.x);
+        params.m = 4;
+        params.probe = 1;
+        params.probe_position_x = set.probes[1].position.x;
+        params.probe_position_y = set.probes[1].position.y;
+        params.probe_position_z = set.probes[1].position.z;
         const auto got = run(1, cases, count);
         const PreparedProbe p = prepare_probe(set.probes[1], 4);
         double worst = 0.0;
@@ -692,11 +694,16 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
             cases.push_back(glm::vec4(0.95f * glm::vec3(u(rng), u(rng), u(rng)), 0));
             cases.push_back(glm::vec4(random_direction(rng), 0));
         }
-        program.use();
-        glUniform1i(program.uniform("m"), set.m);
-        glUniform3i(program.uniform("grid_counts"), counts.x, counts.y, counts.z);
-        glUniform3fv(program.uniform("grid_origin"), 1, &origin.x);
-        glUniform3fv(program.uniform("grid_spacing"), 1, &spacing.x);
+        params.m = set.m;
+        params.grid_counts_x = counts.x;
+        params.grid_counts_y = counts.y;
+        params.grid_counts_z = counts.z;
+        params.grid_origin_x = origin.x;
+        params.grid_origin_y = origin.y;
+        params.grid_origin_z = origin.z;
+        params.grid_spacing_x = spacing.x;
+        params.grid_spacing_y = spacing.y;
+        params.grid_spacing_z = spacing.z;
         const auto got = run(3, cases, count);
         double worst = 0.0;
         for (size_t i = 0; i < count; ++i) {

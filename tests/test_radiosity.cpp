@@ -1352,9 +1352,9 @@ TEST(SphericalTriangles, SolidAngleAndSamplerAreExactInGlsl) {
         packed.push_back(glm::vec4(glm::vec3(c.c), float(c.n.z)));
     }
     const ComputeProgram program("spherical_triangle_check.comp");
-    program.use();
-    glUniform1ui(program.uniform("grid"), 128);
-    const auto got = test::run_check_program(program, packed, 1, 3);
+    CheckParams params{};
+    params.grid = 128;
+    const auto got = test::run_check_program(program, packed, 1, 3, params);
     double worst_omega = 0.0, worst_integral = 0.0, worst_cornell_integral = 0.0, worst_atan = 0.0, glsl_atan = 0.0;
     for (size_t i = 0; i < cases.size(); ++i) {
         const Case& c = cases[i];

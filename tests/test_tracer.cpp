@@ -533,6 +533,34 @@ TEST(Shaders, CompileErrorsNameTheFileAndCarryTheLog) {
     EXPECT_NE(source.find("#define EXTRA 1"), std::string::npos);
 }
 
+// A program's parameters are one block, set whole (ComputeProgram::use):
+// a uniform outside it refuses to build, and a C++ struct of another size
+// than the block (a field added on one side only) is refused at use, both
+// naming the program.
+TEST(Shaders, ParametersAreOneBlockOfTheCppStructsSize) {
+    gpu();
+    try {
+        ComputeProgram p("dispatch_check.comp", {{"LF_CHECK_STRAY_UNIFORM", "1"}});
+        FAIL() << "a uniform outside the parameter block was accepted";
+    } catch (const GpuError& e) {
+        EXPECT_NE(std::string(e.what()).find("dispatch_check.comp: uniform 'stray'"), std::string::npos) << e.what();
+    }
+    const ComputeProgram program("dispatch_check.comp");
+    struct Larger {
+        CheckParams params;
+        uint32_t extra[4];
+    };
+    try {
+        program.use(Larger{});
+        FAIL() << "a struct 16 bytes larger than the block was accepted";
+    } catch (const GpuError& e) {
+        EXPECT_NE(std::string(e.what()).find("dispatch_check.comp: its parameter block is"), std::string::npos)
+            << e.what();
+    }
+    static_assert(sizeof(CheckParams) % 16 != 0, "the next check needs a struct std140 pads");
+    EXPECT_NO_THROW(program.use(CheckParams{})) << "std140 rounds the block up to 16 bytes";
+}
+
 // dispatch_1d past GL's 65,535 groups per dimension (4.2 M items of 64): every
 // item is visited once, and a per-group buffer sized by groups_1d holds every
 // group that runs (the spill into y rounds the count up to whole rows; a
@@ -545,10 +573,11 @@ TEST(GpuDispatch, CoversEveryItemOnceBeyond65535Groups) {
         EXPECT_GE(groups * 64, n);
         // One extra slot past the end: nothing may write it.
         GpuBuffer visits(std::vector<uint32_t>(n, 0u)), slots(std::vector<uint32_t>(groups + 1, 0u));
-        program.use();
+        CheckParams params{};
+        params.item_count = uint32_t(n);
+        program.use(params);
         visits.bind(LF_BINDING_ITEM_VISITS);
         slots.bind(LF_BINDING_GROUP_SLOTS);
-        glUniform1ui(program.uniform("item_count"), GLuint(n));
         program.dispatch_1d(n);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         const std::vector<uint32_t> v = visits.read<uint32_t>();

@@ -48,7 +48,6 @@ AmbientOcclusionMethod::AmbientOcclusionMethod(const PreparedScene& prepared, co
       stop_(stop_rule_from(settings.output("ao")->stop())),
       point_count_(uint32_t(prepared.texels.samples.size())),
       program_(prepared.tracer->program("ambient_occlusion.comp")),
-      params_(sizeof(AmbientOcclusionParams)),
       points_(sample_points(prepared.texels)),
       unoccluded_(std::max<size_t>(1, point_count_) * sizeof(float)) {
     unoccluded_.clear_zero();
@@ -72,10 +71,8 @@ std::vector<PassStats> AmbientOcclusionMethod::run_passes(int count) {
     const auto start = std::chrono::steady_clock::now();
     const AmbientOcclusionParams params{point_count_, uint32_t(stats_.pass), uint32_t(count), settings_.seed,
                                         settings_.distance};
-    params_.upload(&params, sizeof params);
-    program_.use();
+    program_.use(params);
     prepared_.tracer->bind();
-    params_.bind(LF_BINDING_AO_PARAMS);
     points_.bind(LF_BINDING_AO_POINTS);
     unoccluded_.bind(LF_BINDING_AO_UNOCCLUDED);
     if (point_count_ > 0) program_.dispatch_1d(point_count_);

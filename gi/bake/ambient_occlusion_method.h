@@ -60,7 +60,7 @@ private:
     nlohmann::json settings_json_;
     uint32_t point_count_ = 0;
     ComputeProgram program_;
-    GpuBuffer params_, points_, unoccluded_;
+    GpuBuffer points_, unoccluded_;
     PassStats stats_;
 };
 

@@ -2,6 +2,7 @@
 
 #include "atlas/atlas.h"
 #include "shaders/buffer_bindings.glsl"
+#include "shaders/denoise_params.glsl"
 
 #include <glm/glm.hpp>
 
@@ -52,12 +53,9 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
     for (size_t p = 0; p < pixels; ++p) colour[p] = glm::vec4(r[p], g[p], b[p], error[p] * error[p]);
 
     GpuBuffer ping(colour), pong(pixels * sizeof(glm::vec4));
-    program_.use();
-    glUniform1ui(program_.uniform("width"), GLuint(image.width));
-    glUniform1ui(program_.uniform("height"), GLuint(image.height));
     guide_.bind(LF_BINDING_DENOISE_GUIDE);
     for (int s = 0; s < kSteps; ++s) {
-        glUniform1i(program_.uniform("step_size"), 1 << s);
+        program_.use(DenoiseParams{uint32_t(image.width), uint32_t(image.height), 1 << s});
         ping.bind(LF_BINDING_DENOISE_IN);
         pong.bind(LF_BINDING_DENOISE_OUT);
         program_.dispatch_1d(pixels);

@@ -6,6 +6,7 @@
 #include "probes/probe_eval.h"
 #include "probes/probe_set.h"
 #include "shaders/buffer_bindings.glsl"
+#include "shaders/check_params.glsl"
 
 #include <chrono>
 #include <cmath>
@@ -131,15 +132,18 @@ double gpu_polygon_throughput(const Probe& probe, int m, const std::vector<EvalP
     }
     const ComputeProgram program("probe_eval_check.comp");
     GpuBuffer probes(pack_probe_buffer(one)), in(cases), out(count * sizeof(glm::vec4));
-    program.use();
+    CheckParams params{};
+    params.item_count = uint32_t(count);
+    params.mode = 1;  // one probe's polygon-to-point estimate
+    params.m = m;
+    params.probe = 0;
+    params.probe_position_x = probe.position.x;
+    params.probe_position_y = probe.position.y;
+    params.probe_position_z = probe.position.z;
+    program.use(params);
     probes.bind(LF_BINDING_PROBE_SET);
     in.bind(LF_BINDING_CHECK_CASES);
     out.bind(LF_BINDING_CHECK_RESULTS);
-    glUniform1ui(program.uniform("item_count"), GLuint(count));
-    glUniform1ui(program.uniform("mode"), 1u);
-    glUniform1i(program.uniform("m"), m);
-    glUniform1ui(program.uniform("probe"), 0u);
-    glUniform3fv(program.uniform("probe_position"), 1, &probe.position.x);
     const auto run = [&] {
         program.dispatch_1d(count);
         glFinish();

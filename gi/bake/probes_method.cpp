@@ -92,6 +92,18 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
     corner_distances_ = trace_corner_distances();
 }
 
+// What the capture and the corner rays share; each sets its count on top.
+ProbesParams ProbesMethod::params() const {
+    ProbesParams p{};
+    shading_.fill(p, background_);
+    p.resolution = uint32_t(settings_.res);
+    p.pass = uint32_t(stats_.pass);
+    p.seed = seed_;
+    p.m = uint32_t(settings_.m);
+    p.miss_distance = kMissDistance;
+    return p;
+}
+
 std::vector<float> ProbesMethod::trace_corner_distances() const {
     const size_t side = size_t(settings_.m) + 1, count = positions_.size() * 6 * side * side;
     GpuBuffer corners(count * sizeof(float));
@@ -99,10 +111,9 @@ std::vector<float> ProbesMethod::trace_corner_distances() const {
     prepared_.tracer->bind();
     positions_buffer_.bind(LF_BINDING_PROBE_POSITIONS);
     corners.bind(LF_BINDING_PROBE_CORNERS);
-    program.use();
-    glUniform1ui(program.uniform("corner_count"), GLuint(count));
-    glUniform1ui(program.uniform("m"), GLuint(settings_.m));
-    glUniform1f(program.uniform("miss_distance"), kMissDistance);
+    ProbesParams params = this->params();
+    params.corner_count = uint32_t(count);
+    program.use(params);
     program.dispatch_1d(count);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     return corners.read<float>();
@@ -134,14 +145,9 @@ PassStats ProbesMethod::step() {
     positions_buffer_.bind(LF_BINDING_PROBE_POSITIONS);
     texels_.bind(LF_BINDING_PROBE_TEXELS);
     rays_.bind(LF_BINDING_PROBE_RAYS);
-    capture_.use();
-    shading_.set_uniforms(capture_);
-    glUniform1ui(capture_.uniform("texel_count"), GLuint(texels));
-    glUniform1ui(capture_.uniform("resolution"), GLuint(settings_.res));
-    glUniform1ui(capture_.uniform("pass"), GLuint(stats_.pass));
-    glUniform1ui(capture_.uniform("seed"), seed_);
-    glUniform3fv(capture_.uniform("background"), 1, &background_.x);
-    glUniform1f(capture_.uniform("far"), 1e30f);
+    ProbesParams params = this->params();
+    params.texel_count = uint32_t(texels);
+    capture_.use(params);
     capture_.dispatch_1d(texels);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
 

@@ -23,6 +23,7 @@
 #include <optional>
 #include "gpu/shader.h"
 #include "probes/probe_set.h"
+#include "shaders/probes_params.glsl"
 
 #include <vector>
 
@@ -74,6 +75,7 @@ private:
     // constructor set).
     ProbeSet probe_set(const std::vector<glm::vec4>& accumulators) const;
     // Every probe's corner distances by one ray each (probe_corners.comp).
+    ProbesParams params() const;
     std::vector<float> trace_corner_distances() const;
     uint64_t state_layout() const { return hash_vector(positions_, uint64_t(settings_.res)); }
     const PreparedScene& prepared_;

@@ -180,27 +180,25 @@ void RadiosityMapBaker::relocate_samples_inside_geometry(size_t sample_count) {
     GpuBuffer moved_samples((sample_count + 31) / 32 * sizeof(uint32_t));  // a bit per sample point
     moved_samples.clear_zero();
     const ComputeProgram relocate = tracer_.program("texel_relocate.comp");
-    relocate.use();
+    RadiosityParams params = this->params();
+    params.sample_count = uint32_t(sample_count);
+    relocate.use(params);
     tracer_.bind();
     sample_points_.bind(LF_BINDING_TEXEL_SAMPLE_POINTS);
     moved_samples.bind(LF_BINDING_MOVED_SAMPLES);
-    glUniform1ui(relocate.uniform("sample_count"), GLuint(sample_count));
     relocate.dispatch_1d(sample_count);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 
     texel_anchors_ = GpuBuffer(size_t(width_) * size_t(height_) * sizeof(glm::vec4));
     texel_anchors_.clear_zero();
     const ComputeProgram anchor = tracer_.program("texel_anchor.comp");
-    anchor.use();  // the tracer and the sample points are still bound
+    anchor.use(params);  // the tracer and the sample points are still bound
     covered_.bind(LF_BINDING_COVERED_TEXELS);
     texel_anchors_.bind(LF_BINDING_TEXEL_ANCHORS);
-    glUniform1ui(anchor.uniform("covered_count"), GLuint(covered_count_));
     anchor.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     const ComputeProgram wall_check = tracer_.program("texel_wall_check.comp");
-    wall_check.use();
-    glUniform1ui(wall_check.uniform("covered_count"), GLuint(covered_count_));
-    glUniform2ui(wall_check.uniform("atlas_size"), GLuint(width_), GLuint(height_));
+    wall_check.use(params);
     wall_check.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     count_texels_by_geometry(moved_samples);
@@ -222,10 +220,11 @@ void RadiosityMapBaker::count_texels_by_geometry(const GpuBuffer& moved_samples)
 }
 
 void RadiosityMapBaker::copy_to_dilated_texels(const GpuBuffer& atlas_buffer) {
-    copy_.use();
+    RadiosityParams params = this->params();
+    params.pair_count = uint32_t(dilation_.size());
+    copy_.use(params);
     atlas_buffer.bind(LF_BINDING_ATLAS_TEXELS);
     dilation_pairs_.bind(LF_BINDING_COPY_PAIRS);
-    glUniform1ui(copy_.uniform("pair_count"), GLuint(dilation_.size()));
     copy_.dispatch_1d(dilation_.size());
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 }
@@ -255,31 +254,34 @@ int cell_end_after(int pass, int passes_per_dispatch) {
     return std::min((pass / cell + 1) * cell, 2 * doubling);
 }
 
+// What every dispatch of the bake shares; each sets its own fields on top.
+RadiosityParams RadiosityMapBaker::params() const {
+    RadiosityParams p{};
+    shading_.fill(p, settings_.background);
+    p.atlas_width = uint32_t(width_);
+    p.atlas_height = uint32_t(height_);
+    p.covered_count = uint32_t(covered_count_);
+    p.seed = settings_.seed;
+    p.light_samples = uint32_t(std::max(1, settings_.light_samples));
+    p.converged_error = float(settings_.converged_texel_error);
+    p.min_samples = 16;
+    return p;
+}
+
 void RadiosityMapBaker::dispatch_passes(int first_pass, int count, bool end_epoch, int slot) {
-    const float far = 1e30f;  // rays end at the scene's bounds anyway
-    gather_.use();
+    RadiosityParams params = this->params();
+    params.first_pass = uint32_t(first_pass);
+    params.pass_count = uint32_t(count);
+    params.end_epoch = end_epoch ? 1u : 0u;
+    params.partials_stride = uint32_t(partials_slot_bytes_ / sizeof(glm::vec4));
+    gather_.use(params);
     texel_totals_.bind(LF_BINDING_TEXEL_TOTALS);
-    glUniform1ui(gather_.uniform("covered_count"), GLuint(covered_count_));
-    glUniform1ui(gather_.uniform("first_pass"), GLuint(first_pass));
-    glUniform1ui(gather_.uniform("pass_count"), GLuint(count));
-    glUniform1ui(gather_.uniform("end_epoch"), end_epoch ? 1u : 0u);
-    glUniform1f(gather_.uniform("converged_error"), float(settings_.converged_texel_error));
-    glUniform1ui(gather_.uniform("min_samples"), 16u);
-    glUniform1ui(gather_.uniform("seed"), settings_.seed);
-    glUniform1ui(gather_.uniform("light_samples"), GLuint(std::max(1, settings_.light_samples)));
-    glUniform3fv(gather_.uniform("background"), 1, &settings_.background.x);
-    glUniform1f(gather_.uniform("far"), far);
-    glUniform2ui(gather_.uniform("atlas_size"), GLuint(width_), GLuint(height_));
-    shading_.set_uniforms(gather_);
     gather_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 
-    totals_.use();
+    totals_.use(params);
     error_partials_.bind_range(LF_BINDING_ERROR_PARTIALS, size_t(slot) * partials_slot_bytes_,
                                size_t(count) * partials_slot_bytes_);
-    glUniform1ui(totals_.uniform("covered_count"), GLuint(covered_count_));
-    glUniform1ui(totals_.uniform("pass_count"), GLuint(count));
-    glUniform1ui(totals_.uniform("partials_stride"), GLuint(partials_slot_bytes_ / sizeof(glm::vec4)));
     totals_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);  // read back at the batch's end
 }
@@ -337,8 +339,7 @@ void RadiosityMapBaker::count_pass(const ResolveTotals& totals) {
 }
 
 void RadiosityMapBaker::publish() {
-    publish_.use();
-    glUniform1ui(publish_.uniform("covered_count"), GLuint(covered_count_));
+    publish_.use(params());
     publish_.dispatch_1d(covered_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     if (settings_.scheme == RadiosityScheme::FinalGather) copy_to_dilated_texels(reflected_indirect_);

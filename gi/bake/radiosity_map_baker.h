@@ -11,6 +11,7 @@
 #include "gpu/shader.h"
 #include "io/image_files.h"
 #include "scene/scene.h"
+#include "shaders/radiosity_params.glsl"
 #include "trace/tracer.h"
 
 #include <glm/glm.hpp>
@@ -173,6 +174,7 @@ private:
     // (radiosity_gather.comp), each resolved as it ends, then their totals
     // summed per work group (radiosity_totals.comp) into partials slots
     // `slot` to `slot + count - 1`; `end_epoch`: the last one ends an epoch.
+    RadiosityParams params() const;
     void dispatch_passes(int first_pass, int count, bool end_epoch, int slot);
     // Publishes the texels' values to the next passes' indirect rays (radiosity_publish.comp).
     void publish();

@@ -81,9 +81,4 @@ void SceneShading::bind() const {
     punctual_lights_.bind(LF_BINDING_PUNCTUAL_LIGHTS);
 }
 
-void SceneShading::set_uniforms(const ComputeProgram& program) const {
-    glUniform1ui(program.uniform("emitter_count"), emitter_count_);
-    glUniform1ui(program.uniform("punctual_count"), punctual_count_);
-}
-
 }  // namespace lf

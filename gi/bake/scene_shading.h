@@ -9,6 +9,8 @@
 #include "gpu/shader.h"
 #include "scene/scene.h"
 
+#include <glm/vec3.hpp>
+
 #include <cstdint>
 
 namespace lf {
@@ -19,8 +21,18 @@ public:
 
     // Binds the three buffers at the bindings the shaders declare.
     void bind() const;
-    // Sets direct_light.glsl's emitter_count and punctual_count on `program` (in use).
-    void set_uniforms(const ComputeProgram& program) const;
+    // Sets a parameter block's LF_SHADING_PARAMS (shaders/params_block.glsl):
+    // the counts direct_light.glsl samples, and the radiance of rays that
+    // escape. Rays have no length limit: they end at the scene's bounds.
+    template <class Params>
+    void fill(Params& p, glm::vec3 background) const {
+        p.emitter_count = emitter_count_;
+        p.punctual_count = punctual_count_;
+        p.far = 1e30f;
+        p.background_r = background.r;
+        p.background_g = background.g;
+        p.background_b = background.b;
+    }
 
     uint32_t emitter_count() const { return emitter_count_; }
     uint32_t punctual_count() const { return punctual_count_; }

@@ -181,33 +181,29 @@ PassStats ShTransferBaker::step() {
     }
     error_partials_.bind(LF_BINDING_SH_ERROR_PARTIALS);
 
-    transfer_.use();
-    glUniform1ui(transfer_.uniform("vertex_count"), GLuint(receiver_count_));
-    glUniform1ui(transfer_.uniform("pass"), GLuint(stats_.pass));
-    glUniform1ui(transfer_.uniform("samples_per_pass"), GLuint(settings_.samples_per_pass));
-    glUniform1ui(transfer_.uniform("seed"), settings_.seed);
-    glUniform1f(transfer_.uniform("near_dist"), settings_.near);
-    glUniform1f(transfer_.uniform("far_dist"), settings_.far > 0.0f ? settings_.far - settings_.near : 1e30f);
+    ShTransferParams params{};
+    params.vertex_count = uint32_t(receiver_count_);
+    params.pass = uint32_t(stats_.pass);
+    params.samples_per_pass = uint32_t(settings_.samples_per_pass);
+    params.seed = settings_.seed;
+    params.near_dist = settings_.near;
+    params.far_dist = settings_.far > 0.0f ? settings_.far - settings_.near : 1e30f;
     // A pass in slices of samples: Mesa's llvmpipe ends a shader invocation
     // after 65535 loop iterations in all (LP_MAX_TGSI_LOOP_ITERATIONS), BVH
     // traversal steps included, and silently drops the rest; a GPU takes the
     // whole pass in one dispatch.
     const int slice = software_renderer_ ? std::min(settings_.samples_per_pass, 16) : settings_.samples_per_pass;
     for (int first = 0; first < settings_.samples_per_pass; first += slice) {
-        glUniform1ui(transfer_.uniform("sample_first"), GLuint(first));
-        glUniform1ui(transfer_.uniform("sample_count"), GLuint(std::min(slice, settings_.samples_per_pass - first)));
+        params.sample_first = uint32_t(first);
+        params.sample_count = uint32_t(std::min(slice, settings_.samples_per_pass - first));
+        transfer_.use(params);
         transfer_.dispatch_1d(receiver_count_);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     }
     ++stats_.pass;
 
-    // Rays behind each block: bounce k started at pass k.
-    std::vector<float> block_samples(size_t(settings_.bounces) + 1);
-    for (size_t k = 0; k < block_samples.size(); ++k)
-        block_samples[k] = float(std::max<int64_t>(0, int64_t(stats_.pass) - int64_t(k)) * settings_.samples_per_pass);
-    resolve_.use();
-    glUniform1ui(resolve_.uniform("vertex_count"), GLuint(receiver_count_));
-    glUniform1fv(resolve_.uniform("block_samples"), GLsizei(block_samples.size()), block_samples.data());
+    params.pass = uint32_t(stats_.pass);  // passes done: the rays behind each block (sh_resolve.comp)
+    resolve_.use(params);
     resolve_.dispatch_1d(receiver_count_);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     check_gl("sh transfer pass");

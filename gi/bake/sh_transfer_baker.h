@@ -10,6 +10,7 @@
 #include "bake/method_state.h"
 #include "bake/progressive.h"
 #include "gpu/shader.h"
+#include "shaders/sh_params.glsl"
 #include "scene/scene.h"
 #include "sh/sh_basis.h"
 #include "trace/tracer.h"

@@ -2,6 +2,7 @@
 
 #include "gpu/context.h"
 #include "gpu/embedded_shaders.h"
+#include "shaders/buffer_bindings.glsl"
 
 #include <glm/packing.hpp>
 #include <glm/vec2.hpp>
@@ -119,6 +120,41 @@ ComputeProgram::ComputeProgram(const std::string& name, const ShaderDefines& def
     GLint size[3] = {1, 1, 1};
     glGetProgramiv(id_, GL_COMPUTE_WORK_GROUP_SIZE, size);
     local_size_x_ = size[0];
+    read_parameter_block();
+}
+
+// Finds the program's parameter block (LF_BINDING_PARAMS), and refuses a
+// uniform outside it: every value a dispatch takes goes through use(params).
+void ComputeProgram::read_parameter_block() {
+    GLint blocks = 0, uniforms = 0;
+    glGetProgramiv(id_, GL_ACTIVE_UNIFORM_BLOCKS, &blocks);
+    for (GLuint b = 0; b < GLuint(blocks); ++b) {
+        GLint binding = -1, bytes = 0;
+        glGetActiveUniformBlockiv(id_, b, GL_UNIFORM_BLOCK_BINDING, &binding);
+        glGetActiveUniformBlockiv(id_, b, GL_UNIFORM_BLOCK_DATA_SIZE, &bytes);
+        if (binding == LF_BINDING_PARAMS) params_bytes_ = size_t(bytes);
+    }
+    glGetProgramiv(id_, GL_ACTIVE_UNIFORMS, &uniforms);
+    for (GLuint u = 0; u < GLuint(uniforms); ++u) {
+        GLint block = -1;
+        glGetActiveUniformsiv(id_, 1, &u, GL_UNIFORM_BLOCK_INDEX, &block);
+        if (block != -1) continue;
+        char uniform_name[128] = {};
+        glGetActiveUniformName(id_, u, sizeof uniform_name, nullptr, uniform_name);
+        throw GpuError(name_ + ": uniform '" + uniform_name +
+                       "' is outside the parameter block (a *_params.glsl field, set by use(params))");
+    }
+}
+
+void ComputeProgram::set_params(const void* data, size_t bytes) const {
+    if (params_bytes_ == 0) return;  // the program reads none of them
+    // std140 rounds a block up to 16 bytes; the C++ struct need not be.
+    if ((bytes + 15) / 16 * 16 != params_bytes_)
+        throw GpuError(name_ + ": its parameter block is " + std::to_string(params_bytes_) + " bytes, the C++ struct " +
+                       std::to_string(bytes));
+    if (params_.bytes() == 0) params_ = GpuBuffer(params_bytes_);
+    params_.upload(data, bytes);
+    glBindBufferBase(GL_UNIFORM_BUFFER, LF_BINDING_PARAMS, params_.id());
 }
 
 ComputeProgram::~ComputeProgram() {

@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
+#include <type_traits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -26,35 +27,6 @@ using ShaderDefines = std::vector<std::pair<std::string, std::string>>;
 // Returns the source and the file names in source-string-number order.
 std::pair<std::string, std::vector<std::string>> assemble_shader_source(const std::string& name,
                                                                         const ShaderDefines& defines);
-
-class ComputeProgram {
-public:
-    // Compiles and links the embedded file `name`; a compile or link failure
-    // throws GpuError with the file name and the driver's log.
-    explicit ComputeProgram(const std::string& name, const ShaderDefines& defines = {});
-    ~ComputeProgram();
-    ComputeProgram(ComputeProgram&& other) noexcept
-        : id_(std::exchange(other.id_, 0)), name_(std::move(other.name_)), local_size_x_(other.local_size_x_) {}
-    ComputeProgram(const ComputeProgram&) = delete;
-    ComputeProgram& operator=(const ComputeProgram&) = delete;
-
-    void use() const { glUseProgram(id_); }
-    GLint uniform(const char* name) const { return glGetUniformLocation(id_, name); }
-    // Dispatches groups_1d(n) groups for 1D work of n items: ceil(n /
-    // local_size_x) in x up to GL's guaranteed 65535, spilling into y beyond.
-    // Shaders index items as x + y * gl_NumWorkGroups.x * local_size_x and
-    // skip those >= n; a per-group buffer must hold groups_1d(n) entries (the
-    // spill rounds the group count up to a whole row of 65535).
-    void dispatch_1d(size_t n) const;
-    size_t groups_1d(size_t n) const;
-    GLuint id() const { return id_; }
-    const std::string& name() const { return name_; }
-
-private:
-    GLuint id_ = 0;
-    std::string name_;
-    GLint local_size_x_ = 1;
-};
 
 // A uint stored in a float lane of a vec4 buffer, read back in GLSL with
 // floatBitsToUint (flags, indices, chart ids).
@@ -117,6 +89,55 @@ public:
 private:
     GLuint id_ = 0;
     size_t bytes_ = 0;
+};
+
+class ComputeProgram {
+public:
+    // Compiles and links the embedded file `name`; a compile or link failure
+    // throws GpuError with the file name and the driver's log.
+    explicit ComputeProgram(const std::string& name, const ShaderDefines& defines = {});
+    ~ComputeProgram();
+    ComputeProgram(ComputeProgram&& other) noexcept
+        : id_(std::exchange(other.id_, 0)),
+          name_(std::move(other.name_)),
+          local_size_x_(other.local_size_x_),
+          params_bytes_(other.params_bytes_),
+          params_(std::move(other.params_)) {}
+    ComputeProgram(const ComputeProgram&) = delete;
+    ComputeProgram& operator=(const ComputeProgram&) = delete;
+
+    // Makes this the current program with the parameters of its next
+    // dispatch: `params` is the C++ side of the program's parameter block
+    // (its *_params.glsl, defined once for both languages), uploaded whole
+    // and bound at LF_BINDING_PARAMS. A struct whose size is not the
+    // block's throws GpuError naming the program (a field added on one side
+    // only), where a uniform set by a misspelt name was silently ignored.
+    template <class Params>
+    void use(const Params& params) const {
+        static_assert(std::is_trivially_copyable_v<Params>);
+        use();
+        set_params(&params, sizeof params);
+    }
+    void use() const { glUseProgram(id_); }
+    // Dispatches groups_1d(n) groups for 1D work of n items: ceil(n /
+    // local_size_x) in x up to GL's guaranteed 65535, spilling into y beyond.
+    // Shaders index items as x + y * gl_NumWorkGroups.x * local_size_x and
+    // skip those >= n; a per-group buffer must hold groups_1d(n) entries (the
+    // spill rounds the group count up to a whole row of 65535).
+    void dispatch_1d(size_t n) const;
+    size_t groups_1d(size_t n) const;
+    GLuint id() const { return id_; }
+    const std::string& name() const { return name_; }
+
+private:
+    void read_parameter_block();
+    void set_params(const void* data, size_t bytes) const;
+
+    GLuint id_ = 0;
+    std::string name_;
+    GLint local_size_x_ = 1;
+    size_t params_bytes_ = 0;   // the parameter block's size; 0 where the program reads none
+    mutable GpuBuffer params_;  // made on the first use(params)
 };
 
 // What bind_range's offsets must be multiples of (GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT).

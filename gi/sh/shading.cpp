@@ -3,6 +3,7 @@
 #include "gpu/context.h"
 #include "gpu/shader.h"
 #include "shaders/buffer_bindings.glsl"
+#include "shaders/sh_reference_params.glsl"
 
 #include <algorithm>
 #include <cmath>
@@ -28,24 +29,28 @@ std::vector<glm::vec3> reference_irradiance(const Scene& scene, const Tracer& tr
     GpuBuffer vertex_buffer(vertices), env_buffer(texels), out(scene.positions.size() * sizeof(glm::vec4));
 
     const ComputeProgram program = tracer.program("sh_reference.comp");
-    program.use();
     tracer.bind();
     vertex_buffer.bind(LF_BINDING_SH_VERTICES);
     env_buffer.bind(LF_BINDING_ENV_TEXELS);
     out.bind(LF_BINDING_IRRADIANCE);
-    glUniform1ui(program.uniform("vertex_count"), GLuint(scene.positions.size()));
-    glUniform1ui(program.uniform("seed"), seed);
-    glUniform2ui(program.uniform("env_size"), GLuint(env.width), GLuint(env.height));
-    glUniform3fv(program.uniform("env_constant"), 1, &env.constant.x);
+    ShReferenceParams params{};
+    params.vertex_count = uint32_t(scene.positions.size());
+    params.seed = seed;
+    params.env_width = uint32_t(env.width);
+    params.env_height = uint32_t(env.height);
+    params.env_constant_r = env.constant.r;
+    params.env_constant_g = env.constant.g;
+    params.env_constant_b = env.constant.b;
     out.clear_zero();
     // Slices of a few rays per dispatch: Mesa's llvmpipe ends any shader
     // invocation after 65535 loop iterations in all (LP_MAX_TGSI_LOOP_ITERATIONS),
     // BVH traversal steps included, and would silently drop the rest.
     const int slice = 16;
-    glUniform1f(program.uniform("weight"), float(M_PI / samples));
+    params.weight = float(M_PI / samples);
     for (int first = 0, chunk = 0; first < samples; first += slice, ++chunk) {
-        glUniform1ui(program.uniform("samples"), GLuint(std::min(slice, samples - first)));
-        glUniform1ui(program.uniform("chunk"), GLuint(chunk));
+        params.samples = uint32_t(std::min(slice, samples - first));
+        params.chunk = uint32_t(chunk);
+        program.use(params);
         program.dispatch_1d(scene.positions.size());
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     }

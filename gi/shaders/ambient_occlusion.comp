@@ -20,7 +20,7 @@ layout(std430, binding = LF_BINDING_AO_UNOCCLUDED) buffer AoUnoccluded { float a
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
-    if (i >= ao.point_count) return;
+    if (i >= point_count) return;
     vec3 p = ao_points[3u * i].xyz;
     vec3 n = ao_points[3u * i + 1u].xyz;
     vec3 g = ao_points[3u * i + 2u].xyz;
@@ -29,11 +29,11 @@ void main() {
     vec3 origin = offset_ray_origin(p, dot(g, n) < 0.0 ? -g : g);
     // The R2 sequence rotated per point, continued across passes (as
     // sh_transfer.comp): a resumed bake traces the same rays.
-    uvec2 rotation = uvec2(pcg_hash(i ^ pcg_hash(ao.seed)), pcg_hash(i * 7u + 1u + pcg_hash(ao.seed + 1u)));
+    uvec2 rotation = uvec2(pcg_hash(i ^ pcg_hash(seed)), pcg_hash(i * 7u + 1u + pcg_hash(seed + 1u)));
     float unoccluded = 0.0;
-    for (uint k = 0u; k < ao.pass_count; ++k) {
-        vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, ao.first_pass + k));
-        if (!trace_occluded(origin, dir, ao.distance)) unoccluded += 1.0;
+    for (uint k = 0u; k < pass_count; ++k) {
+        vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, first_pass + k));
+        if (!trace_occluded(origin, dir, distance)) unoccluded += 1.0;
     }
     ao_unoccluded[i] += unoccluded;
 }

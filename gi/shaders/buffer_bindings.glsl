@@ -8,6 +8,13 @@
 #ifndef LF_BUFFER_BINDINGS_GLSL
 #define LF_BUFFER_BINDINGS_GLSL
 
+// A program's parameters: one uniform block per dispatch, std140, 4-byte
+// scalars only (so C++ and GLSL agree on every offset), defined once for
+// both languages in the program's *_params.glsl and set by
+// ComputeProgram::use(params). Uniform-buffer bindings are apart from the
+// storage buffers' below; this is the only one.
+#define LF_BINDING_PARAMS 0
+
 // The scene's BVH (trace.glsl), bound by Tracer::bind() for every program that traces.
 #define LF_BINDING_BVH_NODES 0
 #define LF_BINDING_BVH_TRIANGLES 1
@@ -73,9 +80,7 @@
 #define LF_BINDING_SURFACE_POINTS 2  // raybench.comp
 #define LF_BINDING_HIT_COUNTS 3      // raybench.comp
 
-// Ambient occlusion (ambient_occlusion.comp): its parameters
-// (ambient_occlusion_params.glsl), sample points and counts.
-#define LF_BINDING_AO_PARAMS 2
+// Ambient occlusion (ambient_occlusion.comp): its sample points and counts.
 #define LF_BINDING_AO_POINTS 3
 #define LF_BINDING_AO_UNOCCLUDED 4
 

@@ -4,12 +4,11 @@
 // so bilinear lookups near a border stay in the chart.
 layout(local_size_x = 64) in;
 #include "buffer_bindings.glsl"
+#include "radiosity_params.glsl"
 
 layout(std430, binding = LF_BINDING_ATLAS_TEXELS) buffer AtlasTexels { vec4 atlas_texels[]; };
 // (destination atlas index, source atlas index)
 layout(std430, binding = LF_BINDING_COPY_PAIRS) readonly buffer CopyPairs { uvec2 copy_pairs[]; };
-
-uniform uint pair_count;
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;

@@ -18,8 +18,7 @@ layout(std430, binding = LF_BINDING_EMITTERS) readonly buffer Emitters { vec4 em
 // Punctual light l: (position, type), (direction of travel, range), (intensity rgb, cos inner), (cos outer, 0, 0, 0).
 layout(std430, binding = LF_BINDING_PUNCTUAL_LIGHTS) readonly buffer PunctualLights { vec4 punctual_lights[]; };
 
-uniform uint emitter_count;
-uniform uint punctual_count;
+// emitter_count, punctual_count: the program's parameter block (LF_SHADING_PARAMS).
 
 // How emitters are sampled (compile-time, LF_LIGHT_SAMPLING):
 //   0 (default): MIS of solid-angle sampling and the indirect pass's cosine ray

@@ -23,16 +23,13 @@
 // Moon et al. 2014's weighted local regression for denoising).
 layout(local_size_x = 64) in;
 #include "buffer_bindings.glsl"
+#include "denoise_params.glsl"
 
 // Per atlas texel: (position, chart as uint bits; 0xffffffff = no texel), (normal, world size).
 layout(std430, binding = LF_BINDING_DENOISE_GUIDE) readonly buffer Guide { vec4 guide[]; };
 // Per atlas texel: (rgb, variance of the luminance estimate).
 layout(std430, binding = LF_BINDING_DENOISE_IN) readonly buffer ColourIn { vec4 colour_in[]; };
 layout(std430, binding = LF_BINDING_DENOISE_OUT) writeonly buffer ColourOut { vec4 colour_out[]; };
-
-uniform uint width;
-uniform uint height;
-uniform int step_size;
 
 const uint NO_TEXEL = 0xffffffffu;
 const float KERNEL[3] = float[](3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0);

@@ -36,7 +36,8 @@ layout(std430, binding = LF_BINDING_TEXEL_ANCHORS) buffer TexelAnchors { vec4 te
 // final gather's hit reflects (radiosity_gather.comp with LF_FINAL_GATHER).
 layout(std430, binding = LF_BINDING_TEXEL_ALBEDO) readonly buffer TexelAlbedo { vec4 texel_albedo[]; };
 
-uniform uvec2 atlas_size;
+// The atlas's size, from the program's parameter block (LF_ATLAS_PARAMS).
+uvec2 lf_atlas_size() { return uvec2(atlas_width, atlas_height); }
 
 const uint TRIANGLE_DOUBLE_SIDED = 1u;
 
@@ -76,12 +77,12 @@ vec3 hit_albedo(Hit hit) {
 }
 
 uint atlas_index(int x, int y) {
-    return uint(clamp(y, 0, int(atlas_size.y) - 1)) * atlas_size.x + uint(clamp(x, 0, int(atlas_size.x) - 1));
+    return uint(clamp(y, 0, int(lf_atlas_size().y) - 1)) * lf_atlas_size().x + uint(clamp(x, 0, int(lf_atlas_size().x) - 1));
 }
 
 // The four atlas texels a bilinear lookup at uv reads, and their weights.
 void bilinear_taps(vec2 uv, out uint a[4], out float w[4]) {
-    vec2 p = uv * vec2(atlas_size) - 0.5;
+    vec2 p = uv * vec2(lf_atlas_size()) - 0.5;
     vec2 f = fract(p);
     ivec2 i = ivec2(floor(p));
     for (int k = 0; k < 4; ++k) {

@@ -4,8 +4,8 @@
 // Needs trace.glsl, sampling.glsl, random.glsl, lightmap_lookup.glsl (the hit
 // surfaces) and direct_light.glsl included first.
 
-uniform vec3 background;  // radiance of rays that escape (W/(sr·m²))
-uniform float far;        // longer than any ray inside the scene
+// far and the background: the program's parameter block (LF_SHADING_PARAMS).
+vec3 lf_background() { return vec3(background_r, background_g, background_b); }
 
 // Radiance reflected towards the previous vertex by the path continuing from
 // `hit` (emission excluded: the first vertex counts it by MIS), E/pi units.
@@ -32,7 +32,7 @@ vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint ray
         hit = trace_closest(origin, dir, far);
         throughput *= hit.tint;  // through the see-through surfaces it passed
         rays += 1u;
-        if (hit.triangle == LF_NO_HIT) { result += throughput * background; break; }
+        if (hit.triangle == LF_NO_HIT) { result += throughput * lf_background(); break; }
         if (!(hit.front || hit_is_double_sided(hit))) break;
     }
     return result;

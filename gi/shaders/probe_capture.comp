@@ -11,6 +11,7 @@
 layout(local_size_x = 64) in;
 
 #include "buffer_bindings.glsl"
+#include "probes_params.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -26,11 +27,6 @@ layout(std430, binding = LF_BINDING_PROBE_POSITIONS) readonly buffer ProbePositi
 layout(std430, binding = LF_BINDING_PROBE_TEXELS) buffer ProbeTexels { vec4 probe_texels[]; };
 // Rays traced so far (the pass's primary rays and every path's).
 layout(std430, binding = LF_BINDING_PROBE_RAYS) buffer ProbeRays { uint probe_rays; };
-
-uniform uint texel_count;  // probes x 6 x resolution²
-uniform uint resolution;   // R: texels per face side
-uniform uint pass;
-uniform uint seed;
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
@@ -51,7 +47,7 @@ void main() {
     uint rays = 1u;
     Hit h = trace_closest(origin, dir, far);
     if (h.triangle == LF_NO_HIT) {
-        radiance = h.tint * background;
+        radiance = h.tint * lf_background();
     } else if (h.front || hit_is_double_sided(h)) {
         distance = h.t;
         hit = 1.0;

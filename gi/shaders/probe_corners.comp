@@ -9,6 +9,7 @@
 layout(local_size_x = 64) in;
 
 #include "buffer_bindings.glsl"
+#include "probes_params.glsl"
 #include "trace.glsl"
 #include "probe_cube.glsl"
 
@@ -17,10 +18,6 @@ layout(std430, binding = LF_BINDING_PROBE_POSITIONS) readonly buffer ProbePositi
 // Per probe, corner (face f, column a, row b) at (f (M+1) + b) (M+1) + a: the
 // distance to the surface, or miss_distance where the ray leaves the scene.
 layout(std430, binding = LF_BINDING_PROBE_CORNERS) writeonly buffer ProbeCorners { float corner_distances[]; };
-
-uniform uint corner_count;  // probes x 6 x (M+1)²
-uniform uint m;
-uniform float miss_distance;  // kMissDistance
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;

@@ -9,19 +9,16 @@
 layout(local_size_x = 64) in;
 
 #include "buffer_bindings.glsl"
+#include "check_params.glsl"
 #include "probe_eval.glsl"
 
 layout(std430, binding = LF_BINDING_CHECK_CASES) readonly buffer Cases { vec4 cases[]; };
 layout(std430, binding = LF_BINDING_CHECK_RESULTS) writeonly buffer Results { vec4 results[]; };
 
-uniform uint item_count;
-uniform uint mode;
-uniform int m;
-uniform uint probe;
-uniform vec3 probe_position;
-uniform ivec3 grid_counts;
-uniform vec3 grid_origin;
-uniform vec3 grid_spacing;
+vec3 probe_position() { return vec3(probe_position_x, probe_position_y, probe_position_z); }
+ivec3 grid_counts() { return ivec3(grid_counts_x, grid_counts_y, grid_counts_z); }
+vec3 grid_origin() { return vec3(grid_origin_x, grid_origin_y, grid_origin_z); }
+vec3 grid_spacing() { return vec3(grid_spacing_x, grid_spacing_y, grid_spacing_z); }
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
@@ -32,11 +29,11 @@ void main() {
                                                   cases[b + 3u].xyz, cases[b + 4u].xyz, cases[b + 5u].xyz);
         results[i] = vec4(f, 0.0, 0.0, 0.0);
     } else if (mode == 1u) {
-        results[i] = vec4(lf_probe_polygon_to_point(probe, m, probe_position, cases[2u * i].xyz, cases[2u * i + 1u].xyz), 0.0);
+        results[i] = vec4(lf_probe_polygon_to_point(probe, m, probe_position(), cases[2u * i].xyz, cases[2u * i + 1u].xyz), 0.0);
     } else if (mode == 4u) {
         results[i] = vec4(lf_probe_sh9(probe, m, cases[i].xyz), 0.0);
     } else if (mode == 3u) {
-        results[i] = vec4(lf_probe_grid_polygon_to_point(grid_counts, grid_origin, grid_spacing, m, cases[2u * i].xyz,
+        results[i] = vec4(lf_probe_grid_polygon_to_point(grid_counts(), grid_origin(), grid_spacing(), m, cases[2u * i].xyz,
                                                          cases[2u * i + 1u].xyz), 0.0);
     } else {
         vec4 c = cases[i];

@@ -5,6 +5,7 @@
 // gather's: a texel's rays read other texels' values.
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
+#include "radiosity_params.glsl"
 #include "radiosity_resolve.glsl"
 
 void main() {

@@ -24,8 +24,7 @@ float variance_of_mean(float sum, float sum_sq, float n) {
 vec3 texel_indirect(vec4 current, vec4 previous) { return current.w > 0.0 ? current.rgb / current.w : previous.rgb; }
 vec3 texel_direct(vec4 direct) { return direct.w > 0.0 ? direct.rgb / direct.w : vec3(0.0); }
 
-uniform float converged_error;  // > 0: texels whose relative standard error is below this stop tracing
-uniform uint min_samples;       // before which no texel is called converged
+// converged_error, min_samples: the program's parameter block (radiosity_params.glsl).
 
 // After a pass: restarts the indirect estimate at an epoch's end, decides
 // whether the texel has converged, and returns what it adds to the pass's

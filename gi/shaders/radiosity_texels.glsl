@@ -36,7 +36,7 @@ layout(std430, binding = LF_BINDING_TEXEL_ACCUMULATORS) buffer TexelAccumulators
 // Where covered texel i's `field` (LF_ACC_…) is in `accumulators`.
 uint lf_accumulator(uint i, uint field) { return LF_TEXEL_ACCUMULATORS * i + field; }
 
-uniform uint covered_count;
+// covered_count: the program's parameter block (radiosity_params.glsl).
 
 uint covered_index() {
     return gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;

@@ -7,6 +7,7 @@
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 #include "buffer_bindings.glsl"
+#include "radiosity_params.glsl"
 #include "radiosity_texels.glsl"
 
 layout(std430, binding = LF_BINDING_TEXEL_TOTALS) readonly buffer TexelTotals { vec4 texel_totals[]; };
@@ -15,9 +16,6 @@ layout(std430, binding = LF_BINDING_TEXEL_TOTALS) readonly buffer TexelTotals { 
 // (extra rays traced, texels whose delivered estimate has fewer than two
 // samples (its variance unknown), 0, 0).
 layout(std430, binding = LF_BINDING_ERROR_PARTIALS) writeonly buffer ErrorPartials { vec4 error_partials[]; };
-
-uniform uint pass_count;       // passes of the dispatch
-uniform uint partials_stride;  // vec4s from one pass's partials to the next's
 
 shared vec4 partial[64];
 shared vec2 partial_rays[64];

@@ -2,6 +2,7 @@
 // Ray throughput: rays generated, traced and counted in one dispatch, as the
 // bake methods do (their rays never leave the GPU).
 #include "buffer_bindings.glsl"
+#include "tracer_params.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -13,13 +14,6 @@ layout(std430, binding = LF_BINDING_SURFACE_POINTS) readonly buffer SurfacePoint
 // One counter per workgroup-ish slot; summed on the CPU.
 layout(std430, binding = LF_BINDING_HIT_COUNTS) buffer HitCounts { uint hit_counts[]; };
 
-uniform uint ray_count;
-uniform uint point_count;
-uniform uint mode;       // 0 = coherent (pinhole grid), 1 = incoherent (cosine from surfaces)
-uniform uint pass;
-uniform vec3 eye;
-uniform float t_far;
-uniform uint image_width;
 
 shared uint group_hits;
 
@@ -33,7 +27,7 @@ bool trace_benchmark_ray(uint i) {
         uint px = (tile % tiles_x) * 8u + in_tile % 8u;
         uint py = (tile / tiles_x) * 8u + in_tile / 8u;
         vec2 ndc = (vec2(px, py) + 0.5) / float(image_width) * 2.0 - 1.0;
-        org = eye;
+        org = vec3(eye_x, eye_y, eye_z);
         dir = normalize(vec3(ndc.x, -ndc.y, -1.0));  // 90 degree field of view towards -z
     } else {
         Rng rng = rng_start(i, pass, 17u);

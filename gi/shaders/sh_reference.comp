@@ -6,6 +6,7 @@
 layout(local_size_x = 64) in;
 
 #include "buffer_bindings.glsl"
+#include "sh_reference_params.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -14,21 +15,15 @@ layout(std430, binding = LF_BINDING_SH_VERTICES) readonly buffer ShVertices { ve
 layout(std430, binding = LF_BINDING_ENV_TEXELS) readonly buffer EnvTexels { vec4 env_texels[]; };
 layout(std430, binding = LF_BINDING_IRRADIANCE) buffer Irradiance { vec4 irradiance[]; };
 
-uniform uint vertex_count;
-uniform uint samples;        // in this dispatch
-uniform uint chunk;          // dispatches so far: each adds its samples to the sum
-uniform float weight;        // pi / total samples
-uniform uint seed;
-uniform uvec2 env_size;     // (0, 0): constant environment env_constant
-uniform vec3 env_constant;
+uvec2 env_size() { return uvec2(env_width, env_height); }
 
 vec3 environment(vec3 d) {
-    if (env_size.x == 0u) return env_constant;
+    if (env_size().x == 0u) return vec3(env_constant_r, env_constant_g, env_constant_b);
     float u = 0.5 + atan(d.z, d.x) / (2.0 * PI);
     float v = acos(clamp(d.y, -1.0, 1.0)) / PI;
-    uint x = min(uint(u * float(env_size.x)), env_size.x - 1u);
-    uint y = min(uint(v * float(env_size.y)), env_size.y - 1u);
-    return env_texels[y * env_size.x + x].rgb;
+    uint x = min(uint(u * float(env_size().x)), env_size().x - 1u);
+    uint y = min(uint(v * float(env_size().y)), env_size().y - 1u);
+    return env_texels[y * env_size().x + x].rgb;
 }
 
 void main() {

@@ -4,6 +4,7 @@
 // estimate: Σ over coefficients of the variance of the mean, and Σ T_i².
 layout(local_size_x = 64) in;
 #include "buffer_bindings.glsl"
+#include "sh_params.glsl"
 
 #ifndef LF_SH_BOUNCES
 #define LF_SH_BOUNCES 0
@@ -14,8 +15,8 @@ layout(std430, binding = LF_BINDING_SH_ACCUMULATORS) readonly buffer ShAccum { v
 layout(std430, binding = LF_BINDING_SH_RESOLVED) writeonly buffer ShResolved { vec4 sh_resolved[]; };
 layout(std430, binding = LF_BINDING_SH_ERROR_PARTIALS) writeonly buffer ShErrorPartials { vec4 sh_error_partials[]; };
 
-uniform uint vertex_count;
-uniform float block_samples[LF_SH_BLOCKS];  // rays behind block k (0 before it starts)
+// Rays behind block k after `pass` passes: bounce k started at pass k.
+float block_samples(int k) { return float(max(int(pass) - k, 0)) * float(samples_per_pass); }
 
 shared vec2 partial[64];
 
@@ -26,7 +27,7 @@ void main() {
         uint base = i * 4u * uint(LF_SH_BLOCKS + 1);
         vec4 total[4] = vec4[4](vec4(0.0), vec4(0.0), vec4(0.0), vec4(0.0));
         for (int k = 0; k < LF_SH_BLOCKS; ++k) {
-            float count = block_samples[k];
+            float count = block_samples(k);
             for (int c = 0; c < 4; ++c) {
                 vec4 mean = count > 0.0 ? sh_accum[base + uint(4 * k + c)] / count : vec4(0.0);
                 sh_resolved[i * 4u * uint(LF_SH_BLOCKS) + uint(4 * k + c)] = mean;
@@ -36,7 +37,7 @@ void main() {
         // Variance of the mean of the per-ray estimate (all blocks summed per
         // ray), from its second moment: iid-sample variance, an upper bound
         // for the stratified directions actually used.
-        float n = block_samples[0];
+        float n = block_samples(0);
         if (n > 1.0) {
             for (int c = 0; c < 4; ++c) {
                 vec4 second = sh_accum[base + 4u * uint(LF_SH_BLOCKS) + uint(c)] / n;

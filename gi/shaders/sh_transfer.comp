@@ -12,6 +12,7 @@
 layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 #include "buffer_bindings.glsl"
+#include "sh_params.glsl"
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
@@ -36,15 +37,6 @@ layout(std430, binding = LF_BINDING_SH_TRIANGLE_IDS) readonly buffer ShTriangleI
 // Per occluder triangle: albedo (RGB channel mean) at its three corners.
 layout(std430, binding = LF_BINDING_SH_TRIANGLE_ALBEDO) readonly buffer ShTriangleAlbedo { vec4 sh_triangle_albedo[]; };
 #endif
-
-uniform uint vertex_count;      // receivers: unique vertices 0 .. vertex_count-1
-uniform uint pass;              // 0-based
-uniform uint samples_per_pass;
-uniform uint sample_first;      // this dispatch's slice of the pass's samples (see ShTransferBaker::step)
-uniform uint sample_count;
-uniform uint seed;
-uniform float near_dist;        // seed §3.1 near clip: occluders closer than this are ignored
-uniform float far_dist;         // seed §3.1 far clip: occluders further than this are ignored
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;

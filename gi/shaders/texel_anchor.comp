@@ -14,6 +14,7 @@ layout(local_size_x = 64) in;
 
 #define LF_SAMPLE_POINTS_ACCESS
 #define LF_MOVED_SAMPLES
+#include "radiosity_params.glsl"
 #include "lightmap_lookup.glsl"
 #include "radiosity_texels.glsl"
 

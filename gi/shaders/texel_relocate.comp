@@ -8,12 +8,11 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 
 #define LF_SAMPLE_POINTS_ACCESS
 #define LF_MOVED_SAMPLES
+#include "radiosity_params.glsl"
 #include "trace.glsl"
 #include "sampling.glsl"
 #include "radiosity_texels.glsl"
 
-
-uniform uint sample_count;
 
 void main() {
     uint s = covered_index();

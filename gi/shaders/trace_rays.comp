@@ -3,6 +3,7 @@
 // has its rays on the CPU; the bake methods trace from their own shaders.
 // Geometry alone: every triangle stops a ray, see-through or not.
 #include "buffer_bindings.glsl"
+#include "tracer_params.glsl"
 #include "trace.glsl"
 
 layout(local_size_x = 64) in;
@@ -11,8 +12,6 @@ layout(local_size_x = 64) in;
 layout(std430, binding = LF_BINDING_RAYS) readonly buffer Rays { vec4 rays[]; };
 // Hit: (t, triangle bits, b1, b2); triangle = LF_NO_HIT on a miss.
 layout(std430, binding = LF_BINDING_HITS) writeonly buffer Hits { vec4 hits[]; };
-
-uniform uint ray_count;
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;

@@ -5,12 +5,12 @@
 layout(local_size_x = 64) in;
 
 #include "buffer_bindings.glsl"
+#include "check_params.glsl"
 #include "unit_vector.glsl"
 
 layout(std430, binding = LF_BINDING_CHECK_CASES) readonly buffer Cases { vec4 cases[]; };
 layout(std430, binding = LF_BINDING_CHECK_RESULTS) writeonly buffer Results { vec4 results[]; };
 
-uniform uint item_count;
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;

@@ -3,6 +3,7 @@
 #include "gpu/shader.h"
 #include "trace/tracer.h"
 #include "shaders/buffer_bindings.glsl"
+#include "shaders/tracer_params.glsl"
 
 #include <chrono>
 #include <numeric>
@@ -61,19 +62,21 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
     GpuBuffer point_buffer(points);
     GpuBuffer counts(1024 * sizeof(uint32_t));
     const ComputeProgram program = tracer.program("raybench.comp");
-    program.use();
     tracer.bind();
     point_buffer.bind(LF_BINDING_SURFACE_POINTS);
     counts.bind(LF_BINDING_HIT_COUNTS);
     const uint32_t image_width = 2048;  // coherent rays: a 2048² image per 4M rays
     const size_t n = std::min(options.rays_per_dispatch, size_t(image_width) * image_width);
     const float diagonal = glm::length(scene.bounds.extent());
-    glUniform1ui(program.uniform("ray_count"), GLuint(n));
-    glUniform1ui(program.uniform("point_count"), GLuint(points.size() / 2));
+    TracerParams params{};
+    params.ray_count = uint32_t(n);
+    params.point_count = uint32_t(points.size() / 2);
     const glm::vec3 eye = scene.bounds.centre();
-    glUniform3fv(program.uniform("eye"), 1, &eye.x);
-    glUniform1f(program.uniform("t_far"), 2.0f * diagonal + 1.0f);
-    glUniform1ui(program.uniform("image_width"), image_width);
+    params.eye_x = eye.x;
+    params.eye_y = eye.y;
+    params.eye_z = eye.z;
+    params.t_far = 2.0f * diagonal + 1.0f;
+    params.image_width = image_width;
 
     for (const char* kind : {"coherent", "incoherent"}) {
         const bool incoherent = std::string(kind) == "incoherent";
@@ -81,8 +84,9 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
             out[kind] = nullptr;
             continue;
         }
-        glUniform1ui(program.uniform("mode"), incoherent ? 1u : 0u);
-        glUniform1ui(program.uniform("pass"), 0u);
+        params.mode = incoherent ? 1u : 0u;
+        params.pass = 0;
+        program.use(params);
         program.dispatch_1d(n);  // warm-up: shader compile caches, first-touch of buffers
         glFinish();
         counts.clear_zero();
@@ -91,7 +95,8 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
         size_t dispatches = 0;
         double seconds = 0.0;
         while (dispatches < options.max_dispatches && seconds < options.min_seconds) {
-            glUniform1ui(program.uniform("pass"), GLuint(dispatches + 1));
+            params.pass = uint32_t(dispatches + 1);
+            program.use(params);
             const auto start = std::chrono::steady_clock::now();
             program.dispatch_1d(n);
             glFinish();

@@ -2,6 +2,7 @@
 
 #include "gpu/context.h"
 #include "shaders/buffer_bindings.glsl"
+#include "shaders/tracer_params.glsl"
 
 namespace lf {
 
@@ -50,8 +51,9 @@ std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
     bind();
     ray_buffer.bind(LF_BINDING_RAYS);
     hit_buffer.bind(LF_BINDING_HITS);
-    trace_program_->use();
-    glUniform1ui(trace_program_->uniform("ray_count"), GLuint(rays.size()));
+    TracerParams params{};
+    params.ray_count = uint32_t(rays.size());
+    trace_program_->use(params);
     trace_program_->dispatch_1d(rays.size());
     return hit_buffer.read<RayHit>();
 }

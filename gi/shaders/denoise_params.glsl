@@ -1,0 +1,13 @@
+// The parameters of lightmap_denoise.comp (one à-trous step), filled by
+// LightmapDenoiser. C++ includes it as "shaders/denoise_params.glsl".
+#ifndef LF_DENOISE_PARAMS_GLSL
+#define LF_DENOISE_PARAMS_GLSL
+#include "params_block.glsl"
+
+LF_PARAMS_BEGIN(DenoiseParams)
+    LF_U32 width;      // the atlas, in texels
+    LF_U32 height;
+    LF_I32 step_size;  // the à-trous step's tap spacing: 1, 2, 4 ...
+LF_PARAMS_END(DenoiseParams)
+
+#endif
