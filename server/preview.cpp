@@ -1,5 +1,6 @@
 #include "preview.h"
 
+#include "display_tone.h"
 #include "lightmap_rgbm.h"
 
 #include <OpenEXR/ImfChannelList.h>
@@ -59,25 +60,6 @@ LightmapPixels read_lightmap(const std::string& path) {
 
 float luminance(const float* rgb) { return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2]; }
 
-double automatic_exposure(const LightmapPixels& image) {
-    double log_sum = 0;
-    size_t lit = 0;
-    for (size_t p = 0; p < image.rgb.size() / 3; ++p) {
-        const float lum = luminance(&image.rgb[3 * p]);
-        if (std::isfinite(lum) && lum > 1e-8f) {
-            log_sum += std::log(double(lum));
-            ++lit;
-        }
-    }
-    return lit ? 0.18 / std::exp(log_sum / double(lit)) : 1.0;
-}
-
-unsigned char encode_srgb(float linear) {
-    const float c = std::clamp(linear, 0.0f, 1.0f);
-    const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
-    return static_cast<unsigned char>(std::lround(s * 255.0f));
-}
-
 std::string rgb_png(const std::vector<unsigned char>& rgb, int width, int height, const std::string& path) {
     try {
         return protocol::encode_png(rgb.data(), width, height, 3);
@@ -90,7 +72,7 @@ std::vector<unsigned char> tonemapped(const LightmapPixels& image, float exposur
     std::vector<unsigned char> out(image.rgb.size());
     for (size_t i = 0; i < image.rgb.size(); ++i) {
         float v = std::isfinite(image.rgb[i]) ? std::max(0.0f, image.rgb[i]) * exposure : 0.0f;
-        out[i] = encode_srgb(v / (1.0f + v));
+        out[i] = protocol::encode_srgb8(v / (1.0f + v));
     }
     return out;
 }
@@ -102,7 +84,7 @@ void error_colour(double t, unsigned char* rgb) {
     const double x = std::clamp(t, 0.0, 1.0) * 4.0;
     const int i = std::min(3, int(x));
     const float f = float(x - i);
-    for (int c = 0; c < 3; ++c) rgb[c] = encode_srgb(stops[i][c] + (stops[i + 1][c] - stops[i][c]) * f);
+    for (int c = 0; c < 3; ++c) rgb[c] = protocol::encode_srgb8(stops[i][c] + (stops[i + 1][c] - stops[i][c]) * f);
 }
 
 constexpr unsigned char kUnknownGrey = 128;
@@ -133,7 +115,7 @@ std::string number(double v) {
 
 std::map<PreviewKind, Preview> render_previews(const std::string& exr_path) {
     const LightmapPixels image = read_lightmap(exr_path);
-    const double exposure = automatic_exposure(image);
+    const double exposure = protocol::automatic_exposure(image.rgb);
     std::map<PreviewKind, Preview> out;
     out[PreviewKind::Tonemapped].png = rgb_png(tonemapped(image, float(exposure)), image.width, image.height, exr_path);
     const protocol::RgbmImage rgbm = protocol::encode_rgbm(image.rgb, image.width, image.height);

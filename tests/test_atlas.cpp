@@ -5,6 +5,7 @@
 #include "atlas/lightmapped_gltf.h"
 #include "atlas/seams.h"
 #include "atlas/texel_samples.h"
+#include "display_tone.h"
 #include "util/parallel.h"
 #include "scene/gltf_loader.h"
 #include "scene_builders.h"
@@ -824,6 +825,102 @@ TEST(Png, DecodesToItsPixelsAndDoesNotDependOnHowItsStripsRun) {
     short_of_pixels.width = short_of_pixels.height = 2;
     short_of_pixels.rgba.resize(3 * 4);
     EXPECT_THROW(protocol::rgbm_png(short_of_pixels), std::invalid_argument);
+}
+
+// scene.unlit.glb (issue #36), for any glTF viewer: each texel holds the
+// light leaving it (emission + albedo x E/pi) as lightfarm's 3D view shows
+// it, at the lightmap's automatic exposure through the view's filmic curve
+// (protocol/display_tone.h, tested against three.js's constants in
+// test_protocol.cpp); charts dilated as the lightmap is, black beyond. Every
+// material becomes unlit with that texture on TEXCOORD_1 and nothing of its
+// own that a viewer would light or add (textures, emission, extensions),
+// its alpha kept.
+TEST(UnlitGlb, ShowsTheLightLeavingEachTexelAsTheViewDoes) {
+    const fs::path dir = fs::temp_directory_path() / ("lightfarm_unlit_test_" + std::to_string(::getpid()));
+    fs::create_directories(dir);
+    // The Cornell box (its light has KHR_materials_emissive_strength) with a
+    // half-transparent material that has it too.
+    nlohmann::json doc = nlohmann::json::parse(std::ifstream(kScenes / "cornell_box.gltf"));
+    doc["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"] = {0.7, 0.6, 0.5, 0.5};
+    doc["materials"][0]["alphaMode"] = "BLEND";
+    doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"] = {{"emissiveStrength", 2.0}};
+    doc["materials"][0]["name"] = "half glass";
+    std::ofstream(dir / "box.gltf") << doc.dump();  // its buffer is a data: URI
+
+    Scene scene = load_scene(dir / "box.gltf");
+    generate_lightmap_uvs(scene, {.resolution = 64});
+    const TexelSamples texels = rasterize_texel_samples(scene, 64, 64);
+    std::vector<float> rgb(64 * 64 * 3, 0.0f);
+    for (size_t i = 0; i < texels.covered_count(); ++i)
+        for (size_t c = 0; c < 3; ++c) rgb[3 * texels.texels[i] + c] = 0.02f + 0.01f * float((i * 7 + c * 3) % 50);
+    const ColourImage look = unlit_look(texels, rgb);
+    ASSERT_EQ(look.width, 64);
+    ASSERT_EQ(look.rgb.size(), rgb.size());
+    const float exposure = float(protocol::automatic_exposure(rgb));
+    const auto shown = [&](glm::vec3 radiance) {
+        const std::array<float, 3> c = protocol::aces_filmic({radiance.r, radiance.g, radiance.b}, exposure);
+        return std::array<uint8_t, 3>{protocol::encode_srgb8(c[0]), protocol::encode_srgb8(c[1]),
+                                      protocol::encode_srgb8(c[2])};
+    };
+    size_t emitting = 0;
+    for (size_t i = 0; i < texels.covered_count(); ++i) {
+        const size_t t = texels.texels[i];
+        const glm::vec3 e(rgb[3 * t], rgb[3 * t + 1], rgb[3 * t + 2]);
+        const std::array<uint8_t, 3> want = shown(texels.emission[i] + texels.albedo[i] * e);
+        for (size_t c = 0; c < 3; ++c) ASSERT_EQ(look.rgb[3 * t + c], want[c]) << "texel " << t << " channel " << c;
+        emitting += texels.emission[i] != glm::vec3(0.0f);
+    }
+    EXPECT_GT(emitting, 0u) << "the light's texels show its emission";
+    std::vector<bool> covered(64 * 64, false);
+    for (uint32_t t : texels.texels) covered[t] = true;
+    std::vector<bool> dilated(64 * 64, false);
+    for (const auto& [to, from] : texels.dilation) {
+        dilated[to] = true;
+        for (size_t c = 0; c < 3; ++c) EXPECT_EQ(look.rgb[3 * to + c], look.rgb[3 * from + c]) << "dilated " << to;
+    }
+    for (size_t t = 0; t < covered.size(); ++t) {
+        if (!covered[t] && !dilated[t]) {
+            EXPECT_EQ(look.rgb[3 * t] + look.rgb[3 * t + 1] + look.rgb[3 * t + 2], 0) << "beyond the charts: " << t;
+        }
+    }
+
+    const fs::path out = dir / "scene.unlit.glb";
+    write_unlit_glb(dir / "box.gltf", scene, look, out);
+    tinygltf::Model model;
+    tinygltf::TinyGLTF gltf;
+    std::string err, warn;
+    ASSERT_TRUE(gltf.LoadBinaryFromFile(&model, &err, &warn, out.string())) << err;
+    EXPECT_EQ(model.extensionsUsed, std::vector<std::string>{"KHR_materials_unlit"})
+        << "emissive strength went with the emission";
+    for (const tinygltf::Mesh& mesh : model.meshes)
+        for (const tinygltf::Primitive& primitive : mesh.primitives) {
+            EXPECT_TRUE(primitive.attributes.count("TEXCOORD_1"));
+            ASSERT_GE(primitive.material, 0);
+            const tinygltf::Material& m = model.materials[size_t(primitive.material)];
+            EXPECT_TRUE(m.extensions.count("KHR_materials_unlit")) << m.name;
+            EXPECT_EQ(m.extensions.size(), 1u) << m.name;
+            const tinygltf::TextureInfo& base = m.pbrMetallicRoughness.baseColorTexture;
+            ASSERT_GE(base.index, 0) << m.name;
+            EXPECT_EQ(base.texCoord, 1);
+            const tinygltf::Image& image = model.images[size_t(model.textures[size_t(base.index)].source)];
+            ASSERT_EQ(size_t(image.width) * size_t(image.height) * 3, look.rgb.size());
+            std::vector<uint8_t> decoded_rgb;  // tinygltf decodes to image.component channels
+            for (size_t p = 0; p < look.rgb.size() / 3; ++p)
+                for (size_t c = 0; c < 3; ++c) decoded_rgb.push_back(image.image[p * size_t(image.component) + c]);
+            EXPECT_EQ(decoded_rgb, look.rgb) << "the PNG holds the look exactly";
+            EXPECT_EQ(m.emissiveFactor, (std::vector<double>{0.0, 0.0, 0.0})) << m.name;
+            EXPECT_LT(m.emissiveTexture.index, 0);
+            EXPECT_LT(m.normalTexture.index, 0);
+            EXPECT_LT(m.occlusionTexture.index, 0);
+            EXPECT_LT(m.pbrMetallicRoughness.metallicRoughnessTexture.index, 0);
+            const std::vector<double>& factor = m.pbrMetallicRoughness.baseColorFactor;
+            EXPECT_EQ(std::vector<double>(factor.begin(), factor.begin() + 3), (std::vector<double>{1.0, 1.0, 1.0}));
+            if (m.name == "half glass") {
+                EXPECT_EQ(factor[3], 0.5) << "alpha kept";
+                EXPECT_EQ(m.alphaMode, "BLEND");
+            }
+        }
+    fs::remove_all(dir);
 }
 
 // scene.lit.glb: every baked primitive's material carries the lightmap with

@@ -4,6 +4,7 @@
 // are errors, everything survives a JSON round trip, and the OpenAPI document
 // and the README's option table say exactly what the catalog says.
 #include "bake_settings.h"
+#include "display_tone.h"
 #include "job_spec.h"
 #include "job_status.h"
 #include "lightmap_rgbm.h"
@@ -14,6 +15,7 @@
 #include <limits>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -87,6 +89,46 @@ std::string read_text(const std::filesystem::path& path) {
 // RGBM (protocol/lightmap_rgbm.h): every value comes back within half a step
 // of its pixel's scale, range * a / 255², and the brightest channel within
 // 0.4% from range / 255 up, as the header promises.
+// How lightfarm shows light (protocol/display_tone.h), against closed forms:
+// the automatic exposure puts the lit values' geometric mean luminance at
+// 0.18; the filmic curve is three.js's ACESFilmicToneMapping, whose two
+// matrices keep grey grey (their rows sum to 1), so at linear 0.6 and
+// exposure 1 it is Hill's fit at 1, (1.0245786 - 0.000090537) / (0.983729 +
+// 0.432951 + 0.238081); sRGB's transfer at its knee and at one half.
+TEST(DisplayTone, ExposureCurveAndSrgbAreTheViewsClosedForms) {
+    EXPECT_NEAR(protocol::automatic_exposure({0.5f, 0.5f, 0.5f, 2.0f, 2.0f, 2.0f}), 0.18, 1e-6);
+    const float nan = std::nanf("");
+    EXPECT_NEAR(protocol::automatic_exposure({0.25f, 0.25f, 0.25f, 0, 0, 0, nan, nan, nan}), 0.72, 1e-5)
+        << "unlit and non-finite values do not count";
+    EXPECT_EQ(protocol::automatic_exposure({}), 1.0);
+    EXPECT_EQ(protocol::automatic_exposure({0, 0, 0}), 1.0);
+
+    const double fit_at_one = (1.0245786 - 0.000090537) / (0.983729 + 0.432951 + 0.238081);
+    for (float c : protocol::aces_filmic({0.6f, 0.6f, 0.6f}, 1.0f)) EXPECT_NEAR(c, fit_at_one, 2e-5);
+    for (float c : protocol::aces_filmic({0.3f, 0.3f, 0.3f}, 2.0f)) EXPECT_NEAR(c, fit_at_one, 2e-5) << "exposure";
+    for (float c : protocol::aces_filmic({0, 0, 0}, 1.0f)) EXPECT_NEAR(c, 0.0, 1e-4);
+    for (float c : protocol::aces_filmic({1e6f, 1e6f, 1e6f}, 1.0f)) EXPECT_EQ(c, 1.0f) << "saturates at white";
+    for (float c : protocol::aces_filmic({nan, -1.0f, 0.0f}, 1.0f)) EXPECT_NEAR(c, 0.0, 1e-4);
+    float previous = -1.0f;
+    for (float v = 0.0f; v < 20.0f; v += 0.05f) {  // grey stays grey, and brighter is brighter up to white
+        const std::array<float, 3> c = protocol::aces_filmic({v, v, v}, 1.0f);
+        EXPECT_NEAR(c[0], c[1], 1e-4);
+        EXPECT_NEAR(c[1], c[2], 1e-4);
+        EXPECT_TRUE(c[1] > previous || c[1] == 1.0f) << v << ": " << c[1] << " after " << previous;
+        previous = c[1];
+    }
+    const std::array<float, 3> red = protocol::aces_filmic({1.0f, 0.0f, 0.0f}, 1.0f);
+    EXPECT_GT(red[0], 10.0f * std::max(red[1], red[2])) << "a colour keeps its hue";
+
+    EXPECT_EQ(protocol::encode_srgb8(0.0f), 0);
+    EXPECT_EQ(protocol::encode_srgb8(1.0f), 255);
+    EXPECT_EQ(protocol::encode_srgb8(2.0f), 255);
+    EXPECT_EQ(protocol::encode_srgb8(-1.0f), 0);
+    EXPECT_EQ(protocol::encode_srgb8(nan), 0);
+    EXPECT_EQ(protocol::encode_srgb8(0.0031308f), 10);  // 12.92 x 0.0031308 x 255 = 10.3
+    EXPECT_EQ(protocol::encode_srgb8(0.5f), 188);       // (1.055 x 0.5^(1/2.4) - 0.055) x 255 = 187.5
+}
+
 TEST(Rgbm, RoundTripsWithinHalfAStepOverItsDynamicRange) {
     std::vector<float> rgb;
     for (double v = 1e-5; v <= 20.0; v *= 1.07) {

@@ -1,11 +1,13 @@
 #include "atlas/lightmapped_gltf.h"
 
 #include "util/parallel.h"
+#include "display_tone.h"
 
 #include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -444,10 +446,39 @@ void embed_occlusion(tinygltf::Model& model, const std::vector<tinygltf::Primiti
     }
 }
 
+// The baked look as every material's only texture, unlit (write_unlit_glb).
+void embed_unlit_look(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+                      const ColourImage& look) {
+    const std::string png = protocol::encode_png(look.rgb.data(), look.width, look.height, 3, png_strips_in_parallel);
+    const int texture = add_png_texture(model, png, "baked look (sRGB)");
+    std::set<std::string> dropped;
+    for (int m : materials_of(model, primitives)) {
+        tinygltf::Material& material = model.materials[size_t(m)];
+        const double alpha = material.pbrMetallicRoughness.baseColorFactor.at(3);
+        material.pbrMetallicRoughness = tinygltf::PbrMetallicRoughness();
+        material.pbrMetallicRoughness.baseColorFactor = {1.0, 1.0, 1.0, alpha};
+        material.pbrMetallicRoughness.baseColorTexture.index = texture;
+        material.pbrMetallicRoughness.baseColorTexture.texCoord = 1;
+        material.normalTexture = tinygltf::NormalTextureInfo();
+        material.occlusionTexture = tinygltf::OcclusionTextureInfo();
+        material.emissiveTexture = tinygltf::TextureInfo();
+        material.emissiveFactor = {0.0, 0.0, 0.0};
+        for (const auto& [name, value] : material.extensions) dropped.insert(name);
+        material.extensions.clear();  // transmission, emissive strength …: the look holds their effect
+        material.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
+    }
+    // An extension no material uses any more is no longer used, or required.
+    for (const tinygltf::Material& material : model.materials)
+        for (const auto& [name, value] : material.extensions) dropped.erase(name);
+    for (std::vector<std::string>* list : {&model.extensionsUsed, &model.extensionsRequired})
+        std::erase_if(*list, [&](const std::string& name) { return dropped.count(name) > 0; });
+    use_extension(model, "KHR_materials_unlit");
+}
+
 // write_glb_with_vertex_attributes, and the lightmap embedded when given.
 void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                const std::vector<std::vector<VertexAttribute>>& per_instance, const std::filesystem::path& out_glb,
-               bool unlit_materials, const LitSceneMaps& maps) {
+               bool unlit_materials, const LitSceneMaps& maps, const ColourImage* look = nullptr) {
     if (per_instance.size() != scene.instances.size())
         fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
                               std::to_string(scene.instances.size()));
@@ -494,6 +525,7 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
     }
     if (maps.lightmap) embed_lightmap(model, baked, *maps.lightmap);
     if (maps.occlusion) embed_occlusion(model, baked, *maps.occlusion);
+    if (look) embed_unlit_look(model, baked, *look);
     write_atomically(model, out_glb);
 }
 
@@ -512,6 +544,26 @@ std::vector<std::vector<VertexAttribute>> lightmap_uvs(const Scene& scene) {
 
 }  // namespace
 
+ColourImage unlit_look(const TexelSamples& texels, const std::vector<float>& lightmap_rgb) {
+    if (lightmap_rgb.size() != size_t(texels.width) * size_t(texels.height) * 3)
+        throw std::logic_error("the lightmap is not the atlas's size");
+    std::vector<glm::vec3> radiance(size_t(texels.width) * size_t(texels.height), glm::vec3(0.0f));
+    for (size_t i = 0; i < texels.covered_count(); ++i) {
+        const size_t t = texels.texels[i];
+        const glm::vec3 e(lightmap_rgb[3 * t], lightmap_rgb[3 * t + 1], lightmap_rgb[3 * t + 2]);
+        radiance[t] = texels.emission[i] + texels.albedo[i] * e;
+    }
+    dilate(texels, radiance);
+    const float exposure = float(protocol::automatic_exposure(lightmap_rgb));
+    ColourImage look{texels.width, texels.height, std::vector<uint8_t>(radiance.size() * 3)};
+    for (size_t t = 0; t < radiance.size(); ++t) {
+        const std::array<float, 3> shown =
+            protocol::aces_filmic({radiance[t].r, radiance[t].g, radiance[t].b}, exposure);
+        for (size_t c = 0; c < 3; ++c) look.rgb[3 * t + c] = protocol::encode_srgb8(shown[c]);
+    }
+    return look;
+}
+
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                            const std::filesystem::path& out_glb) {
     write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {});
@@ -520,6 +572,11 @@ void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene
 void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const LitSceneMaps& maps,
                    const std::filesystem::path& out_glb) {
     write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, maps);
+}
+
+void write_unlit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const ColourImage& look,
+                     const std::filesystem::path& out_glb) {
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {}, &look);
 }
 
 void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,

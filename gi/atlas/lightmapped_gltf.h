@@ -3,6 +3,7 @@
 #pragma once
 
 #include "lightmap_rgbm.h"
+#include "atlas/texel_samples.h"
 #include "scene/scene.h"
 
 #include <filesystem>
@@ -52,6 +53,36 @@ struct LitSceneMaps {
 // carry them.
 void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const LitSceneMaps& maps,
                    const std::filesystem::path& out_glb);
+
+// An sRGB image, 8 bits per channel.
+struct ColourImage {
+    int width = 0;
+    int height = 0;
+    std::vector<uint8_t> rgb;  // width * height * 3, rows from the top
+};
+
+// The light leaving each texel as lightfarm's own 3D view shows it, for
+// scene.unlit.glb: emission + albedo x E/pi, E/pi from `lightmap_rgb`
+// (interleaved RGB of the atlas's size; the texel's albedo and emission
+// averaged over its sample points, as the bake averages them), at the
+// view's automatic exposure of the lightmap (as the server's
+// X-Lightfarm-Exposure) through its filmic curve, sRGB
+// (protocol/display_tone.h); the charts dilated as the lightmap is.
+ColourImage unlit_look(const TexelSamples& texels, const std::vector<float>& lightmap_rgb);
+
+// scene.unlit.glb: write_lightmapped_glb's file for any glTF viewer, its look
+// baked in: every material gets KHR_materials_unlit with `look` (on
+// TEXCOORD_1) as its base colour texture, white base colour factor (alpha
+// kept), and none of its own textures or emission. Unlit because a viewer
+// then adds no light of its own (an emissive texture over a black base
+// colour still takes the viewer's environment reflections), and because
+// the stock viewers read the extension: three.js's GLTFLoader (a
+// MeshBasicMaterial), Blender's importer, Babylon.js, model-viewer; one
+// that does not shows the texture as a lit base colour. Alpha cut-outs
+// from a base colour texture are lost (the look is RGB at the lightmap's
+// resolution).
+void write_unlit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const ColourImage& look,
+                     const std::filesystem::path& out_glb);
 
 // One float vertex attribute for one primitive instance: `components` (1..4)
 // values per vertex of the instance, Scene vertex first_vertex + k at k.

@@ -416,9 +416,9 @@ FloatImage final_image(const fs::path& file, std::shared_ptr<const FloatImage> h
 // it (protocol::OutputKind::lit_scene_slot): the lightmap's RGB
 // (irradiance/pi) RGBM-encoded, the occlusion's R as 8 bits. Returns
 // whether it was written (some output had a slot), and what it holds.
-std::optional<std::string> write_lit_scene(const BakeJob& job, const Scene& atlas_scene,
-                                           const protocol::DoneEvent& done,
+std::optional<std::string> write_lit_scene(const BakeJob& job, const PreparedScene& prepared, protocol::DoneEvent& done,
                                            const std::map<std::string, std::shared_ptr<const FloatImage>>& held) {
+    const Scene& atlas_scene = *prepared.atlas_scene;
     std::optional<protocol::RgbmImage> lightmap;
     std::optional<GreyImage> occlusion;
     std::string holds;
@@ -437,6 +437,8 @@ std::optional<std::string> write_lit_scene(const BakeJob& job, const Scene& atla
             }
             lightmap = protocol::encode_rgbm(rgb, image.width, image.height);
             holds += ", the final lightmap (MOZ_lightmap, RGBM PNG; see README)";
+            write_unlit_glb(job.scene, atlas_scene, unlit_look(prepared.texels, rgb), job.out / "scene.unlit.glb");
+            done.files.push_back("scene.unlit.glb");
         } else if (o.lit_scene_slot == "occlusion") {
             occlusion = GreyImage{image.width, image.height, std::vector<uint8_t>(r.size())};
             for (size_t i = 0; i < r.size(); ++i)
@@ -510,7 +512,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     std::optional<std::string> lit_scene;
     if (prepared->atlas_scene) {
         done.files.push_back("scene.lightmapped.glb");
-        lit_scene = write_lit_scene(job, *prepared->atlas_scene, done, final_images);
+        lit_scene = write_lit_scene(job, *prepared, done, final_images);
         if (lit_scene) done.files.push_back("scene.lit.glb");
     }
     done.files.push_back("manifest.json");
@@ -519,6 +521,10 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     if (prepared->atlas_scene)
         manifest["files"]["scene.lightmapped.glb"] = "the input scene with TEXCOORD_1 = the lightmap's UVs";
     if (lit_scene) manifest["files"]["scene.lit.glb"] = *lit_scene;
+    if (manifest["files"].contains("scene.unlit.glb"))
+        manifest["files"]["scene.unlit.glb"] =
+            "the lit scene for any glTF viewer: each material unlit (KHR_materials_unlit), its base colour the light "
+            "leaving each texel as lightfarm's 3D view shows it (sRGB, TEXCOORD_1; see README)";
     write_file_atomic(job.out / "manifest.json", manifest.dump(2) + "\n");
     fs::remove_all(resume_dir(job.out));  // the job is done: nothing to resume
     emit(done);
