@@ -33,10 +33,6 @@ std::string progress_key(const JobEvent& event) {
     return d.is_object() && d.contains("output") && d["output"].is_string() ? d["output"].get<std::string>() : "";
 }
 
-const char* const kJobColumns =
-    "id, owner, scene, spec, state, progress, attempts, max_attempts, max_seconds, error, cause, "
-    "cache_key, cached, created_at, started_at, finished_at, latest, node";
-
 double now_seconds() {
     return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }

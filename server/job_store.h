@@ -1,7 +1,8 @@
 // Where jobs, their events and scene ownership live. The routes and the
 // supervisor only see this interface; SqliteJobStore is the embedded default
 // (one lightfarmd), PostgresJobStore the shared one (many lightfarmd nodes on
-// one database, docs/scale-out.md).
+// one database, docs/scale-out.md). Both are SqlJobStore (sql_job_store.h):
+// the same statements over two SQL dialects.
 //
 // Each store speaks for one node (NodeIdentity): a job it claims is leased to
 // that node, which renews the lease while the job runs; a job whose lease
@@ -163,7 +164,7 @@ private:
     NodeIdentity node_;
 };
 
-// ---- rules both stores keep, in one place
+// ---- rules the store keeps
 
 // Progress events of passes 1..32 and of every power of two are kept; of the
 // others only the newest per output (append_event).
@@ -171,7 +172,5 @@ bool permanent_progress(const nlohmann::json& data);
 // The output a progress event is about: what it replaces an older one of.
 std::string progress_key(const JobEvent& event);
 double now_seconds();  // since the epoch
-// The jobs table's columns as both stores read and write them.
-extern const char* const kJobColumns;
 
 }  // namespace lf::server

@@ -2,14 +2,11 @@
 
 #include <libpq-fe.h>
 
-#include <cstdio>
+#include <atomic>
+#include <memory>
 #include <stdexcept>
 
 namespace lf::server {
-
-using nlohmann::json;
-using protocol::parse_job_state;
-using protocol::to_string;
 
 namespace {
 
@@ -47,9 +44,17 @@ CREATE TABLE nodes(
 };
 static_assert(std::size(kMigrations) == PostgresJobStore::kSchemaVersion, "one migration per schema version");
 
-// Leases and heartbeats are timed by the database's clock: the nodes' clocks
-// may disagree, the database's is one.
-constexpr const char* kDbNow = "extract(epoch from clock_timestamp())";
+constexpr SqlDialect kPostgresDialect = {
+    // Leases and heartbeats are timed by the database's clock: the nodes'
+    // clocks may disagree, the database's is one.
+    .now = "extract(epoch from clock_timestamp())",
+    .for_update = " FOR UPDATE",
+    .for_update_skip_locked = " FOR UPDATE SKIP LOCKED",
+    // JSON is stored as text (the schema's, as SQLite's); JSONB merges a key in.
+    .latest_with_key = "CAST(CAST(latest AS JSONB) || jsonb_build_object(CAST(? AS TEXT), CAST(? AS JSONB)) AS TEXT)",
+    .writable_ctes = true,
+    .shared = true,
+};
 
 // Any key: migrations of nodes starting together run one after the other.
 constexpr const char* kMigrationLock = "SELECT pg_advisory_xact_lock(7023651744)";
@@ -63,12 +68,6 @@ std::string numbered_placeholders(const std::string& sql) {
         else out += c;
     }
     return out;
-}
-
-std::string number(double v) {
-    char buf[32];
-    std::snprintf(buf, sizeof buf, "%.17g", v);
-    return buf;
 }
 
 std::string describe_database(PGconn* conn) {
@@ -86,55 +85,57 @@ std::string first_line(const char* message) {
     return m;
 }
 
-}  // namespace
-
 // One statement's result, freed with it.
-class PostgresJobStore::Result {
+struct ResultDeleter {
+    void operator()(PGresult* r) const { PQclear(r); }
+};
+using PgResult = std::unique_ptr<PGresult, ResultDeleter>;
+
+// The rows of a statement that succeeded, as text (NULL as SQL NULL).
+SqlResult result_of(PGresult* r) {
+    SqlResult result;
+    for (int row = 0; row < PQntuples(r); ++row) {
+        std::vector<SqlValue>& values = result.rows.emplace_back();
+        for (int column = 0; column < PQnfields(r); ++column) {
+            if (PQgetisnull(r, row, column)) values.emplace_back(nullptr);
+            else values.emplace_back(std::string(PQgetvalue(r, row, column), size_t(PQgetlength(r, row, column))));
+        }
+    }
+    const char* changed = PQcmdTuples(r);
+    result.changed = changed && changed[0] ? std::stoll(changed) : 0;
+    return result;
+}
+
+class PostgresConnection : public SqlConnection {
 public:
-    explicit Result(PGresult* r) : r_(r) {}
-    Result(Result&& o) noexcept : r_(o.r_) { o.r_ = nullptr; }
-    Result(const Result&) = delete;
-    Result& operator=(const Result&) = delete;
-    ~Result() { PQclear(r_); }
-    int rows() const { return PQntuples(r_); }
-    std::string text(int row, int column) const {
-        return std::string(PQgetvalue(r_, row, column), size_t(PQgetlength(r_, row, column)));
-    }
-    int64_t integer(int row, int column) const { return std::stoll(text(row, column)); }
-    double real(int row, int column) const { return std::stod(text(row, column)); }
-    bool ok() const {
-        const ExecStatusType s = PQresultStatus(r_);  // PGRES_FATAL_ERROR for a null result (out of memory)
-        return s == PGRES_COMMAND_OK || s == PGRES_TUPLES_OK;
-    }
-    int affected() const {
-        const char* n = PQcmdTuples(r_);
-        return n && n[0] ? std::stoi(n) : 0;
-    }
+    // Connects and migrates the schema (PostgresJobStore's constructor says what it throws).
+    explicit PostgresConnection(const std::string& uri);
+    ~PostgresConnection() override { PQfinish(conn_); }
+    PostgresConnection(const PostgresConnection&) = delete;
+    PostgresConnection& operator=(const PostgresConnection&) = delete;
+
+    const SqlDialect& dialect() const override { return kPostgresDialect; }
+    SqlResult run(const char* what, const std::string& sql, const std::vector<SqlValue>& params) override;
+    void begin() override { run("cannot begin a transaction", "BEGIN", {}); }
+    void commit() override { run("commit failed", "COMMIT", {}); }
+    // Best effort, and not counted: a lost connection rolled back already.
+    void rollback() noexcept override { PQclear(PQexec(conn_, "ROLLBACK")); }
+
+    const std::string& where() const { return where_; }
+    int64_t statements_sent() const { return statements_; }
 
 private:
-    PGresult* r_;
+    // Reconnects when the connection was lost; throws StoreError when it cannot.
+    void connect_if_lost();
+    void migrate();
+
+    pg_conn* conn_ = nullptr;
+    std::string uri_;
+    std::string where_;
+    std::atomic<int64_t> statements_{0};
 };
 
-// BEGIN ... COMMIT; leaving the scope without commit() rolls back.
-class PostgresJobStore::Transaction {
-public:
-    explicit Transaction(PostgresJobStore& store) : store_(store) { store_.run("cannot begin a transaction", "BEGIN"); }
-    ~Transaction() {
-        if (!done_) PQclear(PQexec(store_.conn_, "ROLLBACK"));  // best effort: a lost connection rolled back already
-    }
-    Transaction(const Transaction&) = delete;
-    Transaction& operator=(const Transaction&) = delete;
-    void commit() {
-        done_ = true;
-        store_.run("commit failed", "COMMIT");
-    }
-
-private:
-    PostgresJobStore& store_;
-    bool done_ = false;
-};
-
-PostgresJobStore::PostgresJobStore(const std::string& uri, NodeIdentity node) : JobStore(std::move(node)), uri_(uri) {
+PostgresConnection::PostgresConnection(const std::string& uri) : uri_(uri) {
     char* error = nullptr;
     PQconninfoOption* options = PQconninfoParse(uri.c_str(), &error);
     if (!options) {
@@ -144,13 +145,16 @@ PostgresJobStore::PostgresJobStore(const std::string& uri, NodeIdentity node) : 
                                     "); write postgresql://USER@HOST:PORT/DB");
     }
     PQconninfoFree(options);
-    connect_if_lost();
-    migrate();
+    try {
+        connect_if_lost();
+        migrate();
+    } catch (...) {
+        PQfinish(conn_);  // the destructor does not run for a constructor that throws
+        throw;
+    }
 }
 
-PostgresJobStore::~PostgresJobStore() { PQfinish(conn_); }
-
-void PostgresJobStore::connect_if_lost() {
+void PostgresConnection::connect_if_lost() {
     if (conn_ && PQstatus(conn_) == CONNECTION_OK) return;
     if (conn_) {
         PQreset(conn_);
@@ -175,340 +179,60 @@ void PostgresJobStore::connect_if_lost() {
                          first_line(PQerrorMessage(conn_)));
 }
 
-PostgresJobStore::Result PostgresJobStore::run(const char* what, const std::string& sql,
-                                               const std::vector<Param>& params) {
+SqlResult PostgresConnection::run(const char* what, const std::string& sql, const std::vector<SqlValue>& params) {
     connect_if_lost();
+    std::vector<std::string> texts;
+    for (const SqlValue& p : params) texts.push_back(sql_text(p));
     std::vector<const char*> values;
-    for (const Param& p : params) values.push_back(p ? p->c_str() : nullptr);
+    for (size_t i = 0; i < params.size(); ++i)
+        values.push_back(std::holds_alternative<std::nullptr_t>(params[i]) ? nullptr : texts[i].c_str());
     ++statements_;
     // Without parameters, the simple protocol: it also takes several commands (a migration).
-    Result r(params.empty() ? PQexec(conn_, sql.c_str())
-                            : PQexecParams(conn_, numbered_placeholders(sql).c_str(), int(values.size()), nullptr,
-                                           values.data(), nullptr, nullptr, 0));
-    if (!r.ok()) {
+    const PgResult r(params.empty() ? PQexec(conn_, sql.c_str())
+                                    : PQexecParams(conn_, numbered_placeholders(sql).c_str(), int(values.size()),
+                                                   nullptr, values.data(), nullptr, nullptr, 0));
+    const ExecStatusType status = PQresultStatus(r.get());  // PGRES_FATAL_ERROR for a null result (out of memory)
+    if (status != PGRES_COMMAND_OK && status != PGRES_TUPLES_OK) {
         const bool lost = PQstatus(conn_) != CONNECTION_OK;
         throw StoreError(std::string("job store: ") + what + ": " +
                          (lost ? "lost the connection to PostgreSQL at " + where_ + ": " : "") +
                          first_line(PQerrorMessage(conn_)));
     }
-    return r;
+    return result_of(r.get());
 }
 
-void PostgresJobStore::migrate() {
-    Transaction t(*this);
-    run("cannot lock the schema", kMigrationLock);
-    run("cannot create schema_version", "CREATE TABLE IF NOT EXISTS schema_version(version INTEGER NOT NULL)");
-    const int current =
-        int(run("cannot read schema_version", "SELECT COALESCE(MAX(version), 0) FROM schema_version").integer(0, 0));
-    if (current > kSchemaVersion)
+void PostgresConnection::migrate() {
+    SqlTransaction t(*this);
+    run("cannot lock the schema", kMigrationLock, {});
+    run("cannot create schema_version", "CREATE TABLE IF NOT EXISTS schema_version(version INTEGER NOT NULL)", {});
+    const int current = int(
+        run("cannot read schema_version", "SELECT COALESCE(MAX(version), 0) FROM schema_version", {}).integer(0, 0));
+    if (current > PostgresJobStore::kSchemaVersion)
         throw std::runtime_error("the job store at " + where_ + " has schema version " + std::to_string(current) +
-                                 ", newer than this lightfarmd knows (" + std::to_string(kSchemaVersion) +
+                                 ", newer than this lightfarmd knows (" +
+                                 std::to_string(PostgresJobStore::kSchemaVersion) +
                                  "): a newer lightfarmd migrated it. Run that version here too (every node of a "
                                  "store must be at least as new as its schema)");
     for (const Migration& m : kMigrations) {
         if (m.version <= current) continue;
         const std::string what = "schema migration to version " + std::to_string(m.version) + " failed";
-        run(what.c_str(), m.sql);
-        run(what.c_str(), "INSERT INTO schema_version(version) VALUES(?)", {std::to_string(m.version)});
+        run(what.c_str(), m.sql, {});
+        run(what.c_str(), "INSERT INTO schema_version(version) VALUES(?)", {int64_t(m.version)});
     }
     t.commit();
 }
 
-std::optional<SceneRecord> PostgresJobStore::scene(const std::string& id) {
-    std::lock_guard lock(mutex_);
-    const Result r = run("cannot read a scene", "SELECT id, main_file, summary FROM scenes WHERE id = ?", {id});
-    if (r.rows() == 0) return std::nullopt;
-    return SceneRecord{r.text(0, 0), r.text(0, 1), json::parse(r.text(0, 2), nullptr, false)};
+}  // namespace
+
+PostgresJobStore::PostgresJobStore(const std::string& uri, NodeIdentity node)
+    : SqlJobStore(std::make_unique<PostgresConnection>(uri), std::move(node)) {}
+
+const std::string& PostgresJobStore::where() const {
+    return static_cast<const PostgresConnection&>(connection()).where();
 }
 
-void PostgresJobStore::add_scene(const SceneRecord& scene) {
-    std::lock_guard lock(mutex_);
-    run("cannot store a scene",
-        "INSERT INTO scenes(id, main_file, summary, created_at) VALUES(?, ?, ?, ?) ON CONFLICT DO NOTHING",
-        {scene.id, scene.main_file, scene.summary.dump(), number(now_seconds())});
-}
-
-bool PostgresJobStore::add_scene_owner(const std::string& id, const std::string& owner) {
-    std::lock_guard lock(mutex_);
-    return run("cannot store a scene's owner",
-               "INSERT INTO scene_owners(scene, owner) VALUES(?, ?) ON CONFLICT DO NOTHING", {id, owner})
-               .affected() > 0;
-}
-
-bool PostgresJobStore::scene_owned_by(const std::string& id, const std::string& owner) {
-    std::lock_guard lock(mutex_);
-    return run("cannot read a scene's owners", "SELECT 1 FROM scene_owners WHERE scene = ? AND owner = ?", {id, owner})
-               .rows() > 0;
-}
-
-int64_t PostgresJobStore::insert_event_locked(const std::string& id, const JobEvent& event) {
-    // The caller holds the job's row lock (or inserted the job): event ids of
-    // one job are given one at a time, in commit order. The id is taken
-    // before the replaced progress event goes (one statement, one snapshot):
-    // the event a progress event replaces may be the newest, and an id is
-    // never given twice.
-    const bool progress = event.type == "progress";
-    const std::string permanent = progress && !permanent_progress(event.data) ? "0" : "1";
-    const Param key = progress ? Param(progress_key(event)) : std::nullopt;
-    const std::string replaced = progress ? ", gone AS (DELETE FROM events WHERE job = ? AND coalesce_key = ? "
-                                            "AND permanent = 0) "
-                                          : " ";
-    std::vector<Param> params = {id};
-    if (progress) params.insert(params.end(), {id, key});
-    params.insert(params.end(), {id, event.type, event.data.dump(), key, permanent});
-    const Result r = run("cannot store an event",
-                         "WITH next AS (SELECT COALESCE(MAX(id), 0) + 1 AS id FROM events WHERE job = ?)" + replaced +
-                             "INSERT INTO events(job, id, type, data, coalesce_key, permanent) "
-                             "SELECT ?, next.id, ?, ?, ?, CAST(? AS INTEGER) FROM next RETURNING id",
-                         params);
-    return r.integer(0, 0);
-}
-
-void PostgresJobStore::insert_job(const JobRecord& job, const std::vector<JobEvent>& events) {
-    std::lock_guard lock(mutex_);
-    Transaction t(*this);
-    const JobStatus& s = job.status;
-    // A job born running (tests, imports) runs on this node.
-    const bool running = s.state == JobState::Running;
-    run("cannot store a job",
-        std::string("INSERT INTO jobs(") + kJobColumns +
-            ", lease_expires) VALUES(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, " +
-            (running ? std::string(kDbNow) + " + " + number(node().lease_seconds) : "0") + ")",
-        {s.id, job.owner, s.scene, s.spec.dump(), to_string(s.state), protocol::to_json(s.progress).dump(),
-         std::to_string(s.attempts), std::to_string(s.max_attempts), number(job.max_seconds), s.error, s.cause,
-         job.cache_key, s.cached ? "1" : "0", number(s.created_at > 0 ? s.created_at : now_seconds()),
-         number(s.started_at), number(s.finished_at), protocol::to_json(s.latest).dump(),
-         running ? node().name : job.node});
-    for (const JobEvent& e : events) insert_event_locked(s.id, e);
-    t.commit();
-}
-
-std::vector<JobRecord> PostgresJobStore::jobs_from(const Result& rows, int first) const {
-    std::vector<JobRecord> jobs;
-    for (int i = 0; i < rows.rows(); ++i) {
-        auto text = [&](int column) { return rows.text(i, first + column); };
-        JobRecord r;
-        JobStatus& s = r.status;
-        s.id = text(0);
-        r.owner = text(1);
-        s.scene = text(2);
-        s.spec = json::parse(text(3), nullptr, false);
-        s.state = parse_job_state(text(4)).value_or(JobState::Failed);
-        s.progress = protocol::progress_from_json(json::parse(text(5), nullptr, false));
-        s.attempts = std::stoi(text(6));
-        s.max_attempts = std::stoi(text(7));
-        r.max_seconds = std::stod(text(8));
-        s.error = text(9);
-        s.cause = text(10);
-        r.cache_key = text(11);
-        s.cached = text(12) != "0";
-        s.created_at = std::stod(text(13));
-        s.started_at = std::stod(text(14));
-        s.finished_at = std::stod(text(15));
-        s.latest = protocol::latest_from_json(json::parse(text(16), nullptr, false));
-        r.node = text(17);
-        jobs.push_back(std::move(r));
-    }
-    return jobs;
-}
-
-std::vector<JobRecord> PostgresJobStore::select_jobs(const char* what, const std::string& where,
-                                                     const std::vector<Param>& params) {
-    return jobs_from(run(what, std::string("SELECT ") + kJobColumns + " FROM jobs " + where, params));
-}
-
-std::optional<JobRecord> PostgresJobStore::job(const std::string& id) {
-    std::lock_guard lock(mutex_);
-    auto jobs = select_jobs("cannot read a job", "WHERE id = ?", {id});
-    if (jobs.empty()) return std::nullopt;
-    return jobs.front();
-}
-
-std::vector<JobRecord> PostgresJobStore::jobs_of(const std::string& owner) {
-    std::lock_guard lock(mutex_);
-    return select_jobs("cannot list jobs", "WHERE owner = ? ORDER BY seq DESC", {owner});
-}
-
-int PostgresJobStore::queued_count(const std::string& owner) {
-    std::lock_guard lock(mutex_);
-    return int(
-        run("cannot count queued jobs", "SELECT COUNT(*) FROM jobs WHERE owner = ? AND state = 'queued'", {owner})
-            .integer(0, 0));
-}
-
-std::map<JobState, int> PostgresJobStore::count_by_state() {
-    std::lock_guard lock(mutex_);
-    const Result r = run("cannot count jobs", "SELECT state, COUNT(*) FROM jobs GROUP BY state");
-    std::map<JobState, int> counts;
-    for (int i = 0; i < r.rows(); ++i)
-        if (auto st = parse_job_state(r.text(i, 0))) counts[*st] = int(r.integer(i, 1));
-    return counts;
-}
-
-std::optional<JobRecord> PostgresJobStore::succeeded_with_key(const std::string& cache_key) {
-    std::lock_guard lock(mutex_);
-    auto jobs =
-        select_jobs("cannot look up the cache",
-                    "WHERE cache_key = ? AND state = 'succeeded' AND cached = 0 ORDER BY seq LIMIT 1", {cache_key});
-    if (jobs.empty()) return std::nullopt;
-    return jobs.front();
-}
-
-std::optional<JobRecord> PostgresJobStore::claim_next() {
-    std::lock_guard lock(mutex_);
-    // One statement: the oldest queued job no other node is claiming right
-    // now (SKIP LOCKED), running here from the moment it commits.
-    auto jobs = jobs_from(
-        run("cannot claim a job",
-            std::string("UPDATE jobs SET state = 'running', attempts = attempts + 1, started_at = ?, "
-                        "progress = ?, node = ?, lease_expires = ") +
-                kDbNow +
-                " + ? WHERE seq = (SELECT seq FROM jobs WHERE state = 'queued' "
-                "ORDER BY seq LIMIT 1 FOR UPDATE SKIP LOCKED) RETURNING " +
-                kJobColumns,
-            {number(now_seconds()), protocol::to_json(Progress{}).dump(), node().name, number(node().lease_seconds)}));
-    if (jobs.empty()) return std::nullopt;
-    return jobs.front();
-}
-
-bool PostgresJobStore::renew_lease(const std::string& id) {
-    std::lock_guard lock(mutex_);
-    return run("cannot renew a lease",
-               std::string("UPDATE jobs SET lease_expires = ") + kDbNow +
-                   " + ? WHERE id = ? AND state = 'running' AND node = ?",
-               {number(node().lease_seconds), id, node().name})
-               .affected() > 0;
-}
-
-std::vector<JobRecord> PostgresJobStore::take_over_abandoned(bool at_start) {
-    std::lock_guard lock(mutex_);
-    // Expired leases of any node: this node renews its own before it looks
-    // (Supervisor::keep_leases), so an expired one of its own is a claim
-    // whose answer was lost with the connection. SKIP LOCKED: each job to
-    // one node. RETURNING gives the node that lost it.
-    const Result r =
-        run("cannot take over jobs of lost nodes",
-            std::string("WITH gone AS (SELECT seq AS gone_seq, node AS lost_node FROM jobs WHERE state = 'running' "
-                        "AND (lease_expires < ") +
-                kDbNow + " OR (node = ? AND ?)) ORDER BY seq FOR UPDATE SKIP LOCKED) " +
-                "UPDATE jobs SET node = ?, lease_expires = " + kDbNow + " + ? FROM gone WHERE seq = gone_seq " +
-                "RETURNING " + kJobColumns + ", lost_node",
-            {node().name, at_start ? "true" : "false", node().name, number(node().lease_seconds)});
-    std::vector<JobRecord> jobs = jobs_from(r);
-    for (size_t i = 0; i < jobs.size(); ++i) jobs[i].node = r.text(int(i), 18);
-    return jobs;
-}
-
-void PostgresJobStore::set_progress(const std::string& id, const Progress& p) {
-    std::lock_guard lock(mutex_);
-    run("cannot store progress", "UPDATE jobs SET progress = ? WHERE id = ? AND state = 'running' AND node = ?",
-        {protocol::to_json(p).dump(), id, node().name});
-}
-
-void PostgresJobStore::set_latest(const std::string& id, const std::string& output, const LatestFile& file) {
-    std::lock_guard lock(mutex_);
-    // One statement: the object's other outputs stay as they are.
-    run("cannot store a job's newest file",
-        "UPDATE jobs SET latest = CAST(CAST(latest AS JSONB) || jsonb_build_object(CAST(? AS TEXT), CAST(? AS JSONB)) "
-        "AS TEXT) "
-        "WHERE id = ? AND state = 'running' AND node = ?",
-        {output, protocol::to_json(file).dump(), id, node().name});
-}
-
-bool PostgresJobStore::requeue(const std::string& id, const JobEvent& event, bool refund_attempt) {
-    std::lock_guard lock(mutex_);
-    Transaction t(*this);
-    const Result r = run("cannot requeue a job",
-                         "UPDATE jobs SET state = 'queued', attempts = attempts - ?, lease_expires = 0 "
-                         "WHERE id = ? AND state = 'running' AND node = ?",
-                         {refund_attempt ? "1" : "0", id, node().name});
-    if (r.affected() == 0) return false;
-    insert_event_locked(id, event);
-    t.commit();
-    return true;
-}
-
-bool PostgresJobStore::finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
-                              const JobEvent& event) {
-    std::lock_guard lock(mutex_);
-    Transaction t(*this);
-    const Result r = run("cannot finish a job",
-                         "UPDATE jobs SET state = ?, error = ?, cause = ?, finished_at = ?, lease_expires = 0 "
-                         "WHERE id = ? AND state IN ('queued', 'running')",
-                         {to_string(state), error, cause, number(now_seconds()), id});
-    if (r.affected() == 0) return false;
-    insert_event_locked(id, event);
-    t.commit();
-    return true;
-}
-
-std::vector<JobRecord> PostgresJobStore::running_jobs() {
-    std::lock_guard lock(mutex_);
-    return select_jobs("cannot list running jobs", "WHERE state = 'running' ORDER BY seq", {});
-}
-
-bool PostgresJobStore::empty() {
-    std::lock_guard lock(mutex_);
-    return run("cannot count jobs and scenes", "SELECT (SELECT COUNT(*) FROM jobs) + (SELECT COUNT(*) FROM scenes)")
-               .integer(0, 0) == 0;
-}
-
-bool PostgresJobStore::has_job(const std::string& id) {
-    std::lock_guard lock(mutex_);
-    return run("cannot read a job", "SELECT 1 FROM jobs WHERE id = ?", {id}).rows() > 0;
-}
-
-int64_t PostgresJobStore::compact_events(double finished_before) {
-    std::lock_guard lock(mutex_);
-    return run("cannot compact events",
-               "DELETE FROM events WHERE coalesce_key IS NOT NULL AND job IN "
-               "(SELECT id FROM jobs WHERE state IN ('succeeded', 'failed', 'cancelled') AND finished_at < ?) "
-               "AND id < (SELECT MAX(e.id) FROM events e WHERE e.job = events.job "
-               "AND e.coalesce_key = events.coalesce_key)",
-               {number(finished_before)})
-        .affected();
-}
-
-int64_t PostgresJobStore::append_event(const std::string& id, const JobEvent& event) {
-    std::lock_guard lock(mutex_);
-    Transaction t(*this);
-    // The job's row lock orders this event after every other of the job.
-    if (run("cannot lock a job", "SELECT 1 FROM jobs WHERE id = ? AND state = 'running' AND node = ? FOR UPDATE",
-            {id, node().name})
-            .rows() == 0)
-        return 0;
-    const int64_t event_id = insert_event_locked(id, event);
-    t.commit();
-    return event_id;
-}
-
-std::vector<JobEvent> PostgresJobStore::events_after(const std::string& id, int64_t after) {
-    std::lock_guard lock(mutex_);
-    const Result r = run("cannot read events", "SELECT id, type, data FROM events WHERE job = ? AND id > ? ORDER BY id",
-                         {id, std::to_string(after)});
-    std::vector<JobEvent> events;
-    for (int i = 0; i < r.rows(); ++i)
-        events.push_back(JobEvent{r.integer(i, 0), r.text(i, 1), json::parse(r.text(i, 2), nullptr, false)});
-    return events;
-}
-
-void PostgresJobStore::heartbeat(const json& info) {
-    std::lock_guard lock(mutex_);
-    run("cannot store the node's heartbeat",
-        std::string("INSERT INTO nodes(name, started_at, heartbeat_at, info) VALUES(?, ") + kDbNow + ", " + kDbNow +
-            ", ?) ON CONFLICT(name) DO UPDATE SET heartbeat_at = excluded.heartbeat_at, info = excluded.info",
-        {node().name, info.dump()});
-}
-
-std::vector<NodeRecord> PostgresJobStore::nodes() {
-    std::lock_guard lock(mutex_);
-    const Result r = run("cannot list nodes", std::string("SELECT name, started_at, heartbeat_at, ") + kDbNow +
-                                                  " - heartbeat_at, info FROM nodes ORDER BY name");
-    std::vector<NodeRecord> nodes;
-    for (int i = 0; i < r.rows(); ++i)
-        nodes.push_back(
-            {r.text(i, 0), r.real(i, 1), r.real(i, 2), r.real(i, 3), json::parse(r.text(i, 4), nullptr, false)});
-    return nodes;
+int64_t PostgresJobStore::statements_sent() const {
+    return static_cast<const PostgresConnection&>(connection()).statements_sent();
 }
 
 }  // namespace lf::server
