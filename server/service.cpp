@@ -161,6 +161,7 @@ const std::vector<Service::Route>& Service::routes() {
         {"GET", "/v1/jobs/{id}/preview.png", Auth::Token, &Service::preview},
         {"GET", "/v1/jobs/{id}/lightmap.rgbm.png", Auth::Token, &Service::lightmap_rgbm},
         {"GET", "/v1/jobs/{id}/error.png", Auth::Token, &Service::error_map},
+        {"GET", "/ui/{file}", Auth::Token, &Service::web_file},
         {"GET", "/ui/three/{path}", Auth::Token, &Service::web_library},
         {"POST", "/v1/jobs/{id}/cancel", Auth::Token, &Service::cancel_job},
     };

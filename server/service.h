@@ -135,6 +135,7 @@ private:
     void lightmap_rgbm(const httplib::Request&, httplib::Response&, const Caller&);
     void error_map(const httplib::Request&, httplib::Response&, const Caller&);
     void send_preview(const httplib::Request&, httplib::Response&, const Caller&, PreviewKind);
+    void web_file(const httplib::Request&, httplib::Response&, const Caller&);
     void web_library(const httplib::Request&, httplib::Response&, const Caller&);
     void cancel_job(const httplib::Request&, httplib::Response&, const Caller&);
 

@@ -1,5 +1,6 @@
-// The status page and what it reads beside the API: the page, health,
-// metrics, previews of a job's lightmap, and the 3D view's three.js.
+// The status page and what it reads beside the API: the page, its styles and
+// scripts, health, metrics, previews of a job's lightmap, and the 3D view's
+// three.js.
 #include "service.h"
 #include "service_rooms.h"
 
@@ -71,9 +72,57 @@ void Service::status_page(const httplib::Request&, httplib::Response& res, const
     // or open a comment (a file named "<!--<script>.gltf" blanked the page).
     const std::string jobs = json_for_script(jobs_json(caller.owner));
     std::string page(embedded_web_files().at("status.html"));
-    const std::string slot = "/*JOBS*/null";
-    page.replace(page.find(slot), slot.size(), jobs);
+    // They go in place of the `null` in the page's data block, which status.js reads.
+    const std::string block = R"(<script type="application/json" id="initial-jobs">)", none = "null";
+    const size_t at = page.find(block + none + "</script>");
+    if (at == std::string::npos)
+        throw std::logic_error("web/ui/status.html has no " + block + none + "</script> for the caller's jobs");
+    page.replace(at + block.size(), none.size(), jobs);
     res.set_content(page, "text/html; charset=utf-8");
+}
+
+namespace {
+
+// The Content-Type of a file of web/ui that GET /ui/{file} serves: its
+// styles and scripts; empty for any other name (the pages have routes of
+// their own: / fills in the caller's jobs, and a caller without a token gets
+// login.html there).
+std::string served_web_file_type(const std::string& name) {
+    const auto ends_with = [&](const std::string& suffix) {
+        return name.size() > suffix.size() && name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0;
+    };
+    if (ends_with(".css")) return "text/css; charset=utf-8";
+    if (ends_with(".js")) return "text/javascript; charset=utf-8";
+    return "";
+}
+
+// What GET /ui/{file} serves, for a 404's message: "status-view3d.js, status.css, ...".
+std::string served_web_file_names() {
+    std::string names;
+    for (const auto& file : embedded_web_files())
+        if (!served_web_file_type(file.first).empty()) names += (names.empty() ? "" : ", ") + file.first;
+    return names;
+}
+
+}  // namespace
+
+// GET /ui/{file}: the status page's styles and scripts (status.css,
+// status.js, ...), from the copy of web/ui embedded in the binary. The name
+// is looked up among the embedded files, never joined to a path, so no name
+// reaches anything else.
+void Service::web_file(const httplib::Request& req, httplib::Response& res, const Caller&) {
+    const std::string name = req.matches[1];
+    const std::string type = served_web_file_type(name);
+    const auto& files = embedded_web_files();
+    const auto found = files.find(name);
+    if (type.empty() || found == files.end())
+        throw HttpError(404,
+                        "no such file of the status page: /ui/" + name + " (it has " + served_web_file_names() + ")");
+    // Asked for again each time (a few KiB): the page itself is sent afresh
+    // each time, and a page from an upgraded lightfarmd must not run the
+    // scripts a browser kept from the one before.
+    res.set_header("Cache-Control", "no-cache");
+    res.set_content(std::string(found->second), type);
 }
 
 void Service::preview(const httplib::Request& req, httplib::Response& res, const Caller& caller) {

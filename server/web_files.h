@@ -1,7 +1,9 @@
-// The status page's files (web/ui: status.html, login.html), embedded in the
-// binary at build time (cmake/embed_files.cmake), by file name. GET / serves
-// status.html with the caller's jobs inlined (service_status.cpp); a page request
-// without a token gets login.html. The page loads three.js from /ui/three.
+// The status page's files (web/ui: status.html, its status.css and scripts,
+// login.html), embedded in the binary at build time (cmake/embed_files.cmake),
+// by file name. GET / serves status.html with the caller's jobs inlined
+// (service_status.cpp); a page request without a token gets login.html.
+// GET /ui/{file} serves the .css and .js files by name, and the page loads
+// three.js from /ui/three.
 #pragma once
 
 #include <map>

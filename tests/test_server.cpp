@@ -780,6 +780,18 @@ TEST_F(ServerTest, TheSameBakeTwiceIsServedFromTheCache) {
     EXPECT_EQ(engine.runs(), runs + 1);
 }
 
+// The status page's data block for the caller's jobs (web/ui/status.html),
+// which lightfarmd fills in and status.js reads.
+const std::string kInitialJobs = R"(<script type="application/json" id="initial-jobs">)";
+
+// The jobs a status page came with, parsed as status.js parses them.
+json initial_jobs(const std::string& page) {
+    const size_t start = page.find(kInitialJobs);
+    if (start == std::string::npos) return "no " + kInitialJobs + " in the page";
+    const size_t from = start + kInitialJobs.size();
+    return json::parse(page.substr(from, page.find("</script>", from) - from));
+}
+
 TEST_F(ServerTest, MetricsAndTheStatusPage) {
     start();
     const std::string id = submit(upload());
@@ -793,15 +805,15 @@ TEST_F(ServerTest, MetricsAndTheStatusPage) {
 
     auto page = c.Get("/");
     ASSERT_EQ(page->status, 200);
-    EXPECT_NE(page->body.find("<script>"), std::string::npos);
+    EXPECT_NE(page->body.find("<script src=\"/ui/status.js\">"), std::string::npos);
     EXPECT_EQ(page->body.find("http://"), std::string::npos);  // nothing fetched from elsewhere
     EXPECT_EQ(page->body.find("https://"), std::string::npos);
     // The jobs come with the page (no blank first second), with what a
     // person recognises: the scene's name and size, the times.
-    const size_t embedded = page->body.find("const initial = {\"jobs\":");
-    ASSERT_NE(embedded, std::string::npos);
-    EXPECT_NE(page->body.find("\"id\":\"" + id + "\"", embedded), std::string::npos);
-    EXPECT_EQ(page->body.find("/*JOBS*/"), std::string::npos);
+    const json initial = initial_jobs(page->body);
+    ASSERT_TRUE(initial.contains("jobs")) << initial.dump();
+    ASSERT_EQ(initial["jobs"].size(), 1u) << initial.dump();
+    EXPECT_EQ(initial["jobs"][0]["id"], id);
     const json listed = json::parse(c.Get("/v1/jobs")->body)["jobs"][0];
     EXPECT_FALSE(listed.value("scene_name", "").empty()) << listed.dump();
     EXPECT_TRUE(listed.contains("scene_triangles"));
@@ -833,6 +845,75 @@ TEST_F(ServerTest, TheViewersLibraryNeedsATokenAndNamesNoPath) {
     EXPECT_EQ(r->body.find(tmp.path.string()), std::string::npos) << "no server path: " << r->body;
 }
 
+// The status page is markup; its styles and scripts are web/ui's files,
+// served byte for byte from the copy in lightfarmd, with their types, to a
+// token or the page's cookie.
+TEST_F(ServerTest, TheStatusPagesStylesAndScriptsAreWebUisFiles) {
+    start();
+    const std::string page = client().Get("/")->body;
+    for (const char* tag : {R"(<link rel="stylesheet" href="/ui/status.css">)", R"(<script src="/ui/status.js">)",
+                            R"(<script type="module" src="/ui/status-view3d.js">)"}) {
+        EXPECT_NE(page.find(tag), std::string::npos) << tag << " in\n" << page;
+    }
+    // No styles or scripts inline: only three.js's import map and the jobs' data block.
+    EXPECT_EQ(page.find("<style"), std::string::npos);
+    EXPECT_EQ(page.find(" style="), std::string::npos);
+    for (size_t at = page.find("<script"); at != std::string::npos; at = page.find("<script", at + 1)) {
+        const std::string tag = page.substr(at, page.find('>', at) - at + 1);
+        const bool allowed = tag.find(" src=") != std::string::npos || tag == R"(<script type="importmap">)" ||
+                             tag == R"(<script type="application/json" id="initial-jobs">)";
+        EXPECT_TRUE(allowed) << "an inline script: " << tag;
+    }
+
+    httplib::Client browser(server->host, server->port);
+    const std::string cookie = browser.Get("/?token=" + kAlice)->get_header_value("Set-Cookie");
+    const httplib::Headers with_cookie = {{"Cookie", cookie.substr(0, cookie.find(';'))}};
+    const std::map<std::string, std::string> types = {{"status.css", "text/css; charset=utf-8"},
+                                                      {"status.js", "text/javascript; charset=utf-8"},
+                                                      {"status-view3d.js", "text/javascript; charset=utf-8"}};
+    for (const auto& [name, type] : types) {
+        const std::string source = read_text(fs::path(LIGHTFARM_WEB_DIR) / "ui" / name);
+        ASSERT_FALSE(source.empty()) << name;
+        const auto expect_the_file = [&](const httplib::Result& r, const std::string& who) {
+            ASSERT_TRUE(r) << name << " for " << who;
+            EXPECT_EQ(r->status, 200) << name << " for " << who << ": " << r->body;
+            EXPECT_EQ(r->get_header_value("Content-Type"), type) << name;
+            EXPECT_EQ(r->get_header_value("Cache-Control"), "no-cache") << name;
+            EXPECT_EQ(r->get_header_value("X-Content-Type-Options"), "nosniff") << name;
+            EXPECT_TRUE(r->body == source) << name << " for " << who << " is not web/ui/" << name << " byte for byte";
+        };
+        expect_the_file(client().Get("/ui/" + name), "the token");
+        expect_the_file(browser.Get("/ui/" + name, with_cookie), "the page's cookie");
+        auto anonymous = browser.Get("/ui/" + name);
+        ASSERT_TRUE(anonymous);
+        EXPECT_EQ(anonymous->status, 401) << name;
+    }
+}
+
+// /ui/{file} serves the page's styles and scripts and nothing else: not the
+// pages (/ has the one with the caller's jobs), not a name outside web/ui.
+TEST_F(ServerTest, OnlyThePagesStylesAndScriptsAreServedUnderUi) {
+    start();
+    for (const char* path : {"/ui/nothing.js", "/ui/status.html", "/ui/login.html", "/ui/three", "/ui/STATUS.JS",
+                             "/ui/.css", "/ui/status.js.map"}) {
+        auto r = client().Get(path);
+        ASSERT_TRUE(r) << path;
+        EXPECT_EQ(r->status, 404) << path << ": " << r->body;
+        const std::string error = json::parse(r->body).value("error", "");
+        EXPECT_NE(error.find("no such file of the status page"), std::string::npos) << path << ": " << r->body;
+        EXPECT_NE(error.find("status.css, status.js"), std::string::npos) << "names what there is: " << error;
+    }
+    // `..` and `/` (sent as they are, or %-encoded) reach no file of web/ui's
+    // folder or above it.
+    for (const char* path :
+         {"/ui/..", "/ui/%2e%2e", "/ui/../CMakeLists.txt", "/ui/..%2fCMakeLists.txt", "/ui/%2e%2e%2fpackage.json",
+          "/ui/..%2f..%2fREADME.md", "/ui/ui%2fstatus.js", "/ui//status.js", "/ui/./status.js", "/ui/"}) {
+        auto r = client().Get(path);
+        ASSERT_TRUE(r) << path;
+        EXPECT_EQ(r->status, 404) << path << ": " << r->body;
+    }
+}
+
 // The jobs inlined in the status page cannot end its script or open a
 // comment, whatever a name holds; every answer says how it may be shown.
 TEST(StatusPage, InlinedJsonCannotEndTheScriptOrOpenAComment) {
@@ -853,10 +934,11 @@ TEST_F(ServerTest, AHostileSceneNameLeavesTheStatusPageWhole) {
     wait_finished(id);
     auto page = client().Get("/");
     ASSERT_EQ(page->status, 200);
-    const size_t embedded = page->body.find("const initial = ");
+    const size_t embedded = page->body.find(kInitialJobs);
     ASSERT_NE(embedded, std::string::npos);
     EXPECT_EQ(page->body.find("<!--<script>", embedded), std::string::npos) << "the name is escaped";
     EXPECT_NE(page->body.find("\\u003c!--\\u003cscript\\u003e.gltf", embedded), std::string::npos);
+    EXPECT_EQ(initial_jobs(page->body)["jobs"][0]["scene_name"], "<!--<script>.gltf") << "and reads back whole";
     for (const char* header : {"Content-Security-Policy", "X-Frame-Options", "X-Content-Type-Options"}) {
         EXPECT_FALSE(page->get_header_value(header).empty()) << header;
         EXPECT_FALSE(client().Get("/v1/jobs")->get_header_value(header).empty()) << header;
