@@ -334,6 +334,58 @@ const Service::Route* Service::match_route(const std::string& method, const std:
     return nullptr;
 }
 
+// A POST's framing, before its body is read: a Content-Length (not
+// chunked) within the route's limit, and a form's Content-Type read as JSON
+// (or refused for an upload). Fixes the headers httplib will read the body
+// by; returns the refusal when the request must go no further.
+std::optional<Service::Refusal> Service::check_post_framing(httplib::Request& req, const Route& route) const {
+    if (req.has_header("Transfer-Encoding"))
+        return Refusal{411,
+                       {{"error", "send the body with a Content-Length: Transfer-Encoding (chunked) is not accepted"},
+                        {"field", "Content-Length"}}};
+    if (!req.has_header("Content-Length")) {
+        // A POST without a body and without Content-Length (curl -X POST)
+        // has an empty body (RFC 9112 6.3), not one that lasts until the
+        // connection closes.
+        req.set_header("Content-Length", "0");
+    } else {
+        const std::string text = req.get_header_value("Content-Length");
+        uint64_t length = 0;
+        const bool digits =
+            !text.empty() && text.size() <= 19 && text.find_first_not_of("0123456789") == std::string::npos;
+        if (!digits || req.get_header_value_count("Content-Length") != 1)
+            return Refusal{400,
+                           {{"error", "Content-Length: '" + text + "' is not a length"}, {"field", "Content-Length"}}};
+        length = std::stoull(text);
+        // Only an upload carries a scene; every other body is a small JSON
+        // object (a job spec), under a limit of its own.
+        const bool upload = std::string(route.path) == "/v1/scenes";
+        const uint64_t limit = upload ? config_.limits.upload_bytes : config_.limits.spec_bytes;
+        if (length > limit)
+            return Refusal{413,
+                           {{"error", "request body of " + text + " bytes exceeds the limit of " +
+                                          std::to_string(limit) + " bytes"},
+                            {"field", upload ? "upload_bytes" : "spec_bytes"},
+                            {"limit", limit}}};
+    }
+    const std::string type = req.get_header_value("Content-Type");
+    if (type.rfind("application/x-www-form-urlencoded", 0) == 0) {
+        // What curl sends when told nothing: not a scene, and httplib would
+        // parse it as a form (and refuse one over 8 KiB as a 413).
+        if (std::string(route.path) == "/v1/scenes")
+            return Refusal{
+                415,
+                {{"error",
+                  "Content-Type: send a .glb as model/gltf-binary, a .gltf as model/gltf+json, "
+                  "or a .gltf with its files as multipart/form-data (curl sends "
+                  "application/x-www-form-urlencoded unless told: add -H 'Content-Type: model/gltf-binary')"},
+                 {"field", "Content-Type"}}};
+        req.headers.erase("Content-Type");
+        req.set_header("Content-Type", "application/json");
+    }
+    return std::nullopt;
+}
+
 bool Service::check_before_body(const httplib::Request& req, httplib::Response& res) {
     // The request object is httplib's own (process_request's local): the
     // framing fixes below change its headers before its body is read.
@@ -377,48 +429,8 @@ bool Service::check_before_body(const httplib::Request& req, httplib::Response& 
         }
         return false;
     }
-    if (has_encoding)
-        return answer(411,
-                      {{"error", "send the body with a Content-Length: Transfer-Encoding (chunked) is not accepted"},
-                       {"field", "Content-Length"}});
-    if (!has_length) {
-        // A POST without a body and without Content-Length (curl -X POST)
-        // has an empty body (RFC 9112 6.3), not one that lasts until the
-        // connection closes.
-        mutable_req.set_header("Content-Length", "0");
-    } else {
-        const std::string text = req.get_header_value("Content-Length");
-        uint64_t length = 0;
-        const bool digits =
-            !text.empty() && text.size() <= 19 && text.find_first_not_of("0123456789") == std::string::npos;
-        if (!digits || req.get_header_value_count("Content-Length") != 1)
-            return answer(400,
-                          {{"error", "Content-Length: '" + text + "' is not a length"}, {"field", "Content-Length"}});
-        length = std::stoull(text);
-        // Only an upload carries a scene; every other body is a small JSON
-        // object (a job spec), under a limit of its own.
-        const bool upload = std::string(route->path) == "/v1/scenes";
-        const uint64_t limit = upload ? config_.limits.upload_bytes : config_.limits.spec_bytes;
-        if (length > limit)
-            return answer(413, {{"error", "request body of " + text + " bytes exceeds the limit of " +
-                                              std::to_string(limit) + " bytes"},
-                                {"field", upload ? "upload_bytes" : "spec_bytes"},
-                                {"limit", limit}});
-    }
-    const std::string type = req.get_header_value("Content-Type");
-    if (type.rfind("application/x-www-form-urlencoded", 0) == 0) {
-        // What curl sends when told nothing: not a scene, and httplib would
-        // parse it as a form (and refuse one over 8 KiB as a 413).
-        if (std::string(route->path) == "/v1/scenes")
-            return answer(415,
-                          {{"error",
-                            "Content-Type: send a .glb as model/gltf-binary, a .gltf as model/gltf+json, "
-                            "or a .gltf with its files as multipart/form-data (curl sends "
-                            "application/x-www-form-urlencoded unless told: add -H 'Content-Type: model/gltf-binary')"},
-                           {"field", "Content-Type"}});
-        mutable_req.headers.erase("Content-Type");
-        mutable_req.set_header("Content-Type", "application/json");
-    }
+    if (const std::optional<Refusal> refusal = check_post_framing(mutable_req, *route))
+        return answer(refusal->status, refusal->body);
     return false;
 }
 

@@ -94,6 +94,11 @@ private:
     // is read: names, the route, the token, the body's framing and size.
     // Answers (fills `res`, returns true) when the request must go no further.
     bool check_before_body(const httplib::Request& req, httplib::Response& res);
+    struct Refusal {
+        int status;
+        nlohmann::json body;
+    };
+    std::optional<Refusal> check_post_framing(httplib::Request& req, const Route& route) const;
     const Route* match_route(const std::string& method, const std::string& path) const;
     void serve(const Route& route, const httplib::Request& req, httplib::Response& res);
     void install_http_hooks();
@@ -114,6 +119,8 @@ private:
     void post_scene(const httplib::Request&, httplib::Response&, const Caller&);
     void get_scene(const httplib::Request&, httplib::Response&, const Caller&);
     void post_job(const httplib::Request&, httplib::Response&, const Caller&);
+    protocol::JobSpec accepted_spec(const httplib::Request& req, const Caller& caller);
+    bool answer_from_cache(JobRecord& job, const Caller& caller, httplib::Response& res);
     void list_jobs(const httplib::Request&, httplib::Response&, const Caller&);
     void list_nodes(const httplib::Request&, httplib::Response&, const Caller&);
     // GET /v1/nodes's body: every node of the store, and the caller's jobs on each.

@@ -40,8 +40,31 @@ json Service::status_json(const JobRecord& job, std::map<std::string, json>* bri
     return j;
 }
 
+// POST /v1/jobs: a spec checked against this server's caps and the scene's
+// summary, answered from an earlier identical bake's artifacts or queued.
 void Service::post_job(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
     refuse_when_disk_full(res);
+    const protocol::JobSpec spec = accepted_spec(req, caller);
+    JobRecord job;
+    job.owner = caller.owner;
+    job.cache_key = sha256_hex(protocol::bake_identity(spec));
+    job.max_seconds = spec.limits.max_seconds.value_or(config_.default_max_seconds);
+    job.status.id = random_hex(12);
+    job.status.scene = spec.scene;
+    job.status.spec = protocol::to_json(spec);
+    job.status.max_attempts = spec.limits.max_attempts.value_or(config_.default_attempts);
+    job.status.created_at = now_seconds();
+
+    if (answer_from_cache(job, caller, res)) return;
+    store_->insert_job(job);
+    changes_.notify();
+    send_json(res, 201, {{"id", job.status.id}, {"state", "queued"}});
+}
+
+// The request's job spec, if this server takes it now (HttpError if not):
+// valid under the server's caps, its scene the caller's and able to hold
+// it, the caller's queue not full.
+protocol::JobSpec Service::accepted_spec(const httplib::Request& req, const Caller& caller) {
     const json body = json::parse(req.body, nullptr, false);
     if (body.is_discarded()) throw HttpError(400, "the request body is not JSON");
     // The one validity rule (protocol/bake_settings.h) under this server's
@@ -73,59 +96,51 @@ void Service::post_job(const httplib::Request& req, httplib::Response& res, cons
                         "queued_jobs: " + std::to_string(queued) + " jobs already queued, the limit is " +
                             std::to_string(config_.limits.queued_jobs),
                         {{"field", "queued_jobs"}, {"limit", config_.limits.queued_jobs}});
+    return spec;
+}
 
-    JobRecord job;
-    job.owner = caller.owner;
-    job.cache_key = sha256_hex(protocol::bake_identity(spec));
-    job.max_seconds = spec.limits.max_seconds.value_or(config_.default_max_seconds);
-    job.status.id = random_hex(12);
-    job.status.scene = spec.scene;
-    job.status.spec = protocol::to_json(spec);
-    job.status.max_attempts = spec.limits.max_attempts.value_or(config_.default_attempts);
-    job.status.created_at = now_seconds();
-
-    // The same scene bytes, outputs and seed were baked before: hand out
-    // those artifacts (hard links, so each job directory stands alone).
-    if (std::optional<JobRecord> earlier = store_->succeeded_with_key(job.cache_key)) {
-        const fs::path from = supervisor_->job_dir(earlier->status.id);
-        const fs::path to = supervisor_->job_dir(job.status.id);
-        const fs::path tmp = DataDir(config_.data_dir).tmp("cache-" + job.status.id);
-        std::error_code ec;
-        fs::create_directories(tmp, ec);
-        std::vector<std::string> files;
-        for (const Artifact& a : artifacts_in(from)) {
-            fs::create_hard_link(from / a.name, tmp / a.name, ec);
-            if (ec) fs::copy_file(from / a.name, tmp / a.name, fs::copy_options::overwrite_existing, ec);
-            if (ec) break;
-            files.push_back(a.name);
-        }
-        if (!ec) fs::rename(tmp, to, ec);
-        if (!ec) {
-            job.status.state = JobState::Succeeded;
-            job.status.cached = true;
-            job.status.progress = earlier->status.progress;
-            job.status.latest = earlier->status.latest;
-            job.status.started_at = job.status.finished_at = job.status.created_at;
-            protocol::JobDone done;
-            done.progress = job.status.progress;
-            done.files = files;
-            for (const auto& [output, latest] : job.status.latest)
-                if (latest.final_file) done.final_files[output] = latest.file;
-            done.cached = true;
-            // Another token's job is not this caller's to know of.
-            if (earlier->owner == caller.owner) done.cached_from = earlier->status.id;
-            store_->insert_job(job, {protocol::job_event(done)});
-            changes_.notify();
-            send_json(res, 201, {{"id", job.status.id}, {"state", "succeeded"}, {"cached", true}});
-            return;
-        }
+// The same scene bytes, outputs and seed were baked before: `job` succeeds
+// at once with those artifacts (hard links, so each job directory stands
+// alone) and is answered; false (nothing changed) when there is none, or
+// the copy failed.
+bool Service::answer_from_cache(JobRecord& job, const Caller& caller, httplib::Response& res) {
+    const std::optional<JobRecord> earlier = store_->succeeded_with_key(job.cache_key);
+    if (!earlier) return false;
+    const fs::path from = supervisor_->job_dir(earlier->status.id);
+    const fs::path to = supervisor_->job_dir(job.status.id);
+    const fs::path tmp = DataDir(config_.data_dir).tmp("cache-" + job.status.id);
+    std::error_code ec;
+    fs::create_directories(tmp, ec);
+    std::vector<std::string> files;
+    for (const Artifact& a : artifacts_in(from)) {
+        fs::create_hard_link(from / a.name, tmp / a.name, ec);
+        if (ec) fs::copy_file(from / a.name, tmp / a.name, fs::copy_options::overwrite_existing, ec);
+        if (ec) break;
+        files.push_back(a.name);
+    }
+    if (!ec) fs::rename(tmp, to, ec);
+    if (ec) {
         fs::remove_all(tmp, ec);
         log_line("job " + job.status.id + ": cache copy from " + earlier->status.id + " failed, baking instead");
+        return false;
     }
-
-    store_->insert_job(job);
+    job.status.state = JobState::Succeeded;
+    job.status.cached = true;
+    job.status.progress = earlier->status.progress;
+    job.status.latest = earlier->status.latest;
+    job.status.started_at = job.status.finished_at = job.status.created_at;
+    protocol::JobDone done;
+    done.progress = job.status.progress;
+    done.files = files;
+    for (const auto& [output, latest] : job.status.latest)
+        if (latest.final_file) done.final_files[output] = latest.file;
+    done.cached = true;
+    // Another token's job is not this caller's to know of.
+    if (earlier->owner == caller.owner) done.cached_from = earlier->status.id;
+    store_->insert_job(job, {protocol::job_event(done)});
     changes_.notify();
-    send_json(res, 201, {{"id", job.status.id}, {"state", "queued"}});
+    send_json(res, 201, {{"id", job.status.id}, {"state", "succeeded"}, {"cached", true}});
+    return true;
 }
 
 json Service::jobs_json(const std::string& owner) const {
