@@ -47,6 +47,16 @@ std::string sha256_hex(std::string_view bytes) {
     return h.hex();
 }
 
+std::string sha256_base64(std::string_view bytes) {
+    unsigned char digest[EVP_MAX_MD_SIZE];
+    unsigned int length = 0;
+    if (EVP_Digest(bytes.data(), bytes.size(), digest, &length, EVP_sha256(), nullptr) != 1)
+        throw std::runtime_error("SHA-256: OpenSSL digest failed");
+    std::string out(4 * ((length + 2) / 3), '\0');
+    EVP_EncodeBlock(reinterpret_cast<unsigned char*>(out.data()), digest, int(length));
+    return out;
+}
+
 std::string random_hex(size_t bytes) {
     std::vector<unsigned char> buf(bytes);
     if (RAND_bytes(buf.data(), int(bytes)) != 1) throw std::runtime_error("no random bytes from OpenSSL");

@@ -24,6 +24,8 @@ private:
 };
 
 std::string sha256_hex(std::string_view bytes);
+// The digest in base64 (RFC 4648), as a Content-Security-Policy hash source takes it.
+std::string sha256_base64(std::string_view bytes);
 
 // `bytes` random bytes from the OS, as 2*bytes hex digits (ids, tokens).
 std::string random_hex(size_t bytes);

@@ -101,6 +101,23 @@ std::string describe_failure(const std::exception& e, const std::string& data_di
     return std::regex_replace(m, absolute_path, "$1<path>");
 }
 
+// No inline script or style runs on a page of ours: the status page's
+// scripts and styles are files (/ui/{file}), and its one inline script, the
+// import map that tells the 3D view where three.js is (an import map cannot
+// be a file), is allowed by its hash alone. Its data block is JSON, which
+// no browser runs.
+std::string content_security_policy() {
+    const std::string page(embedded_web_files().at("status.html"));
+    const std::string open = "<script type=\"importmap\">";
+    const size_t from = page.find(open), to = page.find("</script>", from);
+    if (from == std::string::npos || to == std::string::npos)
+        throw std::logic_error("web/ui/status.html: no import map, or one without its </script>");
+    const std::string import_map = page.substr(from + open.size(), to - from - open.size());
+    return "default-src 'self'; script-src 'self' 'sha256-" + sha256_base64(import_map) +
+           "'; style-src 'self'; img-src 'self' data: blob:; connect-src 'self' blob: data:; object-src 'none'; "
+           "base-uri 'none'; frame-ancestors 'none'";
+}
+
 }  // namespace
 
 // What the rooms share (service_rooms.h).
@@ -201,16 +218,14 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     });
     http_->set_payload_max_length(size_t(config_.limits.upload_bytes));
     // Every answer: no page of ours in another site's frame, no content type
-    // guessed from the bytes, and the status page's scripts and fetches from
-    // this server only (blob: and data: for the 3D view's embedded images).
+    // guessed from the bytes, and the status page's scripts, styles and
+    // fetches from this server only (blob: and data: for the 3D view's
+    // embedded images; content_security_policy).
     http_->set_default_headers({
         {"X-Content-Type-Options", "nosniff"},
         {"X-Frame-Options", "DENY"},
         {"Referrer-Policy", "no-referrer"},
-        {"Content-Security-Policy",
-         "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
-         "img-src 'self' data: blob:; connect-src 'self' blob: data:; object-src 'none'; base-uri 'none'; "
-         "frame-ancestors 'none'"},
+        {"Content-Security-Policy", content_security_policy()},
     });
 
     for (const Route& route : routes()) {

@@ -168,6 +168,14 @@ TEST_F(ServerTest, ATokenSeesOnlyItsOwnScenesAndJobs) {
 
 // Which job a short id names: an unambiguous prefix of 6 or more hex
 // digits; ambiguous is a 409 that says so.
+// FIPS 180-2's first example, "abc", in both encodings (scene ids and cache
+// keys in hex; a Content-Security-Policy hash in base64).
+TEST(Sha256, KnownDigestsInHexAndBase64) {
+    EXPECT_EQ(server::sha256_hex("abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+    EXPECT_EQ(server::sha256_base64("abc"), "ungWv48Bz+pBQUDeXa4iI7ADYaOWF3qctBD/YfIAFa0=");
+    EXPECT_EQ(server::sha256_base64(""), "47DEQpj8HBSa+/TImW+5JCeuQeRkm5NMpJWZG3hSuFU=");
+}
+
 TEST(JobIdPrefix, NamesOneJobOrIsAConflict) {
     std::vector<server::JobRecord> jobs(3);
     jobs[0].status.id = "abcdef000000000000000001";
@@ -944,6 +952,18 @@ TEST_F(ServerTest, AHostileSceneNameLeavesTheStatusPageWhole) {
         EXPECT_FALSE(client().Get("/v1/jobs")->get_header_value(header).empty()) << header;
     }
     EXPECT_EQ(page->get_header_value("X-Content-Type-Options"), "nosniff");
+    // No inline script or style runs: the page's one inline script, its
+    // import map, by its hash alone (the Chromium test loads the page under
+    // this policy and fails on any violation).
+    const std::string policy = page->get_header_value("Content-Security-Policy");
+    EXPECT_EQ(policy.find("unsafe-inline"), std::string::npos) << policy;
+    const std::string open = "<script type=\"importmap\">";
+    const size_t from = page->body.find(open), to = page->body.find("</script>", from);
+    ASSERT_NE(from, std::string::npos);
+    const std::string import_map = page->body.substr(from + open.size(), to - from - open.size());
+    EXPECT_NE(policy.find("script-src 'self' 'sha256-" + server::sha256_base64(import_map) + "'"), std::string::npos)
+        << policy;
+    EXPECT_NE(policy.find("style-src 'self';"), std::string::npos) << policy;
 }
 
 // ---- What the scene or the settings make impossible is a 400 at submit, naming the field.
