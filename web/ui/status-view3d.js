@@ -143,7 +143,7 @@ if (THREE) {
     world.add(probeGroup);
     state.probes = doc.probes.length;
   }
-  // The exposure the server's previews use (server/preview.cpp,
+  // The exposure the server's previews use (protocol/display_tone.h,
   // automatic_exposure): the geometric mean luminance of the lit values
   // brought to 0.18. What is shown sets its own: a job's from the server, a
   // file's or a probe set's from its own values (a file kept the previous
