@@ -2,6 +2,7 @@
 // command parses its options, calls the library, prints the result.
 #include "args.h"
 #include "bake_help.h"
+#include "bake_reporter.h"
 #include "remote.h"
 
 #include "atlas/atlas.h"
@@ -10,18 +11,14 @@
 #include "job_spec.h"
 #include "job_status.h"
 #include "sh/sh_glb.h"
-#include "sh/transfer_file.h"
 #include "gpu/context.h"
 #include "probes/probe_eval.h"
-#include "io/reference_error.h"
+#include "io/output_comparison.h"
 #include "scene/gltf_loader.h"
 #include "scene/scene_summary.h"
 #include "trace/raybench.h"
 
-#include <unistd.h>
-
-#include <algorithm>
-#include <cstdio>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -145,134 +142,17 @@ int devices(int argc, char** argv) {
     return 0;
 }
 
-// Two SH transfer files of the same scene: relative RMSE of the coefficients
-// (over the bands both hold) against the reference's RMS coefficient.
-int compare_sh_transfer(const std::string& bake_path, const std::string& reference_path) {
-    const lf::ShTransferFile bake = lf::read_sh_transfer(bake_path);
-    const lf::ShTransferFile reference = lf::read_sh_transfer(reference_path);
-    if (bake.primitives.size() != reference.primitives.size())
-        throw std::runtime_error(bake_path + " and " + reference_path + " hold different primitives");
-    const int coefficients = std::min(bake.bands, reference.bands) * std::min(bake.bands, reference.bands);
-    double sum_sq = 0.0, sum_ref_sq = 0.0;
-    size_t vertices = 0;
-    for (size_t p = 0; p < bake.primitives.size(); ++p) {
-        const auto &a = bake.primitives[p].vertices, &b = reference.primitives[p].vertices;
-        if (a.size() != b.size()) throw std::runtime_error("primitive " + std::to_string(p) + ": vertex counts differ");
-        for (size_t v = 0; v < a.size(); ++v)
-            for (int i = 0; i < coefficients; ++i) {
-                sum_sq += double(a[v][i] - b[v][i]) * double(a[v][i] - b[v][i]);
-                sum_ref_sq += double(b[v][i]) * double(b[v][i]);
-            }
-        vertices += a.size();
-    }
-    std::cout << nlohmann::json{{"relative_rmse", sum_ref_sq > 0.0 ? std::sqrt(sum_sq / sum_ref_sq) : 0.0},
-                                {"vertices", vertices},
-                                {"coefficients", coefficients}}
-                     .dump()
-              << "\n";
-    return 0;
-}
-
-// The layer `prefix` ("direct.", "indirect.", "raw.") of `image` as its R, G, B.
-lf::FloatImage layer_of(const lf::FloatImage& image, const std::string& prefix, const std::string& file) {
-    lf::FloatImage layer = image;
-    for (const char* c : {"R", "G", "B"}) {
-        const auto it = image.channels.find(prefix + c);
-        if (it == image.channels.end()) throw std::runtime_error(file + ": no channel " + prefix + c);
-        layer.channels[c] = it->second;
-    }
-    return layer;
-}
-
+// The error of a bake against a reference, as JSON (gi/io/output_comparison.h).
 int compare(int argc, char** argv) {
     Args args(argc, argv, 2, {"--mask", "--layer"}, {});
     if (args.positional().size() != 2)
         throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
-    const auto is_bin = [](const std::string& f) { return f.size() > 4 && f.substr(f.size() - 4) == ".bin"; };
-    if (is_bin(args.positional()[0])) return compare_sh_transfer(args.positional()[0], args.positional()[1]);
-    lf::FloatImage bake = lf::read_exr(args.positional()[0]);
-    lf::FloatImage reference = lf::read_exr(args.positional()[1]);
-    if (args.has("--layer")) {  // "direct", "indirect", "raw": that layer of both files
-        const std::string prefix = args.get("--layer") + ".";
-        bake = layer_of(bake, prefix, args.positional()[0]);
-        // A reference that was never filtered (Cycles', a bake without
-        // --denoise) is its own raw layer: a denoised bake's raw layer is
-        // measured against its RGB.
-        if (!(prefix == "raw." && !reference.channels.count("raw.R")))
-            reference = layer_of(reference, prefix, args.positional()[1]);
-    }
-    lf::FloatImage mask;
-    if (args.has("--mask")) {
-        const std::string m = args.get("--mask");
-        mask = m.size() > 4 && m.substr(m.size() - 4) == ".pfm" ? lf::read_pfm(m) : lf::read_exr(m);
-    }
-    const lf::ReferenceError e = lf::compare_to_reference(bake, reference, args.has("--mask") ? &mask : nullptr);
-    nlohmann::json out = {{"relative_rmse", e.relative_rmse},
-                          {"rmse", e.rmse},
-                          {"bias", e.bias},
-                          {"reference_mean", e.reference_mean},
-                          {"texels", e.texels}};
-    for (const char* key : {"lightfarm.pass", "lightfarm.rays", "lightfarm.seconds", "lightfarm.errorEstimate",
-                            "lightfarm.denoiseSeconds"}) {
-        auto it = bake.number_attributes.find(key);
-        if (it != bake.number_attributes.end()) out[std::string(key).substr(10)] = it->second;
-    }
-    std::cout << out.dump() << "\n";
+    lf::OutputComparisonOptions options;
+    if (args.has("--mask")) options.mask = args.get("--mask");
+    if (args.has("--layer")) options.layer = args.get("--layer");
+    std::cout << lf::compare_outputs(args.positional()[0], args.positional()[1], options).dump() << "\n";
     return 0;
 }
-
-// Prints bake events: JSON lines (the worker protocol) or a progress bar.
-class BakeReporter {
-public:
-    BakeReporter(bool json, const lf::protocol::BakeSettings& settings)
-        : json_(json), terminal_(!json && isatty(STDERR_FILENO)) {
-        for (const auto& [output, o] : settings.outputs) stop_[output] = o.stop();
-    }
-
-    void operator()(const lf::protocol::WorkerEvent& e) {
-        namespace p = lf::protocol;
-        if (json_) {
-            std::cout << p::to_json(e).dump() << std::endl;  // one object per line, flushed
-            return;
-        }
-        if (const auto* start = std::get_if<p::StartEvent>(&e)) {
-            std::cerr << "baking";
-            for (auto it = start->outputs.begin(); it != start->outputs.end(); ++it)
-                std::cerr << " " << it.key() << " ("
-                          << (it.value().contains("texels")
-                                  ? std::to_string(it.value()["texels"].get<uint64_t>()) + " texels)"
-                              : it.value().contains("probes")
-                                  ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
-                                  : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
-            std::cerr << " on " << start->renderer << ", prepared in " << start->prepare_seconds << " s\n";
-            prepare_seconds_ = start->prepare_seconds;
-            for (const auto& [output, at] : start->resumed)
-                std::cerr << output << ": resumed after pass " << at.pass << "\n";
-            for (const auto& [output, why] : start->not_resumed)
-                std::cerr << output << ": not resumed, from pass 0: " << why << "\n";
-        } else if (const auto* progress = std::get_if<p::ProgressEvent>(&e); progress && terminal_) {
-            if (progress->output != drawing_ && !drawing_.empty()) std::cerr << "\n";
-            drawing_ = progress->output;
-            // The same line as `submit --wait` and `watch` draw: the share done by
-            // whichever stop rule ends the output first, preparation included.
-            lf::protocol::Progress shown = progress->progress;
-            shown.eta_seconds = lf::protocol::estimate_eta(stop_[progress->output], shown);
-            shown.prepare_seconds = prepare_seconds_;
-            std::cerr << "\r" << lf::cli::progress_line("", progress->output, shown) << "    " << std::flush;
-        } else if (const auto* done = std::get_if<p::DoneEvent>(&e)) {
-            if (terminal_) std::cerr << "\n";
-            std::cout << "done: " << done->progress.pass << " passes, " << done->progress.rays << " rays, "
-                      << done->progress.seconds << " s, error estimate " << done->progress.error_estimate.value_or(0.0)
-                      << "\n";
-        }
-    }
-
-private:
-    bool json_, terminal_;
-    std::map<std::string, lf::protocol::StopSettings> stop_;
-    double prepare_seconds_ = 0.0;
-    std::string drawing_;
-};
 
 // A --spec file that cannot be read whole (protocol::kExitSpecUnreadable):
 // its writer's trouble, not its settings'.
@@ -324,7 +204,7 @@ int bake(int argc, char** argv) {
     job.settings = bake_settings(args, job.scene.string());
     job.resume = args.flag("--resume");
 
-    BakeReporter report(args.flag("--json"), job.settings);
+    lf::cli::BakeReporter report(args.flag("--json"), job.settings);
     const lf::protocol::DoneEvent done = lf::run_bake_job(job, std::ref(report));
     if (!args.flag("--json")) {
         std::cout << "files in " << job.out.string() << ":";

@@ -4,7 +4,9 @@
 #include "gpu_fixture.h"
 
 #include "io/image_files.h"
+#include "io/output_comparison.h"
 #include "io/reference_error.h"
+#include "sh/transfer_file.h"
 #include "bake_settings.h"
 #include "worker_protocol.h"
 
@@ -18,6 +20,7 @@
 #include <chrono>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <unistd.h>
 #include <sys/wait.h>
 #include <sstream>
@@ -518,6 +521,76 @@ TEST(ReferenceError, EachSurfaceTexelCountsOnceNotItsDilatedCopies) {
     e = compare_to_reference(bake, reference, &mask);
     EXPECT_EQ(e.texels, 1u);
     EXPECT_NEAR(e.bias, 4.0, 1e-12);
+}
+
+// `lightfarm compare`'s numbers without the CLI (gi/io/output_comparison.h):
+// a lightmap against itself and against one 10% brighter, a layer of each,
+// the bake's header figures, a missing layer named with its file, and SH
+// transfer files by their extension.
+TEST(OutputComparison, ComparesTwoLightmapFilesAsTheCliPrintsThem) {
+    const fs::path dir = fresh_dir("output-comparison");
+    fs::create_directories(dir);
+    auto lightmap = [](float scale) {
+        FloatImage im;
+        im.width = 4;
+        im.height = 2;
+        for (const char* c : {"R", "G", "B", "direct.R", "direct.G", "direct.B"}) {
+            std::vector<float>& v = im.channel(c);
+            for (size_t i = 0; i < v.size(); ++i) v[i] = scale * (0.25f + 0.125f * float(i));
+        }
+        return im;
+    };
+    const FloatImage unscaled = lightmap(1.0f);
+    FloatImage bake = lightmap(1.1f);
+    bake.number_attributes["lightfarm.pass"] = 12;
+    const std::string reference = (dir / "reference.exr").string(), brighter = (dir / "brighter.exr").string();
+    write_exr(reference, unscaled);
+    write_exr(brighter, bake);
+
+    // 10% more everywhere: an RMSE of 10% of the reference's RMS, relative to its mean.
+    double sum = 0.0, sum_sq = 0.0;
+    for (float v : unscaled.at("R")) {
+        sum += v;
+        sum_sq += double(v) * v;
+    }
+    const double mean = sum / 8.0, rms = std::sqrt(sum_sq / 8.0);
+
+    const nlohmann::json same = compare_lightmaps(reference, reference, {});
+    EXPECT_EQ(same["relative_rmse"], 0.0);
+    EXPECT_EQ(same["bias"], 0.0);
+    EXPECT_EQ(same["texels"], 8u);
+    EXPECT_FALSE(same.contains("pass"));  // the reference's header has none
+
+    for (const std::optional<std::string>& layer :
+         {std::optional<std::string>{}, std::optional<std::string>{"direct"}}) {
+        OutputComparisonOptions options;
+        options.layer = layer;
+        const nlohmann::json e = compare_outputs(brighter, reference, options);
+        EXPECT_NEAR(e["bias"].get<double>(), 0.1, 1e-6) << layer.value_or("RGB");
+        EXPECT_NEAR(e["relative_rmse"].get<double>(), 0.1 * rms / mean, 1e-6) << layer.value_or("RGB");
+        EXPECT_EQ(e["pass"], 12.0) << layer.value_or("RGB");
+    }
+
+    OutputComparisonOptions indirect;
+    indirect.layer = "indirect";
+    try {
+        compare_lightmaps(brighter, reference, indirect);
+        ADD_FAILURE() << "a missing layer was compared";
+    } catch (const std::runtime_error& e) {
+        EXPECT_EQ(std::string(e.what()), brighter + ": no channel indirect.R");
+    }
+
+    ShTransferFile transfer;
+    transfer.bands = 2;
+    transfer.primitives.resize(1);
+    transfer.primitives[0].vertices = {ShCoefficients{1.0f, 0.5f, 0.25f, 0.125f}, ShCoefficients{0.5f}};
+    const std::string bin = (dir / "sh_transfer.bin").string();
+    write_sh_transfer(bin, transfer, ShEncoding::Float32);
+    const nlohmann::json sh = compare_outputs(bin, bin, indirect);  // options do not apply to a .bin
+    EXPECT_EQ(sh["relative_rmse"], 0.0);
+    EXPECT_EQ(sh["vertices"], 2u);
+    EXPECT_EQ(sh["coefficients"], 4);
+    fs::remove_all(dir);
 }
 
 TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {

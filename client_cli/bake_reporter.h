@@ -1,0 +1,32 @@
+// What `lightfarm bake` prints while it bakes: with --json, the worker
+// protocol's events as JSON lines on stdout (what lightfarmd reads from its
+// workers); else a summary of the start on stderr, a progress bar there when
+// stderr is a terminal, and the final counts on stdout.
+#pragma once
+
+#include "job_spec.h"
+#include "worker_protocol.h"
+
+#include <map>
+#include <string>
+
+namespace lf::cli {
+
+class BakeReporter {
+public:
+    BakeReporter(bool json, const protocol::BakeSettings& settings);
+
+    void operator()(const protocol::WorkerEvent& e);
+
+private:
+    void print_start(const protocol::StartEvent& start);
+    void draw_progress(const protocol::ProgressEvent& progress);
+
+    bool json_, terminal_;
+    // Each output's stop rules: the progress bar's share done and ETA.
+    std::map<std::string, protocol::StopSettings> stop_;
+    double prepare_seconds_ = 0.0;
+    std::string drawing_;  // the output whose bar is on the current line
+};
+
+}  // namespace lf::cli

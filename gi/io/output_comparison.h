@@ -1,0 +1,40 @@
+// `lightfarm compare`: the error of a baked output against a reference, as
+// the JSON the command prints. Lightmaps (.exr) by lf::compare_to_reference,
+// SH transfer files (.bin) by the relative RMSE of their coefficients. Here,
+// not in the CLI, so that a test can call it and get the same numbers.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <optional>
+#include <string>
+
+namespace lf {
+
+struct OutputComparisonOptions {
+    // Texels whose mask's first channel is > 0.5 are compared (a .pfm, else
+    // read as EXR). Without one, the bake's "covered" channel decides.
+    std::optional<std::string> mask;
+    // "direct", "indirect", "raw": that layer (its prefix.R/G/B channels) of
+    // both lightmaps instead of their RGB.
+    std::optional<std::string> layer;
+};
+
+// Lightmaps: relative_rmse, rmse, bias, reference_mean, texels, and the
+// bake's pass, rays, seconds, errorEstimate and denoiseSeconds where its
+// header has them. Throws std::runtime_error naming the file and the
+// channel when a --layer channel is missing.
+nlohmann::json compare_lightmaps(const std::string& bake_path, const std::string& reference_path,
+                                 const OutputComparisonOptions& options);
+
+// Two SH transfer files of one scene: relative_rmse of the coefficients over
+// the bands both hold, vertices, coefficients. Throws when their primitives
+// or vertex counts differ.
+nlohmann::json compare_sh_transfers(const std::string& bake_path, const std::string& reference_path);
+
+// By the bake's name: a .bin is an SH transfer file (the options do not
+// apply to it and are ignored), anything else a lightmap.
+nlohmann::json compare_outputs(const std::string& bake_path, const std::string& reference_path,
+                               const OutputComparisonOptions& options);
+
+}  // namespace lf
