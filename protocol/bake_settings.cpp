@@ -133,6 +133,9 @@ std::vector<Setting> build_catalog() {
         with_auto(integer("atlas", "max_res", 0, 256, 16384, "res",
                           "the largest atlas side when res is auto or follows texel_density (the density shrinks to "
                           "fit; auto: 4096, or the server's res limit where lower)")),
+        typed("atlas", "glass_texels", T::Flag, false,
+              "glass (KHR_materials_transmission) gets texels at the scene's density; off: 1/8 of it, as charts no "
+              "light reaches (light passes glass, which reflects little)"),
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
         typed("", "env", T::Environment, nullptr,
@@ -454,6 +457,7 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     if (!atlas["texel_density"].is_string()) b.atlas.texel_density = atlas["texel_density"].get<double>();
     b.atlas.subsamples = atlas["subsamples"].get<int>();
     b.atlas.max_res = int_or_auto(atlas["max_res"]);
+    b.atlas.glass_texels = atlas["glass_texels"].get<bool>();
     if (!b.atlas.max_res && limits.cap("res") < kAutoMaxAtlasRes)
         b.atlas.max_res = int(std::max(256.0, limits.cap("res")));  // the smallest max_res: the default atlas
     for (const OutputKind& kind : output_registry()) {
@@ -472,7 +476,8 @@ json to_json(const BakeSettings& b) {
     j["atlas"] = {{"res", or_auto(b.atlas.res)},
                   {"texel_density", or_auto(b.atlas.texel_density)},
                   {"subsamples", b.atlas.subsamples},
-                  {"max_res", or_auto(b.atlas.max_res)}};
+                  {"max_res", or_auto(b.atlas.max_res)},
+                  {"glass_texels", b.atlas.glass_texels}};
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
     for (const auto& [name, settings] : b.outputs) j["outputs"][name] = settings.values;

@@ -111,6 +111,7 @@ struct AtlasSettings {
     // below that is written in here when the spec is parsed, so that the
     // worker keeps to the limit of the server that took the job.
     std::optional<int> max_res;
+    bool glass_texels = false;  // glass charts at the scene's density, not kUnlitChartScale's
 };
 
 // One requested output's settings: every setting of its catalog group,

@@ -112,15 +112,27 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                    const std::function<const Tracer&()>& geometry) {
     const std::string name = p.file.filename().string();
     AtlasOptions options = atlas_options(settings);
-    // An atlas output that needs no light (per-texel SH transfer, lit later
-    // by any environment; ambient occlusion) gives every chart its texels.
-    if (settings.atlas_needs_light())
-        options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
+    // Charts no light reaches get few texels, but an atlas output that needs
+    // no light (per-texel SH transfer, lit later by any environment; ambient
+    // occlusion) gives every lit and unlit chart its texels; glass charts
+    // get few unless asked (find_glass_charts).
+    options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
+        std::vector<uint8_t> few(count, 0);
+        if (settings.atlas_needs_light()) {
             const UnlitCharts unlit =
                 find_unlit_charts(p.scene, geometry(), chart, count, settings.env.sky.has_value());
             p.unlit_chart_rays = unlit.rays;
-            return unlit.unlit;
-        };
+            few = unlit.unlit;
+        }
+        if (!settings.atlas.glass_texels) {
+            const std::vector<uint8_t> glass = find_glass_charts(p.scene, chart, count);
+            for (size_t c = 0; c < count; ++c) {
+                p.glass_charts += glass[c];
+                few[c] |= glass[c];
+            }
+        }
+        return few;
+    };
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
@@ -500,6 +512,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"double_sided_triangles_turned", prepared->turned.triangles},
           {"double_sided_rays", prepared->turned.rays},
           {"unlit_charts", prepared->atlas.unlit_charts},
+          {"glass_charts", prepared->glass_charts},
           {"unlit_chart_rays", prepared->unlit_chart_rays}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;

@@ -30,6 +30,7 @@ struct PreparedScene {
     std::optional<Scene> atlas_scene;
     AtlasReport atlas;
     TurnedCharts turned;            // double-sided charts baked for their back, which faces the scene
+    size_t glass_charts = 0;        // packed at kUnlitChartScale, among AtlasReport::unlit_charts (find_glass_charts)
     uint64_t unlit_chart_rays = 0;  // traced to find the charts no light reaches (AtlasReport::unlit_charts)
     TexelSamples texels;
     std::unique_ptr<GpuContext> gpu;

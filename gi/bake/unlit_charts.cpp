@@ -57,6 +57,16 @@ bool brings_light(const Scene& scene, const ChartRay& r, const RayHit& hit) {
 
 }  // namespace
 
+std::vector<uint8_t> find_glass_charts(const Scene& scene, const std::vector<uint32_t>& chart, size_t chart_count) {
+    std::vector<uint8_t> glass(chart_count, 1), seen(chart_count, 0);
+    for (size_t t = 0; t < chart.size(); ++t) {
+        seen[chart[t]] = 1;
+        if (!(scene.materials[scene.triangle_material.at(t)].transmission > 0.0f)) glass[chart[t]] = 0;
+    }
+    for (size_t c = 0; c < chart_count; ++c) glass[c] &= seen[c];
+    return glass;
+}
+
 UnlitCharts find_unlit_charts(const Scene& scene, const Tracer& tracer, const std::vector<uint32_t>& chart,
                               size_t chart_count, bool sky) {
     UnlitCharts out;

@@ -29,4 +29,11 @@ struct UnlitCharts {
 UnlitCharts find_unlit_charts(const Scene& scene, const Tracer& tracer, const std::vector<uint32_t>& chart,
                               size_t chart_count, bool sky);
 
+// Charts all of whose triangles are glass (Material::transmission > 0):
+// light passes them (the tracer's see-through surfaces) and they reflect
+// little of it, so by default they are packed like unlit charts, at
+// kUnlitChartScale, unless the job asks for their texels (atlas.glass_texels).
+// 1 per such chart id; `chart` as find_unlit_charts's.
+std::vector<uint8_t> find_glass_charts(const Scene& scene, const std::vector<uint32_t>& chart, size_t chart_count);
+
 }  // namespace lf
