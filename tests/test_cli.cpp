@@ -689,6 +689,7 @@ TEST(CliOutputs, EverySharedScenesGlbsPassTheKhronosValidator) {
                                           " --max-res 256 --passes 1 --ao-passes 1 --no-stitch --out " + dir.string());
         ASSERT_EQ(bake.exit_code, 0) << name << ": " << bake.err;
         glbs.push_back(dir / "scene.lit.glb");
+        glbs.push_back(dir / "scene.unlit.glb");  // every scene here bakes a lightmap: each has one
         if (fs::exists(dir / "scene.lightmapped.glb")) glbs.push_back(dir / "scene.lightmapped.glb");
     }
     std::string report;
