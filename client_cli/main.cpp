@@ -231,41 +231,11 @@ int sh_shade(int argc, char** argv) {
 int probe_eval(int argc, char** argv) {
     Args args(argc, argv, 2, {}, {});
     if (args.positional().size() != 2) throw UsageError("probe-eval takes PROBES.json and POINTS.json");
-    const std::string probes_path = args.positional()[0], points_path = args.positional()[1];
-    nlohmann::json out = {{"points", nlohmann::json::array()}};
+    nlohmann::json out;
     try {
-        const lf::ProbeSet set = lf::read_probe_set(probes_path);
-        std::ifstream in(points_path);
-        if (!in) throw std::runtime_error(points_path + ": cannot be read");
-        const nlohmann::json doc = nlohmann::json::parse(in, nullptr, false);
-        const std::string shape = R"( must be [{"position": [x,y,z], "normal": [x,y,z]}, ...])";
-        if (!doc.is_array()) throw std::runtime_error(points_path + shape);
-        const auto vec3 = [&](const nlohmann::json& p, const char* key, size_t i) {
-            const nlohmann::json* v = p.is_object() && p.contains(key) ? &p[key] : nullptr;
-            if (!v || !v->is_array() || v->size() != 3 || !(*v)[0].is_number() || !(*v)[1].is_number() ||
-                !(*v)[2].is_number())
-                throw std::runtime_error(points_path + ": point " + std::to_string(i) + ": " + key + shape);
-            const glm::vec3 r((*v)[0].get<float>(), (*v)[1].get<float>(), (*v)[2].get<float>());
-            if (!std::isfinite(r.x) || !std::isfinite(r.y) || !std::isfinite(r.z))
-                throw std::runtime_error(points_path + ": point " + std::to_string(i) + ": " + key + " is not finite");
-            return r;
-        };
-        std::vector<std::pair<glm::vec3, glm::vec3>> points;
-        for (size_t i = 0; i < doc.size(); ++i) {
-            const glm::vec3 position = vec3(doc[i], "position", i), normal = vec3(doc[i], "normal", i);
-            if (glm::length(normal) == 0.0f)
-                throw std::runtime_error(points_path + ": point " + std::to_string(i) + ": normal is zero");
-            points.push_back({position, glm::normalize(normal)});
-        }
-        const lf::ProbeEvaluator evaluator(set);  // throws when no probe is valid
-        const auto rgb = [](glm::vec3 c) { return nlohmann::json{c.r, c.g, c.b}; };
-        for (const auto& [position, normal] : points) {
-            const lf::ProbeEvaluation e = evaluator.evaluate(position, normal);
-            out["points"].push_back({{"sh9", rgb(e.sh9)},
-                                     {"point_to_point", rgb(e.point_to_point)},
-                                     {"polygon_to_point", rgb(e.polygon_to_point)},
-                                     {"ddgi", rgb(e.ddgi)}});
-        }
+        const lf::ProbeSet set = lf::read_probe_set(args.positional()[0]);
+        const std::vector<lf::ShadingPoint> points = lf::read_shading_points(args.positional()[1]);
+        out = lf::evaluate_at_points(set, points);
     } catch (const std::exception& e) {  // an unreadable or malformed input file
         std::cerr << "lightfarm probe-eval: error: " << e.what() << "\n";
         return lf::protocol::kExitInputError;

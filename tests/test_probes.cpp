@@ -778,6 +778,49 @@ TEST(ProbeFiles, WriteThenReadRoundTrips) {
 using test::CliRun;
 using test::run_lightfarm;
 
+// probe-eval's points file, every kind of mistake in it: each refused with
+// the file, the point and what is wrong; a good one read with its normals
+// made unit.
+TEST(ProbeCli, ShadingPointsAreReadOrRefusedNamingThePoint) {
+    const std::filesystem::path file =
+        std::filesystem::temp_directory_path() / ("lightfarm_points_" + std::to_string(::getpid()) + ".json");
+    auto refused = [&](const std::string& text) {
+        std::ofstream(file) << text;
+        try {
+            read_shading_points(file);
+        } catch (const std::runtime_error& e) {
+            return std::string(e.what());
+        }
+        return std::string("accepted");
+    };
+    const std::string shape = R"(must be [{"position": [x,y,z], "normal": [x,y,z]}, ...])";
+    EXPECT_NE(refused(R"({"position": [0, 0, 0]})").find(shape), std::string::npos) << "not an array";
+    EXPECT_NE(refused("[1, 2").find(shape), std::string::npos) << "not JSON";
+    EXPECT_NE(refused(R"([{"normal": [0, 1, 0]}])").find("point 0: position"), std::string::npos);
+    EXPECT_NE(refused(R"([{"position": [0, 0, 0]}])").find("point 0: normal"), std::string::npos);
+    EXPECT_NE(
+        refused(R"([{"position": [0, 0, 0], "normal": [0, 1, 0]}, {"position": [0, "a", 0], "normal": [0, 1, 0]}])")
+            .find("point 1: position"),
+        std::string::npos);
+    EXPECT_NE(refused(R"([{"position": [0, 0, 1e39], "normal": [0, 1, 0]}])").find("point 0: position is not finite"),
+              std::string::npos);
+    EXPECT_NE(refused(R"([{"position": [0, 0, 0], "normal": [0, 0, 0]}])").find("point 0: normal is zero"),
+              std::string::npos);
+    EXPECT_NE(refused("[]").find("accepted"), std::string::npos) << "no point: nothing to evaluate";
+    std::ofstream(file) << R"([{"position": [1, 2, 3], "normal": [0, 2, 0]}])";
+    const std::vector<ShadingPoint> points = read_shading_points(file);
+    ASSERT_EQ(points.size(), 1u);
+    EXPECT_EQ(points[0].position, glm::vec3(1, 2, 3));
+    EXPECT_EQ(points[0].normal, glm::vec3(0, 1, 0));
+    std::filesystem::remove(file);
+    try {
+        read_shading_points(file);
+        ADD_FAILURE() << "a missing file was read";
+    } catch (const std::runtime_error& e) {
+        EXPECT_NE(std::string(e.what()).find(file.string() + ": cannot be read"), std::string::npos) << e.what();
+    }
+}
+
 TEST(ProbeCli, ProbeEvalPrintsTheFourEstimatorsInInputOrder) {
     const ProbeSet set = small_set();
     const fs::path dir = fresh_dir("cli");

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <stdexcept>
 
 namespace lf {
@@ -558,6 +559,47 @@ std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
         for (size_t c = 0; c < corners.size(); ++c) block[texels + c / 4][int(c % 4)] = corners[c];
         glm::vec4* sh9 = block + stride - 9;
         for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], 0.0f);
+    }
+    return out;
+}
+
+std::vector<ShadingPoint> read_shading_points(const std::filesystem::path& points_json) {
+    const std::string file = points_json.string();
+    std::ifstream in(points_json);
+    if (!in) throw std::runtime_error(file + ": cannot be read");
+    const nlohmann::json doc = nlohmann::json::parse(in, nullptr, false);
+    const std::string shape = R"( must be [{"position": [x,y,z], "normal": [x,y,z]}, ...])";
+    if (!doc.is_array()) throw std::runtime_error(file + shape);
+    const auto vec3 = [&](const nlohmann::json& p, const char* key, size_t i) {
+        const nlohmann::json* v = p.is_object() && p.contains(key) ? &p[key] : nullptr;
+        if (!v || !v->is_array() || v->size() != 3 || !(*v)[0].is_number() || !(*v)[1].is_number() ||
+            !(*v)[2].is_number())
+            throw std::runtime_error(file + ": point " + std::to_string(i) + ": " + key + shape);
+        const glm::vec3 r((*v)[0].get<float>(), (*v)[1].get<float>(), (*v)[2].get<float>());
+        if (!std::isfinite(r.x) || !std::isfinite(r.y) || !std::isfinite(r.z))
+            throw std::runtime_error(file + ": point " + std::to_string(i) + ": " + key + " is not finite");
+        return r;
+    };
+    std::vector<ShadingPoint> points;
+    for (size_t i = 0; i < doc.size(); ++i) {
+        const glm::vec3 position = vec3(doc[i], "position", i), normal = vec3(doc[i], "normal", i);
+        if (glm::length(normal) == 0.0f)
+            throw std::runtime_error(file + ": point " + std::to_string(i) + ": normal is zero");
+        points.push_back({position, glm::normalize(normal)});
+    }
+    return points;
+}
+
+nlohmann::json evaluate_at_points(const ProbeSet& set, const std::vector<ShadingPoint>& points) {
+    const ProbeEvaluator evaluator(set);  // throws when no probe is valid
+    const auto rgb = [](glm::vec3 c) { return nlohmann::json{c.r, c.g, c.b}; };
+    nlohmann::json out = {{"points", nlohmann::json::array()}};
+    for (const ShadingPoint& p : points) {
+        const ProbeEvaluation e = evaluator.evaluate(p.position, p.normal);
+        out["points"].push_back({{"sh9", rgb(e.sh9)},
+                                 {"point_to_point", rgb(e.point_to_point)},
+                                 {"polygon_to_point", rgb(e.polygon_to_point)},
+                                 {"ddgi", rgb(e.ddgi)}});
     }
     return out;
 }

@@ -64,8 +64,10 @@
 #include "probes/probe_set.h"
 
 #include <glm/glm.hpp>
+#include <nlohmann/json.hpp>
 
 #include <array>
+#include <filesystem>
 #include <vector>
 
 namespace lf {
@@ -200,6 +202,23 @@ private:
 // All four at (x, n) from the set's valid probes (blended as above). Throws
 // std::invalid_argument when the set has no valid probe.
 ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const ProbeEvalOptions& options = {});
+
+// A shading point: where a renderer asks the probes for light, and its normal (unit).
+struct ShadingPoint {
+    glm::vec3 position;
+    glm::vec3 normal;
+};
+
+// `lightfarm probe-eval`'s points: a JSON file of [{"position": [x, y, z],
+// "normal": [x, y, z]}, ...], normals normalized. Throws std::runtime_error
+// naming the file and the point for an unreadable file, a missing or
+// non-finite vector, or a zero normal.
+std::vector<ShadingPoint> read_shading_points(const std::filesystem::path& points_json);
+
+// Every estimator at each point, as `lightfarm probe-eval` prints it:
+// {"points": [{"sh9": [r, g, b], "point_to_point": …, "polygon_to_point": …,
+// "ddgi": …}, …]}. Throws as ProbeEvaluator does.
+nlohmann::json evaluate_at_points(const ProbeSet& set, const std::vector<ShadingPoint>& points);
 
 // The SSBO gi/shaders/probe_eval.glsl reads: per probe, 6·M·M vec4 texels
 // (radiance RGB, distance) in ProbeSet::texel order, then the 6·(M+1)² corner
