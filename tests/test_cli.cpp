@@ -267,7 +267,11 @@ TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
 // llvmpipe): 128 passes against the path tracer's 256 (its mean good to
 // ~0.1%: 128 passes of another seed give the same within 0.08%), +8.0% with
 // the indirect layer read everywhere, +2.4% with the whole value read at cut
-// texels, +0.22% now. The bound is the issue's 1%, which both old ways fail.
+// texels, +0.22% then. The bound is the issue's 1%, which both old ways fail.
+// Since the room's glass passes light (KHR_materials_transmission, issue
+// #35) it measures +0.78% (2026-11-27; the same with --glass-texels): inside
+// the bound, but the final gather's treatment of light through glass is
+// worth a look (the closing note of 2026-11-27).
 TEST(CliBake, FinalGatherOnMouldingsAgreesWithThePathTracer) {
     const std::string scene = test::shared_scene("real/grey_white_room/grey_white_room.gltf");
     const fs::path out = fresh_dir("fg_mouldings");
