@@ -141,6 +141,8 @@ void ComputeProgram::read_parameter_block() {
         if (block != -1) continue;
         char uniform_name[128] = {};
         glGetActiveUniformName(id_, u, sizeof uniform_name, nullptr, uniform_name);
+        glDeleteProgram(id_);  // the constructor throws: no destructor will
+        id_ = 0;
         throw GpuError(name_ + ": uniform '" + uniform_name +
                        "' is outside the parameter block (a *_params.glsl field, set by use(params))");
     }
