@@ -10,9 +10,7 @@
 namespace lf::cli {
 
 BakeReporter::BakeReporter(bool json, const protocol::BakeSettings& settings)
-    : json_(json), terminal_(!json && isatty(STDERR_FILENO)) {
-    for (const auto& [output, o] : settings.outputs) stop_[output] = o.stop();
-}
+    : json_(json), terminal_(!json && isatty(STDERR_FILENO)), job_(settings) {}
 
 void BakeReporter::operator()(const protocol::WorkerEvent& e) {
     if (json_) {
@@ -41,7 +39,7 @@ void BakeReporter::print_start(const protocol::StartEvent& start) {
                           ? std::to_string(it.value()["probes"].get<uint64_t>()) + " probes)"
                           : std::to_string(it.value().value("vertices", uint64_t(0))) + " vertices)");
     std::cerr << " on " << start.renderer << ", prepared in " << start.prepare_seconds << " s\n";
-    prepare_seconds_ = start.prepare_seconds;
+    job_.start(start);
     for (const auto& [output, at] : start.resumed) std::cerr << output << ": resumed after pass " << at.pass << "\n";
     for (const auto& [output, why] : start.not_resumed)
         std::cerr << output << ": not resumed, from pass 0: " << why << "\n";
@@ -50,11 +48,9 @@ void BakeReporter::print_start(const protocol::StartEvent& start) {
 void BakeReporter::draw_progress(const protocol::ProgressEvent& progress) {
     if (progress.output != drawing_ && !drawing_.empty()) std::cerr << "\n";
     drawing_ = progress.output;
-    // The same line as `submit --wait` and `watch` draw: the share done by
-    // whichever stop rule ends the output first, preparation included.
-    protocol::Progress shown = progress.progress;
-    shown.eta_seconds = protocol::estimate_eta(stop_[progress.output], shown);
-    shown.prepare_seconds = prepare_seconds_;
+    // The same line as `submit --wait` and `watch` draw: the whole job's
+    // share done and ETA, each output ending at its first stop rule met.
+    const protocol::Progress shown = job_.update(progress.output, progress.progress);
     std::cerr << "\r" << progress_line("", progress.output, shown) << "    " << std::flush;
 }
 

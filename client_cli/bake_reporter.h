@@ -5,6 +5,7 @@
 #pragma once
 
 #include "job_spec.h"
+#include "job_status.h"
 #include "worker_protocol.h"
 
 #include <map>
@@ -23,9 +24,8 @@ private:
     void draw_progress(const protocol::ProgressEvent& progress);
 
     bool json_, terminal_;
-    // Each output's stop rules: the progress bar's share done and ETA.
-    std::map<std::string, protocol::StopSettings> stop_;
-    double prepare_seconds_ = 0.0;
+    // The whole job's share done and ETA, as the server reckons them.
+    protocol::JobProgress job_;
     std::string drawing_;  // the output whose bar is on the current line
 };
 

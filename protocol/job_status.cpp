@@ -1,5 +1,7 @@
 #include "job_status.h"
 
+#include "outputs.h"
+
 #include <algorithm>
 #include <cmath>
 
@@ -43,6 +45,58 @@ std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p) 
         consider(per_pass * p.pass * (ratio * ratio - 1.0));
     }
     return eta;
+}
+
+void JobProgress::start(const StartEvent& start) {
+    prepare_seconds_ = start.prepare_seconds;
+    for (auto it = start.outputs.begin(); it != start.outputs.end(); ++it) {
+        const json rays = it.value().is_object() ? it.value().value("rays_per_pass", json()) : json();
+        const bool positive =
+            rays.is_number_unsigned() ? rays.get<uint64_t>() > 0 : rays.is_number_integer() && rays.get<int64_t>() > 0;
+        if (positive) rays_per_pass_[it.key()] = rays.get<uint64_t>();
+    }
+    latest_ = start.resumed;
+}
+
+Progress JobProgress::update(const std::string& output, Progress p) {
+    latest_[output] = p;
+    p.prepare_seconds = prepare_seconds_;
+    p.earlier_outputs_seconds = 0.0;
+    bool earlier = true;
+    for (const OutputKind& kind : output_registry()) {
+        if (kind.name == output) earlier = false;
+        if (earlier && latest_.count(kind.name)) p.earlier_outputs_seconds += latest_.at(kind.name).seconds;
+    }
+    p.eta_seconds.reset();
+    const OutputSettings* settings = bake_.output(output);
+    if (!settings) return p;
+    const std::optional<double> own = estimate_eta(settings->stop(), p);
+    const std::optional<double> rest =
+        p.seconds > 0.0 ? seconds_to_come(output, double(p.rays) / p.seconds) : std::nullopt;
+    if (own && rest) p.eta_seconds = *own + *rest;
+    return p;
+}
+
+// The outputs after `after`: each from where it resumes to its pass count,
+// at `rays_per_second`, or to its time limit if that comes first. (Its
+// target error cannot be priced before it runs: an upper bound until then.)
+std::optional<double> JobProgress::seconds_to_come(const std::string& after, double rays_per_second) const {
+    double seconds = 0.0;
+    bool later = false;
+    for (const OutputKind& kind : output_registry()) {
+        const OutputSettings* settings = bake_.output(kind.name);
+        if (later && settings) {
+            const StopSettings stop = settings->stop();
+            const Progress from = latest_.count(kind.name) ? latest_.at(kind.name) : Progress{};
+            const auto rays = rays_per_pass_.find(kind.name);
+            if (rays == rays_per_pass_.end() || rays_per_second <= 0.0) return std::nullopt;
+            double left = std::max(0, stop.passes - from.pass) * double(rays->second) / rays_per_second;
+            if (stop.time_limit > 0.0) left = std::min(left, std::max(0.0, stop.time_limit - from.seconds));
+            seconds += left;
+        }
+        if (kind.name == after) later = true;
+    }
+    return seconds;
 }
 
 json to_json(const JobDone& d) {

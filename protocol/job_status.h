@@ -27,6 +27,37 @@ bool is_final(JobState s);
 // With several rules the bake stops at the first one met.
 std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p);
 
+// A job's progress across its outputs, which the worker bakes one after
+// another in the registry's order: what the status page, `watch` and the
+// local bar show. One ETA for the whole job (issue #36: a lightmap + SH job
+// showed 0 s left when its lightmap ended): the output in progress by
+// estimate_eta, plus each output still to come at its own stop rule, its
+// passes priced at the rays per second the job traces now and the rays one
+// of its passes traces (the start event's "rays_per_pass"). Unknown while
+// any part is. The done fraction counts preparation and the outputs baked
+// before this one.
+class JobProgress {
+public:
+    JobProgress() = default;
+    explicit JobProgress(const BakeSettings& bake) : bake_(bake) {}
+
+    // The start event: preparation's seconds, each output's rays per pass,
+    // and where a resumed output continues from.
+    void start(const StartEvent& start);
+    // An output's totals after a pass, with the job's ETA, preparation and
+    // earlier outputs' seconds filled in; remembers them.
+    Progress update(const std::string& output, Progress p);
+    double prepare_seconds() const { return prepare_seconds_; }
+
+private:
+    std::optional<double> seconds_to_come(const std::string& after, double rays_per_second) const;
+
+    BakeSettings bake_;
+    double prepare_seconds_ = 0.0;
+    std::map<std::string, uint64_t> rays_per_pass_;  // output -> the start event's estimate (absent: unknown)
+    std::map<std::string, Progress> latest_;         // output -> its totals so far (resumed, then reported)
+};
+
 // The newest file of one output, as the worker's events named it: a snapshot
 // event's file and pass, replaced by the output's final file when the done
 // event names it. Never found by sorting file names (pass-16384 sorts before

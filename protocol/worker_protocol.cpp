@@ -14,6 +14,7 @@ json to_json(const Progress& p) {
     j["error_estimate"] = p.error_estimate ? json(*p.error_estimate) : json(nullptr);
     j["eta_seconds"] = p.eta_seconds ? json(*p.eta_seconds) : json(nullptr);
     j["prepare_seconds"] = p.prepare_seconds;
+    j["earlier_outputs_seconds"] = p.earlier_outputs_seconds;
     const std::optional<double> fraction = done_fraction(p);
     j["fraction"] = fraction ? json(*fraction) : json(nullptr);
     return j;
@@ -21,7 +22,8 @@ json to_json(const Progress& p) {
 
 std::optional<double> done_fraction(const Progress& p) {
     if (!p.eta_seconds) return std::nullopt;
-    const double done = std::max(0.0, p.prepare_seconds) + std::max(0.0, p.seconds);
+    const double done =
+        std::max(0.0, p.prepare_seconds) + std::max(0.0, p.earlier_outputs_seconds) + std::max(0.0, p.seconds);
     const double left = std::max(0.0, *p.eta_seconds);
     return done + left > 0.0 ? done / (done + left) : 1.0;
 }
@@ -43,6 +45,8 @@ Progress progress_from_json(const json& j) {
     if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
     if (j.contains("prepare_seconds") && j["prepare_seconds"].is_number())
         p.prepare_seconds = j["prepare_seconds"].get<double>();
+    if (j.contains("earlier_outputs_seconds") && j["earlier_outputs_seconds"].is_number())
+        p.earlier_outputs_seconds = j["earlier_outputs_seconds"].get<double>();
     return p;
 }
 
@@ -70,7 +74,8 @@ namespace {
 
 json progress_fields(const Progress& p) {
     json j = to_json(p);
-    for (const char* servers : {"eta_seconds", "prepare_seconds", "fraction"}) j.erase(servers);  // not the worker's
+    for (const char* servers : {"eta_seconds", "prepare_seconds", "earlier_outputs_seconds", "fraction"})
+        j.erase(servers);  // not the worker's
     return j;
 }
 

@@ -61,10 +61,11 @@ struct Progress {
     std::optional<double> error_estimate;  // relative standard error, once known
     std::optional<double> eta_seconds;     // the server's estimate of what is left
     double prepare_seconds = 0.0;          // the server's: the job's preparation before its first pass
+    double earlier_outputs_seconds = 0.0;  // the server's: passes of the job's outputs baked before this one
 };
-// How much of the job is done, preparation included: (preparation + passes'
-// seconds) over that plus the ETA, 1 once the ETA is 0; empty while the ETA
-// is unknown. The bars of the status page and of `lightfarm watch`.
+// How much of the job is done, preparation and earlier outputs included:
+// (preparation + earlier outputs + passes' seconds) over that plus the ETA, 1
+// once the ETA is 0; empty while the ETA is unknown. The bars of the status page and of `lightfarm watch`.
 std::optional<double> done_fraction(const Progress& p);
 nlohmann::json to_json(const Progress& p);
 Progress progress_from_json(const nlohmann::json& j);

@@ -336,11 +336,6 @@ std::string output_or_only(const std::string& output, const protocol::BakeSettin
     return bake.outputs.begin()->first;
 }
 
-std::optional<protocol::StopSettings> stop_settings_of(const std::string& output, const protocol::BakeSettings& bake) {
-    if (const protocol::OutputSettings* o = bake.output(output)) return o->stop();
-    return std::nullopt;
-}
-
 }  // namespace
 
 AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::WorkerEvent& event,
@@ -353,15 +348,15 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         json data = protocol::to_json(protocol::WorkerEvent(*start));
         data.erase("event");
         data["attempt"] = attempt;
-        u.state.prepare_seconds = start->prepare_seconds;
+        u.state.job = protocol::JobProgress(bake);
+        u.state.job->start(*start);
         // A resumed output's rays so far were counted by the attempt that traced them.
         for (const auto& [output, at] : start->resumed) u.state.rays[output] = at.rays;
         u.event = JobEvent{0, "started", data};
     } else if (const auto* progress = std::get_if<protocol::ProgressEvent>(&event)) {
         const std::string output = output_or_only(progress->output, bake);
-        Progress p = progress->progress;
-        p.prepare_seconds = state.prepare_seconds;
-        if (const auto stop = stop_settings_of(output, bake)) p.eta_seconds = protocol::estimate_eta(*stop, p);
+        if (!u.state.job) u.state.job = protocol::JobProgress(bake);  // a worker that sent no start event
+        const Progress p = u.state.job->update(output, progress->progress);
         // Rays are counted per output: each output's totals start again at 0.
         const uint64_t seen = state.rays.count(output) ? state.rays.at(output) : 0;
         u.new_rays = p.rays >= seen ? p.rays - seen : p.rays;
@@ -391,7 +386,7 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         const auto& done = std::get<protocol::DoneEvent>(event);
         Progress p = done.progress;
         p.eta_seconds = 0.0;
-        p.prepare_seconds = state.prepare_seconds;
+        if (state.job) p.prepare_seconds = state.job->prepare_seconds();
         u.progress = p;
         protocol::JobDone job_done;
         job_done.progress = p;

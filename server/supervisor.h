@@ -34,10 +34,10 @@ namespace lf::server {
 
 // What one attempt has seen of its worker so far.
 struct AttemptState {
-    std::map<std::string, uint64_t> rays;  // output -> rays its progress reported last
-    std::map<std::string, int> passes;     // output -> pass its progress reported last
-    std::optional<nlohmann::json> done;    // the "done" event's data, once the worker reported done
-    double prepare_seconds = 0.0;          // the start event's: part of every progress's done fraction
+    std::map<std::string, uint64_t> rays;      // output -> rays its progress reported last
+    std::map<std::string, int> passes;         // output -> pass its progress reported last
+    std::optional<nlohmann::json> done;        // the "done" event's data, once the worker reported done
+    std::optional<protocol::JobProgress> job;  // from the start event: the whole job's ETA and done fraction
 };
 
 // What applying one worker event asks the supervisor to store. Empty parts

@@ -90,6 +90,7 @@ public:
     std::string output() const override { return "counting"; }
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override { return {}; }
+    uint64_t rays_per_pass() const override { return 10; }
     PassStats step() override { return run_passes(1).back(); }
     std::vector<PassStats> run_passes(int count) override {
         batches.push_back(count);

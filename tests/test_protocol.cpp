@@ -915,6 +915,77 @@ TEST(JobStatus, EtaFollowsTheStoppingRules) {
     EXPECT_DOUBLE_EQ(*estimate_eta(b.output("lightmap")->stop(), p), 0.5 * (256 - 4));
 }
 
+// One ETA for the whole job: a lightmap + SH job (baked in that order)
+// counts the SH passes to come while its lightmap bakes, priced at the rate
+// the job traces now and the start event's rays per pass.
+TEST(JobStatus, OneEtaAcrossTheJobsOutputs) {
+    const BakeSettings bake =
+        parse_bake_settings({{"outputs", {{"lightmap", {{"passes", 10}}}, {"sh", {{"sh_passes", 20}}}}}});
+    StartEvent start;
+    start.prepare_seconds = 3.0;
+    start.outputs = {{"lightmap", {{"rays_per_pass", 1000}}}, {"sh", {{"rays_per_pass", 500}}}};
+    JobProgress job(bake);
+    job.start(start);
+
+    Progress lightmap;
+    lightmap.pass = 4, lightmap.seconds = 2.0, lightmap.rays = 4000;  // 0.5 s a pass, 2000 rays/s
+    Progress shown = job.update("lightmap", lightmap);
+    // 6 lightmap passes at 0.5 s, then 20 SH passes of 500 rays at 2000 rays/s.
+    EXPECT_DOUBLE_EQ(*shown.eta_seconds, 3.0 + 20 * 0.25);
+    EXPECT_DOUBLE_EQ(shown.prepare_seconds, 3.0);
+    EXPECT_DOUBLE_EQ(shown.earlier_outputs_seconds, 0.0);
+    EXPECT_DOUBLE_EQ(*done_fraction(shown), 5.0 / (5.0 + 8.0));
+
+    lightmap.pass = 10, lightmap.seconds = 5.0, lightmap.rays = 10000;
+    shown = job.update("lightmap", lightmap);
+    EXPECT_DOUBLE_EQ(*shown.eta_seconds, 5.0) << "the lightmap's end is not the job's";
+
+    Progress sh;
+    sh.pass = 5, sh.seconds = 1.0, sh.rays = 2500;
+    shown = job.update("sh", sh);
+    EXPECT_DOUBLE_EQ(*shown.eta_seconds, 3.0);  // 15 passes at 0.2 s: nothing after SH
+    EXPECT_DOUBLE_EQ(shown.earlier_outputs_seconds, 5.0);
+    EXPECT_DOUBLE_EQ(*done_fraction(shown), (3.0 + 5.0 + 1.0) / (9.0 + 3.0));
+}
+
+// An output to come is priced from where it resumes, never past its time
+// limit, and not at all without its rays per pass (unknown, not a guess).
+TEST(JobStatus, JobEtaOfOutputsToComeFollowsTheirStopRulesAndResumption) {
+    const BakeSettings bake = parse_bake_settings(
+        {{"outputs", {{"lightmap", {{"passes", 10}}}, {"sh", {{"sh_passes", 100}, {"sh_time_limit", 4}}}}}});
+    Progress lightmap;
+    lightmap.pass = 10, lightmap.seconds = 5.0, lightmap.rays = 10000;  // done: 2000 rays/s
+    StartEvent start;
+    start.outputs = {{"lightmap", {{"rays_per_pass", 1000}}}, {"sh", {{"rays_per_pass", 500}}}};
+    {
+        JobProgress job(bake);
+        job.start(start);
+        EXPECT_DOUBLE_EQ(*job.update("lightmap", lightmap).eta_seconds, 4.0) << "100 x 0.25 s, cut at 4 s";
+    }
+    {
+        StartEvent resumed = start;
+        resumed.resumed["sh"].pass = 90;
+        resumed.resumed["sh"].seconds = 1.0;
+        JobProgress job(bake);
+        job.start(resumed);
+        EXPECT_DOUBLE_EQ(*job.update("lightmap", lightmap).eta_seconds, 10 * 0.25);
+    }
+    {
+        StartEvent unknown = start;
+        unknown.outputs["sh"].erase("rays_per_pass");
+        JobProgress job(bake);
+        job.start(unknown);
+        EXPECT_FALSE(job.update("lightmap", lightmap).eta_seconds);
+    }
+    // One output: the job's ETA is the output's own.
+    const BakeSettings one = parse_bake_settings({{"outputs", {{"lightmap", {{"passes", 10}}}}}});
+    JobProgress job(one);
+    job.start(start);
+    lightmap.pass = 4, lightmap.seconds = 2.0;
+    EXPECT_DOUBLE_EQ(*job.update("lightmap", lightmap).eta_seconds,
+                     *estimate_eta(one.output("lightmap")->stop(), lightmap));
+}
+
 TEST(Sse, FormatsAndParsesInAnyChunking) {
     const std::vector<JobEvent> events = {{1, "progress", {{"pass", 1}}},
                                           {2, "snapshot", {{"file", "lightmap.pass-0001.exr"}}},

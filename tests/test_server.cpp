@@ -590,6 +590,26 @@ TEST_F(ServerTest, AWorkerThatCannotReadItsSpecIsRetriedAtNoCost) {
     EXPECT_EQ(all[1].data["server_fault"], true);
 }
 
+// A worker that could not write its files (exit 5: a full disk, an I/O
+// error) failed for the machine: retried at no cost, and the cause says so.
+TEST_F(ServerTest, AWorkerThatCannotWriteItsFilesIsRetriedAtNoCost) {
+    engine.set("mode", "write_fails_first");
+    start();
+    const std::string id = submit(upload());
+    const json status = wait_finished(id, std::chrono::seconds(30));
+    EXPECT_EQ(status["state"], "succeeded") << status.dump();
+    EXPECT_EQ(status["attempts"], 1) << status.dump();
+    EXPECT_EQ(engine.runs(), 2);
+    const auto all = events(id);
+    ASSERT_GE(all.size(), 2u);
+    EXPECT_EQ(all[1].type, "retrying");
+    EXPECT_EQ(all[1].data["server_fault"], true);
+    const std::string cause = all[1].data.value("cause", "");
+    EXPECT_NE(cause.find("could not write its files"), std::string::npos) << cause;
+    EXPECT_NE(cause.find("No space left on device"), std::string::npos) << cause;
+    EXPECT_EQ(cause.find((tmp.path / "data").string()), std::string::npos) << "no server path in the cause: " << cause;
+}
+
 TEST_F(ServerTest, AWorkerThatAlwaysDiesFailsTheJobWithTheCause) {
     engine.set("mode", "always_crash");
     start({"--attempts", "3"});
@@ -1246,41 +1266,54 @@ TEST(ApplyWorkerEvent, TheDoneFractionIncludesPreparation) {
 
 // Every output of the registry, alone and beside every other, gets its
 // ETA from its own stop rule (a probes job showed 0% and no ETA until it
-// ended: the server knew the lightmap's and SH's stop settings only).
+// ended: the server knew the lightmap's and SH's stop settings only), and
+// beside others the job's ETA adds the passes of each output still to come.
 TEST(ApplyWorkerEvent, EveryOutputGetsAnEtaFromItsOwnStopRule) {
     json all = json::object();
-    for (const protocol::OutputKind& o : protocol::output_registry()) all[o.name] = json::object();
+    protocol::StartEvent start;  // every output: 40 passes of 50 rays
     for (const protocol::OutputKind& o : protocol::output_registry()) {
+        all[o.name] = {{o.stop_prefix + "passes", 40}};
+        start.outputs[o.name] = {{"rays_per_pass", 50}};
+    }
+    all["probes"]["probe_positions"] = json::array({{{"position", {0, 0, 0}}}});
+    const auto& registry = protocol::output_registry();
+    for (size_t i = 0; i < registry.size(); ++i) {
+        const protocol::OutputKind& o = registry[i];
         SCOPED_TRACE(o.name);
-        const std::string passes = o.stop_prefix + "passes";
-        ASSERT_TRUE(protocol::find_setting(o.name, passes)) << "its stop settings are in the catalog";
-        for (json outputs : {json{{o.name, json::object()}}, all}) {
-            outputs[o.name] = {{passes, 40}};
-            if (o.name == "probes") outputs[o.name]["probe_positions"] = json::array({{{"position", {0, 0, 0}}}});
+        ASSERT_TRUE(protocol::find_setting(o.name, o.stop_prefix + "passes")) << "its stop settings are in the catalog";
+        const double to_come = double(registry.size() - 1 - i) * 40 * 0.1;  // 40 passes of 50 rays at 500 rays/s each
+        for (const auto& [outputs, later] : {std::pair{json{{o.name, all[o.name]}}, 0.0}, std::pair{all, to_come}}) {
             const protocol::BakeSettings bake =
                 protocol::parse_bake_settings({{"outputs", outputs}, {"env", {1, 1, 1}}});
+            const server::AttemptUpdate started = server::apply_worker_event({}, start, bake, "job1", 1);
             protocol::ProgressEvent p{o.name, {}};
             p.progress.pass = 10;
+            p.progress.rays = 1000;
             p.progress.seconds = 2.0;
-            const server::AttemptUpdate u = server::apply_worker_event({}, p, bake, "job1", 1);
+            const server::AttemptUpdate u = server::apply_worker_event(started.state, p, bake, "job1", 1);
             ASSERT_TRUE(u.progress);
             ASSERT_TRUE(u.progress->eta_seconds);
-            EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 0.2 * 30);  // 30 passes of 0.2 s left
+            EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 0.2 * 30 + later);  // 30 passes of 0.2 s left, then the rest
             ASSERT_TRUE(protocol::done_fraction(*u.progress));
         }
     }
 }
 
-TEST(ApplyWorkerEvent, ProgressGetsTheEtaOfItsOwnOutputAndCountsRaysPerOutput) {
+TEST(ApplyWorkerEvent, ProgressGetsTheEtaOfTheWholeJobAndCountsRaysPerOutput) {
     const protocol::BakeSettings bake = lightmap_and_sh();
+    protocol::StartEvent start;
+    start.outputs = {{"lightmap", {{"rays_per_pass", 100}}}, {"sh", {{"rays_per_pass", 100}}}};
     protocol::ProgressEvent p{"lightmap", {}};
     p.progress.pass = 10;
     p.progress.rays = 1000;
     p.progress.seconds = 2.0;
     server::AttemptUpdate u = server::apply_worker_event({}, p, bake, "job1", 1);
     ASSERT_TRUE(u.progress);
+    EXPECT_FALSE(u.progress->eta_seconds) << "without the start event the SH passes to come have no price";
+    u = server::apply_worker_event(server::apply_worker_event({}, start, bake, "job1", 1).state, p, bake, "job1", 1);
     ASSERT_TRUE(u.progress->eta_seconds);
-    EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 0.2 * 90);  // 90 passes of 0.2 s left
+    // 90 lightmap passes of 0.2 s left, then 10 SH passes of 100 rays at 500 rays/s.
+    EXPECT_DOUBLE_EQ(*u.progress->eta_seconds, 0.2 * 90 + 10 * 0.2);
     EXPECT_EQ(u.new_rays, 1000u);
     ASSERT_TRUE(u.rays_per_second);
     EXPECT_DOUBLE_EQ(*u.rays_per_second, 500.0);

@@ -67,6 +67,8 @@ nlohmann::json AmbientOcclusionMethod::description() const {
     return {{"texels", prepared_.texels.covered_count()}, {"settings", settings_json_}};
 }
 
+uint64_t AmbientOcclusionMethod::rays_per_pass() const { return point_count_; }
+
 std::vector<PassStats> AmbientOcclusionMethod::run_passes(int count) {
     const auto start = std::chrono::steady_clock::now();
     const AmbientOcclusionParams params{point_count_, uint32_t(stats_.pass), uint32_t(count), settings_.seed,

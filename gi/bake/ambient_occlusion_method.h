@@ -38,6 +38,7 @@ public:
     std::string output() const override { return "ao"; }
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
+    uint64_t rays_per_pass() const override;
     PassStats step() override { return run_passes(1).back(); }
     std::vector<PassStats> run_passes(int count) override;
     int max_batch() const override { return 64; }

@@ -479,7 +479,10 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     started.renderer = prepared->gpu->info().renderer;
     started.triangles = prepared->scene.triangle_count();
     started.prepare_seconds = prepared->prepare_seconds;
-    for (const auto& m : methods) started.outputs[m->output()] = m->description();
+    for (const auto& m : methods) {
+        started.outputs[m->output()] = m->description();
+        started.outputs[m->output()]["rays_per_pass"] = m->rays_per_pass();
+    }
     // Each output from where an interrupted run of this job left it; a
     // fresh run first drops any state an older run left behind.
     std::vector<std::string> keys;

@@ -136,6 +136,9 @@ nlohmann::json ProbesMethod::description() const {
               {"seed", seed_}}}};
 }
 
+// A path per capture texel (its bounces' rays come on top).
+uint64_t ProbesMethod::rays_per_pass() const { return capture_texels(positions_.size(), settings_.res); }
+
 PassStats ProbesMethod::step() {
     const auto start = std::chrono::steady_clock::now();
     const uint64_t texels = capture_texels(positions_.size(), settings_.res);

@@ -62,6 +62,9 @@ public:
     virtual StopRule stop_rule() const = 0;
     // What it bakes (texels, vertices, settings): the start event and the manifest.
     virtual nlohmann::json description() const = 0;
+    // The rays one pass traces, about: the job's ETA prices an output's
+    // passes with it before the output starts (protocol::JobProgress).
+    virtual uint64_t rays_per_pass() const = 0;
     // Runs one pass and returns the totals after it.
     virtual PassStats step() = 0;
     // Runs `count` passes back to back (1 <= count <= max_batch()) and

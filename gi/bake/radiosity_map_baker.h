@@ -154,6 +154,9 @@ public:
     void restore(const MethodState& state);
 
     size_t covered_texels() const { return covered_count_; }
+    // The first pass's rays, before any texel has converged (stats' rays also
+    // count the bounces' extra rays).
+    uint64_t rays_per_pass() const { return rays_per_texel_ * uint64_t(covered_count_); }
     // Texels next to intersecting geometry (a shelf through a wall, a stair
     // against one): those with a sample point moved out from inside or
     // behind a surface (texel_relocate.comp), and all those whose samples

@@ -90,6 +90,8 @@ nlohmann::json RadiosityMapMethod::description() const {
             {"settings", settings_json_}};
 }
 
+uint64_t RadiosityMapMethod::rays_per_pass() const { return baker_.rays_per_pass(); }
+
 FloatImage RadiosityMapMethod::stitched_image(const RadiosityMapBaker::Readback& readback, bool during_passes,
                                               const LightmapDenoiser* denoiser) const {
     FloatImage image = baker_.image(readback);

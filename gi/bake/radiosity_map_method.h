@@ -23,6 +23,7 @@ public:
     std::string output() const override { return "lightmap"; }
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
+    uint64_t rays_per_pass() const override;
     PassStats step() override { return baker_.step(); }
     std::vector<PassStats> run_passes(int count) override { return baker_.run_passes(count); }
     int max_batch() const override { return baker_.max_batch(); }

@@ -78,6 +78,7 @@ public:
 
     size_t unique_vertices() const { return unique_count_ - point_count_; }
     size_t receiver_vertices() const { return receiver_vertex_count_; }
+    uint64_t rays_per_pass() const { return uint64_t(receiver_count_) * uint64_t(settings_.samples_per_pass); }
     size_t receiver_points() const { return point_count_; }
     // Resuming (bake/method_state.h): the running sums and their resolved means.
     MethodState state() const;

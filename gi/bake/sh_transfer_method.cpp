@@ -210,6 +210,8 @@ nlohmann::json ShTransferMethod::description() const {
     return d;
 }
 
+uint64_t ShTransferMethod::rays_per_pass() const { return baker_->rays_per_pass(); }
+
 FloatImage ShTransferMethod::texel_image(const ShVertexTransfer& t, int bands, const PassStats& s) const {
     FloatImage image = sh_texel_image(prepared_.texels, texel_receivers_, t.point_coefficients, bands);
     image.string_attributes["lightfarm.renderer"] = prepared_.gpu->info().renderer;

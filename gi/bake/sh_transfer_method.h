@@ -77,6 +77,7 @@ public:
     std::string output() const override { return "sh"; }
     StopRule stop_rule() const override { return stop_; }
     nlohmann::json description() const override;
+    uint64_t rays_per_pass() const override;
     PassStats step() override;
     SnapshotWrite snapshot(const std::filesystem::path& dir, const PassStats& stats) override;
     MethodResult finish(const std::filesystem::path& dir, const PassStats& stats) override;
