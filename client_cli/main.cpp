@@ -14,6 +14,7 @@
 #include "gpu/context.h"
 #include "probes/probe_eval.h"
 #include "io/output_comparison.h"
+#include "io/write_error.h"
 #include "scene/gltf_loader.h"
 #include "scene/scene_summary.h"
 #include "trace/raybench.h"
@@ -288,6 +289,9 @@ int main(int argc, char** argv) {
     } catch (const lf::BakeInputError& e) {
         std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
         return lf::protocol::kExitInputError;
+    } catch (const lf::WriteError& e) {  // the disk's trouble, not the scene's
+        std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";
+        return lf::protocol::kExitMachineFault;
     } catch (const std::exception& e) {
         // One line, with the context the thrower put in (file, object, shader).
         std::cerr << "lightfarm " << command << ": error: " << e.what() << "\n";

@@ -34,6 +34,10 @@ enum WorkerExit : int {
     // never the job's settings. The server requeues the job without
     // counting the attempt.
     kExitSpecUnreadable = 4,
+    // A file of the bake could not be written (disk full, I/O error): the
+    // machine's trouble, requeued like kExitSpecUnreadable without counting
+    // the attempt.
+    kExitMachineFault = 5,
 };
 inline bool is_input_error_exit(int code) { return code == kExitUsage || code == kExitInputError; }
 

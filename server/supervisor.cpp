@@ -705,6 +705,10 @@ bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
         server_fault(job, "the worker could not read the spec lightfarmd wrote" + (last.empty() ? "" : ": " + last));
         return true;
     }
+    if (end.status.exited && end.status.code == protocol::kExitMachineFault) {
+        server_fault(job, "the worker could not write its files" + (last.empty() ? "" : ": " + last));
+        return true;
+    }
     // A worker that failed while the disk is full failed for the machine.
     if (const std::string full = disk_full(); !full.empty() && !end.status.success()) {
         server_fault(job, "worker " + end.status.describe() + " while " + full);

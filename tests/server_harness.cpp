@@ -95,6 +95,7 @@ if [ -n "$spec" ]; then
 fi
 runs=$(( $(cat "$state/runs" 2>/dev/null || echo 0) + 1 ))
 echo $runs > "$state/runs.tmp" && mv "$state/runs.tmp" "$state/runs"
+while [ -f "$state/gate" ]; do sleep 0.02; done
 mode=$(cat "$state/mode" 2>/dev/null || echo ok)
 delay=$(cat "$state/delay" 2>/dev/null || echo 0)
 # As the engine does: a state saved with each snapshot, which --resume continues from.
@@ -110,6 +111,7 @@ case "$mode" in
   hang_always) sleep 60;;
   input_error) echo "lightfarm bake: error: $scene: nothing to bake: no emissive surface (spec $spec)" >&2; exit 3;;
   spec_unreadable_first) if [ $runs -eq 1 ]; then echo "lightfarm: --spec $spec is not whole JSON (empty, or cut short)" >&2; exit 4; fi;;
+  write_fails_first) if [ $runs -eq 1 ]; then echo "lightfarm bake: error: $out/lightmap.exr: cannot write (No space left on device)" >&2; exit 5; fi;;
 esac
 snap() {  # snap OUTPUT FILE PASS
   cp "$state/snapshot.exr" "$out/.$2.tmp" && mv "$out/.$2.tmp" "$out/$2"

@@ -38,9 +38,12 @@ void write_exr(const fs::path& path, int w, int h, float r, float g, float b);
 //   mode     ok | crash_first (exit 1 once) | always_crash | hang_first | hang_always
 //            | no_done | input_error (one stderr line naming the scene, exit 3)
 //            | spec_unreadable_first (exit 4 once, as a worker whose spec was cut short)
+//            | write_fails_first (exit 5 once, as a worker that could not write a file)
 //   delay    seconds between passes (default 0)
 //   snapshot_passes  e.g. "2048 16384": lightmap snapshots at exactly these passes
 //   runs     incremented at every `bake` (how many workers were started)
+//   gate     while this file exists, a worker waits after counting its run,
+//            before its first event
 //   last_spec.json, last_args, all_args: what the last worker was given
 // Passes come from the spec's lightmap "passes" (default 4); a spec with an
 // "sh" output also gets an SH snapshot (sh_transfer.pass-0001.bin) and final

@@ -1,4 +1,5 @@
 #include "atlas/lightmapped_gltf.h"
+#include "io/write_error.h"
 
 #include "util/parallel.h"
 #include "display_tone.h"
@@ -342,21 +343,24 @@ void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) 
         bool ok = gltf.WriteGltfSceneToStream(&model, encoded, false, true);
         std::string glb = encoded.str();
         if (ok) drop_zero_zfar(glb, out);
+        if (!ok) fail(out, "tinygltf could not encode the model");
         std::ofstream stream(temp, std::ios::binary | std::ios::trunc);
-        if (!stream) fail(out, "cannot create " + temp.string());
+        if (!stream) throw write_error(temp);
         stream.write(glb.data(), std::streamsize(glb.size()));
-        stream.flush();
-        if (!ok || !stream) {
-            stream.close();
-            std::filesystem::remove(temp);
-            fail(out, "write failed");
+        stream.close();  // the last bytes reach the file (and a full disk shows) here
+        if (!stream) {
+            const WriteError error = write_error(temp);
+            std::error_code ignored;
+            std::filesystem::remove(temp, ignored);
+            throw error;
         }
     }
     std::error_code ec;
     std::filesystem::rename(temp, out, ec);
     if (ec) {
-        std::filesystem::remove(temp);
-        fail(out, "cannot rename into place: " + ec.message());
+        std::error_code ignored;
+        std::filesystem::remove(temp, ignored);
+        throw write_error(out, ec.value());
     }
 }
 

@@ -1,11 +1,14 @@
 #include "io/image_files.h"
 
+#include "io/write_error.h"
+
 #include <ImfChannelList.h>
 #include <ImfDoubleAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfInputFile.h>
 #include <ImfOutputFile.h>
+#include <ImfStdIO.h>
 #include <ImfStringAttribute.h>
 #include <ImfThreading.h>
 
@@ -27,6 +30,17 @@ fs::path temp_path_for(const fs::path& path) {
     return path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(getpid()));
 }
 
+// Renames a complete temporary file into place; a rename that fails leaves
+// no temporary file behind and is a WriteError.
+void rename_into_place(const fs::path& tmp, const fs::path& path) {
+    std::error_code ec;
+    fs::rename(tmp, path, ec);
+    if (!ec) return;
+    std::error_code ignored;
+    fs::remove(tmp, ignored);
+    throw write_error(path, ec.value());
+}
+
 }  // namespace
 
 const std::vector<float>& FloatImage::at(const std::string& name) const {
@@ -39,16 +53,18 @@ void write_file_atomic(const fs::path& path, const std::function<void(std::ostre
     const fs::path tmp = temp_path_for(path);
     {
         std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-        if (!out) throw std::runtime_error(tmp.string() + ": cannot open for writing");
+        if (!out) throw write_error(tmp);
         write(out);
-        out.flush();
+        // close(), not flush(): the last bytes reach the file (and a full disk shows) here.
+        out.close();
         if (!out) {
+            const WriteError error = write_error(tmp);
             std::error_code ignored;
             fs::remove(tmp, ignored);
-            throw std::runtime_error(tmp.string() + ": write failed (disk full?)");
+            throw error;
         }
     }
-    fs::rename(tmp, path);
+    rename_into_place(tmp, path);
 }
 
 void write_file_atomic(const fs::path& path, const std::string& bytes) {
@@ -63,7 +79,17 @@ void write_exr(const fs::path& path, const FloatImage& image) {
         return true;
     }();
     (void)pool;
+    for (const auto& [name, data] : image.channels)
+        if (data.size() != size_t(image.width) * size_t(image.height))
+            throw std::runtime_error(path.string() + ": channel " + name + " has the wrong size");
     const fs::path tmp = temp_path_for(path);
+    // Our own stream, not a file OpenEXR opens: OpenEXR writes the line
+    // offsets (and its stream writes the last buffer) in destructors that
+    // swallow any error, so a small image on a full disk came out cut short
+    // and was renamed into place. The stream keeps the error; close()
+    // reports it.
+    std::ofstream stream(tmp, std::ios::binary | std::ios::trunc);
+    if (!stream) throw write_error(tmp);
     try {
         Imf::Header header(image.width, image.height);
         header.compression() = Imf::ZIP_COMPRESSION;
@@ -71,21 +97,27 @@ void write_exr(const fs::path& path, const FloatImage& image) {
         for (const auto& [name, value] : image.number_attributes) header.insert(name, Imf::DoubleAttribute(value));
         Imf::FrameBuffer frame;
         for (const auto& [name, data] : image.channels) {
-            if (data.size() != size_t(image.width) * size_t(image.height))
-                throw std::runtime_error("channel " + name + " has the wrong size");
             header.channels().insert(name, Imf::Channel(Imf::FLOAT));
             frame.insert(
                 name, Imf::Slice(Imf::FLOAT, (char*)data.data(), sizeof(float), sizeof(float) * size_t(image.width)));
         }
-        Imf::OutputFile file(tmp.c_str(), header);
+        Imf::StdOFStream exr_stream(stream, tmp.c_str());
+        Imf::OutputFile file(exr_stream, header);
         file.setFrameBuffer(frame);
         file.writePixels(image.height);
-    } catch (const std::exception& e) {
+    } catch (const std::exception& e) {  // OpenEXR's, naming the file and the error (errno's words)
         std::error_code ignored;
         fs::remove(tmp, ignored);
-        throw std::runtime_error(path.string() + ": writing EXR failed: " + e.what());
+        throw WriteError(path.string() + ": writing EXR failed: " + e.what());
     }
-    fs::rename(tmp, path);
+    stream.close();
+    if (!stream) {
+        const WriteError error = write_error(tmp);
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+        throw error;
+    }
+    rename_into_place(tmp, path);
 }
 
 FloatImage read_exr(const fs::path& path) {

@@ -30,6 +30,8 @@ struct FloatImage {
 };
 
 // Writes FLOAT channels, ZIP-compressed, atomically (temp file + rename).
+// The writers throw WriteError (io/write_error.h) when the file cannot be
+// written, leaving no temporary file behind.
 void write_exr(const std::filesystem::path& path, const FloatImage& image);
 FloatImage read_exr(const std::filesystem::path& path);
 
