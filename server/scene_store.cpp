@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -119,11 +120,22 @@ void check_gltf_uris(const std::string& gltf_name, const std::string& text, cons
     }
 }
 
+// An uploaded file into the upload's temporary directory. A file the disk
+// cannot take (full, an I/O error) is the server's trouble: 503, nothing
+// stored, never a scene kept cut short (the bytes that did not fit in the
+// stream's buffer reach the disk at close, which is checked).
 void write_file(const fs::path& path, const std::string& bytes) {
-    fs::create_directories(path.parent_path());
+    std::error_code ec;
+    fs::create_directories(path.parent_path(), ec);
     std::ofstream out(path, std::ios::binary);
     out.write(bytes.data(), std::streamsize(bytes.size()));
-    if (!out) throw std::runtime_error("cannot write " + path.string());
+    out.close();
+    if (ec || !out) {
+        const std::string why = ec ? ec.message() : std::strerror(errno);
+        log_line("upload: cannot write " + path.string() + " (" + why + ")");
+        throw HttpError(503, "the server cannot store the upload now (" + why + "); nothing was stored, retry later",
+                        {{"retry_after", 5}});
+    }
 }
 
 // The loader's own message without its "lightfarm inspect: error: " prefix.

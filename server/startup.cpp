@@ -229,7 +229,15 @@ std::vector<std::string> load_tokens(ServerConfig& config, bool& created) {
 void write_url_file(const ServerConfig& config, const std::string& url) {
     const fs::path path = fs::path(config.data_dir) / "lightfarmd.url";
     const fs::path tmp = path.string() + "." + random_hex(8) + ".tmp";
-    std::ofstream(tmp) << url << "\n";
+    std::ofstream out(tmp);
+    out << url << "\n";
+    out.close();
+    // An empty URL file would leave whoever waits for it waiting: no start.
+    if (!out) {
+        const std::string why = std::strerror(errno);
+        fs::remove(tmp);
+        throw std::runtime_error("cannot write " + path.string() + " (" + why + ")");
+    }
     chmod(tmp.c_str(), 0600);
     fs::rename(tmp, path);
 }

@@ -469,7 +469,13 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
     if (fs::exists(dir / protocol::kResumeDir)) argv.push_back("--resume");
     ++metrics_.worker_starts;
     auto child = std::make_unique<Subprocess>(argv);
-    std::ofstream(dir / kPidFile) << child->pid() << " " << store_.node().name << "\n";
+    // Without its pid file a worker this lightfarmd leaves behind (kill -9)
+    // would bake beside the next attempt: no file, no worker (the
+    // Subprocess's destructor ends it).
+    std::ofstream pid_file(dir / kPidFile);
+    pid_file << child->pid() << " " << store_.node().name << "\n";
+    pid_file.close();
+    if (!pid_file) throw ServerFault("cannot write the worker's pid file (" + std::string(std::strerror(errno)) + ")");
     log_line("job " + job.status.id + ": attempt " + std::to_string(job.status.attempts) + ", worker " +
              std::to_string(child->pid()));
     return child;
