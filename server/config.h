@@ -28,13 +28,21 @@ struct ServerLimits {
     // the whole request, body included, within request_seconds.
     double header_seconds = 10;
     double request_seconds = 300;
-    double keep_alive_seconds = 5;      // an idle kept-alive connection is closed after this
-    double drain_seconds = 5;           // on SIGTERM, requests in flight have this long to finish
-    int64_t header_bytes = 64 << 10;    // request line + headers (the request line alone: 8192)
-    int connections = 512;              // open connections, in total
-    int connections_per_address = 256;  // open connections from one client address
-    int event_streams = 0;              // open event streams, in total; 0: half of --http-threads (the most allowed)
-    int event_streams_per_token = 16;   // open event streams of one token
+    double keep_alive_seconds = 5;    // an idle kept-alive connection is closed after this
+    double drain_seconds = 5;         // on SIGTERM, requests in flight have this long to finish
+    int64_t header_bytes = 64 << 10;  // request line + headers (the request line alone: 8192)
+    // At a connection cap, a new connection first closes an idle one (one
+    // that has sent nothing): the oldest of its own address, or at the total
+    // cap, of the address holding the most. Only if none is idle is it 503.
+    int connections = 512;             // open connections, in total
+    int connections_per_address = 64;  // open connections from one client address (an eighth of the total)
+    int event_streams = 0;             // open event streams, in total; 0: half of --http-threads (the most allowed)
+    int event_streams_per_token = 16;  // open event streams of one token
+    // A request's body is read on a request thread, as long as the client
+    // takes to send it: bodies being read at once, per bearer token and per
+    // client address (0: an eighth and a quarter of --http-threads).
+    int body_reads_per_token = 0;
+    int body_reads_per_address = 0;
 };
 
 struct ServerConfig {

@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -24,6 +25,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <thread>
 
 namespace lf::server {
@@ -51,6 +53,12 @@ using json = nlohmann::json;
 // to a request thread, which reads the body through GateStream under the
 // whole request's deadline; a kept-alive connection goes back to the gate
 // between requests, so idle connections hold no thread either.
+//
+// Fair shares (issue #33): an idle connection (nothing sent) is the first
+// to be closed when a new one meets a connection cap (make_room_locked), and
+// a request with a body takes a request thread only within its token's and
+// its address's budgets (start_body_read_locked): one tenant's idle sockets
+// or slow bodies cost that tenant, not the others.
 // ---------------------------------------------------------------------------
 
 namespace gate {
@@ -114,6 +122,53 @@ inline void address_of(const sockaddr_storage& sa, std::string& ip, int& port) {
         port = ntohs(in6->sin6_port);
     }
     ip = text;
+}
+
+// The value of header `name` (case-insensitive, as HTTP header names are)
+// in `head`, a request line and its header lines; the first if repeated,
+// without the whitespace around it. Empty when absent.
+inline std::string_view header_value(std::string_view head, std::string_view name) {
+    auto same = [](std::string_view a, std::string_view b) {
+        return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
+                   return std::tolower(static_cast<unsigned char>(x)) == std::tolower(static_cast<unsigned char>(y));
+               });
+    };
+    for (size_t at = head.find('\n'); at != std::string_view::npos && at + 1 < head.size();) {
+        const size_t begin = at + 1;
+        at = head.find('\n', begin);
+        std::string_view line = head.substr(begin, (at == std::string_view::npos ? head.size() : at) - begin);
+        if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+        if (line.empty()) break;  // the end of the headers
+        if (line.size() <= name.size() || line[name.size()] != ':' || !same(line.substr(0, name.size()), name))
+            continue;
+        line.remove_prefix(name.size() + 1);
+        const size_t first = line.find_first_not_of(" \t"), last = line.find_last_not_of(" \t");
+        return first == std::string_view::npos ? std::string_view() : line.substr(first, last - first + 1);
+    }
+    return {};
+}
+
+// Whether a request (its line and headers) comes with a body: a
+// Content-Length other than 0, or a Transfer-Encoding. A malformed length
+// counts as a body; httplib refuses it.
+inline bool has_body(std::string_view head) {
+    const std::string_view length = header_value(head, "Content-Length");
+    return length.find_first_not_of('0') != std::string_view::npos || !header_value(head, "Transfer-Encoding").empty();
+}
+
+// The bearer token a request names, as sent (the service checks it; an
+// unknown one is answered 401 before its body is read). Empty when none.
+inline std::string bearer_token(std::string_view head) {
+    const std::string_view auth = header_value(head, "Authorization");
+    return auth.rfind("Bearer ", 0) == 0 ? std::string(auth.substr(7)) : std::string();
+}
+
+// Whether the client has sent something the gate has not read yet (or
+// closed its side): it is not idle, whatever the gate last saw.
+inline bool has_input(int fd) {
+    char c;
+    const ssize_t n = ::recv(fd, &c, 1, MSG_PEEK | MSG_DONTWAIT);
+    return n >= 0 || (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR);
 }
 
 class InlineQueue : public httplib::TaskQueue {
@@ -184,6 +239,12 @@ private:
         bool counted = false;   // holds a place in the connection caps
         int served = 0;
         size_t drained = 0;
+        bool reading_body = false;  // holds a place in the body-read budgets (of `token` and `ip`)
+        std::string token;
+
+        // Idle: in the gate, counted, and not a byte of a request since it
+        // connected or its last answer. The first to go at a cap.
+        bool idle() const { return counted && !draining && !got_bytes; }
     };
 
     // A request's body, read on a request thread: first what the gate read
@@ -314,28 +375,8 @@ private:
             ::close(c->fd);
             return true;
         }
-        const char* reason = nullptr;
-        int limit = 0;
-        if (open_ >= limits_.connections) reason = "connections", limit = limits_.connections;
-        else if (by_address_[c->ip] >= limits_.connections_per_address)
-            reason = "connections_per_address", limit = limits_.connections_per_address;
-        if (reason) {
-            if (by_address_[c->ip] == 0) by_address_.erase(c->ip);
-            metrics_.count_refusal(reason);
-            gate::send_best_effort(
-                c->fd,
-                gate::canned_response(503, "Service Unavailable",
-                                      {{"error", std::string(reason) + ": too many open connections (the limit is " +
-                                                     std::to_string(limit) + "); retry later"},
-                                       {"field", reason},
-                                       {"limit", limit}},
-                                      "Retry-After: 1\r\n"));
-            if (uncounted_lingering_ >= gate::kMaxUncountedLingering) {
-                ::close(c->fd);
-                return true;
-            }
-            ++uncounted_lingering_;
-            start_linger_locked(std::move(c), true);
+        if (!make_room_locked(c->ip)) {
+            refuse_connection_locked(std::move(c));
             return true;
         }
         c->counted = true;
@@ -346,6 +387,72 @@ private:
         c->deadline = c->started + seconds(limits_.header_seconds);
         add_waiting_locked(std::move(c));
         return true;
+    }
+
+    static int count_of(const std::map<std::string, int>& counts, const std::string& key) {
+        const auto it = counts.find(key);
+        return it == counts.end() ? 0 : it->second;
+    }
+    int connections_from_locked(const std::string& ip) const { return count_of(by_address_, ip); }
+
+    // Idle connections go first: a new connection from `ip` that meets a cap
+    // closes the oldest idle connection of its own address (at the
+    // per-address cap) or of the address holding the most (at the total
+    // cap), so that sockets which send nothing never lock anyone else out.
+    // False when a cap is met and no connection is idle.
+    bool make_room_locked(const std::string& ip) {
+        for (;;) {
+            const bool address_full = connections_from_locked(ip) >= limits_.connections_per_address;
+            if (!address_full && open_ < limits_.connections) return true;
+            Conn* idle = idle_to_drop_locked(address_full ? &ip : nullptr);
+            if (!idle) return false;
+            if (gate::has_input(idle->fd)) {
+                on_readable_locked(*idle);  // it has just sent something, or left: look again
+                continue;
+            }
+            ++metrics_.http_idle_dropped;
+            finish_locked(idle->fd);
+        }
+    }
+
+    // The idle connection to close for a new one: of `ip` if given, else of
+    // the address holding the most connections (that has an idle one); the
+    // one idle the longest. Null when none is idle. A scan of the gate's
+    // connections (at most `connections`), only when a cap is met.
+    Conn* idle_to_drop_locked(const std::string* ip) {
+        Conn* pick = nullptr;
+        int pick_held = 0;
+        for (auto& [fd, conn] : waiting_) {
+            Conn& c = *conn;
+            if (!c.idle() || (ip && c.ip != *ip)) continue;
+            const int held = ip ? 0 : connections_from_locked(c.ip);
+            if (!pick || held > pick_held || (held == pick_held && c.started < pick->started)) {
+                pick = &c;
+                pick_held = held;
+            }
+        }
+        return pick;
+    }
+
+    // 503 to a connection over a cap with nothing idle to close for it.
+    void refuse_connection_locked(std::unique_ptr<Conn> c) {
+        const bool address_full = connections_from_locked(c->ip) >= limits_.connections_per_address;
+        const char* reason = address_full ? "connections_per_address" : "connections";
+        const int limit = address_full ? limits_.connections_per_address : limits_.connections;
+        metrics_.count_refusal(reason);
+        gate::send_best_effort(
+            c->fd, gate::canned_response(503, "Service Unavailable",
+                                         {{"error", std::string(reason) + ": too many open connections (the limit is " +
+                                                        std::to_string(limit) + "); retry later"},
+                                          {"field", reason},
+                                          {"limit", limit}},
+                                         "Retry-After: 1\r\n"));
+        if (uncounted_lingering_ >= gate::kMaxUncountedLingering) {
+            ::close(c->fd);
+            return;
+        }
+        ++uncounted_lingering_;
+        start_linger_locked(std::move(c), true);
     }
 
     static Clock::duration seconds(double s) {
@@ -402,9 +509,10 @@ private:
         add_waiting_locked(std::move(c));
     }
 
-    void refuse_locked(Conn& c, int status, const char* reason, const std::string& message, const std::string& field) {
-        metrics_.count_refusal(field);
-        gate::send_best_effort(c.fd, gate::canned_response(status, reason, {{"error", message}, {"field", field}}));
+    // Answers a request in the gate (its body, if any, unread) and lingers.
+    void refuse_locked(Conn& c, int status, const char* reason, const json& body, const std::string& headers = "") {
+        metrics_.count_refusal(body.value("field", ""));
+        gate::send_best_effort(c.fd, gate::canned_response(status, reason, body, headers));
         const int fd = c.fd;
         std::unique_ptr<Conn> owned = std::move(waiting_[fd]);
         waiting_.erase(fd);
@@ -417,20 +525,22 @@ private:
         const size_t line_end = c.buf.find('\n');
         if ((line_end == std::string::npos ? c.buf.size() : line_end) > gate::kRequestLineMax) {
             refuse_locked(c, 414, "URI Too Long",
-                          "the request line exceeds " + std::to_string(gate::kRequestLineMax) + " bytes",
-                          "request_line");
+                          {{"error", "the request line exceeds " + std::to_string(gate::kRequestLineMax) + " bytes"},
+                           {"field", "request_line"}});
             return;
         }
         const size_t end = c.buf.find("\r\n\r\n");
         const size_t header_bytes = size_t(limits_.header_bytes);
         if (end == std::string::npos ? c.buf.size() > header_bytes : end + 4 > header_bytes) {
             refuse_locked(c, 431, "Request Header Fields Too Large",
-                          "the request line and headers exceed " + std::to_string(header_bytes) + " bytes",
-                          "header_bytes");
+                          {{"error", "the request line and headers exceed " + std::to_string(header_bytes) + " bytes"},
+                           {"field", "header_bytes"}});
             return;
         }
         if (end == std::string::npos) return;
-        // Whole: to a request thread.
+        // Whole: to a request thread, if its body (when it has one) fits the budgets.
+        const std::string_view head(c.buf.data(), end + 4);
+        if (gate::has_body(head) && !start_body_read_locked(c, gate::bearer_token(head))) return;
         const int fd = c.fd;
         std::unique_ptr<Conn> owned = std::move(waiting_[fd]);
         waiting_.erase(fd);
@@ -438,6 +548,43 @@ private:
         --metrics_.http_reading_headers;
         Conn* raw = owned.release();
         pool_->enqueue([this, raw] { serve(std::unique_ptr<Conn>(raw)); });
+    }
+
+    // A body is read on a request thread for as long as its client takes:
+    // one token, or one address, may have only so many read at once, so
+    // that one tenant's slow bodies take only its own share of the threads.
+    // Beyond, 503 before the body is read. False when refused.
+    bool start_body_read_locked(Conn& c, std::string token) {
+        const char* field = nullptr;
+        int limit = 0;
+        if (!token.empty() && count_of(body_reads_by_token_, token) >= limits_.body_reads_per_token)
+            field = "body_reads_per_token", limit = limits_.body_reads_per_token;
+        else if (count_of(body_reads_by_address_, c.ip) >= limits_.body_reads_per_address)
+            field = "body_reads_per_address", limit = limits_.body_reads_per_address;
+        if (field) {
+            refuse_locked(c, 503, "Service Unavailable",
+                          {{"error", std::string(field) + ": " + std::to_string(limit) +
+                                         " request bodies are being read already; retry later"},
+                           {"field", field},
+                           {"limit", limit}},
+                          "Retry-After: 1\r\n");
+            return false;
+        }
+        if (!token.empty()) ++body_reads_by_token_[token];
+        ++body_reads_by_address_[c.ip];
+        ++metrics_.http_body_reads;
+        c.reading_body = true;
+        c.token = std::move(token);
+        return true;
+    }
+
+    void end_body_read_locked(Conn& c) {
+        if (!c.reading_body) return;
+        if (!c.token.empty() && --body_reads_by_token_[c.token] <= 0) body_reads_by_token_.erase(c.token);
+        if (--body_reads_by_address_[c.ip] <= 0) body_reads_by_address_.erase(c.ip);
+        --metrics_.http_body_reads;
+        c.reading_body = false;
+        c.token.clear();
     }
 
     void on_readable_locked(Conn& c) {
@@ -499,9 +646,9 @@ private:
                     finish_locked(fd);  // lingered long enough, or an idle kept-alive connection
                 } else {
                     refuse_locked(c, 408, "Request Timeout",
-                                  "the request line and headers did not arrive within " +
-                                      json(limits_.header_seconds).dump() + " s",
-                                  "header_seconds");
+                                  {{"error", "the request line and headers did not arrive within " +
+                                                 json(limits_.header_seconds).dump() + " s"},
+                                   {"field", "header_seconds"}});
                 }
             }
         }
@@ -530,6 +677,7 @@ private:
         ++c->served;
         if (ctx.timed_out) metrics_.count_refusal("request_seconds");
         std::lock_guard lock(mutex_);
+        end_body_read_locked(*c);
         if (stopping_) {
             close_locked(*c);
         } else if (ctx.close_after || ctx.timed_out || ctx.over_budget) {
@@ -556,8 +704,9 @@ private:
     std::atomic<int64_t> drain_deadline_ns_{std::numeric_limits<int64_t>::max()};  // drain_within's, since the epoch
     std::map<int, std::unique_ptr<Conn>> waiting_;  // by fd: gathering headers, or lingering
     int open_ = 0;
-    std::map<std::string, int> by_address_;
+    std::map<std::string, int> by_address_;  // counted connections
     int uncounted_lingering_ = 0;
+    std::map<std::string, int> body_reads_by_token_, body_reads_by_address_;  // bodies being read
 };
 
 }  // namespace lf::server

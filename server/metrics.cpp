@@ -65,6 +65,12 @@ std::string Metrics::render(const std::map<protocol::JobState, int>& jobs_by_sta
     m << "# HELP lightfarm_http_reading_headers Connections whose request line and headers are still arriving.\n";
     m << "# TYPE lightfarm_http_reading_headers gauge\nlightfarm_http_reading_headers " << http_reading_headers.load()
       << "\n";
+    m << "# HELP lightfarm_http_body_reads Request bodies being read on a request thread.\n";
+    m << "# TYPE lightfarm_http_body_reads gauge\nlightfarm_http_body_reads " << http_body_reads.load() << "\n";
+    m << "# HELP lightfarm_http_idle_dropped_total Idle connections (nothing sent) closed to make room for a new "
+         "one at a connection cap.\n";
+    m << "# TYPE lightfarm_http_idle_dropped_total counter\n";
+    m << "lightfarm_http_idle_dropped_total " << http_idle_dropped.load() << "\n";
     m << "# HELP lightfarm_event_streams Open event streams.\n# TYPE lightfarm_event_streams gauge\n";
     m << "lightfarm_event_streams " << event_streams.load() << "\n";
 

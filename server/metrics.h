@@ -19,10 +19,13 @@ public:
     std::atomic<uint64_t> server_faults{0};    // attempts given back for a fault of this machine (a full disk)
     std::atomic<uint64_t> rays_total{0};
     // The HTTP layer: open connections, those still sending their request
-    // line and headers, open event streams.
+    // line and headers, request bodies being read, open event streams.
     std::atomic<int64_t> http_connections{0};
     std::atomic<int64_t> http_reading_headers{0};
+    std::atomic<int64_t> http_body_reads{0};
     std::atomic<int64_t> event_streams{0};
+    // Idle connections (nothing sent) closed to make room for a new one at a cap.
+    std::atomic<uint64_t> http_idle_dropped{0};
 
     // The latest rays/s of a running job (its progress); cleared when it stops.
     void set_job_rate(const std::string& job, double rays_per_second);

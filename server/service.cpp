@@ -197,6 +197,13 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     // most a quarter of them (with the default 64 threads: 8 of 32).
     config_.limits.event_streams_per_token =
         std::max(1, std::min(config_.limits.event_streams_per_token, config_.limits.event_streams / 4));
+    // A body being read holds a request thread as long as its client takes
+    // to send it: one token gets an eighth of the threads, one address a
+    // quarter (with the default 64: 8 and 16), unless set.
+    if (config_.limits.body_reads_per_token <= 0)
+        config_.limits.body_reads_per_token = std::max(1, config_.http_threads / 8);
+    if (config_.limits.body_reads_per_address <= 0)
+        config_.limits.body_reads_per_address = std::max(1, config_.http_threads / 4);
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
     DataDir(config_.data_dir).create();
     store_ = open_job_store(config_);

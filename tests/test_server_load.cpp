@@ -88,9 +88,12 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     std::string tokens;
     for (int c = 0; c < kClients; ++c) tokens += token_of(c) + "\n";
     write_text(tmp.path / "tokens", tokens);
-    // Every reader and submitter holds a request thread at a time.
+    // Every reader and submitter holds a request thread at a time. All of
+    // them come from 127.0.0.1, as from behind a proxy: one address may hold
+    // every connection (the default is 64).
     Lightfarmd server(tmp.path / "data", tmp.path / "tokens", engine_path,
-                      {"--workers", std::to_string(workers), "--http-threads", "256", "--stall-timeout", "120"});
+                      {"--workers", std::to_string(workers), "--http-threads", "256", "--stall-timeout", "120",
+                       "--limit", "connections_per_address=512"});
     server.start();
 
     // The scene each client uploads: the Cornell box for the real engine
