@@ -351,30 +351,112 @@ TEST(ProbeEstimators, FurnaceBoxUniformRadiance) {
         EXPECT_LT(worst[mi][3], 1e-4) << "the convolved texels of a constant are exact";
     }
     // Measured (max | mean over the points, probe off-centre in a 2.2 x 1.5 x 1.5 box),
-    // corners traced (Probe::corner_distance, as the capture writes them):
-    //   polygon_to_point (the paper's clamp): M=1 0.89|0.31, 2 0.81|0.17, 4 0.48|0.061, 8 0.19|0.019;
-    //   clipped to the horizon:               M=1 1.00|0.17, 2 1.00|0.084, 4 0.48|0.0024, 8 0.0000|0.0000.
-    // (With corners from the texels' depths, before corners were traced:
-    // clamp M=1 0.73|0.27, 2 0.64|0.15, 4 0.46|0.067, 8 0.21|0.019; clipped
-    // M=1 0.99|0.10, 2 0.99|0.075, 4 0.94|0.017, 8 0.007|0.0004. A traced
-    // corner of a texel as large as a face or half of one lands on whichever
-    // wall its direction meets, so that polygon spans the room's corner: M <=
-    // 2 lost, M >= 4 gained; the bounds below were the depths' and are now
-    // the traced corners' measurements + ~15%.)
-    // Both lose where x lies outside the polygons: a texel is one plane, and
-    // the texels of a face that sees the far wall and the side walls make one
-    // surface in front of the far wall (at M <= 4, points 0.15 m from the +X
-    // wall off the probe's axis). Clipped polygons are otherwise exact (they
-    // tile the sphere around x); the clamp also loses the above-horizon part
-    // of texels whose sum goes negative. Bounds: the measurements + ~15%.
-    const float clamp_max[4] = {1.02f, 0.93f, 0.56f, 0.22f}, clamp_mean[4] = {0.36f, 0.2f, 0.07f, 0.022f};
-    const float clip_mean[4] = {0.2f, 0.1f, 3e-3f, 1e-4f};
+    // corners traced, a point beyond a chord polygon moved just inside it
+    // (probe_point_inside):
+    //   polygon_to_point (the paper's clamp): M=1 0.63|0.27, 2 0.62|0.15, 4 0.26|0.060, 8 0.19|0.019;
+    //   clipped to the horizon:               0.0000|0.0000 at every M.
+    // (Before points were moved: clamp M=1 0.89|0.31, 2 0.81|0.17, 4
+    // 0.48|0.061, 8 0.19|0.019; clipped M=1 1.00|0.17, 2 1.00|0.084, 4
+    // 0.48|0.0024, 8 0.0000. A texel whose corners land on two or three walls
+    // is a chord across the room's edge or corner, and a point between it and
+    // the walls was outside the polygons' polyhedron; with corners from the
+    // texels' depths, before corners were traced: clamp M=1 0.73|0.27, 2
+    // 0.64|0.15, 4 0.46|0.067, 8 0.21|0.019.) Clipped polygons tile the
+    // sphere around a point inside, so they are exact; the clamp loses the
+    // above-horizon part of texels whose sum goes negative (random normals
+    // here; tangent to a wall a few cm away it loses most).
+    // Bounds: the measurements + ~15%.
+    const float clamp_max[4] = {0.73f, 0.71f, 0.3f, 0.22f}, clamp_mean[4] = {0.32f, 0.18f, 0.07f, 0.022f};
     for (int mi = 0; mi < 4; ++mi) {
         EXPECT_LT(worst[mi][2], clamp_max[mi]) << "M = " << (1 << mi);
         EXPECT_LT(mean_of[mi][2], clamp_mean[mi]) << "M = " << (1 << mi);
-        EXPECT_LT(mean_of[mi][4], clip_mean[mi]) << "M = " << (1 << mi);
+        EXPECT_LT(worst[mi][4], 1e-3f) << "M = " << (1 << mi);
     }
-    EXPECT_LT(worst[3][4], 0.01f);
+}
+
+// The furnace at a room's edges and corners (issue #34): the box [-1, 1]³
+// of uniform radiance L = 1, so irradiance / π is 1 at every point and normal
+// inside. Probes at the centre (its cube's edges point at the room's edges,
+// so every texel polygon lies on one wall) and at two points off it (the
+// capture test's, and one low in the room), whose texels see the room's edges
+// cross them: such a texel's corners land on two or three walls, and its
+// polygon is a chord across the edge. Points 1 cm and 10 cm from one, two and
+// three walls, near all four of the room's edges they are near, each with the
+// normal of every wall within 15 cm (into the room) and its opposite.
+struct EdgePoint {
+    const char* name;
+    glm::vec3 x;
+};
+
+std::vector<EdgePoint> room_edge_points() {
+    std::vector<EdgePoint> out;
+    for (const glm::vec3 s : {glm::vec3(1, -1, 1), glm::vec3(-1, -1, -1), glm::vec3(1, 1, -1), glm::vec3(-1, 1, 1)}) {
+        out.push_back({"1 cm from a wall", s * glm::vec3(0.99f, 0.3f, -0.4f)});
+        out.push_back(
+            {"1 cm above the floor or below the ceiling, 10 cm from two walls", s * glm::vec3(0.9f, 0.99f, 0.9f)});
+        out.push_back({"1 cm from two walls", s * glm::vec3(0.99f, 0.99f, 0.2f)});
+        out.push_back({"1 cm from three", s * glm::vec3(0.99f)});
+        out.push_back({"10 cm from three", s * glm::vec3(0.9f)});
+    }
+    return out;
+}
+
+std::vector<glm::vec3> wall_normals(glm::vec3 x) {
+    std::vector<glm::vec3> out;
+    for (int a = 0; a < 3; ++a) {
+        if (std::abs(x[a]) < 0.85f) continue;
+        glm::vec3 n(0.0f);
+        n[a] = x[a] > 0.0f ? -1.0f : 1.0f;
+        out.push_back(n);
+        out.push_back(-n);
+    }
+    return out;
+}
+
+TEST(ProbeEstimators, FurnaceHoldsAtTheRoomsEdgesAndCorners) {
+    const glm::vec3 L(1.0f);
+    const std::vector<Patch> scene = box(glm::vec3(-1.0f), glm::vec3(1.0f), {L, L, L, L, L, L});
+    std::printf("  furnace [-1, 1]³, %zu points 1-10 cm from walls: worst relative error\n", room_edge_points().size());
+    std::printf("  %3s %22s %10s %12s %18s %8s\n", "M", "probe", "clipped", "the clamp", "clamp, 1 wall", "moved");
+    float clipped_worst = 0, one_wall_worst = 0, clamp_at_centre = 0;
+    int moved = 0;
+    for (const int m : {4, 8})
+        for (const glm::vec3 probe : {glm::vec3(0.0f), glm::vec3(0.5f, 0.2f, -0.3f), glm::vec3(-0.3f, -0.6f, 0.4f)}) {
+            const PreparedProbe p = prepare_probe(capture(scene, probe, 4 * m, m), m);
+            float clipped = 0, clamp = 0, one_wall = 0;
+            int moved_here = 0;
+            for (const EdgePoint& e : room_edge_points()) {
+                moved_here += probe_point_inside(p, e.x) != e.x;
+                for (const glm::vec3& n : wall_normals(e.x)) {
+                    clipped = std::max(clipped, relative_error(probe_polygon_to_point(p, e.x, n, true), L));
+                    const float c = relative_error(probe_polygon_to_point(p, e.x, n), L);
+                    clamp = std::max(clamp, c);
+                    if (e.name == std::string("1 cm from a wall")) one_wall = std::max(one_wall, c);
+                }
+            }
+            std::printf("  %3d   (%5.2f %5.2f %5.2f) %10.4f %12.4f %18.4f %5d/%zu\n", m, probe.x, probe.y, probe.z,
+                        clipped, clamp, one_wall, moved_here, room_edge_points().size());
+            clipped_worst = std::max(clipped_worst, clipped);
+            one_wall_worst = std::max(one_wall_worst, one_wall);
+            if (probe == glm::vec3(0.0f)) clamp_at_centre = std::max(clamp_at_centre, clamp);
+            if (probe != glm::vec3(0.0f)) moved += moved_here;
+        }
+    // A point between a chord polygon and the room's edge is outside the
+    // polygons' polyhedron, where their form factors cancel: before
+    // probe_point_inside, the clipped estimate was off by up to 0.76 at the
+    // off-centre probes (0.74 1 cm from three walls, 0.72 1 cm above the
+    // floor 10 cm from two walls, 0.52 1 cm from two walls; exact at the
+    // centre). Measured now: clipped <= 0.0055 everywhere (M 4 and 8).
+    EXPECT_GT(moved, 0) << "no point lay beyond a chord: the case is not tried";
+    EXPECT_LT(clipped_worst, 0.02f) << "Le / (1 - rho) within 2% as close as 1 cm to a wall";
+    // The paper's clamp (max(F, 0) per texel) loses a texel's part above the
+    // tangent plane when the part below is larger; a point 1 cm from one wall
+    // keeps it (measured <= 0.010), but 1 cm from a second wall, with the
+    // first wall's normal, that wall's texels straddle the plane beside x:
+    // even at the centre probe, with no chord anywhere, it loses up to 0.53
+    // (0.60 at the others). Clipping is exact there.
+    EXPECT_LT(one_wall_worst, 0.02f);
+    EXPECT_GT(clamp_at_centre, 0.3f) << "the paper's clamp near two walls: if this holds now, say so in BENCHMARKS";
 }
 
 // The paper's experiment: points moving from the reference point to a wall,
@@ -484,15 +566,17 @@ TEST(ProbeEstimators, EmitterOverFloorMatchesTheRectangleFormFactor) {
     }
     // Measured max | mean relative error of polygon_to_point over the points,
     // corners traced, a corner past the emitter's edge on its plane continued
-    // (probe_corner_distances): M=1 0.31|0.18, 2 0.037|0.023, 4 0.21|0.14, 8
-    // 0.024|0.011 (8 was 0.071|0.047 with that corner from the texels' depths)
+    // (probe_corner_distances), a point beyond a chord moved inside it
+    // (probe_point_inside): M=1 0.14|0.12 (0.31|0.18 before that), 2
+    // 0.037|0.023, 4 0.21|0.14, 8 0.024|0.011 (8 was 0.071|0.047 with that
+    // corner from the texels' depths)
     // (from the texels' depths, before: M=1 0.76|0.49, 2 0.27|0.16, 4
     // 0.16|0.098, 8 0.079|0.051). What is left is the emitter's edges blurred
     // over one texel: edge texels hold the covered fraction of L over the
     // whole texel's polygon, which M = 2 happens to align with here.
     // sh9 and one-probe ddgi are off by up to 2.1x: the probe, halfway up,
     // sees the emitter much larger than the floor does. Bounds: measured + ~15%.
-    EXPECT_LT(poly[0], 0.36f);
+    EXPECT_LT(poly[0], 0.17f);
     EXPECT_LT(poly[1], 0.043f);
     EXPECT_LT(poly[2], 0.24f);
     EXPECT_LT(poly[3], 0.028f);
@@ -635,18 +719,28 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
         GpuBuffer probes(pack_probe_buffer(set));
         probes.bind(LF_BINDING_PROBE_SET);
         std::vector<glm::vec4> cases;
-        const size_t count = 300;
-        for (size_t i = 0; i < count; ++i) {
+        for (int i = 0; i < 300; ++i) {
             cases.push_back(glm::vec4(0.95f * glm::vec3(u(rng), u(rng), u(rng)), 0));
             cases.push_back(glm::vec4(random_direction(rng), 0));
         }
+        // And points beyond the chords across the room's edges, which
+        // evaluation moves back inside (probe_point_inside).
+        int moved = 0;
+        const PreparedProbe p = prepare_probe(set.probes[1], 4);
+        for (const EdgePoint& e : room_edge_points())
+            for (const glm::vec3& n : wall_normals(e.x)) {
+                cases.push_back(glm::vec4(e.x, 0));
+                cases.push_back(glm::vec4(n, 0));
+                moved += probe_point_inside(p, e.x) != e.x;
+            }
+        EXPECT_GT(moved, 10);
+        const size_t count = cases.size() / 2;
         params.m = 4;
         params.probe = 1;
         params.probe_position_x = set.probes[1].position.x;
         params.probe_position_y = set.probes[1].position.y;
         params.probe_position_z = set.probes[1].position.z;
         const auto got = run(1, cases, count);
-        const PreparedProbe p = prepare_probe(set.probes[1], 4);
         double worst = 0.0;
         for (size_t i = 0; i < count; ++i) {
             const glm::vec3 want = probe_polygon_to_point(p, glm::vec3(cases[2 * i]), glm::vec3(cases[2 * i + 1]));

@@ -11,7 +11,11 @@
 //   polygon_to_point every texel a quadrilateral whose corners lie at the
 //                    corner distances (below) along the corner directions;
 //                    contribution L_i · max(F_i, 0), F_i the polygon-to-point
-//                    form factor (the paper's eq. 1 and listing).
+//                    form factor (the paper's eq. 1 and listing), at x or,
+//                    where x lies just beyond a texel's polygon that cuts
+//                    across a room's edge, just inside it (probe_point_inside).
+//                    Clipped to x's horizon (ProbeEvalOptions), each quad as
+//                    its two triangles split along corners 0-2.
 //   ddgi             Majercik et al. 2019: the probe's cosine-convolved
 //                    radiance at n, blended over probes with trilinear ×
 //                    backface × Chebyshev-visibility weights from the
@@ -155,6 +159,7 @@ struct PreparedProbe {
         float area = 0.0f;          // solid_angle · |centre − probe|² / max(cos(normal, −direction), 0.02)
         std::array<glm::vec3, 4> corners{};            // world space, wound as polygon_to_point_form_factor wants
         std::array<glm::vec3, 4> corner_directions{};  // unit
+        bool corners_traced = true;  // every corner where its own ray met a surface (Probe::corner_distance)
     };
     glm::vec3 position{0.0f};
     int m = 0;
@@ -167,6 +172,11 @@ PreparedProbe prepare_probe(const Probe& probe, int m);
 // One probe's estimators (irradiance / π).
 glm::vec3 probe_sh9(const PreparedProbe& p, glm::vec3 n);
 glm::vec3 probe_point_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n);
+// x, or where x lies just beyond the polygon the probe sees towards it (by
+// at most the polygon's longer diagonal: between a polygon that cuts
+// across a room's edge and the edge), the point just inside that polygon on
+// the line from the probe to x (probe_eval.cpp says why).
+glm::vec3 probe_point_inside(const PreparedProbe& p, glm::vec3 x);
 glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, bool clip_to_horizon = false);
 // The probe's cosine-convolved radiance at n, / π: the piecewise-constant
 // texel radiance integrated exactly against max(0, n·ω) (each texel's
@@ -222,7 +232,8 @@ nlohmann::json evaluate_at_points(const ProbeSet& set, const std::vector<Shading
 
 // The SSBO gi/shaders/probe_eval.glsl reads: per probe, 6·M·M vec4 texels
 // (radiance RGB, distance) in ProbeSet::texel order, then the 6·(M+1)² corner
-// distances of probe_corner_distances packed four to a vec4, then the 9 SH9
+// distances of probe_corner_distances packed four to a vec4 (negated where
+// the corner's own ray met no surface: Texel::corners_traced), then the 9 SH9
 // coefficients (RGB); probe k starts at vec4 k · probe_buffer_stride(M).
 // Invalid probes' blocks are zero.
 size_t probe_buffer_stride(int m);

@@ -7,7 +7,8 @@
 // probe, 6·M·M vec4 texels (radiance RGB, distance), faces +X,-X,+Y,-Y,+Z,-Z,
 // rows from the top (texel (f, i, j) at (f·M + j)·M + i), then the 6·(M+1)²
 // corner distances (corner (f, a, b) at (f·(M+1) + b)·(M+1) + a) packed four
-// to a vec4, then the probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
+// to a vec4 (negative where the corner's own ray met no surface), then the
+// probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
 // k · lf_probe_stride(M), at binding LF_BINDING_PROBE_SET.
 #ifndef LF_PROBE_EVAL_GLSL
 #define LF_PROBE_EVAL_GLSL
@@ -53,10 +54,62 @@ float lf_polygon_to_point_form_factor(vec3 x, vec3 n, vec3 c0, vec3 c1, vec3 c2,
     return sum / LF_TWO_PI;
 }
 
-float lf_probe_corner_distance(uint base, int m, int face, int a, int b) {
+// As packed: negative where the corner's own ray met no surface (its place
+// comes from a rule: lf::pack_probe_buffer).
+float lf_probe_corner_signed(uint base, int m, int face, int a, int b) {
     uint c = uint((face * (m + 1) + b) * (m + 1) + a);
     vec4 four = lf_probe_texels[base + uint(6 * m * m) + c / 4u];
     return four[c % 4u];
+}
+
+float lf_probe_corner_distance(uint base, int m, int face, int a, int b) {
+    return abs(lf_probe_corner_signed(base, m, face, a, b));
+}
+
+// Face coordinates (u, v) of p, a point of the cube [-1, 1]³ on `face` (the
+// inverse of lf_cube_direction).
+vec2 lf_cube_face_uv(int face, vec3 p) {
+    vec2 st;
+    if (face == 0) st = vec2(-p.z, -p.y);
+    else if (face == 1) st = vec2(p.z, -p.y);
+    else if (face == 2) st = vec2(p.x, p.z);
+    else if (face == 3) st = vec2(p.x, -p.z);
+    else if (face == 4) st = vec2(p.x, -p.y);
+    else st = vec2(-p.x, -p.y);
+    return (st + 1.0) * 0.5;
+}
+
+// x, or where x lies beyond the polygon the probe sees towards it by at most
+// the polygon's longer diagonal (between a polygon that cuts across a room's
+// edge and the edge), the point just inside that polygon on the line from the
+// probe to x: lf::probe_point_inside, which says why.
+vec3 lf_probe_point_inside(uint base, int m, vec3 probe_position, vec3 x) {
+    vec3 r = x - probe_position;
+    float distance = length(r);
+    if (!(distance > 0.0)) return x;
+    vec3 a = abs(r);
+    int axis = a.x >= a.y && a.x >= a.z ? 0 : (a.y >= a.z ? 1 : 2);
+    int face = 2 * axis + (r[axis] < 0.0 ? 1 : 0);
+    vec2 uv = lf_cube_face_uv(face, r / a[axis]);
+    int i = clamp(int(uv.x * float(m)), 0, m - 1), j = clamp(int(uv.y * float(m)), 0, m - 1);
+    const ivec2 corner_of[4] = ivec2[4](ivec2(0, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, 0));
+    vec3 c[4];
+    for (int k = 0; k < 4; ++k) {
+        ivec2 ab = ivec2(i, j) + corner_of[k];
+        float d = lf_probe_corner_signed(base, m, face, ab.x, ab.y);
+        if (!(d > 0.0)) return x;  // a corner placed by a rule, not on a surface
+        c[k] = d * lf_cube_direction(face, vec2(ab) / float(m));
+    }
+    // The polygon as two triangles split along c0-c2; the one whose cone holds r.
+    vec3 split = cross(c[0], c[2]);
+    vec3 b = dot(split, r) * dot(split, c[1]) >= 0.0 ? c[1] : c[3];
+    vec3 normal = cross(b - c[0], c[2] - c[0]);
+    float along = dot(normal, r) / distance;
+    if (along == 0.0) return x;
+    float wall = dot(normal, c[0]) / along;
+    float reach = max(length(c[2] - c[0]), length(c[3] - c[1]));
+    if (!(wall > 0.0) || distance <= wall || distance - wall > reach) return x;
+    return probe_position + r * (wall / distance * (1.0 - 1e-4));
 }
 
 // Irradiance / π at x (unit normal n) from probe `probe` (index into the
@@ -65,6 +118,7 @@ float lf_probe_corner_distance(uint base, int m, int face, int a, int b) {
 vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, vec3 n) {
     uint base = probe * lf_probe_stride(m);
     float inv_m = 1.0 / float(m);
+    x = lf_probe_point_inside(base, m, probe_position, x);
     vec3 sum = vec3(0.0);
     for (int face = 0; face < 6; ++face)
         for (int j = 0; j < m; ++j)
