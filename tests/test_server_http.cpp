@@ -159,6 +159,19 @@ testing::AssertionResult server_holds_connections(pid_t pid, int n, std::chrono:
     return testing::AssertionSuccess();
 }
 
+// Waits (at most 5 s) until the server holds no connection: the harness's
+// own /healthz at start may still hold a place, and at a cap it would
+// make an idle socket of the test's go before it.
+testing::AssertionResult server_holds_no_connection(pid_t pid) {
+    const auto deadline = Clock::now() + 5s;
+    while (open_sockets(pid) > 1) {
+        if (Clock::now() >= deadline)
+            return testing::AssertionFailure() << "the server still holds " << open_sockets(pid) - 1 << " connections";
+        std::this_thread::sleep_for(20ms);
+    }
+    return testing::AssertionSuccess();
+}
+
 class HttpTest : public ::testing::Test {
 protected:
     TempDir tmp;
@@ -341,6 +354,7 @@ TEST_F(HttpTest, SlowClientsAndEventStreamsDoNotStarveTheApi) {
 // be refused with the others). The API is back as soon as they close.
 TEST_F(HttpTest, ConnectionCapsAnswer503) {
     start({"--limit", "connections_per_address=20"});
+    ASSERT_TRUE(server_holds_no_connection(server->pid()));
     RawSocket idle(server->port);
     std::vector<std::unique_ptr<RawSocket>> busy;
     auto begin_request = [&] {
@@ -422,6 +436,7 @@ TEST_F(HttpTest, IdleSocketsDoNotLockOutTheirAddress) {
 // and the hog pays, not the smaller client.
 TEST_F(HttpTest, IdleSocketsFillingEveryPlaceDoNotRefuseAnotherAddress) {
     start({"--limit", "connections=100", "--limit", "connections_per_address=60"});
+    ASSERT_TRUE(server_holds_no_connection(server->pid()));
     std::vector<std::unique_ptr<RawSocket>> hog, other;
     for (int i = 0; i < 60; ++i) {
         hog.push_back(std::make_unique<RawSocket>(server->port, "127.0.0.2"));
