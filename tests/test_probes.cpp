@@ -459,6 +459,35 @@ TEST(ProbeEstimators, FurnaceHoldsAtTheRoomsEdgesAndCorners) {
     EXPECT_GT(clamp_at_centre, 0.3f) << "the paper's clamp near two walls: if this holds now, say so in BENCHMARKS";
 }
 
+// probe_point_inside's three cases, in the box [-1, 1]³ from (0.5, 0.2,
+// -0.3), M = 4: a point 1 cm above the floor 10 cm from two walls lies
+// beyond the chord of the texel that sees that edge, and moves along the line
+// from the probe to just inside it (the polygon's plane, so the move is the
+// chord's gap); a point 3 m beyond a wall (more than the polygon's diagonal)
+// and a point in a probe read without traced corners stay where they are.
+TEST(ProbeEstimators, APointBeyondAChordMovesJustInsideIt) {
+    const glm::vec3 L(1.0f), probe(0.5f, 0.2f, -0.3f);
+    const std::vector<Patch> scene = box(glm::vec3(-1.0f), glm::vec3(1.0f), {L, L, L, L, L, L});
+    Probe captured = capture(scene, probe, 16, 4);
+    const PreparedProbe p = prepare_probe(captured, 4);
+    const glm::vec3 x(0.9f, -0.99f, 0.9f), moved = probe_point_inside(p, x);
+    const glm::vec3 along = glm::normalize(x - probe);
+    EXPECT_LT(glm::length(glm::cross(moved - probe, along)), 1e-5f) << "on the line from the probe to x";
+    const float gap = glm::length(x - moved);
+    // Measured 0.20 m: at M = 4 that texel's chord passes 0.2 m short of the edge along this line.
+    EXPECT_GT(gap, 0.005f);
+    EXPECT_LT(gap, 0.25f);
+    for (int a = 0; a < 3; ++a) EXPECT_LT(std::abs(moved[a]), 1.0f) << "inside the room";
+    std::printf("  1 cm above the floor 10 cm from two walls: moved %.4f m towards the probe\n", gap);
+    // Beyond a wall by more than its polygon's diagonal: behind a surface, left.
+    EXPECT_EQ(probe_point_inside(p, glm::vec3(4.0f, 0.2f, -0.3f)), glm::vec3(4.0f, 0.2f, -0.3f));
+    // Inside the polygons: left.
+    EXPECT_EQ(probe_point_inside(p, glm::vec3(0.2f, 0.1f, 0.1f)), glm::vec3(0.2f, 0.1f, 0.1f));
+    // No traced corners (a file from before they were): no polygon is known to lie on the walls.
+    captured.corner_distance.clear();
+    EXPECT_EQ(probe_point_inside(prepare_probe(captured, 4), x), x);
+}
+
 // The paper's experiment: points moving from the reference point to a wall,
 // normals facing it, in the furnace box. Polygon-to-point stays bounded;
 // point-to-point blows up in front of a virtual light.
