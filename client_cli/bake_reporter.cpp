@@ -17,7 +17,11 @@ void BakeReporter::operator()(const protocol::WorkerEvent& e) {
         std::cout << protocol::to_json(e).dump() << std::endl;  // one object per line, flushed
         return;
     }
-    if (const auto* start = std::get_if<protocol::StartEvent>(&e)) {
+    if (const auto* prepare = std::get_if<protocol::PrepareEvent>(&e); prepare && terminal_) {
+        std::cerr << "\r" << preparing_line("", *prepare) << "    " << std::flush;
+        preparing_drawn_ = true;
+    } else if (const auto* start = std::get_if<protocol::StartEvent>(&e)) {
+        if (preparing_drawn_) std::cerr << "\n";
         print_start(*start);
     } else if (const auto* progress = std::get_if<protocol::ProgressEvent>(&e); progress && terminal_) {
         draw_progress(*progress);

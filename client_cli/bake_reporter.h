@@ -26,7 +26,8 @@ private:
     bool json_, terminal_;
     // The whole job's share done and ETA, as the server reckons them.
     protocol::JobProgress job_;
-    std::string drawing_;  // the output whose bar is on the current line
+    std::string drawing_;           // the output whose bar is on the current line
+    bool preparing_drawn_ = false;  // a preparation line is on the current line
 };
 
 }  // namespace lf::cli

@@ -178,6 +178,13 @@ std::string progress_line(const std::string& job, const std::string& output, con
     return line;
 }
 
+std::string preparing_line(const std::string& job, const protocol::PrepareEvent& e) {
+    std::string line =
+        job.substr(0, 12) + (job.empty() ? "" : "  ") + "preparing: " + e.stage + "  " + format_seconds(e.seconds);
+    if (e.eta_seconds) line += "  ETA " + format_seconds(*e.eta_seconds);
+    return line;
+}
+
 namespace {
 
 // Follows a job's events until its final one, reconnecting with
@@ -210,6 +217,12 @@ protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_line
                     } else if (e.type == "progress" && tty) {
                         const protocol::Progress p = protocol::progress_from_json(e.data);
                         std::cerr << "\r" << progress_line(job, e.data.value("output", ""), p) << "    " << std::flush;
+                    } else if (e.type == "preparing") {
+                        json event = e.data;
+                        event["event"] = "prepare";
+                        const protocol::WorkerEvent prepare = protocol::parse_worker_event(event);
+                        const std::string line = preparing_line(job, std::get<protocol::PrepareEvent>(prepare));
+                        std::cerr << (tty ? "\r" + line + "    " : line + "\n") << std::flush;
                     } else if (e.type == "snapshot" && !tty) {
                         std::cerr << "snapshot " << e.data.value("file", "") << "\n";
                     } else if (e.type == "retrying") {

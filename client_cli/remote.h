@@ -22,5 +22,7 @@ extern const char* const kRemoteUsage;
 // What `watch` and `submit --wait` show on a terminal for a progress event:
 // "3cfd1af2a543 lightmap  [##########--------------]  42%  pass 108  error 0.0312  ETA 14s".
 std::string progress_line(const std::string& job, const std::string& output, const protocol::Progress& p);
+// "JOB  preparing: atlas  3.1 s  ETA 12 s": the line before the first pass.
+std::string preparing_line(const std::string& job, const protocol::PrepareEvent& e);
 
 }  // namespace lf::cli

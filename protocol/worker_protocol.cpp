@@ -15,6 +15,10 @@ json to_json(const Progress& p) {
     j["eta_seconds"] = p.eta_seconds ? json(*p.eta_seconds) : json(nullptr);
     j["prepare_seconds"] = p.prepare_seconds;
     j["earlier_outputs_seconds"] = p.earlier_outputs_seconds;
+    if (!p.preparing.empty()) {
+        j["preparing"] = p.preparing;
+        j["prepare_eta_seconds"] = p.prepare_eta_seconds ? json(*p.prepare_eta_seconds) : json(nullptr);
+    }
     const std::optional<double> fraction = done_fraction(p);
     j["fraction"] = fraction ? json(*fraction) : json(nullptr);
     return j;
@@ -47,6 +51,9 @@ Progress progress_from_json(const json& j) {
         p.prepare_seconds = j["prepare_seconds"].get<double>();
     if (j.contains("earlier_outputs_seconds") && j["earlier_outputs_seconds"].is_number())
         p.earlier_outputs_seconds = j["earlier_outputs_seconds"].get<double>();
+    if (j.contains("preparing") && j["preparing"].is_string()) p.preparing = j["preparing"].get<std::string>();
+    if (j.contains("prepare_eta_seconds") && j["prepare_eta_seconds"].is_number())
+        p.prepare_eta_seconds = j["prepare_eta_seconds"].get<double>();
     return p;
 }
 
@@ -74,7 +81,8 @@ namespace {
 
 json progress_fields(const Progress& p) {
     json j = to_json(p);
-    for (const char* servers : {"eta_seconds", "prepare_seconds", "earlier_outputs_seconds", "fraction"})
+    for (const char* servers :
+         {"eta_seconds", "prepare_seconds", "earlier_outputs_seconds", "fraction", "preparing", "prepare_eta_seconds"})
         j.erase(servers);  // not the worker's
     return j;
 }
@@ -104,6 +112,11 @@ uint64_t count_field(const json& j, const char* key) {
 }  // namespace
 
 json to_json(const WorkerEvent& e) {
+    if (const auto* p = std::get_if<PrepareEvent>(&e)) {
+        json j = {{"event", "prepare"}, {"stage", p->stage}, {"seconds", p->seconds}};
+        j["eta_seconds"] = p->eta_seconds ? json(*p->eta_seconds) : json(nullptr);
+        return j;
+    }
     if (const auto* s = std::get_if<StartEvent>(&e)) {
         json j = {{"event", "start"},
                   {"vendor", s->vendor},
@@ -134,6 +147,13 @@ json to_json(const WorkerEvent& e) {
 WorkerEvent parse_worker_event(const json& j) {
     if (!j.is_object()) throw std::invalid_argument("a worker event is a JSON object");
     const std::string kind = string_field(j, "event");
+    if (kind == "prepare") {
+        PrepareEvent p;
+        p.stage = string_field(j, "stage");
+        if (j.contains("seconds") && j["seconds"].is_number()) p.seconds = j["seconds"].get<double>();
+        if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
+        return p;
+    }
     if (kind == "start") {
         StartEvent s;
         s.vendor = optional_string(j, "vendor");

@@ -3,6 +3,7 @@
 // what a worker's exit status means. The engine encodes these types and the
 // server decodes them; neither side writes or reads the JSON by hand.
 //
+//   {"event":"prepare", "stage":"atlas", "seconds", "eta_seconds"}   (before "start", as each stage begins)
 //   {"event":"start", "vendor", "renderer", "triangles", "prepare_seconds", "outputs": {NAME: {...}},
 //    "resumed": {NAME: {"pass", "rays", "seconds", "error_estimate"}}, "not_resumed": {NAME: "why"}}
 //   {"event":"progress", "output":"lightmap", "pass", "rays", "seconds", "error_estimate"}
@@ -66,6 +67,12 @@ struct Progress {
     std::optional<double> eta_seconds;     // the server's estimate of what is left
     double prepare_seconds = 0.0;          // the server's: the job's preparation before its first pass
     double earlier_outputs_seconds = 0.0;  // the server's: passes of the job's outputs baked before this one
+    // The server's, while the job prepares (before its first pass): the
+    // stage running ("load", "atlas", ...; "" once passes run), with
+    // prepare_seconds so far and preparation's time left, from the scene's
+    // size (gi/bake/preparation_estimate.h).
+    std::string preparing;
+    std::optional<double> prepare_eta_seconds;
 };
 // How much of the job is done, preparation and earlier outputs included:
 // (preparation + earlier outputs + passes' seconds) over that plus the ETA, 1
@@ -74,6 +81,14 @@ std::optional<double> done_fraction(const Progress& p);
 nlohmann::json to_json(const Progress& p);
 Progress progress_from_json(const nlohmann::json& j);
 
+// A stage of the job's preparation begins (load, atlas, texel samples,
+// methods ...): preparation is most of a short bake's time and minutes of a
+// large atlas's, and nothing else is said until the start event.
+struct PrepareEvent {
+    std::string stage;
+    double seconds = 0.0;               // preparation so far
+    std::optional<double> eta_seconds;  // preparation's time left, from the scene's size; empty: unknown yet
+};
 struct StartEvent {
     std::string vendor, renderer;
     uint64_t triangles = 0;
@@ -99,7 +114,7 @@ struct DoneEvent {
     std::vector<std::string> files;                  // every file written, final and intermediate
     std::map<std::string, std::string> final_files;  // output name -> its main file
 };
-using WorkerEvent = std::variant<StartEvent, ProgressEvent, SnapshotEvent, DoneEvent>;
+using WorkerEvent = std::variant<PrepareEvent, StartEvent, ProgressEvent, SnapshotEvent, DoneEvent>;
 
 nlohmann::json to_json(const WorkerEvent& e);
 // Throws std::invalid_argument for a line that is not a worker event.

@@ -344,7 +344,18 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
     u.state = state;
     const std::string base = "/v1/jobs/" + job_id + "/artifacts/";
 
-    if (const auto* start = std::get_if<protocol::StartEvent>(&event)) {
+    if (const auto* prepare = std::get_if<protocol::PrepareEvent>(&event)) {
+        // Before the first pass: the job's progress says which stage runs
+        // and preparation's time left (the whole job's is not known yet).
+        Progress p;
+        p.preparing = prepare->stage;
+        p.prepare_seconds = prepare->seconds;
+        p.prepare_eta_seconds = prepare->eta_seconds;
+        u.progress = p;
+        json data = protocol::to_json(protocol::WorkerEvent(*prepare));
+        data.erase("event");
+        u.event = JobEvent{0, "preparing", data};
+    } else if (const auto* start = std::get_if<protocol::StartEvent>(&event)) {
         json data = protocol::to_json(protocol::WorkerEvent(*start));
         data.erase("event");
         data["attempt"] = attempt;

@@ -48,12 +48,53 @@ std::vector<nlohmann::json> json_lines(const std::string& text) {
     return lines;
 }
 
+// Before the start event, one "prepare" event as each stage of preparation
+// begins: loading first, the methods last, in the order they run, with the
+// seconds so far growing up to the start's prepare_seconds and the time left
+// said (never negative). At the last stage the estimate is within a factor 5
+// of what it took (a loose bound: its per-unit costs were measured on another
+// load of this machine, and CI runs tests two at a time).
+void expect_preparation_events_then_start(const std::vector<nlohmann::json>& lines) {
+    const std::vector<std::string> order = {"load",         "gpu",           "atlas",      "bvh",
+                                            "double_sided", "texel_samples", "bvh_turned", "methods"};
+    size_t next = 0;
+    double seconds = 0.0;
+    const nlohmann::json* last = nullptr;
+    auto line = lines.begin();
+    for (; line != lines.end() && (*line)["event"] == "prepare"; ++line) {
+        const std::string stage = (*line)["stage"];
+        const auto at = std::find(order.begin() + long(next), order.end(), stage);
+        ASSERT_NE(at, order.end()) << stage << " out of order or unknown";
+        if (next == 0) {
+            EXPECT_EQ(stage, "load");
+        }
+        next = size_t(at - order.begin()) + 1;
+        EXPECT_GE((*line)["seconds"].get<double>(), seconds);
+        seconds = (*line)["seconds"];
+        ASSERT_TRUE((*line)["eta_seconds"].is_number()) << stage;
+        EXPECT_GE((*line)["eta_seconds"].get<double>(), 0.0);
+        last = &*line;
+    }
+    ASSERT_NE(last, nullptr) << "no prepare event";
+    EXPECT_EQ((*last)["stage"], "methods");
+    ASSERT_NE(line, lines.end());
+    ASSERT_EQ((*line)["event"], "start");
+    const double prepared = (*line)["prepare_seconds"], left = prepared - seconds;
+    EXPECT_GE(prepared, seconds);
+    const double eta = (*last)["eta_seconds"];
+    EXPECT_LT(eta, 5.0 * left + 0.1) << "the methods took " << left << " s";
+    EXPECT_GT(eta, left / 5.0 - 0.1) << "the methods took " << left << " s";
+}
+
 TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
     const fs::path out = fresh_dir("cornell");
     const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
                                    " --res 64 --passes 9 --json --seed 3");
     ASSERT_EQ(r.exit_code, 0) << r.err;
-    const auto lines = json_lines(r.out);
+    std::vector<nlohmann::json> lines = json_lines(r.out);
+    expect_preparation_events_then_start(lines);
+    lines.erase(lines.begin(),
+                std::find_if(lines.begin(), lines.end(), [](const auto& l) { return l["event"] == "start"; }));
     ASSERT_GE(lines.size(), 3u);
     EXPECT_EQ(lines.front()["event"], "start");
     EXPECT_FALSE(lines.front()["renderer"].get<std::string>().empty());
@@ -454,8 +495,11 @@ TEST(CliBake, LightmapAndShShareOnePreparation) {
     const CliRun r = run_lightfarm("bake " + scene + " --lightmap --sh --out " + both.string() + common);
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto lines = json_lines(r.out);
+    expect_preparation_events_then_start(lines);
+    const auto start = std::find_if(lines.begin(), lines.end(), [](const auto& l) { return l["event"] == "start"; });
     EXPECT_EQ(std::count_if(lines.begin(), lines.end(), [](const auto& l) { return l["event"] == "start"; }), 1);
-    EXPECT_EQ(lines.front()["outputs"].size(), 2u);
+    ASSERT_NE(start, lines.end());
+    EXPECT_EQ((*start)["outputs"].size(), 2u);
     EXPECT_EQ(lines.back()["final"]["lightmap"], "lightmap.exr");
     EXPECT_EQ(lines.back()["final"]["sh"], "sh_transfer.bin");
     std::ifstream manifest_in(both / "manifest.json");

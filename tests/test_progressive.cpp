@@ -1,6 +1,7 @@
 // The progressive loop's snapshot schedule and the writer thread that takes
 // snapshots off the passes (issue #12): pure logic, no GL.
 #include "bake/method_state.h"
+#include "bake/preparation_estimate.h"
 #include "bake/progressive.h"
 #include "bake/snapshot_writer.h"
 
@@ -206,6 +207,54 @@ TEST(AvailableMemory, TheEstimateCountsSubsamplesAndCoversTheMeasuredPeaks) {
     EXPECT_GE(protocol::estimated_bake_bytes(512 * 512, 2), 220 * mb);
     EXPECT_GE(protocol::estimated_bake_bytes(2048 * 2048, 2), 2210 * mb);
     EXPECT_GT(protocol::estimated_bake_bytes(1024 * 1024, 4), 2 * protocol::estimated_bake_bytes(1024 * 1024, 1));
+}
+
+// Preparation's time left (the "prepare" events): every stage still to run,
+// in prepare()'s order, from the sizes known; shrinking as stages pass;
+// scaled by how this machine did on the stages behind once a second has
+// passed; the atlas's stages only for a per-texel output.
+TEST(PreparationEstimate, SumsTheStagesLeftAndScalesByTheStagesDone) {
+    PreparationSize size;
+    size.scene_bytes = 7'000'000;
+    size.atlas = true;
+    PreparationEstimate estimate(size);
+    estimate.set_triangles(260'000, 0);
+    estimate.set_sample_points(580'000);
+    const std::vector<std::string> order = {"load",         "gpu",           "atlas",      "bvh",
+                                            "double_sided", "texel_samples", "bvh_turned", "methods"};
+    double previous = 1e30;
+    for (size_t i = 0; i < order.size(); ++i) {
+        const auto stages = estimate.stages_from(order[i]);
+        ASSERT_EQ(stages.size(), order.size() - i);
+        EXPECT_EQ(stages.front().first, order[i]);
+        double sum = 0.0;
+        for (const auto& [name, seconds] : stages) sum += seconds;
+        const double left = *estimate.seconds_left(order[i], 0.5);  // under a second: no scaling
+        EXPECT_DOUBLE_EQ(left, sum);
+        EXPECT_LE(left, previous);
+        previous = left;
+    }
+    EXPECT_GT(*estimate.seconds_left("methods", 0.0), 0.0) << "the relocation of 580k sample points takes time";
+    // Twice as slow as predicted on what is done: twice the time left.
+    double done = 0.0;
+    for (const auto& [name, seconds] : estimate.stages_from("load"))
+        if (name == "load" || name == "gpu" || name == "atlas") done += seconds;
+    ASSERT_GT(done, 0.5);
+    EXPECT_NEAR(*estimate.seconds_left("bvh", 2.0 * done), 2.0 * *estimate.seconds_left("bvh", 0.0), 1e-9);
+    EXPECT_FALSE(estimate.seconds_left("no such stage", 1.0));
+    // More sample points: a longer texel stage and relocation.
+    PreparationEstimate larger = estimate;
+    larger.set_sample_points(2 * 580'000);
+    EXPECT_GT(*larger.seconds_left("texel_samples", 0.0), *estimate.seconds_left("texel_samples", 0.0));
+    // Per-vertex outputs only: no atlas, texel or relocation stage.
+    size.atlas = false;
+    PreparationEstimate vertices(size);
+    vertices.set_triangles(260'000, 0);
+    for (const auto& [name, seconds] : vertices.stages_from("load")) {
+        if (name == "atlas" || name == "double_sided" || name == "texel_samples") {
+            EXPECT_EQ(seconds, 0.0) << name;
+        }
+    }
 }
 
 }  // namespace lf

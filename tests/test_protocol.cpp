@@ -776,8 +776,18 @@ TEST(WorkerEvents, RoundTripEachType) {
     EXPECT_EQ(std::get<DoneEvent>(d).files, done.files);
     EXPECT_EQ(std::get<DoneEvent>(d).final_files, done.final_files);
 
+    const PrepareEvent prepare{"texel_samples", 2.5, 7.25};
+    const WorkerEvent r = through_a_line(prepare);
+    ASSERT_TRUE(std::holds_alternative<PrepareEvent>(r));
+    EXPECT_EQ(std::get<PrepareEvent>(r).stage, "texel_samples");
+    EXPECT_DOUBLE_EQ(std::get<PrepareEvent>(r).seconds, 2.5);
+    EXPECT_EQ(std::get<PrepareEvent>(r).eta_seconds, 7.25);
+    EXPECT_FALSE(std::get<PrepareEvent>(through_a_line(PrepareEvent{"load", 0.0, {}})).eta_seconds);
+    EXPECT_THROW(parse_worker_event({{"event", "prepare"}}), std::invalid_argument) << "a stage is named";
+
     // Every event's JSON is a fixed point.
-    for (const WorkerEvent& ev : {WorkerEvent(start), WorkerEvent(progress), WorkerEvent(snapshot), WorkerEvent(done)})
+    for (const WorkerEvent& ev :
+         {WorkerEvent(prepare), WorkerEvent(start), WorkerEvent(progress), WorkerEvent(snapshot), WorkerEvent(done)})
         EXPECT_EQ(to_json(through_a_line(ev)), to_json(ev));
 }
 

@@ -119,6 +119,14 @@ TEST(ProgressLine, ABarWithItsPercentageAndTheEta) {
     EXPECT_NE(cli::progress_line("3cfd1af2a543", "", p).find("[############------------]  50%"), std::string::npos);
 }
 
+// Before the first pass: the stage preparing, the seconds so far and
+// preparation's time left when known; the local bar and `watch` alike.
+TEST(ProgressLine, PreparationSaysItsStageAndTimeLeft) {
+    EXPECT_EQ(cli::preparing_line("3cfd1af2a543f2c834404872", protocol::PrepareEvent{"atlas", 3.0, 12.0}),
+              "3cfd1af2a543  preparing: atlas  3s  ETA 12s");
+    EXPECT_EQ(cli::preparing_line("", protocol::PrepareEvent{"load", 0.0, {}}), "preparing: load  0s");
+}
+
 // `lightfarm bake`'s own bar is the same line, its ETA from the output's
 // stop rules: under --time-limit it fills by time (it stayed empty at
 // "pass 32/100000"), under --target-error by the error's 1/sqrt(passes).

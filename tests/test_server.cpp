@@ -1241,6 +1241,31 @@ TEST(ApplyWorkerEvent, StartBecomesAStartedEventOfTheAttempt) {
     EXPECT_TRUE(u.ignored.empty());
 }
 
+// Before the first pass the job's progress names the stage preparing and
+// preparation's time left; the event stream gets a "preparing" event.
+TEST(ApplyWorkerEvent, PrepareEventsSayTheStageAndPreparationsTimeLeft) {
+    const server::AttemptUpdate u =
+        server::apply_worker_event({}, protocol::PrepareEvent{"atlas", 1.5, 12.0}, lightmap_and_sh(), "job1", 1);
+    ASSERT_TRUE(u.progress);
+    EXPECT_EQ(u.progress->preparing, "atlas");
+    EXPECT_DOUBLE_EQ(u.progress->prepare_seconds, 1.5);
+    EXPECT_EQ(u.progress->prepare_eta_seconds, 12.0);
+    EXPECT_FALSE(u.progress->eta_seconds) << "the job's own ETA waits for its first pass";
+    ASSERT_TRUE(u.event);
+    EXPECT_EQ(u.event->type, "preparing");
+    EXPECT_EQ(u.event->data["stage"], "atlas");
+    EXPECT_EQ(u.event->data["eta_seconds"], 12.0);
+    EXPECT_FALSE(u.event->data.contains("event"));
+    const json j = protocol::to_json(*u.progress);
+    EXPECT_EQ(j["preparing"], "atlas");
+    EXPECT_EQ(protocol::progress_from_json(j).preparing, "atlas");
+    // Once passes run, the progress says nothing of preparing.
+    protocol::ProgressEvent p{"lightmap", {}};
+    p.progress.pass = 1;
+    EXPECT_FALSE(protocol::to_json(*server::apply_worker_event(u.state, p, lightmap_and_sh(), "job1", 1).progress)
+                     .contains("preparing"));
+}
+
 // The job's done fraction counts its preparation: 8 s preparing and 2 s of
 // passes with 2 s left is 10 of 12 s done, not 2 of 4.
 TEST(ApplyWorkerEvent, TheDoneFractionIncludesPreparation) {

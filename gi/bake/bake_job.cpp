@@ -7,6 +7,7 @@
 #include "atlas/lightmapped_gltf.h"
 #include "bake/output_methods.h"
 #include "bake/prepared_scene.h"
+#include "bake/preparation_estimate.h"
 #include "bake/snapshot_writer.h"
 #include "gpu/shader.h"
 #include "io/image_files.h"
@@ -163,9 +164,11 @@ void prepare_texels(PreparedScene& p, const protocol::AtlasSettings& settings, c
     });
 }
 
-// Everything the outputs share, made once: scene, atlas, GL context, tracer.
-std::unique_ptr<PreparedScene> prepare(const BakeJob& job) {
+// Everything the outputs share, made once: scene, atlas, GL context, tracer;
+// `on_stage` is told as each stage begins.
+std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScene::on_stage) on_stage) {
     auto p = std::make_unique<PreparedScene>();
+    p->on_stage = std::move(on_stage);
     p->file = job.scene;
     p->scene = p->timed("load", [&] { return load_scene(job.scene); });
     const protocol::BakeSettings& s = job.settings;
@@ -466,10 +469,47 @@ std::optional<std::string> write_lit_scene(const BakeJob& job, const PreparedSce
 
 }  // namespace
 
+// What preparation will be made of, as far as it is known before loading.
+PreparationSize preparation_size(const BakeJob& job) {
+    PreparationSize size;
+    std::error_code ec;
+    size.scene_bytes = fs::file_size(job.scene, ec);
+    if (job.scene.extension() == ".gltf")  // and its buffers beside it
+        for (const auto& entry : fs::directory_iterator(job.scene.parent_path(), ec))
+            if (entry.path().extension() == ".bin") size.scene_bytes += entry.file_size(ec);
+    size.atlas = job.settings.uses_atlas();
+    size.outputs = int(job.settings.outputs.size());
+    return size;
+}
+
+// A "prepare" event as each stage begins, with preparation's time left from
+// the sizes known by then.
+std::function<void(const PreparedScene&, const std::string&)> prepare_events(const BakeJob& job,
+                                                                             const BakeEventSink& emit,
+                                                                             Clock::time_point start) {
+    auto estimate = std::make_shared<PreparationEstimate>(preparation_size(job));
+    return [=, &job](const PreparedScene& p, const std::string& stage) {
+        if (p.scene.triangle_count() > 0) {
+            uint64_t double_sided = 0;
+            for (uint32_t material : p.scene.triangle_material)
+                double_sided += material < p.scene.materials.size() && p.scene.materials[material].double_sided;
+            estimate->set_triangles(p.scene.triangle_count(), double_sided);
+        }
+        if (!p.texels.samples.empty()) estimate->set_sample_points(p.texels.samples.size());
+        else if (p.atlas.width > 0) {  // made, not yet sampled: its covered share, subsamples² a texel
+            const int sub = job.settings.atlas.subsamples;
+            estimate->set_sample_points(
+                uint64_t(double(p.atlas.width) * p.atlas.height * p.atlas.utilisation * sub * sub));
+        }
+        const double elapsed = seconds_since(start);
+        emit(protocol::PrepareEvent{stage, elapsed, estimate->seconds_left(stage, elapsed)});
+    };
+}
+
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
     const auto start = Clock::now();
     fs::create_directories(job.out);
-    const std::unique_ptr<PreparedScene> prepared = prepare(job);
+    const std::unique_ptr<PreparedScene> prepared = prepare(job, prepare_events(job, emit, start));
     std::vector<std::unique_ptr<ProgressiveMethod>> methods =
         prepared->timed("methods", [&] { return methods_that_fit(*prepared, job); });
     prepared->prepare_seconds = seconds_since(start);

@@ -14,6 +14,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -43,22 +44,31 @@ struct PreparedScene {
     // Where preparation's time went, stage by stage (load, atlas,
     // texel_samples, gpu, bvh, methods): manifest.json's "prepared".
     std::vector<std::pair<std::string, double>> stage_seconds;
+    // Told as each stage begins (not a stage that runs inside another, such
+    // as the BVH an atlas stage asks for): the job's "prepare" events.
+    std::function<void(const PreparedScene&, const std::string& stage)> on_stage;
 
     // Runs `stage` and records its time under `name`.
     template <class F>
     auto timed(const std::string& name, F&& stage) {
+        if (on_stage && stage_depth_ == 0) on_stage(*this, name);
         const auto start = std::chrono::steady_clock::now();
         struct Record {
             PreparedScene* p;
             const std::string& name;
             std::chrono::steady_clock::time_point start;
             ~Record() {
+                --p->stage_depth_;
                 p->stage_seconds.emplace_back(
                     name, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
             }
         } record{this, name, start};
+        ++stage_depth_;
         return stage();
     }
+
+private:
+    int stage_depth_ = 0;
 };
 
 // The atlas as every per-texel method's manifest section describes it.

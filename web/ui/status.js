@@ -62,11 +62,17 @@ function render(jobs) {
     const fill = document.createElement("div");
     fill.style.width = percent + "%";
     bar.appendChild(fill);
-    const preparing = job.state === "running" && !job.progress.pass;  // load, atlas, BVH: no ETA yet
-    const progress = cell(row, preparing ? "preparing" : percent + "%");
+    // Before the first pass: the stage preparing (load, atlas, methods ...)
+    // and preparation's time left; the job's own ETA comes with its passes.
+    const preparing = job.state === "running" && !job.progress.pass;
+    const stage = job.progress.preparing ? ": " + job.progress.preparing : "";
+    const progress = cell(row, preparing ? "preparing" + stage : percent + "%");
     progress.prepend(bar);
-    cell(row, job.progress.eta_seconds === null || job.progress.eta_seconds === undefined ? "–"
-                                                                                     : fmt(job.progress.eta_seconds, 0) + " s");
+    const known = (seconds) => seconds !== null && seconds !== undefined;
+    const eta = preparing && known(job.progress.prepare_eta_seconds)
+                    ? fmt(job.progress.prepare_eta_seconds, 0) + " s (preparing)"
+                    : known(job.progress.eta_seconds) ? fmt(job.progress.eta_seconds, 0) + " s" : "–";
+    cell(row, eta);
     cell(row, job.attempts + " / " + job.max_attempts);
     body.appendChild(row);
     if (job.state === "failed") {  // the cause in plain sight, under its job
