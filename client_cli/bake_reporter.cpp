@@ -47,6 +47,7 @@ void BakeReporter::print_start(const protocol::StartEvent& start) {
     for (const auto& [output, at] : start.resumed) std::cerr << output << ": resumed after pass " << at.pass << "\n";
     for (const auto& [output, why] : start.not_resumed)
         std::cerr << output << ": not resumed, from pass 0: " << why << "\n";
+    for (const std::string& warning : start.warnings) std::cerr << "warning: " << warning << "\n";
 }
 
 void BakeReporter::draw_progress(const protocol::ProgressEvent& progress) {

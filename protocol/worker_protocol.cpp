@@ -126,6 +126,7 @@ json to_json(const WorkerEvent& e) {
                   {"outputs", s->outputs}};
         for (const auto& [output, at] : s->resumed) j["resumed"][output] = progress_fields(at);
         for (const auto& [output, why] : s->not_resumed) j["not_resumed"][output] = why;
+        if (!s->warnings.empty()) j["warnings"] = s->warnings;
         return j;
     }
     if (const auto* p = std::get_if<ProgressEvent>(&e)) {
@@ -167,6 +168,9 @@ WorkerEvent parse_worker_event(const json& j) {
         if (j.contains("not_resumed") && j["not_resumed"].is_object())
             for (auto it = j["not_resumed"].begin(); it != j["not_resumed"].end(); ++it)
                 if (it.value().is_string()) s.not_resumed[it.key()] = it.value().get<std::string>();
+        if (j.contains("warnings") && j["warnings"].is_array())
+            for (const json& w : j["warnings"])
+                if (w.is_string()) s.warnings.push_back(w.get<std::string>());
         return s;
     }
     if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j)};

@@ -102,6 +102,9 @@ struct StartEvent {
 };
 struct ProgressEvent {
     std::string output;
+    // What the bake did otherwise than asked, for a person to read (a
+    // texel density that does not fit the largest atlas, baked lower).
+    std::vector<std::string> warnings;
     Progress progress;
 };
 struct SnapshotEvent {

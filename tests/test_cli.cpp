@@ -183,9 +183,31 @@ TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
                                    " --texel-density 2000 --max-res 256 --passes 1");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     std::ifstream manifest_in(out / "manifest.json");
-    const nlohmann::json atlas = nlohmann::json::parse(manifest_in)["lightmap"]["settings"]["atlas"];
+    const nlohmann::json manifest = nlohmann::json::parse(manifest_in);
+    const nlohmann::json atlas = manifest["lightmap"]["settings"]["atlas"];
     EXPECT_EQ(atlas["width"], 256) << atlas.dump();
     EXPECT_LT(atlas["texel_density"].get<double>(), 2000.0) << "the density shrank to fit";
+    // Said, not silent (5,000 asked and 115 given was not): on stderr, in the
+    // manifest and (with --json) in the start event.
+    ASSERT_TRUE(manifest.contains("warnings"));
+    ASSERT_EQ(manifest["warnings"].size(), 1u);
+    const std::string warning = manifest["warnings"][0];
+    EXPECT_NE(warning.find("texel density 2000 texels/m does not fit in a 256² atlas"), std::string::npos) << warning;
+    char given[32];
+    std::snprintf(given, sizeof given, "baked at %.4g texels/m", atlas["texel_density"].get<double>());
+    EXPECT_NE(warning.find(given), std::string::npos) << warning;
+    EXPECT_NE(r.err.find("warning: " + warning), std::string::npos) << r.err;
+    // A density that fits, or none asked: no warning.
+    for (const std::string density : {"--texel-density 20", ""}) {
+        const CliRun fits = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() + " " +
+                                          density + " --max-res 256 --passes 1 --json");
+        ASSERT_EQ(fits.exit_code, 0) << fits.err;
+        for (const nlohmann::json& line : json_lines(fits.out)) {
+            EXPECT_FALSE(line.contains("warnings")) << density << ": " << line.dump();
+        }
+        std::ifstream again(out / "manifest.json");
+        EXPECT_FALSE(nlohmann::json::parse(again).contains("warnings")) << density;
+    }
     // Charts that cannot fit within max_res: refused, naming what would fit.
     const CliRun small = run_lightfarm("bake " + test::shared_scene("real/wooden_staircase/wooden_staircase.gltf") +
                                        " --out " + out.string() + " --max-res 256 --passes 1");

@@ -218,7 +218,7 @@ TEST(PreparationEstimate, SumsTheStagesLeftAndScalesByTheStagesDone) {
     size.scene_bytes = 7'000'000;
     size.atlas = true;
     PreparationEstimate estimate(size);
-    estimate.set_triangles(260'000, 0);
+    estimate.set_triangles(260'000, 0, false);
     estimate.set_sample_points(580'000);
     const std::vector<std::string> order = {"load",         "gpu",           "atlas",      "bvh",
                                             "double_sided", "texel_samples", "bvh_turned", "methods"};
@@ -246,10 +246,14 @@ TEST(PreparationEstimate, SumsTheStagesLeftAndScalesByTheStagesDone) {
     PreparationEstimate larger = estimate;
     larger.set_sample_points(2 * 580'000);
     EXPECT_GT(*larger.seconds_left("texel_samples", 0.0), *estimate.seconds_left("texel_samples", 0.0));
+    // A see-through material: the relocation's rays cost more.
+    PreparationEstimate glass = estimate;
+    glass.set_triangles(260'000, 0, true);
+    EXPECT_GT(*glass.seconds_left("methods", 0.0), *estimate.seconds_left("methods", 0.0));
     // Per-vertex outputs only: no atlas, texel or relocation stage.
     size.atlas = false;
     PreparationEstimate vertices(size);
-    vertices.set_triangles(260'000, 0);
+    vertices.set_triangles(260'000, 0, false);
     for (const auto& [name, seconds] : vertices.stages_from("load")) {
         if (name == "atlas" || name == "double_sided" || name == "texel_samples") {
             EXPECT_EQ(seconds, 0.0) << name;

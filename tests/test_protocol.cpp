@@ -733,6 +733,7 @@ TEST(WorkerEvents, RoundTripEachType) {
     start.outputs = {{"lightmap", {{"texels", 65536}}}, {"sh", {{"vertices", 100}}}};
     start.resumed["lightmap"] = some_progress();
     start.not_resumed["sh"] = "no state was saved";
+    start.warnings = {"texel density 5000 texels/m does not fit in a 256² atlas (max_res): baked at 53.69 texels/m"};
     const WorkerEvent s = through_a_line(start);
     ASSERT_TRUE(std::holds_alternative<StartEvent>(s));
     const auto& s2 = std::get<StartEvent>(s);
@@ -744,6 +745,8 @@ TEST(WorkerEvents, RoundTripEachType) {
     ASSERT_EQ(s2.resumed.size(), 1u);
     expect_same(s2.resumed.at("lightmap"), start.resumed.at("lightmap"));
     EXPECT_EQ(s2.not_resumed, start.not_resumed);
+    EXPECT_EQ(s2.warnings, start.warnings);
+    EXPECT_FALSE(to_json(WorkerEvent(StartEvent{})).contains("warnings")) << "none to say: no key";
     EXPECT_EQ(to_json(s)["event"], "start");
     EXPECT_FALSE(to_json(WorkerEvent(StartEvent{})).contains("resumed")) << "a fresh bake says nothing of resuming";
 

@@ -30,6 +30,7 @@ constexpr double kMethodFixed = 0.3;  // programs and buffers, per output
 // deepens with the BVH (13.7 µs a point on the monkey's 6k triangles, 31 on
 // the spheres' 246k).
 constexpr double kRelocatePerPointPerLevel = 1.3e-6;
+constexpr double kSeeThroughTracing = 1.8;  // docs/BENCHMARKS.md, the see-through tracer on llvmpipe
 // Before loading, the triangles from the bytes (the staircase: 27 bytes a
 // triangle); before the atlas, its sample points from a typical automatic
 // atlas (the shared scenes': 158k-584k).
@@ -46,7 +47,9 @@ double PreparationEstimate::predicted(const std::string& stage) const {
     if (stage == "gpu") return kGpuContext;
     if (stage == "bvh") return kBvhPerTriangle * triangles;
     if (stage == "methods") {
-        const double relocate = size_.atlas ? points * kRelocatePerPointPerLevel * std::log2(triangles + 2.0) : 0.0;
+        const double relocate = size_.atlas ? points * kRelocatePerPointPerLevel * std::log2(triangles + 2.0) *
+                                                  (size_.see_through ? kSeeThroughTracing : 1.0)
+                                            : 0.0;
         return kMethodFixed * size_.outputs + relocate;
     }
     if (!size_.atlas) return 0.0;

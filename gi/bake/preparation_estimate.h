@@ -26,6 +26,7 @@ struct PreparationSize {
     uint64_t triangles = 0;               // 0: not loaded yet (guessed from the bytes)
     uint64_t double_sided_triangles = 0;  // of double-sided materials: their charts are traced to turn them
     uint64_t sample_points = 0;           // the atlas's texel sample points; 0: not made yet (guessed)
+    bool see_through = false;             // a material lets light through: llvmpipe traces at about half speed
     bool atlas = false;                   // a per-texel output: atlas, texel samples, relocation
     int outputs = 1;
 };
@@ -34,9 +35,10 @@ class PreparationEstimate {
 public:
     explicit PreparationEstimate(const PreparationSize& size) : size_(size) {}
     // Sizes learnt on the way.
-    void set_triangles(uint64_t triangles, uint64_t double_sided) {
+    void set_triangles(uint64_t triangles, uint64_t double_sided, bool see_through) {
         size_.triangles = triangles;
         size_.double_sided_triangles = double_sided;
+        size_.see_through = see_through;
     }
     void set_sample_points(uint64_t points) { size_.sample_points = points; }
 

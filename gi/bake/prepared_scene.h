@@ -41,6 +41,9 @@ struct PreparedScene {
     // were turned.
     std::unique_ptr<Tracer> tracer;
     double prepare_seconds = 0.0;
+    // What preparation did otherwise than asked (the start event's and the
+    // manifest's "warnings").
+    std::vector<std::string> warnings;
     // Where preparation's time went, stage by stage (load, atlas,
     // texel_samples, gpu, bvh, methods): manifest.json's "prepared".
     std::vector<std::pair<std::string, double>> stage_seconds;
