@@ -48,8 +48,12 @@ using protocol::Progress;
 
 struct SceneRecord {
     std::string id;          // content hash
-    std::string main_file;   // the .glb or .gltf inside the scene's directory
+    std::string main_file;   // the .glb or .gltf inside the scene's directory (its first uploader's name)
     nlohmann::json summary;  // `lightfarm inspect --json` of it
+    // The main file's name as the owner it was read for uploaded it
+    // (scene_for): tenants who upload the same bytes each see their own.
+    // "" when read without an owner (scene()).
+    std::string name = {};
 };
 
 // Who a store speaks for, and how long its leases last.
@@ -80,11 +84,16 @@ class JobStore {
 public:
     virtual ~JobStore() = default;
 
-    // --- scenes: stored once per content, owned by every token that uploaded them
+    // --- scenes: stored once per content, owned by every token that uploaded
+    // them, each owner under the file name it uploaded them as
     virtual std::optional<SceneRecord> scene(const std::string& id) = 0;
+    // The scene as `owner` uploaded it (its `name` that owner's), or nullopt
+    // when `owner` has not uploaded it.
+    virtual std::optional<SceneRecord> scene_for(const std::string& id, const std::string& owner) = 0;
     virtual void add_scene(const SceneRecord& scene) = 0;  // no-op if it exists
-    // Returns false when `owner` already had it.
-    virtual bool add_scene_owner(const std::string& id, const std::string& owner) = 0;
+    // `owner` uploaded the scene as `name`. Returns false (and keeps the
+    // name it had) when `owner` already had it.
+    virtual bool add_scene_owner(const std::string& id, const std::string& owner, const std::string& name) = 0;
     virtual bool scene_owned_by(const std::string& id, const std::string& owner) = 0;
 
     // --- jobs

@@ -41,6 +41,12 @@ CREATE TABLE nodes(
   name TEXT PRIMARY KEY, started_at DOUBLE PRECISION NOT NULL, heartbeat_at DOUBLE PRECISION NOT NULL,
   info TEXT NOT NULL);
 )sql"},
+    // Each owner its own name for a scene (tenants uploading the same bytes
+    // see each their own); the owners so far keep the name it was stored under.
+    {2, R"sql(
+ALTER TABLE scene_owners ADD COLUMN name TEXT NOT NULL DEFAULT '';
+UPDATE scene_owners SET name = scenes.main_file FROM scenes WHERE scenes.id = scene_owners.scene;
+)sql"},
 };
 static_assert(std::size(kMigrations) == PostgresJobStore::kSchemaVersion, "one migration per schema version");
 

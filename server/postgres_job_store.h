@@ -19,7 +19,7 @@ namespace lf::server {
 class PostgresJobStore : public SqlJobStore {
 public:
     // The newest schema this lightfarmd knows (its migrations: postgres_job_store.cpp).
-    static constexpr int kSchemaVersion = 1;
+    static constexpr int kSchemaVersion = 2;
 
     // Connects to `uri` (a libpq connection URI) and migrates the schema.
     // Throws std::invalid_argument for a URI libpq cannot read, StoreError

@@ -287,12 +287,14 @@ json SceneStore::inspect(const fs::path& main_file) {
 SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, const std::string& owner) {
     const UploadFile& main = checked_main_file(files);
     const std::string id = scene_id(files);
+    const std::string main_name = fs::path(main.name).lexically_normal().string();
     std::optional<SceneRecord> known = store_.scene(id);
     // Bytes another tenant uploaded before are checked again for this one, so
     // that the answer takes as long as a first upload's: a cached answer in
     // 1 ms told the second tenant the bytes were known (issue #33). The owner
-    // itself gets its own scene back at once.
-    if (known && store_.scene_owned_by(id, owner)) return {*known, false};
+    // itself gets its own scene back at once, under the name it gave first.
+    if (known)
+        if (std::optional<SceneRecord> own = store_.scene_for(id, owner)) return {*own, false};
 
     // Write into a private temporary directory, validate there, then move it
     // into place in one rename: a scene directory is never half written.
@@ -306,10 +308,16 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
         }
     } cleanup{tmp};
     for (const UploadFile& f : files) write_file(tmp / fs::path(f.name).lexically_normal(), f.bytes);
-    const std::string main_name = fs::path(main.name).lexically_normal().string();
 
     const json summary = inspect(tmp / main_name);
-    if (known) return {*known, store_.add_scene_owner(id, owner)};
+    // Each owner sees the scene under its own name (its summary's, its jobs',
+    // its workers' files): never the name another tenant gave the same bytes.
+    auto as_owner_sees_it = [&](const SceneRecord& stored, bool created) {
+        SceneRecord own = stored;
+        own.name = main_name;
+        return Result{store_.scene_for(id, owner).value_or(own), created};
+    };
+    if (known) return as_owner_sees_it(*known, store_.add_scene_owner(id, owner, main_name));
 
     const fs::path final_dir = data.scene(id);
     fs::create_directories(final_dir.parent_path());
@@ -324,8 +332,7 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
         if (moved) fs::remove_all(final_dir, ec);
         throw;
     }
-    const bool created = store_.add_scene_owner(id, owner);
-    return {record, created};
+    return as_owner_sees_it(record, store_.add_scene_owner(id, owner, main_name));
 }
 
 }  // namespace lf::server

@@ -157,7 +157,9 @@ protocol::SceneSummary summary_of(const SceneRecord& scene) {
     if (!scene.summary.is_object() || !scene.summary.contains("emissive_triangles") ||
         !scene.summary.contains("punctual_light_count"))
         summary.emissive_triangles = std::max<uint64_t>(summary.emissive_triangles, 1);
-    summary.source = scene.main_file.empty() ? summary.source : scene.main_file;
+    // The name its owner gave it, else the name it was stored under.
+    if (!scene.name.empty()) summary.source = scene.name;
+    else if (!scene.main_file.empty()) summary.source = scene.main_file;
     return summary;
 }
 

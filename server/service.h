@@ -108,7 +108,7 @@ private:
     // A job's status for the API; `briefs` (scene id -> its name and size)
     // spares a listing one store query per job.
     nlohmann::json status_json(const JobRecord& job, std::map<std::string, nlohmann::json>* briefs = nullptr) const;
-    nlohmann::json scene_brief(const std::string& scene_id) const;
+    nlohmann::json scene_brief(const std::string& scene_id, const std::string& owner) const;
     nlohmann::json jobs_json(const std::string& owner) const;  // GET /v1/jobs's body
 
     void healthz(const httplib::Request&, httplib::Response&, const Caller&);

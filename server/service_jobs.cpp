@@ -28,7 +28,7 @@ json Service::status_json(const JobRecord& job, std::map<std::string, json>* bri
     std::map<std::string, json> own;
     if (!briefs) briefs = &own;
     auto [it, fresh] = briefs->try_emplace(job.status.scene);
-    if (fresh) it->second = scene_brief(job.status.scene);
+    if (fresh) it->second = scene_brief(job.status.scene, job.owner);
     j.update(it->second);
     const std::string base = "/v1/jobs/" + job.status.id;
     j["links"] = {{"self", base},
@@ -78,17 +78,16 @@ protocol::JobSpec Service::accepted_spec(const httplib::Request& req, const Call
     } catch (const protocol::SpecError& e) {
         throw HttpError(400, e.what(), {{"field", e.field()}});
     }
-    if (!store_->scene_owned_by(spec.scene, caller.owner))
+    const std::optional<SceneRecord> scene = store_->scene_for(spec.scene, caller.owner);
+    if (!scene)
         throw HttpError(404, "scene: no scene " + spec.scene + " (upload it with POST /v1/scenes first)",
                         {{"field", "scene"}});
     // What the scene makes impossible is known now, from its upload's
     // summary: a 400 naming the field and the fix, not three failed workers.
-    if (const std::optional<SceneRecord> scene = store_->scene(spec.scene)) {
-        try {
-            protocol::check_spec_against_scene(spec.bake, summary_of(*scene));
-        } catch (const protocol::SpecError& e) {
-            throw HttpError(400, e.what(), {{"field", e.field()}});
-        }
+    try {
+        protocol::check_spec_against_scene(spec.bake, summary_of(*scene));
+    } catch (const protocol::SpecError& e) {
+        throw HttpError(400, e.what(), {{"field", e.field()}});
     }
     const int queued = store_->queued_count(caller.owner);
     if (queued >= config_.limits.queued_jobs)
@@ -98,6 +97,24 @@ protocol::JobSpec Service::accepted_spec(const httplib::Request& req, const Call
                         {{"field", "queued_jobs"}, {"limit", config_.limits.queued_jobs}});
     return spec;
 }
+
+namespace {
+// An earlier job's manifest.json as this job's: its `scene` the file name
+// this job's owner uploaded the scene as, which may not be the earlier
+// job's owner's (issue #33: a tenant read another's name in the cached
+// manifest). False, nothing written, when the manifest names no scene.
+bool write_own_manifest(const fs::path& from, const fs::path& to, const std::string& scene_name, std::error_code& ec) {
+    std::ifstream in(from, std::ios::binary);
+    json manifest = json::parse(in, nullptr, false);
+    if (!manifest.is_object() || !manifest.contains("scene")) return false;
+    manifest["scene"] = fs::path(scene_name).filename().string();
+    std::ofstream out(to, std::ios::binary);
+    out << manifest.dump(2) << "\n";
+    out.close();
+    if (!out) ec = std::make_error_code(std::errc::io_error);
+    return true;
+}
+}  // namespace
 
 // The same scene bytes, outputs and seed were baked before: `job` succeeds
 // at once with those artifacts (hard links, so each job directory stands
@@ -111,8 +128,14 @@ bool Service::answer_from_cache(JobRecord& job, const Caller& caller, httplib::R
     const fs::path tmp = DataDir(config_.data_dir).tmp("cache-" + job.status.id);
     std::error_code ec;
     fs::create_directories(tmp, ec);
+    const std::optional<SceneRecord> scene = store_->scene_for(job.status.scene, caller.owner);
     std::vector<std::string> files;
     for (const Artifact& a : artifacts_in(from)) {
+        if (a.name == "manifest.json" && scene && write_own_manifest(from / a.name, tmp / a.name, scene->name, ec)) {
+            if (ec) break;
+            files.push_back(a.name);
+            continue;
+        }
         fs::create_hard_link(from / a.name, tmp / a.name, ec);
         if (ec) fs::copy_file(from / a.name, tmp / a.name, fs::copy_options::overwrite_existing, ec);
         if (ec) break;

@@ -38,5 +38,8 @@ std::vector<Artifact> artifacts_in(const std::filesystem::path& dir);
 // user uploaded it. A summary from an older engine that does not say whether
 // the scene has a light is taken as lit: what is not known is not refused.
 protocol::SceneSummary summary_of(const SceneRecord& scene);
+// The summary as the upload and GET /v1/scenes/{id} answer it: its `source`
+// the scene's name as read for its owner (SceneRecord::name), and its id.
+nlohmann::json scene_json(const SceneRecord& scene);
 
 }  // namespace lf::server

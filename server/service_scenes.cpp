@@ -49,23 +49,28 @@ void Service::post_scene(const httplib::Request& req, httplib::Response& res, co
         files.push_back({name, req.body});
     }
     const SceneStore::Result r = scenes_->upload(files, caller.owner);
-    json body = r.scene.summary;
-    body["id"] = r.scene.id;
-    send_json(res, r.created ? 201 : 200, body);
+    send_json(res, r.created ? 201 : 200, scene_json(r.scene));
 }
 
 void Service::get_scene(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
     const std::string id = req.matches[1].str();
-    std::optional<SceneRecord> scene = store_->scene(id);
-    if (!scene || !store_->scene_owned_by(id, caller.owner)) throw HttpError(404, "no scene " + id, {{"id", id}});
-    json body = scene->summary;
-    body["id"] = scene->id;
-    send_json(res, 200, body);
+    const std::optional<SceneRecord> scene = store_->scene_for(id, caller.owner);
+    if (!scene) throw HttpError(404, "no scene " + id, {{"id", id}});
+    send_json(res, 200, scene_json(*scene));
 }
 
-json Service::scene_brief(const std::string& scene_id) const {
+// A scene's summary as its owner sees it: named as that owner uploaded it
+// (the stored summary's `source` is the first uploader's), with its id.
+json scene_json(const SceneRecord& scene) {
+    json body = scene.summary.is_object() ? scene.summary : json::object();
+    body["source"] = summary_of(scene).source;
+    body["id"] = scene.id;
+    return body;
+}
+
+json Service::scene_brief(const std::string& scene_id, const std::string& owner) const {
     json brief = json::object();
-    if (const std::optional<SceneRecord> scene = store_->scene(scene_id)) {
+    if (const std::optional<SceneRecord> scene = store_->scene_for(scene_id, owner)) {
         const protocol::SceneSummary summary = summary_of(*scene);
         brief = {{"scene_name", summary.source}, {"scene_triangles", summary.triangles}};
     }

@@ -75,10 +75,24 @@ void SqlJobStore::add_scene(const SceneRecord& scene) {
              {scene.id, scene.main_file, scene.summary.dump(), now_seconds()});
 }
 
-bool SqlJobStore::add_scene_owner(const std::string& id, const std::string& owner) {
+std::optional<SceneRecord> SqlJobStore::scene_for(const std::string& id, const std::string& owner) {
+    std::lock_guard lock(mutex_);
+    const SqlResult r = db_->run("cannot read a scene",
+                                 "SELECT s.id, s.main_file, s.summary, o.name FROM scenes s "
+                                 "JOIN scene_owners o ON o.scene = s.id WHERE s.id = ? AND o.owner = ?",
+                                 {id, owner});
+    if (r.empty()) return std::nullopt;
+    SceneRecord scene{r.text(0, 0), r.text(0, 1), json::parse(r.text(0, 2), nullptr, false), r.text(0, 3)};
+    // An owner row without a name (one the migration has not reached) is the main file's.
+    if (scene.name.empty()) scene.name = scene.main_file;
+    return scene;
+}
+
+bool SqlJobStore::add_scene_owner(const std::string& id, const std::string& owner, const std::string& name) {
     std::lock_guard lock(mutex_);
     return db_->run("cannot store a scene's owner",
-                    "INSERT INTO scene_owners(scene, owner) VALUES(?, ?) ON CONFLICT DO NOTHING", {id, owner})
+                    "INSERT INTO scene_owners(scene, owner, name) VALUES(?, ?, ?) ON CONFLICT DO NOTHING",
+                    {id, owner, name})
                .changed > 0;
 }
 

@@ -32,7 +32,8 @@ class SqlJobStore : public JobStore {
 public:
     std::optional<SceneRecord> scene(const std::string& id) override;
     void add_scene(const SceneRecord& scene) override;
-    bool add_scene_owner(const std::string& id, const std::string& owner) override;
+    std::optional<SceneRecord> scene_for(const std::string& id, const std::string& owner) override;
+    bool add_scene_owner(const std::string& id, const std::string& owner, const std::string& name) override;
     bool scene_owned_by(const std::string& id, const std::string& owner) override;
 
     void insert_job(const JobRecord& job, const std::vector<JobEvent>& events) override;

@@ -15,7 +15,7 @@ constexpr const char* kSchema = R"sql(
 CREATE TABLE IF NOT EXISTS scenes(
   id TEXT PRIMARY KEY, main_file TEXT NOT NULL, summary TEXT NOT NULL, created_at REAL NOT NULL);
 CREATE TABLE IF NOT EXISTS scene_owners(
-  scene TEXT NOT NULL, owner TEXT NOT NULL, PRIMARY KEY(scene, owner));
+  scene TEXT NOT NULL, owner TEXT NOT NULL, name TEXT NOT NULL DEFAULT '', PRIMARY KEY(scene, owner));
 CREATE TABLE IF NOT EXISTS jobs(
   seq INTEGER PRIMARY KEY AUTOINCREMENT,
   id TEXT UNIQUE NOT NULL, owner TEXT NOT NULL, scene TEXT NOT NULL, spec TEXT NOT NULL,
@@ -266,6 +266,13 @@ void SqliteConnection::migrate() {
         exec("ALTER TABLE jobs ADD COLUMN node TEXT NOT NULL DEFAULT ''");
         exec("ALTER TABLE jobs ADD COLUMN lease_expires REAL NOT NULL DEFAULT 0");
     }
+    // A store created before each owner had its own name for a scene: every
+    // owner keeps the name the scene was stored under (its first upload's).
+    if (!has_column("scene_owners", "name"))
+        exec(
+            "BEGIN IMMEDIATE; ALTER TABLE scene_owners ADD COLUMN name TEXT NOT NULL DEFAULT ''; "
+            "UPDATE scene_owners SET name = COALESCE((SELECT main_file FROM scenes WHERE scenes.id = "
+            "scene_owners.scene), ''); COMMIT");
     // A store created before progress events were coalesced: its progress
     // rows are kept (permanent) until compact_events() reaches their jobs.
     if (!has_column("events", "coalesce_key")) {

@@ -31,6 +31,9 @@ namespace {
 constexpr const char* kPidFile = ".worker.pid";
 // The job's spec as the worker reads it (`--spec`), hidden the same way.
 constexpr const char* kSpecFile = ".spec.json";
+// Where a job whose owner named the scene otherwise finds it under that name
+// (Supervisor::scene_path), hidden the same way.
+constexpr const char* kSceneLinkDir = ".scene";
 
 void kill_leftover_worker(const fs::path& dir, const std::string& this_node) {
     std::ifstream in(dir / kPidFile);
@@ -60,8 +63,10 @@ Supervisor::~Supervisor() { stop(); }
 
 fs::path Supervisor::job_dir(const std::string& job_id) const { return DataDir(config_.data_dir).job(job_id); }
 
-fs::path Supervisor::scene_path(const SceneRecord& scene) const {
-    return DataDir(config_.data_dir).scene(scene.id) / scene.main_file;
+fs::path Supervisor::scene_path(const SceneRecord& scene, const std::string& job_id) const {
+    const fs::path stored = DataDir(config_.data_dir).scene(scene.id) / scene.main_file;
+    if (scene.name.empty() || scene.name == scene.main_file) return stored;
+    return job_dir(job_id) / kSceneLinkDir / scene.name;
 }
 
 void Supervisor::start() {
@@ -468,7 +473,19 @@ std::unique_ptr<Subprocess> Supervisor::start_worker(const JobRecord& job, const
             throw ServerFault("cannot put the job's spec in place (" + why + ")");
         }
     }
-    std::vector<std::string> argv = {engine_,  "bake",   scene_path(scene).string(), "--out", dir.string(),
+    // Bytes another tenant stored first are this job's owner's under the name
+    // it uploaded them as (issue #33): the worker bakes a link of that name,
+    // so that what it writes and says (manifest.json's `scene`, an error
+    // naming the file) names the scene as its owner does.
+    const fs::path scene_file = scene_path(scene, job.status.id);
+    if (const fs::path stored = DataDir(config_.data_dir).scene(scene.id) / scene.main_file; scene_file != stored) {
+        fs::create_directories(scene_file.parent_path(), ec);
+        std::error_code gone;
+        fs::remove(scene_file, gone);
+        if (!ec) fs::create_symlink(stored.lexically_relative(scene_file.parent_path()), scene_file, ec);
+        if (ec) throw ServerFault("cannot link the scene into the job's directory (" + ec.message() + ")");
+    }
+    std::vector<std::string> argv = {engine_,  "bake",   scene_file.string(), "--out", dir.string(),
                                      "--json", "--spec", spec_file.string()};
     if (!device.empty()) {
         argv.push_back("--device");
@@ -559,7 +576,9 @@ bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         fail_now(job, "the job's stored spec is not valid any more", e.what());
         return false;
     }
-    const std::optional<SceneRecord> scene = store_.scene(spec.scene);
+    // As the job's owner uploaded it (its name), else as stored.
+    std::optional<SceneRecord> scene = store_.scene_for(spec.scene, job.owner);
+    if (!scene) scene = store_.scene(spec.scene);
     if (!scene) {
         fail_now(job, "scene " + spec.scene + " is missing", "");
         return false;
@@ -714,9 +733,10 @@ bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
                  (still_ours ? ": succeeded" : ": finished, but no longer runs on this node; not stored"));
         return false;
     }
-    const std::string scene_name =
-        scene.main_file.empty() ? scene.summary.value("source", "the scene") : scene.main_file;
-    const std::string last = user_facing(worker.stderr_last_line(), scene_path(scene), scene_name,
+    const std::string scene_name = !scene.name.empty()        ? scene.name
+                                   : !scene.main_file.empty() ? scene.main_file
+                                                              : scene.summary.value("source", "the scene");
+    const std::string last = user_facing(worker.stderr_last_line(), scene_path(scene, id), scene_name,
                                          DataDir(config_.data_dir).scene(scene.id), job_dir(id), config_.data_dir);
     if (end.status.exited && end.status.code == protocol::kExitSpecUnreadable) {
         server_fault(job, "the worker could not read the spec lightfarmd wrote" + (last.empty() ? "" : ": " + last));

@@ -95,7 +95,10 @@ public:
     void cancel(const std::string& job_id);
 
     std::filesystem::path job_dir(const std::string& job_id) const;
-    std::filesystem::path scene_path(const SceneRecord& scene) const;
+    // The scene file a job's worker bakes: the stored one, or where the
+    // job's owner uploaded the bytes under another name (scene.name), a link
+    // of that name to it in the job's directory (.scene/NAME).
+    std::filesystem::path scene_path(const SceneRecord& scene, const std::string& job_id) const;
 
 private:
     // `device`: the engine's --device for this worker ("" = its default).

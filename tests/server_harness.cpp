@@ -146,7 +146,8 @@ fi
 [ "$mode" = no_done ] && exit 0
 rm -rf "$out/.resume"
 cp "$state/snapshot.exr" "$out/.lightmap.exr.tmp" && mv "$out/.lightmap.exr.tmp" "$out/lightmap.exr"
-echo "{\"passes\": $passes}" > "$out/.manifest.json.tmp" && mv "$out/.manifest.json.tmp" "$out/manifest.json"
+# As the engine's: the scene named by the file it baked.
+echo "{\"scene\": \"$(basename "$scene")\", \"passes\": $passes}" > "$out/.manifest.json.tmp" && mv "$out/.manifest.json.tmp" "$out/manifest.json"
 final="\"lightmap\":\"lightmap.exr\""
 files="\"lightmap.exr\",\"manifest.json\""
 if [ $with_sh = yes ]; then

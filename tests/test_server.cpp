@@ -218,6 +218,70 @@ TEST_F(ServerTest, ScenesAreStoredByContentHash) {
     EXPECT_EQ(std::count(inspects.begin(), inspects.end(), '\n'), 2) << inspects;
 }
 
+// Same bytes, two tenants (issue #33): each sees the scene only under the
+// name it uploaded it as, in the upload's answer, GET /v1/scenes/{id}, its
+// jobs, the status page, a cached job's manifest.json, a bake's and a
+// failure's; Bob's upload of Alice's bytes ran the same check as a first
+// upload (no quick answer that tells him they were known).
+TEST_F(ServerTest, TenantsOfTheSameBytesEachSeeOnlyTheirOwnName) {
+    start();
+    const std::string body = glb("shared bytes");
+    auto a = client(kAlice).Post("/v1/scenes?name=alice-secret-plan.glb", body, "model/gltf-binary");
+    ASSERT_EQ(a->status, 201) << a->body;
+    auto b = client(kBob).Post("/v1/scenes?name=bob.glb", body, "model/gltf-binary");
+    ASSERT_EQ(b->status, 201) << b->body;  // new to Bob, as for a first upload
+    const std::string scene = json::parse(a->body)["id"];
+    EXPECT_EQ(json::parse(b->body)["id"], scene);
+    EXPECT_EQ(json::parse(a->body)["source"], "alice-secret-plan.glb");
+    EXPECT_EQ(json::parse(b->body)["source"], "bob.glb");
+    // Bob's upload went through `lightfarm inspect` as a first one does, under his name.
+    const std::string inspects = read_text(engine.dir / "inspects");
+    EXPECT_EQ(std::count(inspects.begin(), inspects.end(), '\n'), 2) << inspects;
+    EXPECT_NE(inspects.find("/bob.glb\n"), std::string::npos) << inspects;
+    // Bob's second upload under another name keeps his first; Alice's is untouched.
+    auto again = client(kBob).Post("/v1/scenes?name=renamed.glb", body, "model/gltf-binary");
+    EXPECT_EQ(again->status, 200);
+    EXPECT_EQ(json::parse(again->body)["source"], "bob.glb");
+    EXPECT_EQ(json::parse(client(kAlice).Get("/v1/scenes/" + scene)->body)["source"], "alice-secret-plan.glb");
+    EXPECT_EQ(json::parse(client(kBob).Get("/v1/scenes/" + scene)->body)["source"], "bob.glb");
+
+    // Alice bakes; Bob's identical job is answered from her files, its manifest his.
+    const std::string alices = submit(scene, {{"passes", 2}}, 7, kAlice);
+    ASSERT_EQ(wait_finished(alices)["state"], "succeeded");
+    const std::string bobs_cached = submit(scene, {{"passes", 2}}, 7, kBob);
+    // A bake of Bob's own: its worker bakes the file under Bob's name.
+    const std::string bobs_baked = submit(scene, {{"passes", 2}}, 8, kBob);
+    auto bob = client(kBob);
+    ASSERT_EQ(wait_for_job(bob, bobs_baked, is_finished, std::chrono::seconds(20))["state"], "succeeded");
+    EXPECT_EQ(json::parse(client(kAlice).Get("/v1/jobs/" + alices + "/artifacts/manifest.json")->body)["scene"],
+              "alice-secret-plan.glb");
+    for (const std::string& job : {bobs_cached, bobs_baked}) {
+        const json status = json::parse(bob.Get("/v1/jobs/" + job)->body);
+        EXPECT_EQ(status["scene_name"], "bob.glb") << job;
+        auto manifest = bob.Get("/v1/jobs/" + job + "/artifacts/manifest.json");
+        ASSERT_EQ(manifest->status, 200) << job;
+        EXPECT_EQ(json::parse(manifest->body)["scene"], "bob.glb") << manifest->body;
+    }
+    EXPECT_EQ(json::parse(bob.Get("/v1/jobs/" + bobs_cached)->body)["cached"], true);
+    const json listing = json::parse(bob.Get("/v1/jobs")->body);
+    ASSERT_EQ(listing["jobs"].size(), 2u);
+    for (const json& job : listing["jobs"]) EXPECT_EQ(job["scene_name"], "bob.glb") << job.dump();
+    EXPECT_EQ(json::parse(client(kAlice).Get("/v1/jobs/" + alices)->body)["scene_name"], "alice-secret-plan.glb");
+    // A failure names Bob's file as Bob named it.
+    engine.set("mode", "input_error");
+    const std::string bobs_failed = submit(scene, {{"passes", 2}}, 9, kBob);
+    const json failed = wait_for_job(bob, bobs_failed, is_finished, std::chrono::seconds(20));
+    EXPECT_NE(failed["cause"].get<std::string>().find("bob.glb: nothing to bake"), std::string::npos) << failed;
+    // Nowhere Bob can read names Alice's file.
+    std::string everything = bob.Get("/")->body + bob.Get("/v1/jobs")->body + bob.Get("/v1/scenes/" + scene)->body;
+    for (const std::string& job : {bobs_cached, bobs_baked, bobs_failed}) {
+        everything += bob.Get("/v1/jobs/" + job)->body + bob.Get("/v1/jobs/" + job + "/artifacts")->body;
+        for (const auto& e : read_events(server->host, server->port, kBob, job)) everything += e.data.dump();
+    }
+    everything += bob.Get("/v1/jobs/" + bobs_cached + "/artifacts/manifest.json")->body;
+    EXPECT_EQ(everything.find("alice-secret"), std::string::npos) << everything;
+}
+
 // A bare .glb body keeps its own name (?name=): the summary and the job
 // list showed every such upload as scene.glb. A name of the wrong kind, or
 // one no upload may have, is a 400.

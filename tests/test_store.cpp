@@ -30,6 +30,7 @@
 
 #include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sqlite3.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/stat.h>
@@ -97,7 +98,7 @@ TEST(Store, AFailedWriteThrowsAndStoresNothing) {
         FullDisk full;
         EXPECT_THROW(store.insert_job(queued_job("j1"), {{0, "done", {{"cached", true}}}}), StoreError);
         EXPECT_THROW(store.add_scene({"scene-1", "scene.glb", {{"triangles", 12}}}), StoreError);
-        EXPECT_THROW(store.add_scene_owner("scene-1", "owner"), StoreError);
+        EXPECT_THROW(store.add_scene_owner("scene-1", "owner", "scene.glb"), StoreError);
         // Reads still work, and show that nothing was stored.
         EXPECT_FALSE(store.job("j1"));
         EXPECT_TRUE(store.events_after("j1", 0).empty());
@@ -107,7 +108,7 @@ TEST(Store, AFailedWriteThrowsAndStoresNothing) {
     // Once the disk has room again, the same store carries on.
     store.insert_job(queued_job("j1"), {});
     store.add_scene({"scene-1", "scene.glb", {{"triangles", 12}}});
-    EXPECT_TRUE(store.add_scene_owner("scene-1", "owner"));
+    EXPECT_TRUE(store.add_scene_owner("scene-1", "owner", "scene.glb"));
     ASSERT_TRUE(store.job("j1"));
     EXPECT_EQ(store.job("j1")->status.state, JobState::Queued);
     EXPECT_FALSE(store.empty());
@@ -370,6 +371,66 @@ TEST_P(StoreTest, NodesReportTheirHeartbeats) {
     EXPECT_EQ(nodes[0].info["gpus"], 2);
     EXPECT_EQ(nodes[1].name, "node-b");
     EXPECT_LT(nodes[1].heartbeat_age, 5.0);
+}
+
+// One scene's bytes, two owners, two names (issue #33): each owner reads
+// its own; an owner's second add keeps its first name; no owner, no scene.
+TEST_P(StoreTest, EachOwnerOfASceneHasItsOwnNameForIt) {
+    JobStore& store = this->store();
+    store.add_scene({"scene-1", "first.glb", {{"triangles", 12}, {"source", "first.glb"}}});
+    EXPECT_TRUE(store.add_scene_owner("scene-1", "alice", "first.glb"));
+    EXPECT_TRUE(store.add_scene_owner("scene-1", "bob", "mine.glb"));
+    EXPECT_FALSE(store.add_scene_owner("scene-1", "bob", "renamed.glb"));
+    EXPECT_EQ(store.scene_for("scene-1", "alice")->name, "first.glb");
+    const std::optional<server::SceneRecord> bobs = store.scene_for("scene-1", "bob");
+    ASSERT_TRUE(bobs);
+    EXPECT_EQ(bobs->name, "mine.glb");
+    EXPECT_EQ(bobs->main_file, "first.glb") << "the bytes are stored once";
+    EXPECT_EQ(bobs->summary["triangles"], 12);
+    EXPECT_FALSE(store.scene_for("scene-1", "carol"));
+    EXPECT_FALSE(store.scene_for("scene-2", "alice"));
+    EXPECT_EQ(store.scene("scene-1")->name, "");
+}
+
+// A store from before names per owner: every owner keeps the name the scene
+// was stored under. SQLite: the column added at open; PostgreSQL: migration 2.
+TEST(Store, AnSqliteStoreFromBeforeNamesPerOwnerKeepsTheStoredName) {
+    TempDir tmp;
+    const std::string path = (tmp.path / "jobs.sqlite").string();
+    {
+        SqliteJobStore store(path);
+        store.add_scene({"scene-1", "stored.glb", {{"triangles", 12}}});
+        store.add_scene_owner("scene-1", "alice", "ignored.glb");
+    }
+    {
+        sqlite3* db = nullptr;
+        ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+        // The table as lightfarmd created it before this column.
+        EXPECT_EQ(sqlite3_exec(db, "ALTER TABLE scene_owners DROP COLUMN name", nullptr, nullptr, nullptr), SQLITE_OK)
+            << sqlite3_errmsg(db);
+        sqlite3_close(db);
+    }
+    SqliteJobStore store(path);
+    ASSERT_TRUE(store.scene_for("scene-1", "alice"));
+    EXPECT_EQ(store.scene_for("scene-1", "alice")->name, "stored.glb");
+    EXPECT_TRUE(store.add_scene_owner("scene-1", "bob", "bobs.glb"));
+    EXPECT_EQ(store.scene_for("scene-1", "bob")->name, "bobs.glb");
+}
+
+TEST(PostgresStore, MigrationTwoGivesEveryOwnerTheStoredName) {
+    const std::string uri = postgres().create_database();
+    {
+        PostgresJobStore store(uri);
+        store.add_scene({"scene-1", "stored.glb", {{"triangles", 12}}});
+        store.add_scene_owner("scene-1", "alice", "ignored.glb");
+    }
+    // Back to schema version 1, as lightfarmd left it before this column.
+    postgres().sql(uri, "ALTER TABLE scene_owners DROP COLUMN name; DELETE FROM schema_version WHERE version >= 2");
+    PostgresJobStore store(uri);
+    ASSERT_TRUE(store.scene_for("scene-1", "alice"));
+    EXPECT_EQ(store.scene_for("scene-1", "alice")->name, "stored.glb");
+    EXPECT_TRUE(store.add_scene_owner("scene-1", "bob", "bobs.glb"));
+    EXPECT_EQ(store.scene_for("scene-1", "bob")->name, "bobs.glb");
 }
 
 TEST(Config, TheScaleOutOptionsAreCheckedWithMessagesThatSayWhatToWrite) {
