@@ -99,12 +99,12 @@ struct StartEvent {
     // and why an output could not resume (no state saved, another bake's).
     std::map<std::string, Progress> resumed;
     std::map<std::string, std::string> not_resumed;
-};
-struct ProgressEvent {
-    std::string output;
     // What the bake did otherwise than asked, for a person to read (a
     // texel density that does not fit the largest atlas, baked lower).
     std::vector<std::string> warnings;
+};
+struct ProgressEvent {
+    std::string output;
     Progress progress;
 };
 struct SnapshotEvent {

@@ -154,6 +154,13 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                                            : ""));
     }
     check_bake_memory(name, p.atlas.width, p.atlas.height, settings.atlas.subsamples);
+    // A mesh's lightmap scale shapes a generated atlas only: the file's own TEXCOORD_1 is kept as it is.
+    const auto scaled = std::find_if(p.scene.instances.begin(), p.scene.instances.end(),
+                                     [](const PrimitiveInstance& i) { return i.lightmap_scale != 1.0f; });
+    if (!p.atlas.generated && scaled != p.scene.instances.end())
+        p.warnings.push_back("node " + std::to_string(scaled->node) +
+                             "'s lightfarm_lightmap_scale is not applied: the scene has its own lightmap UVs "
+                             "(TEXCOORD_1), which are baked as they are");
     // A density asked for that the largest atlas cannot hold is baked lower: said, not silent.
     if (options.texel_density > 0.0f && p.atlas.texel_density < 0.99f * options.texel_density)
         p.warnings.push_back("texel density " + texels_per_metre(options.texel_density) + " does not fit in a " +
@@ -493,6 +500,11 @@ PreparationSize preparation_size(const BakeJob& job) {
     return size;
 }
 
+// Sample points per texel over subsamples²: the texels along chart edges
+// take more (the shared scenes: 1.0 for the Cornell box's and the monkey's
+// large charts, 2.1-2.2 for the staircase's and the spheres' small ones).
+constexpr double kSamplePointsPerSubsample = 1.6;
+
 // A "prepare" event as each stage begins, with preparation's time left from
 // the sizes known by then.
 std::function<void(const PreparedScene&, const std::string&)> prepare_events(const BakeJob& job,
@@ -508,11 +520,6 @@ std::function<void(const PreparedScene&, const std::string&)> prepare_events(con
                                                  [](const Material& m) { return m.is_see_through(); });
             estimate->set_triangles(p.scene.triangle_count(), double_sided, see_through);
         }
-// Sample points per texel over subsamples²: the texels along chart edges
-// take more (the shared scenes: 1.0 for the Cornell box's and the monkey's
-// large charts, 2.1-2.2 for the staircase's and the spheres' small ones).
-constexpr double kSamplePointsPerSubsample = 1.6;
-
         if (!p.texels.samples.empty()) estimate->set_sample_points(p.texels.samples.size());
         else if (p.atlas.width > 0) {  // made, not yet sampled: its covered share, subsamples² a texel and more
             const int sub = job.settings.atlas.subsamples;
@@ -537,6 +544,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     started.renderer = prepared->gpu->info().renderer;
     started.triangles = prepared->scene.triangle_count();
     started.prepare_seconds = prepared->prepare_seconds;
+    started.warnings = prepared->warnings;
     for (const auto& m : methods) {
         started.outputs[m->output()] = m->description();
         started.outputs[m->output()]["rays_per_pass"] = m->rays_per_pass();
@@ -550,7 +558,6 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], keys[i], started);
     } else {
         fs::remove_all(resume_dir(job.out));
-    started.warnings = prepared->warnings;
         remove_old_snapshots(job.out);
     }
     emit(started);
@@ -578,6 +585,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
           {"unlit_chart_rays", prepared->unlit_chart_rays}}},
     };
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
+    if (!prepared->warnings.empty()) manifest["warnings"] = prepared->warnings;
     std::map<std::string, std::shared_ptr<const FloatImage>> final_images;  // by output
     for (size_t i = 0; i < methods.size(); ++i) {
         manifest["prepared"]["outputs"].push_back(methods[i]->output());
@@ -591,7 +599,6 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         if (lit_scene) done.files.push_back("scene.lit.glb");
     }
     done.files.push_back("manifest.json");
-    if (!prepared->warnings.empty()) manifest["warnings"] = prepared->warnings;
     manifest["files"] = describe_files(done.files, manifest);
     manifest["files"]["manifest.json"] = "this file; its \"settings\" are a spec for `lightfarm bake --spec`";
     if (prepared->atlas_scene)
