@@ -225,6 +225,34 @@ TEST(Atlas, TexelDensityIsTheSameForEveryChart) {
     }
 }
 
+// A mesh's lightmap scale (glTF extras lightfarm_lightmap_scale) multiplies
+// its charts' density, and only theirs: at 20 texels/m, a mesh at 2 gets 40,
+// at 0.5 gets 10, the rest 20, each within its chart's rounding.
+TEST(Atlas, AMeshsLightmapScaleMultipliesItsChartsDensityAlone) {
+    Scene s = mixed_scene();
+    ASSERT_GE(s.instances.size(), 3u);
+    s.instances[0].lightmap_scale = 2.0f;
+    s.instances[1].lightmap_scale = 0.5f;
+    const AtlasReport report = generate_lightmap_uvs(s, {.texel_density = 20.0f});
+    EXPECT_FLOAT_EQ(report.texel_density, 20.0f);
+    std::vector<double> world(report.charts, 0.0), uv(report.charts, 0.0), scale(report.charts, 0.0);
+    for (const PrimitiveInstance& inst : s.instances)
+        for (uint32_t t = inst.first_triangle; t < inst.first_triangle + inst.triangle_count; ++t) {
+            world[report.triangle_chart[t]] += s.triangle_area(t);
+            uv[report.triangle_chart[t]] += uv_pixel_area(s, t, report.width, report.height);
+            scale[report.triangle_chart[t]] = inst.lightmap_scale;
+        }
+    size_t scaled = 0;
+    for (size_t c = 0; c < report.charts; ++c) {
+        const double density = 20.0 * scale[c];
+        if (world[c] * density * density < 1.0) continue;  // charts under one texel take the minimum size
+        EXPECT_NEAR(std::sqrt(uv[c] / world[c]), density, 0.001 * density + 0.02) << "chart " << c;
+        scaled += scale[c] != 1.0;
+    }
+    EXPECT_GT(scaled, 0u);
+    EXPECT_EQ(report.mesh_scaled_charts, scaled);
+}
+
 // Separate triangles (obtuse, standing on their longest edge, all facing
 // the same way): one chart each, each filling half its rectangle.
 Scene triangles_scene(int count) {

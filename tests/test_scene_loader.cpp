@@ -777,6 +777,37 @@ TEST(GeneratedScenes, PointsAndLinesAreSkippedWithAWarning) {
     EXPECT_TRUE(has_warning(s, "mesh 0 primitive 2: POINTS skipped"));
 }
 
+// A mesh's lightmap scale comes from its node's extras, else its mesh's,
+// else 1; a value outside (0, 64] is refused naming the node or the mesh.
+TEST(GeneratedScenes, TheLightmapScaleIsReadFromTheNodeElseTheMesh) {
+    TempDir dir;
+    const auto scale_with = [&](const nlohmann::json& node_extras, const nlohmann::json& mesh_extras) {
+        GltfWriter w = quad_file();
+        if (!node_extras.is_null()) w.doc["nodes"][0]["extras"] = node_extras;
+        if (!mesh_extras.is_null()) w.doc["meshes"][0]["extras"] = mesh_extras;
+        return w;
+    };
+    const auto scale_of = [&](const GltfWriter& w) { return load_written(w, dir).instances.at(0).lightmap_scale; };
+    const nlohmann::json none;
+    EXPECT_FLOAT_EQ(scale_of(scale_with(none, none)), 1.0f);
+    EXPECT_FLOAT_EQ(scale_of(scale_with({{"lightfarm_lightmap_scale", 3}}, none)), 3.0f);
+    EXPECT_FLOAT_EQ(scale_of(scale_with(none, {{"lightfarm_lightmap_scale", 0.25}})), 0.25f);
+    EXPECT_FLOAT_EQ(scale_of(scale_with({{"lightfarm_lightmap_scale", 2}}, {{"lightfarm_lightmap_scale", 0.25}})), 2.0f)
+        << "the node's wins";
+    EXPECT_FLOAT_EQ(scale_of(scale_with({{"other", 2}}, none)), 1.0f) << "other extras are not a scale";
+    for (const nlohmann::json& bad :
+         {nlohmann::json(0), nlohmann::json(-1), nlohmann::json(65), nlohmann::json("big")}) {
+        EXPECT_TRUE(
+            contains(load_error(scale_with({{"lightfarm_lightmap_scale", bad}}, none).write(dir.path(), "n.gltf")),
+                     "node 0: extras.lightfarm_lightmap_scale must be a number above 0 and at most 64"))
+            << bad;
+        EXPECT_TRUE(
+            contains(load_error(scale_with(none, {{"lightfarm_lightmap_scale", bad}}).write(dir.path(), "m.gltf")),
+                     "mesh 0: extras.lightfarm_lightmap_scale must be a number above 0 and at most 64"))
+            << bad;
+    }
+}
+
 TEST(GeneratedScenes, SceneChoice) {
     // Two scenes: "scene": 1 picks the second; without "scene", scene 0; without scenes, every root.
     GltfWriter w = quad_file();

@@ -1292,25 +1292,37 @@ Packing pack_atlas_for_scene(const ChartLayout& layout, const AtlasOptions& opti
     return square ? *square : pack_atlas(layout, chosen);
 }
 
-// Lays the charts flagged in `unlit` out at kUnlitChartScale of their size
-// (fewer texels for one black value); counts them in the report. Returns
-// the area of the lit charts.
-double shrink_unlit_charts(const Scene& scene, const std::vector<uint8_t>& unlit, ChartLayout& layout,
-                           AtlasReport& report) {
+// Each triangle's PrimitiveInstance::lightmap_scale.
+std::vector<float> triangle_lightmap_scales(const Scene& scene) {
+    std::vector<float> scale(scene.triangles.size(), 1.0f);
+    for (const PrimitiveInstance& inst : scene.instances)
+        std::fill_n(scale.begin() + inst.first_triangle, inst.triangle_count, inst.lightmap_scale);
+    return scale;
+}
+
+// Lays each chart out at its scale: its mesh's lightmap scale (the largest
+// where a chart spans meshes), times kUnlitChartScale where flagged in
+// `unlit` (fewer texels for one black value); counts them in the report.
+// Returns the area of the lit charts.
+double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, ChartLayout& layout, AtlasReport& report) {
+    const std::vector<float> mesh_scale = triangle_lightmap_scales(scene);
     double lit = 0.0, dark = 0.0;
     for (size_t c = 0; c < layout.charts.size(); ++c) {
-        double area = 0.0;
-        for (uint32_t t : layout.charts[c].triangles) area += scene.triangle_area(t);
-        if (unlit.empty() || !unlit[c]) {
-            lit += area;
-            continue;
+        double area = 0.0, scale = 0.0;
+        for (uint32_t t : layout.charts[c].triangles) {
+            area += scene.triangle_area(t);
+            scale = std::max(scale, double(mesh_scale[t]));
         }
-        dark += area;
-        ++report.unlit_charts;
-        layout.shapes[c].size *= kUnlitChartScale;
+        report.mesh_scaled_charts += scale != 1.0;
+        const bool dark_chart = !unlit.empty() && unlit[c];
+        (dark_chart ? dark : lit) += area;
+        report.unlit_charts += dark_chart;
+        if (dark_chart) scale *= kUnlitChartScale;
+        if (scale == 1.0) continue;
+        layout.shapes[c].size *= scale;
         Tri2* corners = layout.corners_of(c);
         for (size_t i = 0; i < layout.charts[c].triangles.size(); ++i)
-            for (glm::dvec2& corner : corners[i]) corner *= kUnlitChartScale;
+            for (glm::dvec2& corner : corners[i]) corner *= scale;
     }
     report.unlit_area_fraction = lit + dark > 0.0 ? dark / (lit + dark) : 0.0;
     return lit;
@@ -1456,7 +1468,7 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
 
     std::vector<uint8_t> unlit;
     if (options.find_unlit_charts) unlit = options.find_unlit_charts(report.triangle_chart, layout.charts.size());
-    const double lit_area = shrink_unlit_charts(scene, unlit, layout, report);
+    const double lit_area = scale_charts(scene, unlit, layout, report);
     const double border = chart_border_length(scene, shared, report.triangle_chart, unlit);
     const Packing packing = pack_atlas_for_scene(layout, options, border, lit_area, report.density_from_scene);
     write_corner_uvs(scene, report.triangle_chart, chart_corner_uvs(layout, packing));

@@ -77,6 +77,7 @@ struct AtlasReport {
     double border_fraction = 0.0;
     bool density_from_scene = false;   // chosen for max_border_fraction
     size_t unlit_charts = 0;           // packed at kUnlitChartScale (AtlasOptions::find_unlit_charts)
+    size_t mesh_scaled_charts = 0;     // packed at their mesh's PrimitiveInstance::lightmap_scale (not 1)
     double unlit_area_fraction = 0.0;  // their share of the surface
 };
 

@@ -84,6 +84,7 @@ inline nlohmann::json atlas_json(const AtlasReport& atlas) {
             {"generated", atlas.generated},
             {"charts", atlas.charts},
             {"unlit_charts", atlas.unlit_charts},
+            {"mesh_scaled_charts", atlas.mesh_scaled_charts},
             {"unlit_area_fraction", atlas.unlit_area_fraction},
             {"utilisation", atlas.utilisation}};
 }

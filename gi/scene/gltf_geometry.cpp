@@ -103,6 +103,7 @@ private:
     LocalPrimitive read_primitive(int mesh, int index);
     uint32_t default_material();
     void emit(const LocalPrimitive& prim, const PlacedNode& placed, int primitive_index);
+    float lightmap_scale(const PlacedNode& placed) const;
 
     const tinygltf::Model& model_;
     const AccessorReader& reader_;
@@ -276,6 +277,25 @@ void GeometryBuilder::build(const std::vector<PlacedNode>& meshes) {
     }
 }
 
+// The node's extras.lightfarm_lightmap_scale, else its mesh's, else 1.
+float GeometryBuilder::lightmap_scale(const PlacedNode& placed) const {
+    constexpr const char* kKey = "lightfarm_lightmap_scale";
+    constexpr double kMost = 64.0;
+    const tinygltf::Node& node = model_.nodes[size_t(placed.node)];
+    const tinygltf::Mesh& mesh = model_.meshes[size_t(placed.item)];
+    const bool on_node = node.extras.IsObject() && node.extras.Has(kKey);
+    const tinygltf::Value& extras = on_node ? node.extras : mesh.extras;
+    if (!extras.IsObject() || !extras.Has(kKey)) return 1.0f;
+    const tinygltf::Value& v = extras.Get(kKey);
+    const double scale = v.IsNumber() ? v.GetNumberAsDouble() : std::nan("");
+    if (!(scale > 0.0 && scale <= kMost))
+        errors_.fail(on_node ? "node" : "mesh", on_node ? placed.node : placed.item,
+                     std::string("extras.") + kKey +
+                         " must be a number above 0 and at most 64 (the charts' texel "
+                         "density over the atlas's)");
+    return float(scale);
+}
+
 void GeometryBuilder::emit(const LocalPrimitive& prim, const PlacedNode& placed, int primitive_index) {
     const glm::dmat4& world = placed.world;
     const glm::dmat3 linear(world);
@@ -298,6 +318,7 @@ void GeometryBuilder::emit(const LocalPrimitive& prim, const PlacedNode& placed,
     inst.triangle_count = uint32_t(prim.triangles.size());
     inst.has_uv1 = !prim.uv1.empty();
     inst.mirrored = mirrored;
+    inst.lightmap_scale = lightmap_scale(placed);
 
     const uint32_t base = inst.first_vertex;
     for (size_t k = 0; k < prim.positions.size(); ++k) {
