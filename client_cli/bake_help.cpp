@@ -11,7 +11,10 @@ std::string bake_settings_help() {
     for (const protocol::Setting& s : protocol::setting_catalog()) {
         std::string flag = s.flag() + (s.value_syntax().empty() ? "" : " " + s.value_syntax());
         flag.resize(std::max<size_t>(flag.size(), 34), ' ');
-        text += "  " + flag + " " + s.help;
+        // A flag that is on unless turned off is shown by its --no- form:
+        // what it turns off, said as such (the help read as if it turned it on).
+        const bool off_switch = s.type == protocol::SettingType::Flag && s.default_value == true;
+        text += "  " + flag + " " + (off_switch ? "turn off the " + s.help + " (on by default)" : s.help);
         if (!s.default_value.is_null() && s.type != protocol::SettingType::Flag)
             text += " [" + (s.default_value.is_string() ? s.default_value.get<std::string>() : s.default_value.dump()) +
                     "]";

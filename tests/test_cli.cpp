@@ -236,6 +236,11 @@ TEST(CliUsage, EveryCommandAnswersHelpAndTyposGetASuggestion) {
     }
     const CliRun bake = run_lightfarm("bake --help");
     EXPECT_NE(bake.out.find("--probe-res"), std::string::npos) << "every setting of the catalog";
+    // A flag that is on by default is offered as --no-X, and its help says it turns X off.
+    const size_t no_stitch = bake.out.find("--no-stitch");
+    ASSERT_NE(no_stitch, std::string::npos);
+    const std::string line = bake.out.substr(no_stitch, bake.out.find('\n', no_stitch) - no_stitch);
+    EXPECT_NE(line.find("turn off the least-squares stitch of UV seams (on by default)"), std::string::npos) << line;
     const CliRun typo = run_lightfarm("bake scene.glb --out x --pases 3");
     EXPECT_EQ(typo.exit_code, 2);
     EXPECT_NE(typo.err.find("unknown option --pases (did you mean --passes?)"), std::string::npos) << typo.err;
