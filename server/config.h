@@ -38,6 +38,9 @@ struct ServerLimits {
     int connections_per_address = 64;  // open connections from one client address (an eighth of the total)
     int event_streams = 0;             // open event streams, in total; 0: half of --http-threads (the most allowed)
     int event_streams_per_token = 16;  // open event streams of one token
+    // Open event streams from one client address, whatever its tokens (0:
+    // half of event_streams): many tokens of one address cannot take them all.
+    int event_streams_per_address = 0;
     // A request's body is read on a request thread, as long as the client
     // takes to send it: bodies being read at once, per bearer token and per
     // client address (0: an eighth and a quarter of --http-threads).

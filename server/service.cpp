@@ -199,6 +199,11 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
     // most a quarter of them (with the default 64 threads: 8 of 32).
     config_.limits.event_streams_per_token =
         std::max(1, std::min(config_.limits.event_streams_per_token, config_.limits.event_streams / 4));
+    // Nor can one address, with as many tokens as it likes: half of them
+    // unless set (behind a proxy every client has its address: raise it).
+    int& per_address = config_.limits.event_streams_per_address;
+    per_address = per_address <= 0 ? std::max(1, config_.limits.event_streams / 2)
+                                   : std::min(per_address, config_.limits.event_streams);
     // A body being read holds a request thread as long as its client takes
     // to send it: one token gets an eighth of the threads, one address a
     // quarter (with the default 64: 8 and 16), unless set.

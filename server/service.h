@@ -134,7 +134,8 @@ private:
     };
     // Takes one of the event streams' own budget of request threads, in total
     // and per token, or answers 503.
-    void reserve_event_stream(httplib::Response& res, const Caller& caller, const std::string& job_id);
+    void reserve_event_stream(httplib::Response& res, const Caller& caller, const std::string& address,
+                              const std::string& job_id);
     bool send_new_events(const std::string& job_id, EventCursor& cursor, httplib::DataSink& sink);
     void list_artifacts(const httplib::Request&, httplib::Response&, const Caller&);
     void get_artifact(const httplib::Request&, httplib::Response&, const Caller&);
@@ -157,10 +158,11 @@ private:
     std::vector<std::regex> route_regexes_;  // routes()[i]'s path as a regex
     std::set<std::string> lost_jobs_;        // jobs_without_records at start: 410, not a silent 404
 
-    // Open event streams, in total and by owner (their own budget of request threads).
+    // Open event streams, in total, by owner and by client address (their own budget of request threads).
     std::mutex streams_mutex_;
     int streams_open_ = 0;
     std::map<std::string, int> streams_by_owner_;
+    std::map<std::string, int> streams_by_address_;
     int listen_socket_ = -1;
     static constexpr int kListenBacklog = 1024;
 

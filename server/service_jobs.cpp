@@ -240,11 +240,12 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
     const JobRecord job = owned_job(req, caller);
     auto cursor = std::make_shared<EventCursor>(EventCursor{last_event_id(req), std::chrono::steady_clock::now()});
     const std::string id = job.status.id;
-    reserve_event_stream(res, caller, id);
-    auto release = [this, owner = caller.owner](bool) {
+    reserve_event_stream(res, caller, req.remote_addr, id);
+    auto release = [this, owner = caller.owner, address = req.remote_addr](bool) {
         std::lock_guard lock(streams_mutex_);
         --streams_open_;
         if (--streams_by_owner_[owner] <= 0) streams_by_owner_.erase(owner);
+        if (--streams_by_address_[address] <= 0) streams_by_address_.erase(address);
         --metrics_.event_streams;
     };
     res.set_header("Cache-Control", "no-cache");
@@ -253,28 +254,37 @@ void Service::job_events(const httplib::Request& req, httplib::Response& res, co
         [this, id, cursor](size_t, httplib::DataSink& sink) { return send_new_events(id, *cursor, sink); }, release);
 }
 
-// Event streams have their own budget of request threads: in total and
-// per token, well below --http-threads, so that they never take the
-// threads the rest of the API needs.
-void Service::reserve_event_stream(httplib::Response& res, const Caller& caller, const std::string& id) {
+// Event streams have their own budget of request threads: in total, per
+// token and per client address, well below --http-threads, so that they
+// never take the threads the rest of the API needs, and neither one token
+// nor one address with many tokens can take them all.
+void Service::reserve_event_stream(httplib::Response& res, const Caller& caller, const std::string& address,
+                                   const std::string& id) {
     std::lock_guard lock(streams_mutex_);
-    const int total = config_.limits.event_streams, per_token = config_.limits.event_streams_per_token;
-    const char* field = streams_open_ >= total                         ? "event_streams"
-                        : streams_by_owner_[caller.owner] >= per_token ? "event_streams_per_token"
-                                                                       : nullptr;
+    const ServerLimits& l = config_.limits;
+    auto count = [](const std::map<std::string, int>& m, const std::string& key) {
+        const auto it = m.find(key);
+        return it == m.end() ? 0 : it->second;
+    };
+    const char* field = nullptr;
+    int limit = 0;
+    std::string whose;
+    if (streams_open_ >= l.event_streams) field = "event_streams", limit = l.event_streams;
+    else if (count(streams_by_owner_, caller.owner) >= l.event_streams_per_token)
+        field = "event_streams_per_token", limit = l.event_streams_per_token, whose = " for this token";
+    else if (count(streams_by_address_, address) >= l.event_streams_per_address)
+        field = "event_streams_per_address", limit = l.event_streams_per_address, whose = " from this address";
     if (field) {
-        if (streams_by_owner_[caller.owner] == 0) streams_by_owner_.erase(caller.owner);
-        const int limit = std::string(field) == "event_streams" ? total : per_token;
         metrics_.count_refusal(field);
         res.set_header("Retry-After", "5");
         throw HttpError(503,
-                        std::string(field) + ": " + std::to_string(limit) + " event streams are open" +
-                            (std::string(field) == "event_streams" ? "" : " for this token") +
+                        std::string(field) + ": " + std::to_string(limit) + " event streams are open" + whose +
                             ", the limit; retry later or poll GET /v1/jobs/" + id,
                         {{"field", field}, {"limit", limit}});
     }
     ++streams_open_;
     ++streams_by_owner_[caller.owner];
+    ++streams_by_address_[address];
     ++metrics_.event_streams;
 }
 

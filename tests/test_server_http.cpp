@@ -239,6 +239,50 @@ TEST_F(HttpTest, NoTwoTokensCanHoldEveryEventStream) {
     EXPECT_EQ(c.Get("/healthz")->status, 200);
 }
 
+// Nor can one address with many tokens (issue #33): by default an address
+// holds at most half of the 32 streams, whatever its tokens; beyond, 503 +
+// Retry-After naming event_streams_per_address, and another address's token
+// still opens its streams.
+TEST_F(HttpTest, NoOneAddressCanHoldEveryEventStreamWithManyTokens) {
+    start();
+    engine.set("delay", "0.05");
+    std::map<std::string, std::string> jobs;  // token -> a job of its own, running or queued for a while
+    for (const std::string& token : kTokens) {
+        jobs[token] = submit(upload(token, "streams " + token), 400, 1, token);
+        ASSERT_FALSE(jobs[token].empty());
+    }
+    std::vector<std::unique_ptr<RawSocket>> streams;
+    int accepted = 0;
+    for (size_t t = 0; t < 4; ++t) {  // four tokens from 127.0.0.1, 8 streams each (each under its own cap)
+        for (int i = 0; i < 8; ++i) {
+            auto s = std::make_unique<RawSocket>(server->port, "127.0.0.1");
+            s->send(request("GET", "/v1/jobs/" + jobs[kTokens[t]] + "/events", kTokens[t]));
+            const int status = s->status();
+            if (status == 200) {
+                ++accepted;
+            } else {
+                EXPECT_EQ(status, 503) << s->received();
+                const std::string answer = s->read("}");
+                EXPECT_NE(answer.find("Retry-After: 5"), std::string::npos) << answer;
+                EXPECT_NE(answer.find("\"field\": \"event_streams_per_address\""), std::string::npos) << answer;
+            }
+            streams.push_back(std::move(s));
+        }
+    }
+    EXPECT_EQ(accepted, 16) << "half of the 32 streams from one address";
+    // Another address's token opens all its own.
+    int others = 0;
+    for (int i = 0; i < 8; ++i) {
+        auto s = std::make_unique<RawSocket>(server->port, "127.0.0.2");
+        s->send(request("GET", "/v1/jobs/" + jobs[kTokens[4]] + "/events", kTokens[4]));
+        others += s->status() == 200;
+        streams.push_back(std::move(s));
+    }
+    EXPECT_EQ(others, 8);
+    EXPECT_EQ(metric("lightfarm_event_streams"), 24);
+    EXPECT_EQ(client().Get("/healthz")->status, 200);
+}
+
 // The issue's first test: 100 clients trickling header lines and 100 event
 // streams (then vanishing) leave /healthz, GET /v1/jobs and a submission
 // answering within 1 s, and the streams that remain get their events.

@@ -466,11 +466,26 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
         for (const std::string& a : assignments) args.insert(args.end(), {"--limit", a});
         return server::parse_server_args(args, help).limits;
     };
-    const server::ServerLimits l = limits(
-        {"upload_bytes=1000", "spec_bytes=2000", "triangles=3000", "texture_size=512", "queued_jobs=7",
-         "free_disk_bytes=1e9", "header_seconds=2.5", "request_seconds=30", "keep_alive_seconds=4", "drain_seconds=0.5",
-         "header_bytes=9000", "connections=100", "connections_per_address=9", "event_streams=2",
-         "event_streams_per_token=3", "body_reads_per_token=4", "body_reads_per_address=5", "passes=99", "res=2048"});
+    const server::ServerLimits l = limits({"upload_bytes=1000",
+                                           "spec_bytes=2000",
+                                           "triangles=3000",
+                                           "texture_size=512",
+                                           "queued_jobs=7",
+                                           "free_disk_bytes=1e9",
+                                           "header_seconds=2.5",
+                                           "request_seconds=30",
+                                           "keep_alive_seconds=4",
+                                           "drain_seconds=0.5",
+                                           "header_bytes=9000",
+                                           "connections=100",
+                                           "connections_per_address=9",
+                                           "event_streams=2",
+                                           "event_streams_per_token=3",
+                                           "event_streams_per_address=6",
+                                           "body_reads_per_token=4",
+                                           "body_reads_per_address=5",
+                                           "passes=99",
+                                           "res=2048"});
     EXPECT_EQ(l.upload_bytes, 1000u);
     EXPECT_EQ(l.spec_bytes, 2000u);
     EXPECT_EQ(l.triangles, 3000);
@@ -486,6 +501,7 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
     EXPECT_EQ(l.connections_per_address, 9);
     EXPECT_EQ(l.event_streams, 2);
     EXPECT_EQ(l.event_streams_per_token, 3);
+    EXPECT_EQ(l.event_streams_per_address, 6);
     EXPECT_EQ(l.body_reads_per_token, 4);
     EXPECT_EQ(l.body_reads_per_address, 5);
     EXPECT_EQ(l.spec.cap("passes"), 99);
@@ -493,6 +509,7 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
     EXPECT_EQ(limits({"drain_seconds=0"}).drain_seconds, 0) << "no drain at all is a choice";
     EXPECT_EQ(limits({}).connections_per_address, 64) << "an eighth of the 512 connections";
     EXPECT_EQ(limits({}).body_reads_per_token, 0) << "0: an eighth of --http-threads (the service sets it)";
+    EXPECT_EQ(limits({}).event_streams_per_address, 0) << "0: half of event_streams (the service sets it)";
 
     auto refused = [&](const std::string& assignment) {
         try {
@@ -504,8 +521,8 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
     };
     for (const std::string key :
          {"upload_bytes", "spec_bytes", "triangles", "texture_size", "queued_jobs", "free_disk_bytes", "header_bytes",
-          "connections", "connections_per_address", "event_streams", "event_streams_per_token", "body_reads_per_token",
-          "body_reads_per_address"}) {
+          "connections", "connections_per_address", "event_streams", "event_streams_per_token",
+          "event_streams_per_address", "body_reads_per_token", "body_reads_per_address"}) {
         for (const std::string bad : {"-1", "2.5", "inf", "nan", "1e30", "ten", ""}) {
             const std::string message = refused(key + "=" + bad);
             EXPECT_NE(message.find(key), std::string::npos) << key << "=" << bad << ": " << message;
