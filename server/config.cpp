@@ -40,7 +40,7 @@ const char* const kServerUsage = R"(usage: lightfarmd [options]
                          HTTP: header_seconds, request_seconds, keep_alive_seconds, drain_seconds,
                          header_bytes, connections, connections_per_address,
                          event_streams, event_streams_per_token, event_streams_per_address,
-                         body_reads_per_token, body_reads_per_address
+                         body_reads, body_reads_per_token, body_reads_per_address
 )";
 
 namespace {
@@ -85,6 +85,7 @@ void set_limit(ServerLimits& limits, const std::string& assignment) {
     else if (key == "event_streams") limits.event_streams = int(v);
     else if (key == "event_streams_per_token") limits.event_streams_per_token = int(v);
     else if (key == "event_streams_per_address") limits.event_streams_per_address = int(v);
+    else if (key == "body_reads") limits.body_reads = int(v);
     else if (key == "body_reads_per_token") limits.body_reads_per_token = int(v);
     else if (key == "body_reads_per_address") limits.body_reads_per_address = int(v);
     else if (cap) limits.spec.caps[key] = v;

@@ -46,7 +46,15 @@ struct ServerLimits {
     // client address (0: an eighth and a quarter of --http-threads).
     int body_reads_per_token = 0;
     int body_reads_per_address = 0;
+    // Bodies being read at once in total (0: half of --http-threads), so
+    // that many tenants together cannot hold every request thread either.
+    int body_reads = 0;
 };
+
+// Request threads that request bodies being read and event streams may
+// hold together: all but a quarter of --http-threads, which always serve the
+// rest of the API (each has its own cap too: body_reads, event_streams).
+inline int threads_for_bodies_and_streams(int http_threads) { return http_threads - http_threads / 4; }
 
 struct ServerConfig {
     std::string host = "127.0.0.1";

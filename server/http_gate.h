@@ -552,24 +552,36 @@ private:
 
     // A body is read on a request thread for as long as its client takes:
     // one token, or one address, may have only so many read at once, so
-    // that one tenant's slow bodies take only its own share of the threads.
+    // that one tenant's slow bodies take only its own share of the threads;
+    // all of them together at most body_reads (half the threads), and with
+    // the event streams open no more than threads_for_bodies_and_streams,
+    // so that many tenants together cannot hold every thread either.
     // Beyond, 503 before the body is read. False when refused.
     bool start_body_read_locked(Conn& c, std::string token) {
         const char* field = nullptr;
         int limit = 0;
+        std::string why;
+        const int streams = int(metrics_.event_streams.load());
+        const int shared = threads_for_bodies_and_streams(threads_);
         if (!token.empty() && count_of(body_reads_by_token_, token) >= limits_.body_reads_per_token)
             field = "body_reads_per_token", limit = limits_.body_reads_per_token;
         else if (count_of(body_reads_by_address_, c.ip) >= limits_.body_reads_per_address)
             field = "body_reads_per_address", limit = limits_.body_reads_per_address;
+        else if (body_reads_ >= limits_.body_reads) field = "body_reads", limit = limits_.body_reads;
+        else if (body_reads_ + streams >= shared)
+            field = "body_reads", limit = std::max(0, shared - streams),
+            why = "body_reads: request bodies being read (" + std::to_string(body_reads_) + ") and event streams (" +
+                  std::to_string(streams) + ") hold " + std::to_string(shared) + " of the " + std::to_string(threads_) +
+                  " request threads, the most they may together; retry later";
         if (field) {
-            refuse_locked(c, 503, "Service Unavailable",
-                          {{"error", std::string(field) + ": " + std::to_string(limit) +
-                                         " request bodies are being read already; retry later"},
-                           {"field", field},
-                           {"limit", limit}},
+            if (why.empty())
+                why = std::string(field) + ": " + std::to_string(limit) +
+                      " request bodies are being read already; retry later";
+            refuse_locked(c, 503, "Service Unavailable", {{"error", why}, {"field", field}, {"limit", limit}},
                           "Retry-After: 1\r\n");
             return false;
         }
+        ++body_reads_;
         if (!token.empty()) ++body_reads_by_token_[token];
         ++body_reads_by_address_[c.ip];
         ++metrics_.http_body_reads;
@@ -580,6 +592,7 @@ private:
 
     void end_body_read_locked(Conn& c) {
         if (!c.reading_body) return;
+        --body_reads_;
         if (!c.token.empty() && --body_reads_by_token_[c.token] <= 0) body_reads_by_token_.erase(c.token);
         if (--body_reads_by_address_[c.ip] <= 0) body_reads_by_address_.erase(c.ip);
         --metrics_.http_body_reads;
@@ -706,7 +719,8 @@ private:
     int open_ = 0;
     std::map<std::string, int> by_address_;  // counted connections
     int uncounted_lingering_ = 0;
-    std::map<std::string, int> body_reads_by_token_, body_reads_by_address_;  // bodies being read
+    int body_reads_ = 0;                                                      // bodies being read
+    std::map<std::string, int> body_reads_by_token_, body_reads_by_address_;  // of them, by token and by address
 };
 
 }  // namespace lf::server

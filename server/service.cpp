@@ -211,6 +211,11 @@ Service::Service(ServerConfig config, const std::vector<std::string>& tokens) : 
         config_.limits.body_reads_per_token = std::max(1, config_.http_threads / 8);
     if (config_.limits.body_reads_per_address <= 0)
         config_.limits.body_reads_per_address = std::max(1, config_.http_threads / 4);
+    // And all tenants together half of them (the other half serves the API),
+    // never every one.
+    int& body_reads = config_.limits.body_reads;
+    body_reads = body_reads <= 0 ? std::max(1, config_.http_threads / 2)
+                                 : std::max(1, std::min(body_reads, config_.http_threads - 1));
     for (const std::string& t : tokens) owners_.insert(owner_of(t));
     DataDir(config_.data_dir).create();
     store_ = open_job_store(config_);

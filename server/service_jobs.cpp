@@ -267,19 +267,31 @@ void Service::reserve_event_stream(httplib::Response& res, const Caller& caller,
         return it == m.end() ? 0 : it->second;
     };
     const char* field = nullptr;
-    int limit = 0;
+    int limit = 0, open = 0;
     std::string whose;
-    if (streams_open_ >= l.event_streams) field = "event_streams", limit = l.event_streams;
-    else if (count(streams_by_owner_, caller.owner) >= l.event_streams_per_token)
-        field = "event_streams_per_token", limit = l.event_streams_per_token, whose = " for this token";
-    else if (count(streams_by_address_, address) >= l.event_streams_per_address)
-        field = "event_streams_per_address", limit = l.event_streams_per_address, whose = " from this address";
+    // With the request bodies being read, streams hold no more than
+    // threads_for_bodies_and_streams: a quarter of the threads serves the rest.
+    const int bodies = int(metrics_.http_body_reads.load());
+    const int shared = threads_for_bodies_and_streams(config_.http_threads);
+    if (streams_open_ >= l.event_streams) {
+        field = "event_streams", limit = open = l.event_streams;
+    } else if (streams_open_ + bodies >= shared) {
+        field = "event_streams", limit = std::max(0, shared - bodies), open = streams_open_;
+        whose = " and " + std::to_string(bodies) + " request bodies are being read, together " +
+                std::to_string(shared) + " of the " + std::to_string(config_.http_threads) +
+                " request threads: the most they may hold";
+    } else if (count(streams_by_owner_, caller.owner) >= l.event_streams_per_token) {
+        field = "event_streams_per_token", limit = open = l.event_streams_per_token, whose = " for this token";
+    } else if (count(streams_by_address_, address) >= l.event_streams_per_address) {
+        field = "event_streams_per_address", limit = open = l.event_streams_per_address;
+        whose = " from this address";
+    }
     if (field) {
         metrics_.count_refusal(field);
         res.set_header("Retry-After", "5");
         throw HttpError(503,
-                        std::string(field) + ": " + std::to_string(limit) + " event streams are open" + whose +
-                            ", the limit; retry later or poll GET /v1/jobs/" + id,
+                        std::string(field) + ": " + std::to_string(open) + " event streams are open" + whose +
+                            (open == limit ? ", the limit" : "") + "; retry later or poll GET /v1/jobs/" + id,
                         {{"field", field}, {"limit", limit}});
     }
     ++streams_open_;

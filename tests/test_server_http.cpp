@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <thread>
 
@@ -585,6 +586,97 @@ TEST_F(HttpTest, OneTokensSlowBodiesDoNotStopTheApi) {
         if (status != 201) std::this_thread::sleep_for(50ms);
     }
     EXPECT_EQ(status, 201);
+}
+
+// Issue #33: tenants' slow bodies, each within its own share, together held
+// every request thread. All bodies together are at most body_reads (half of
+// --http-threads), and bodies and event streams together at most three
+// quarters of the threads: beyond, 503 + Retry-After naming body_reads (or
+// event_streams) before the body is read, while /healthz answers at once.
+// With 16 threads: 8 bodies; 4 more streams then; 4 bodies with the 8
+// streams (their cap) open. The per-token and per-address caps are raised
+// out of the way: one token stands for many tenants.
+TEST_F(HttpTest, SlowBodiesOfAllTenantsTogetherLeaveThreadsForTheApi) {
+    start({"--http-threads", "16", "--limit", "body_reads_per_token=64", "--limit", "body_reads_per_address=64",
+           "--limit", "request_seconds=20"});
+    engine.set("delay", "0.05");
+    std::map<std::string, std::string> jobs;  // a long job of each token's own, for its event streams
+    for (const std::string& token : {kTokens[0], kTokens[1], kTokens[3], kTokens[4]}) {
+        jobs[token] = submit(upload(token, "bodies " + token), 400, 1, token);
+        ASSERT_FALSE(jobs[token].empty());
+    }
+    auto slow_uploads = [&](int n) {  // a thousand bytes announced, ten sent
+        std::vector<std::unique_ptr<RawSocket>> sockets;
+        for (int i = 0; i < n; ++i) {
+            sockets.push_back(std::make_unique<RawSocket>(server->port, "127.0.0.2"));
+            sockets.back()->send(request("POST", "/v1/scenes", kTokens[2],
+                                         "Content-Type: model/gltf-binary\r\nContent-Length: 1000\r\n") +
+                                 "0123456789");
+        }
+        return sockets;
+    };
+    // How many of `sockets` are answered 503 naming body_reads within about 1.5 s (the others are being read).
+    auto refused = [&](std::vector<std::unique_ptr<RawSocket>>& sockets) {
+        int n = 0;
+        const auto deadline = Clock::now() + 1500ms;
+        for (auto& s : sockets) {
+            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+            s->read("\n}\n", std::max<std::chrono::milliseconds>(left, 20ms));
+            if (s->received().empty()) continue;
+            EXPECT_EQ(s->status(), 503) << s->received();
+            EXPECT_NE(s->received().find("Retry-After: 1"), std::string::npos) << s->received();
+            EXPECT_NE(s->received().find("\"field\": \"body_reads\""), std::string::npos) << s->received();
+            ++n;
+        }
+        return n;
+    };
+    auto api_answers_at_once = [&](const std::string& when) {
+        const auto t0 = Clock::now();
+        auto r = client("").Get("/healthz");
+        EXPECT_TRUE(r && r->status == 200) << when;
+        EXPECT_LT(seconds_since(t0), 1.0) << "/healthz " << when;
+        const auto t1 = Clock::now();
+        r = client(kAlice).Get("/v1/jobs");
+        EXPECT_TRUE(r && r->status == 200) << when;
+        EXPECT_LT(seconds_since(t1), 1.0) << "GET /v1/jobs " << when;
+    };
+    // Event streams of `token` from `address`: how many were accepted; a
+    // refusal names event_streams.
+    std::vector<std::unique_ptr<RawSocket>> streams;
+    auto open_streams = [&](const std::string& token, const char* address, int n) {
+        int accepted = 0;
+        for (int i = 0; i < n; ++i) {
+            auto s = std::make_unique<RawSocket>(server->port, address);
+            s->send(request("GET", "/v1/jobs/" + jobs[token] + "/events", token));
+            if (s->status() == 200) {
+                ++accepted;
+            } else {
+                EXPECT_NE(s->read("}").find("\"field\": \"event_streams\""), std::string::npos) << s->received();
+            }
+            streams.push_back(std::move(s));
+        }
+        return accepted;
+    };
+
+    // Half the threads for bodies.
+    auto bodies = slow_uploads(12);
+    EXPECT_EQ(refused(bodies), 12 - 8);
+    EXPECT_EQ(metric("lightfarm_http_body_reads"), 8);
+    api_answers_at_once("with 8 bodies being read");
+    // Then streams up to three quarters: 4 (per token 2, per address 4).
+    EXPECT_EQ(open_streams(kTokens[0], "127.0.0.1", 2) + open_streams(kTokens[1], "127.0.0.1", 2) +
+                  open_streams(kTokens[3], "127.0.0.3", 2),
+              4);
+    api_answers_at_once("with 8 bodies and 4 streams");
+    // The bodies gone, streams to their cap (8), and bodies up to three quarters: 4.
+    bodies.clear();
+    for (const auto deadline = Clock::now() + 5s; metric("lightfarm_http_body_reads") > 0 && Clock::now() < deadline;)
+        std::this_thread::sleep_for(20ms);
+    EXPECT_EQ(open_streams(kTokens[3], "127.0.0.3", 2) + open_streams(kTokens[4], "127.0.0.3", 2), 4);
+    EXPECT_EQ(metric("lightfarm_event_streams"), 8);
+    bodies = slow_uploads(12);
+    EXPECT_EQ(refused(bodies), 12 - 4);
+    api_answers_at_once("with 8 streams and 4 bodies");
 }
 
 // The figures in docs/BENCHMARKS.md, "Fair shares per tenant": 1, 2 or 4

@@ -482,6 +482,7 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
                                            "event_streams=2",
                                            "event_streams_per_token=3",
                                            "event_streams_per_address=6",
+                                           "body_reads=7",
                                            "body_reads_per_token=4",
                                            "body_reads_per_address=5",
                                            "passes=99",
@@ -502,6 +503,7 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
     EXPECT_EQ(l.event_streams, 2);
     EXPECT_EQ(l.event_streams_per_token, 3);
     EXPECT_EQ(l.event_streams_per_address, 6);
+    EXPECT_EQ(l.body_reads, 7);
     EXPECT_EQ(l.body_reads_per_token, 4);
     EXPECT_EQ(l.body_reads_per_address, 5);
     EXPECT_EQ(l.spec.cap("passes"), 99);
@@ -510,6 +512,7 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
     EXPECT_EQ(limits({}).connections_per_address, 64) << "an eighth of the 512 connections";
     EXPECT_EQ(limits({}).body_reads_per_token, 0) << "0: an eighth of --http-threads (the service sets it)";
     EXPECT_EQ(limits({}).event_streams_per_address, 0) << "0: half of event_streams (the service sets it)";
+    EXPECT_EQ(limits({}).body_reads, 0) << "0: half of --http-threads (the service sets it)";
 
     auto refused = [&](const std::string& assignment) {
         try {
@@ -522,7 +525,7 @@ TEST(Config, EveryLimitIsReadAndABadValueIsRefusedNamingItsKey) {
     for (const std::string key :
          {"upload_bytes", "spec_bytes", "triangles", "texture_size", "queued_jobs", "free_disk_bytes", "header_bytes",
           "connections", "connections_per_address", "event_streams", "event_streams_per_token",
-          "event_streams_per_address", "body_reads_per_token", "body_reads_per_address"}) {
+          "event_streams_per_address", "body_reads", "body_reads_per_token", "body_reads_per_address"}) {
         for (const std::string bad : {"-1", "2.5", "inf", "nan", "1e30", "ten", ""}) {
             const std::string message = refused(key + "=" + bad);
             EXPECT_NE(message.find(key), std::string::npos) << key << "=" << bad << ": " << message;
