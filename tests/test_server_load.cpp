@@ -90,10 +90,11 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     write_text(tmp.path / "tokens", tokens);
     // Every reader and submitter holds a request thread at a time. All of
     // them come from 127.0.0.1, as from behind a proxy: one address may hold
-    // every connection (the default is 64).
+    // every connection (the default is 64) and every event stream (the
+    // default is half of them).
     Lightfarmd server(tmp.path / "data", tmp.path / "tokens", engine_path,
                       {"--workers", std::to_string(workers), "--http-threads", "256", "--stall-timeout", "120",
-                       "--limit", "connections_per_address=512"});
+                       "--limit", "connections_per_address=512", "--limit", "event_streams_per_address=128"});
     server.start();
 
     // The scene each client uploads: the Cornell box for the real engine
