@@ -26,6 +26,9 @@
 #include <map>
 #include <set>
 
+#include <signal.h>
+#include <unistd.h>
+
 namespace {
 
 using lf::cli::Args;
@@ -193,6 +196,22 @@ lf::protocol::BakeSettings bake_settings(const Args& args, const std::string& sc
     }
 }
 
+// SIGTERM (lightfarmd cancelling the job, or anyone's kill): once the
+// passes run, one last snapshot of where the bake stands, then exit
+// kExitStopped; before, nothing to save: exit at once. A second SIGTERM
+// ends it at once (SA_RESETHAND).
+void on_sigterm(int) {
+    if (!lf::request_stop()) _exit(lf::protocol::kExitStopped);
+}
+
+void stop_on_sigterm() {
+    struct sigaction action {};
+    action.sa_handler = on_sigterm;
+    action.sa_flags = SA_RESETHAND | SA_RESTART;
+    sigemptyset(&action.sa_mask);
+    sigaction(SIGTERM, &action, nullptr);
+}
+
 int bake(int argc, char** argv) {
     std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json", "--resume"};
     for (const auto& [flag, takes_value] : lf::protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
@@ -206,7 +225,14 @@ int bake(int argc, char** argv) {
     job.resume = args.flag("--resume");
 
     lf::cli::BakeReporter report(args.flag("--json"), job.settings);
-    const lf::protocol::DoneEvent done = lf::run_bake_job(job, std::ref(report));
+    stop_on_sigterm();
+    lf::protocol::DoneEvent done;
+    try {
+        done = lf::run_bake_job(job, std::ref(report));
+    } catch (const lf::BakeStopped& e) {
+        std::cerr << "lightfarm bake: " << e.what() << "\n";
+        return lf::protocol::kExitStopped;
+    }
     if (!args.flag("--json")) {
         std::cout << "files in " << job.out.string() << ":";
         for (const std::string& f : done.files) std::cout << " " << f;

@@ -39,6 +39,9 @@ enum WorkerExit : int {
     // machine's trouble, requeued like kExitSpecUnreadable without counting
     // the attempt.
     kExitMachineFault = 5,
+    // Stopped on request (SIGTERM: the job was cancelled) after writing one
+    // last snapshot of where the bake stood, announced before the exit.
+    kExitStopped = 6,
 };
 inline bool is_input_error_exit(int code) { return code == kExitUsage || code == kExitInputError; }
 

@@ -125,6 +125,12 @@ public:
     // The newest file of one output (from a snapshot or done event), kept
     // across attempts until a newer event replaces it.
     virtual void set_latest(const std::string& id, const std::string& output, const LatestFile& file) = 0;
+    // What a cancelled job's worker wrote in its grace after the cancel
+    // (its last snapshot: Supervisor::kCancelGraceSeconds): its progress and
+    // newest files, where the job is cancelled and ran on this node. No
+    // event: the job's final event stays its last.
+    virtual void set_cancelled_result(const std::string& id, const std::optional<Progress>& progress,
+                                      const std::map<std::string, LatestFile>& latest) = 0;
     // Running -> queued after a failed attempt (or, with refund, an
     // interruption that is not the job's fault). Appends `event` (a
     // "retrying" event) in the same transaction. False if no longer running

@@ -48,6 +48,9 @@ public:
     std::vector<JobRecord> take_over_abandoned(bool at_start) override;
     void set_progress(const std::string& id, const Progress& p) override;
     void set_latest(const std::string& id, const std::string& output, const LatestFile& file) override;
+    // In sql_job_store_cancelled.cpp.
+    void set_cancelled_result(const std::string& id, const std::optional<Progress>& progress,
+                              const std::map<std::string, LatestFile>& latest) override;
     bool requeue(const std::string& id, const JobEvent& event, bool refund_attempt) override;
     bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
                 const JobEvent& event) override;

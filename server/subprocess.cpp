@@ -225,6 +225,10 @@ void Subprocess::kill() {
     if (pid_ > 0 && !reaped_) ::kill(-pid_, SIGKILL);
 }
 
+void Subprocess::terminate() {
+    if (pid_ > 0 && !reaped_) ::kill(-pid_, SIGTERM);
+}
+
 ExitStatus Subprocess::wait() {
     if (reaped_) return status_;
     // Drain stderr so a child blocked on a full pipe can finish.

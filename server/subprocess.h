@@ -46,6 +46,9 @@ public:
     // SIGKILL to the whole process group. Like every member, for the one
     // thread that owns this object.
     void kill();
+    // SIGTERM to the whole process group: a worker takes one last snapshot
+    // and exits (see Supervisor's cancel grace); kill() if it does not.
+    void terminate();
     // Waits for the child to end (call after End or kill()).
     ExitStatus wait();
 

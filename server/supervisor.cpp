@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -630,6 +631,10 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
     // stored when it can again; the worker bakes on meanwhile. A progress
     // update replaces an unsaved one of the same output, so this stays small.
     std::deque<AttemptUpdate> unsaved;
+    // The newest progress and files the worker reported: what the store
+    // drops once the job is cancelled (a cancel between a line and its
+    // store), stored again after the cancel (keep_last_snapshot).
+    AttemptUpdate seen;
     auto progress_only = [](const AttemptUpdate& u) {
         return u.latest.empty() && u.event && u.event->type == "progress";
     };
@@ -651,6 +656,7 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
         }
         if (!unsaved.empty()) flush_updates(id, unsaved);
         if ((end.cancelled = cancel_requested(id)) || (end.lost = lease_lost(id))) {
+            if (end.cancelled) keep_last_snapshot(job, bake, end.state, seen, worker);
             worker.kill();
             break;
         }
@@ -681,6 +687,8 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
             continue;
         }
         end.state = update.state;
+        if (update.progress) seen.progress = update.progress;
+        for (const auto& [output, file] : update.latest) seen.latest[output] = file;
         metrics_.rays_total += update.new_rays;
         if (update.rays_per_second) metrics_.set_job_rate(id, *update.rays_per_second);
         if (!unsaved.empty() && progress_only(update) && progress_only(unsaved.back()) &&
@@ -702,11 +710,59 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
     return end;
 }
 
+void Supervisor::keep_last_snapshot(const JobRecord& job, const protocol::BakeSettings& bake, AttemptState state,
+                                    const AttemptUpdate& seen, Subprocess& worker) {
+    const std::string& id = job.status.id;
+    const auto start = Clock::now();
+    const auto deadline =
+        start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(kCancelGraceSeconds));
+    worker.terminate();
+    std::optional<Progress> progress = seen.progress;
+    std::map<std::string, LatestFile> latest = seen.latest;
+    bool ended = false;
+    for (std::string line; !stopping_ && Clock::now() < deadline;) {
+        const auto wait = std::clamp(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()),
+                                     std::chrono::milliseconds(1), std::chrono::milliseconds(200));
+        const Subprocess::Read r = worker.read_line(line, wait);
+        if (r == Subprocess::Read::End) {
+            ended = true;
+            break;
+        }
+        if (r == Subprocess::Read::Timeout) continue;
+        AttemptUpdate update;
+        try {
+            update = apply_worker_event(state, protocol::parse_worker_event(json::parse(line)), bake, id,
+                                        job.status.attempts);
+        } catch (const std::exception&) {
+            continue;  // not an event: the log has had enough of this worker
+        }
+        if (!update.ignored.empty()) continue;
+        state = update.state;
+        if (update.progress) progress = update.progress;
+        for (const auto& [output, file] : update.latest) latest[output] = file;
+    }
+    std::string what;
+    for (const auto& [output, file] : latest)
+        what += (what.empty() ? "" : ", ") + output + " pass " + std::to_string(file.pass) + " (" + file.file + ")";
+    if (progress || !latest.empty()) {
+        try {
+            store_.set_cancelled_result(id, progress, latest);
+            changes_.notify();
+        } catch (const StoreError& e) {
+            log_line("job " + id + ": cannot store what its worker wrote after the cancel: " + e.what());
+        }
+    }
+    char seconds[32];
+    std::snprintf(seconds, sizeof seconds, "%.2f", std::chrono::duration<double>(Clock::now() - start).count());
+    log_line("job " + id + ": cancelled; its worker " + (ended ? "stopped" : "was given") + " " + seconds +
+             " s after SIGTERM" + (what.empty() ? "" : ", its last snapshot: " + what) + (ended ? "" : "; killed"));
+}
+
 bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker,
                              const WorkerEnd& end) {
     const std::string& id = job.status.id;
     if (end.cancelled) {
-        log_line("job " + id + ": cancelled, worker killed");
+        log_line("job " + id + ": cancelled, worker ended");
         return false;  // the cancel route already recorded the final state
     }
     if (end.lost) {

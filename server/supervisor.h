@@ -91,8 +91,11 @@ public:
     // counting the attempt: a restart is not the job's fault.
     void stop();
 
-    // The job was marked cancelled in the store; kill its worker if it runs here.
+    // The job was marked cancelled in the store; stop its worker if it runs
+    // here: SIGTERM, then up to kCancelGraceSeconds for its last snapshot
+    // (where the bake stood: the job's `latest`), then SIGKILL.
     void cancel(const std::string& job_id);
+    static constexpr double kCancelGraceSeconds = 10.0;
 
     std::filesystem::path job_dir(const std::string& job_id) const;
     // The scene file a job's worker bakes: the stored one, or where the
@@ -145,6 +148,13 @@ private:
     // deadline or a stall. Checked on every turn of the read loop.
     std::string limit_exceeded(const JobRecord& job, Clock::time_point now, Clock::time_point deadline,
                                Clock::time_point last_output) const;
+    // A cancelled job's worker: SIGTERM, and what it writes within the
+    // grace (its last snapshot, announced before it exits) stored as the
+    // job's progress and newest files (JobStore::set_cancelled_result),
+    // over `seen` (the newest the attempt reported before). The caller
+    // kills it after.
+    void keep_last_snapshot(const JobRecord& job, const protocol::BakeSettings& bake, AttemptState state,
+                            const AttemptUpdate& seen, Subprocess& worker);
     bool cancel_requested(const std::string& job_id);
     bool lease_lost(const std::string& job_id);
     // Jobs taken over from a node that is gone (a previous lightfarmd of

@@ -132,8 +132,14 @@ if [ -f "$state/snapshot_passes" ]; then
   done
 else
   p=$((from + 1))
+  # As the engine does on SIGTERM (a cancel): one last snapshot of the pass it stands at, then exit 6.
+  # (Its progress again: a trap may run between any two commands.)
+  [ "$mode" = snapshot_on_term ] &&
+    trap 'progress lightmap $last; snap lightmap "$(printf "lightmap.pass-%04d.exr" $last)" $last; exit 6' TERM
+  last=$from
   while [ $p -le $passes ]; do
     [ "$delay" = 0 ] || sleep "$delay"
+    last=$p
     progress lightmap $p
     case $p in 1|2|4|8|16|32|64) snap lightmap "$(printf 'lightmap.pass-%04d.exr' $p)" $p;; esac
     p=$((p + 1))

@@ -215,7 +215,12 @@ struct Stopped : std::runtime_error {
 struct BakeRun {
     std::vector<protocol::WorkerEvent> events;
     std::optional<protocol::DoneEvent> done;
-    const protocol::StartEvent& start() const { return std::get<protocol::StartEvent>(events.front()); }
+    // The start event (after preparation's events).
+    const protocol::StartEvent& start() const {
+        for (const auto& e : events)
+            if (const auto* start = std::get_if<protocol::StartEvent>(&e)) return *start;
+        throw std::runtime_error("the run had no start event");
+    }
     // The passes of `output` this run traced.
     std::vector<int> passes(const std::string& output) const {
         std::vector<int> p;
@@ -344,6 +349,63 @@ TEST_F(Resume, AnInterruptedBakeOfEveryOutputEndsWithTheFilesOfAnUninterruptedOn
         EXPECT_NE(std::find(files.begin(), files.end(), name), files.end()) << name << " is not in the done event";
     }
     EXPECT_FALSE(fs::exists(cut.out / protocol::kResumeDir));
+}
+
+// A stop request (the worker's SIGTERM: its job was cancelled) mid-bake:
+// the driver takes one last snapshot of the pass it stands at, whatever the
+// schedule says (issue #36: the job's newest snapshot was the schedule's
+// last, pass 47 of a bake cancelled at pass 90), announces it, saves its
+// state and throws BakeStopped; a resumed run continues after that pass.
+TEST_F(Resume, AStopRequestEndsTheBakeWithASnapshotOfThePassItStoodAt) {
+    job.settings.outputs.erase("sh");
+    job.settings.outputs.erase("probes");
+    job.settings.outputs.erase("ao");
+    job.out = root / "stopped";
+    clear_stop_request();
+    std::vector<protocol::WorkerEvent> events;
+    std::optional<BakeStopped> stopped;
+    try {
+        run_bake_job(job, [&](const protocol::WorkerEvent& e) {
+            events.push_back(e);
+            const auto* p = std::get_if<protocol::ProgressEvent>(&e);
+            if (p && p->progress.pass == 13) {
+                EXPECT_TRUE(request_stop()) << "a bake that passes takes its last snapshot";
+            }
+        });
+    } catch (const BakeStopped& e) {
+        stopped = e;
+    }
+    clear_stop_request();
+    ASSERT_TRUE(stopped) << "the bake ran to its end";
+    EXPECT_EQ(stopped->output, "lightmap");
+    EXPECT_GE(stopped->pass, 13);
+    EXPECT_LT(stopped->pass, 24);
+    // Its last events: the pass it stopped at, then that pass's snapshot.
+    int last_progress = 0, last_snapshot = 0;
+    std::string last_file;
+    for (const auto& e : events) {
+        if (const auto* p = std::get_if<protocol::ProgressEvent>(&e)) last_progress = p->progress.pass;
+        if (const auto* s = std::get_if<protocol::SnapshotEvent>(&e)) {
+            last_snapshot = s->pass;
+            last_file = s->file;
+        }
+    }
+    EXPECT_EQ(last_progress, stopped->pass);
+    EXPECT_EQ(last_snapshot, stopped->pass) << "the schedule alone took pass 8 last";
+    EXPECT_TRUE(std::holds_alternative<protocol::SnapshotEvent>(events.back()));
+    ASSERT_EQ(stopped->files, std::vector<std::string>{last_file});
+    EXPECT_NO_THROW(read_exr(job.out / last_file));
+    EXPECT_NE(std::string(stopped->what()).find("stopped on request at pass " + std::to_string(stopped->pass)),
+              std::string::npos)
+        << stopped->what();
+
+    // Resumed, it continues after the pass it stopped at.
+    job.resume = true;
+    const BakeRun resumed = bake(job, "lightmap", stopped->pass + 1);
+    EXPECT_EQ(resumed.start().resumed.at("lightmap").pass, stopped->pass);
+    // Before the passes (preparation) a stop has nothing to save.
+    EXPECT_FALSE(request_stop());
+    clear_stop_request();
 }
 
 // Every key a resume depends on, changed alone: the saved states are

@@ -732,6 +732,58 @@ TEST_F(ServerTest, CancelKillsTheWorker) {
     EXPECT_EQ(wait_finished(id)["state"], "cancelled");
 }
 
+// Issue #36: a cancel SIGKILLed the worker, and the job's newest snapshot
+// stayed the last one its schedule took (pass 47 of a bake cancelled at
+// pass 90). Now the worker gets SIGTERM and a grace to write one last
+// snapshot, which becomes the job's `latest`; the job's status and its
+// final event carry no ETA (a cancelled job kept its last one).
+TEST_F(ServerTest, ACancelledJobsNewestSnapshotIsWhereItWasCancelledAndItHasNoEta) {
+    engine.set("mode", "snapshot_on_term");
+    engine.set("delay", "0.02");
+    start();
+    const std::string id = submit(upload(), {{"passes", 100000}});
+    auto c = client();
+    const json mid = wait_for_job(c, id, [](const json& s) { return s["progress"].value("pass", 0) >= 12; });
+    ASSERT_EQ(mid["state"], "running");
+    EXPECT_FALSE(mid["progress"]["eta_seconds"].is_null()) << "a running job has an ETA";
+    auto r = c.Post("/v1/jobs/" + id + "/cancel", "", "application/json");
+    ASSERT_EQ(r->status, 200) << r->body;
+    const json at_cancel = json::parse(r->body);
+    EXPECT_TRUE(at_cancel["progress"]["eta_seconds"].is_null()) << at_cancel.dump();
+    const int cancelled_at = at_cancel["progress"]["pass"];
+    const json status = wait_for_job(
+        c, id, [&](const json& s) { return s["latest"]["lightmap"].value("pass", 0) >= cancelled_at; },
+        std::chrono::seconds(15));
+    EXPECT_EQ(status["state"], "cancelled");
+    EXPECT_GE(status["latest"]["lightmap"].value("pass", 0), cancelled_at)
+        << "the newest snapshot is not where the bake stood: " << status.dump();
+    EXPECT_GE(cancelled_at, 12);
+    EXPECT_EQ(status["latest"]["lightmap"].value("file", ""),
+              protocol::snapshot_file_name("lightmap", status["latest"]["lightmap"]["pass"], "exr"));
+    EXPECT_TRUE(fs::exists(tmp.path / "data" / "jobs" / id / status["latest"]["lightmap"].value("file", "")));
+    EXPECT_EQ(status["progress"]["pass"], status["latest"]["lightmap"]["pass"]) << status.dump();
+    EXPECT_TRUE(status["progress"]["eta_seconds"].is_null()) << status.dump();
+    // The events: progress with an ETA while it ran; the cancelled event
+    // last, with no ETA, and nothing after it.
+    const std::vector<protocol::JobEvent> all = events(id);
+    ASSERT_FALSE(all.empty());
+    EXPECT_EQ(all.back().type, "cancelled");
+    EXPECT_FALSE(all.back().data.contains("eta_seconds")) << all.back().data.dump();
+    EXPECT_FALSE(all.back().data.value("progress", json::object()).contains("eta_seconds"));
+    const bool any_eta = std::any_of(all.begin(), all.end(), [](const protocol::JobEvent& e) {
+        return e.type == "progress" && e.data.contains("eta_seconds") && !e.data["eta_seconds"].is_null();
+    });
+    EXPECT_TRUE(any_eta);
+    // And the job list says the same.
+    auto list = c.Get("/v1/jobs");
+    ASSERT_EQ(list->status, 200);
+    for (const json& j : json::parse(list->body)["jobs"]) {
+        if (j["id"] == id) {
+            EXPECT_TRUE(j["progress"]["eta_seconds"].is_null()) << j.dump();
+        }
+    }
+}
+
 TEST_F(ServerTest, JobsSurviveAKilledServer) {
     start();
     const std::string scene = upload();

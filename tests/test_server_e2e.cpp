@@ -471,6 +471,61 @@ TEST_F(EndToEnd, AWorkerKilledMidBakeIsRetriedAndTheResultStillEqualsTheCli) {
         << "the retried bake and `lightfarm bake` with the same seed";
 }
 
+// Issue #36: "under load a cancel at pass 90 left pass 47 as the newest
+// snapshot". The worker was SIGKILLed at the cancel: whatever it had baked
+// since its last scheduled snapshot (passes 1, 2, 4 … 64, every 10 s) was
+// lost. Now a cancel sends SIGTERM; the worker writes one last snapshot of
+// the pass it stands at and exits, within the server's grace
+// (Supervisor::kCancelGraceSeconds), and that snapshot is the cancelled
+// job's `latest` (what `fetch --latest` downloads).
+TEST_F(EndToEnd, ACancelledJobsNewestSnapshotIsWhereTheBakeStoodAtTheCancel) {
+    Bake bake;
+    bake.passes = 100000;  // cancelled long before
+    const std::string id = submit(bake.spec(upload_cornell_box()));
+    ASSERT_FALSE(id.empty());
+    // Some passes past its newest snapshot.
+    auto c = client();
+    const json mid = wait_for_job(
+        c, id,
+        [](const json& s) {
+            const int snapshot = s.value("latest", json::object()).value("lightmap", json::object()).value("pass", 0);
+            return is_finished(s) ||
+                   (s["state"] == "running" && snapshot >= 4 && s["progress"].value("pass", 0) >= snapshot + 6);
+        },
+        std::chrono::seconds(60));
+    ASSERT_EQ(mid["state"], "running") << mid.dump();
+    auto r = c.Post("/v1/jobs/" + id + "/cancel", "", "application/json");
+    ASSERT_TRUE(r && r->status == 200) << (r ? r->body : "no answer");
+    const json at_cancel = json::parse(r->body);
+    const int cancelled_at = at_cancel["progress"]["pass"];
+    const int scheduled = mid["latest"]["lightmap"]["pass"];
+    ASSERT_GT(cancelled_at, scheduled);
+
+    // Within the grace, the job's newest lightmap is of the pass it stood at (or later).
+    const auto deadline = Clock::now() + std::chrono::seconds(20);
+    json status;
+    for (;; std::this_thread::sleep_for(std::chrono::milliseconds(100))) {
+        auto g = c.Get("/v1/jobs/" + id);
+        ASSERT_TRUE(g && g->status == 200);
+        status = json::parse(g->body);
+        if (status["latest"]["lightmap"].value("pass", 0) >= cancelled_at || Clock::now() > deadline) break;
+    }
+    EXPECT_EQ(status["state"], "cancelled");
+    const json latest = status["latest"]["lightmap"];
+    EXPECT_GE(latest.value("pass", 0), cancelled_at)
+        << "the newest snapshot is of pass " << latest.value("pass", 0) << ", the cancel came at pass " << cancelled_at
+        << " (the last scheduled snapshot: pass " << scheduled << ")";
+    EXPECT_FALSE(latest.value("final", true));
+    EXPECT_EQ(status["progress"].value("pass", 0), latest.value("pass", 0)) << "its progress is that snapshot's";
+    EXPECT_TRUE(status["progress"]["eta_seconds"].is_null()) << status.dump();
+    const std::string file = latest.value("file", "");
+    EXPECT_EQ(file, protocol::snapshot_file_name("lightmap", latest.value("pass", 0), "exr"));
+    EXPECT_NO_THROW(read_exr(download(id, file, "cancelled"))) << file;
+    // The worker is gone, and the cancelled event is still the job's last.
+    EXPECT_FALSE(bakes_into(worker_pid(job_dir(id)), job_dir(id)));
+    EXPECT_EQ(types_of(read_events(server->host, server->port, kToken, id)).back(), "cancelled");
+}
+
 TEST_F(EndToEnd, AServerKilledMidBakeFinishesTheJobAfterARestartWithWholeArtifacts) {
     const Bake bake = long_bake();
     const std::string id = submit(bake.spec(upload_cornell_box()));

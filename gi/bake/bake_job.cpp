@@ -384,18 +384,31 @@ PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs
             }
         }
     };
+    int taken = 0;  // the pass of the newest snapshot handed to the writer
     // The device holds the state after a batch's last pass: only there can a snapshot be read.
     const auto on_batch = [&](const std::vector<PassStats>& passes) {
         for (const PassStats& stats : passes) emit(protocol::ProgressEvent{output, stats});
         announce(writer.take_written());
         const PassStats& stats = passes.back();
-        if (!schedule.due(stats.pass, seconds_since(start), writer.idle())) return;
-        const auto read_start = Clock::now();
-        SnapshotWrite write = method.snapshot(out, stats);
-        auto state = std::make_shared<MethodState>(method.state());
-        state->key = key;
-        read_seconds = seconds_since(read_start);
-        writer.submit(output, stats.pass, with_state(std::move(write), state, snapshots, state_path(out, output)));
+        // Asked to stop (a cancelled job): one last snapshot of this pass,
+        // whatever the schedule says, written and announced before the stop.
+        const bool stop = stop_requested();
+        if (stop ? taken != stats.pass : schedule.due(stats.pass, seconds_since(start), writer.idle())) {
+            const auto read_start = Clock::now();
+            SnapshotWrite write = method.snapshot(out, stats);
+            auto state = std::make_shared<MethodState>(method.state());
+            state->key = key;
+            read_seconds = seconds_since(read_start);
+            writer.submit(output, stats.pass, with_state(std::move(write), state, snapshots, state_path(out, output)));
+            taken = stats.pass;
+        }
+        if (!stop) return;
+        const std::vector<SnapshotWriter::Written> written = writer.drain();
+        announce(written);
+        std::vector<std::string> last;
+        for (const SnapshotWriter::Written& w : written)
+            if (w.pass == stats.pass) last = w.files;
+        throw BakeStopped(output, stats.pass, last);
     };
     if (from.stats.pass > 0) emit(protocol::ProgressEvent{output, from.stats});
     const PassStats last = run_progressive(method, on_batch, from.stats, [&] { return schedule.next_pass(); });
@@ -587,6 +600,9 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
     if (!prepared->warnings.empty()) manifest["warnings"] = prepared->warnings;
     std::map<std::string, std::shared_ptr<const FloatImage>> final_images;  // by output
+    // From here a stop request (SIGTERM) ends the bake after a last snapshot
+    // (before, there is nothing to save: the worker exits at once).
+    const StopPoint stop_point;
     for (size_t i = 0; i < methods.size(); ++i) {
         manifest["prepared"]["outputs"].push_back(methods[i]->output());
         manifest[methods[i]->output()] =

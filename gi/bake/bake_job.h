@@ -13,6 +13,8 @@
 #include <filesystem>
 #include <functional>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 namespace lf {
 
@@ -42,6 +44,35 @@ using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;
 // failure; no file is ever left half-written under its final name. Each
 // output's state is saved with its snapshots, for a run with `resume`.
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit);
+
+// Stopping a bake where it stands (the worker's SIGTERM: its job was
+// cancelled). Once asked, the job driver takes one last snapshot of the
+// pass the device holds after the batch in flight (the snapshots being
+// written first), announces it, and throws BakeStopped. Safe to call from a
+// signal handler. Returns whether a bake is passing now and will take that
+// snapshot (armed by StopPoint); false: nothing to save, exit at once.
+// Defined in bake/progressive.cpp, beside the loop.
+bool request_stop() noexcept;
+bool stop_requested() noexcept;
+void clear_stop_request() noexcept;  // for tests
+
+// While one lives, a stop request is taken at the next batch (the job
+// driver holds one from its first pass to its done event).
+class StopPoint {
+public:
+    StopPoint() noexcept;
+    ~StopPoint();
+    StopPoint(const StopPoint&) = delete;
+    StopPoint& operator=(const StopPoint&) = delete;
+};
+
+class BakeStopped : public std::runtime_error {
+public:
+    BakeStopped(std::string output, int pass, std::vector<std::string> files);
+    std::string output;              // the output that was passing
+    int pass = 0;                    // the pass its last snapshot holds
+    std::vector<std::string> files;  // that snapshot's files
+};
 
 // Bytes of memory a bake may use now: MemAvailable of `meminfo`, and under a
 // container's limit (cgroup v2 memory.max of `cgroup_dir`, less its
