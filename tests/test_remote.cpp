@@ -188,6 +188,42 @@ TEST_F(RemoteTest, CancelAndErrorsAreOneLine) {
     EXPECT_EQ(run({"jobs", "--server", "http://127.0.0.1:1", "--token", "t"}).status, 1);
 }
 
+// Issue #36: `fetch` of a cancelled job says it has no final files and
+// offers --latest; --latest then downloads the bake as it stood at the
+// cancel (the worker's last snapshot, written on SIGTERM), not the last
+// snapshot the schedule took before it.
+TEST_F(RemoteTest, FetchLatestOfACancelledJobGetsTheBakeAsItStoodAtTheCancel) {
+    engine.set("mode", "snapshot_on_term");
+    engine.set("delay", "0.02");
+    const CliRun r = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "100000"}));
+    ASSERT_EQ(r.status, 0) << r.err;
+    const std::string id = r.out.substr(0, r.out.find('\n'));
+    auto c = server->client(kToken);
+    ASSERT_GE(wait_for_job(c, id, [](const json& s) { return s["progress"].value("pass", 0) >= 12; })["progress"].value(
+                  "pass", 0),
+              12);
+    const CliRun cancel = run(with_common({"cancel", id}));
+    ASSERT_EQ(cancel.status, 0) << cancel.err;
+    const int at_cancel = json::parse(c.Get("/v1/jobs/" + id)->body)["progress"].value("pass", 0);
+    wait_for_job(c, id, [&](const json& s) { return s["latest"]["lightmap"].value("pass", 0) >= at_cancel; });
+
+    const CliRun final_files = run(with_common({"fetch", id, "--out", (tmp.path / "final").string()}));
+    EXPECT_EQ(final_files.status, 1);
+    EXPECT_NE(final_files.err.find("job " + id + " was cancelled: it has no final files (--latest: the newest file"),
+              std::string::npos)
+        << final_files.err;
+    EXPECT_FALSE(fs::exists(tmp.path / "final"));
+
+    const CliRun latest = run(with_common({"fetch", id, "--latest", "--out", (tmp.path / "latest").string()}));
+    ASSERT_EQ(latest.status, 0) << latest.err;
+    std::vector<std::string> fetched;
+    for (const auto& e : fs::directory_iterator(tmp.path / "latest")) fetched.push_back(e.path().filename().string());
+    ASSERT_EQ(fetched.size(), 1u);
+    const int pass = std::stoi(fetched[0].substr(fetched[0].find("pass-") + 5));
+    EXPECT_GE(pass, at_cancel) << fetched[0] << ": the schedule's snapshots are passes 1, 2, 4, 8";
+    EXPECT_EQ(read_text(tmp.path / "latest" / fetched[0]), read_text(engine.dir / "snapshot.exr"));
+}
+
 // `submit` takes every output and option of `bake`, flags as flags.
 TEST_F(RemoteTest, SubmitTakesEveryBakeOption) {
     const CliRun r = run(with_common({"submit",
