@@ -553,8 +553,9 @@ private:
     // A body is read on a request thread for as long as its client takes:
     // one token, or one address, may have only so many read at once, so
     // that one tenant's slow bodies take only its own share of the threads;
-    // all of them together at most body_reads (half the threads), and with
-    // the event streams open no more than threads_for_bodies_and_streams,
+    // all of them together at most body_reads (half the threads; a token's
+    // first body aside), and with the event streams open no more than
+    // threads_for_bodies_and_streams,
     // so that many tenants together cannot hold every thread either.
     // Beyond, 503 before the body is read. False when refused.
     bool start_body_read_locked(Conn& c, std::string token) {
@@ -567,7 +568,10 @@ private:
             field = "body_reads_per_token", limit = limits_.body_reads_per_token;
         else if (count_of(body_reads_by_address_, c.ip) >= limits_.body_reads_per_address)
             field = "body_reads_per_address", limit = limits_.body_reads_per_address;
-        else if (body_reads_ >= limits_.body_reads) field = "body_reads", limit = limits_.body_reads;
+        // A token with no body being read gets one beyond the total (within
+        // the three quarters): others' slow bodies do not refuse its upload.
+        else if (body_reads_ >= limits_.body_reads && (token.empty() || count_of(body_reads_by_token_, token) > 0))
+            field = "body_reads", limit = limits_.body_reads;
         else if (body_reads_ + streams >= shared)
             field = "body_reads", limit = std::max(0, shared - streams),
             why = "body_reads: request bodies being read (" + std::to_string(body_reads_) + ") and event streams (" +
