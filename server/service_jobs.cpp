@@ -102,12 +102,14 @@ namespace {
 // An earlier job's manifest.json as this job's: its `scene` the file name
 // this job's owner uploaded the scene as, which may not be the earlier
 // job's owner's (issue #33: a tenant read another's name in the cached
-// manifest). False, nothing written, when the manifest names no scene.
+// manifest). False, nothing written, when the manifest names no scene or
+// this owner's name already (then it is linked as every other file).
 bool write_own_manifest(const fs::path& from, const fs::path& to, const std::string& scene_name, std::error_code& ec) {
     std::ifstream in(from, std::ios::binary);
     json manifest = json::parse(in, nullptr, false);
-    if (!manifest.is_object() || !manifest.contains("scene")) return false;
-    manifest["scene"] = fs::path(scene_name).filename().string();
+    const std::string own = fs::path(scene_name).filename().string();
+    if (!manifest.is_object() || !manifest.contains("scene") || manifest["scene"] == own) return false;
+    manifest["scene"] = own;
     std::ofstream out(to, std::ios::binary);
     out << manifest.dump(2) << "\n";
     out.close();
