@@ -544,6 +544,48 @@ std::function<void(const PreparedScene&, const std::string&)> prepare_events(con
     };
 }
 
+// The start event: the device, what each method bakes (and the rays of one
+// of its passes, for the job's ETA), preparation's time and warnings.
+protocol::StartEvent start_event(const PreparedScene& prepared,
+                                 const std::vector<std::unique_ptr<ProgressiveMethod>>& methods) {
+    protocol::StartEvent started;
+    started.vendor = prepared.gpu->info().vendor;
+    started.renderer = prepared.gpu->info().renderer;
+    started.triangles = prepared.scene.triangle_count();
+    started.prepare_seconds = prepared.prepare_seconds;
+    started.warnings = prepared.warnings;
+    for (const auto& m : methods) {
+        started.outputs[m->output()] = m->description();
+        started.outputs[m->output()]["rays_per_pass"] = m->rays_per_pass();
+    }
+    return started;
+}
+
+// manifest.json's first part: the scene, the device, the settings and what
+// preparation did (its "outputs" are filled in as they bake).
+nlohmann::json manifest_of_preparation(const BakeJob& job, const PreparedScene& prepared) {
+    nlohmann::json manifest = {
+        {"scene", job.scene.filename().string()},
+        {"device", {{"vendor", prepared.gpu->info().vendor}, {"renderer", prepared.gpu->info().renderer}}},
+        {"settings", protocol::to_json(job.settings)},
+        // One load, one atlas, one context, one BVH for every output.
+        {"prepared",
+         {{"seconds", prepared.prepare_seconds},
+          {"outputs", nlohmann::json::array()},
+          {"triangles", prepared.scene.triangle_count()},
+          {"atlas_generated", prepared.atlas.generated},
+          {"double_sided_charts_turned", prepared.turned.charts},
+          {"double_sided_triangles_turned", prepared.turned.triangles},
+          {"double_sided_rays", prepared.turned.rays},
+          {"unlit_charts", prepared.atlas.unlit_charts},
+          {"glass_charts", prepared.glass_charts},
+          {"unlit_chart_rays", prepared.unlit_chart_rays}}},
+    };
+    for (const auto& [stage, seconds] : prepared.stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
+    if (!prepared.warnings.empty()) manifest["warnings"] = prepared.warnings;
+    return manifest;
+}
+
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
     const auto start = Clock::now();
     fs::create_directories(job.out);
@@ -552,16 +594,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         prepared->timed("methods", [&] { return methods_that_fit(*prepared, job); });
     prepared->prepare_seconds = seconds_since(start);
 
-    protocol::StartEvent started;
-    started.vendor = prepared->gpu->info().vendor;
-    started.renderer = prepared->gpu->info().renderer;
-    started.triangles = prepared->scene.triangle_count();
-    started.prepare_seconds = prepared->prepare_seconds;
-    started.warnings = prepared->warnings;
-    for (const auto& m : methods) {
-        started.outputs[m->output()] = m->description();
-        started.outputs[m->output()]["rays_per_pass"] = m->rays_per_pass();
-    }
+    protocol::StartEvent started = start_event(*prepared, methods);
     // Each output from where an interrupted run of this job left it; a
     // fresh run first drops any state an older run left behind.
     std::vector<std::string> keys;
@@ -580,25 +613,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         write_lightmapped_glb(job.scene, *prepared->atlas_scene, job.out / "scene.lightmapped.glb");
 
     protocol::DoneEvent done;
-    nlohmann::json manifest = {
-        {"scene", job.scene.filename().string()},
-        {"device", {{"vendor", started.vendor}, {"renderer", started.renderer}}},
-        {"settings", protocol::to_json(job.settings)},
-        // One load, one atlas, one context, one BVH for every output.
-        {"prepared",
-         {{"seconds", prepared->prepare_seconds},
-          {"outputs", nlohmann::json::array()},
-          {"triangles", started.triangles},
-          {"atlas_generated", prepared->atlas.generated},
-          {"double_sided_charts_turned", prepared->turned.charts},
-          {"double_sided_triangles_turned", prepared->turned.triangles},
-          {"double_sided_rays", prepared->turned.rays},
-          {"unlit_charts", prepared->atlas.unlit_charts},
-          {"glass_charts", prepared->glass_charts},
-          {"unlit_chart_rays", prepared->unlit_chart_rays}}},
-    };
-    for (const auto& [stage, seconds] : prepared->stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
-    if (!prepared->warnings.empty()) manifest["warnings"] = prepared->warnings;
+    nlohmann::json manifest = manifest_of_preparation(job, *prepared);
     std::map<std::string, std::shared_ptr<const FloatImage>> final_images;  // by output
     // From here a stop request (SIGTERM) ends the bake after a last snapshot
     // (before, there is nothing to save: the worker exits at once).
