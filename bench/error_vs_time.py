@@ -50,7 +50,8 @@ def bake(scene, scheme, res, passes, out_dir, device, env=None, seed=None):
                 + ["--passes", str(passes), "--scheme", base, "--device", device, "--json"]
                 + (["--denoise"] if variant == "denoise" else []) + (["--env", env] if env else [])
                 + (["--seed", str(seed)] if seed is not None else [])).splitlines()
-    return json.loads(lines[0])
+    # The start event (the "prepare" events of preparation's stages come first).
+    return next(e for e in map(json.loads, lines) if e["event"] == "start")
 
 
 def reference_for(scene, res, reference_passes, out, device, env=None):

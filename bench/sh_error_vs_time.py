@@ -28,7 +28,8 @@ def bake(scene, passes, out_dir, device, seed):
                             "--out", out_dir, "--device", device, "--seed", str(seed), "--json"],
                            check=True, capture_output=True, text=True).stdout.splitlines()
     events = [json.loads(l) for l in lines]
-    return {e["pass"]: e for e in events if e["event"] == "progress"}, events[0]
+    start = next(e for e in events if e["event"] == "start")  # after the "prepare" events
+    return {e["pass"]: e for e in events if e["event"] == "progress"}, start
 
 
 def main():

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Runs a `lightfarm bake ... --json` command and prints, for its start,
+"""Runs a `lightfarm bake ... --json` command and prints, for its prepare, start,
 snapshot and done events, the wall time at which each arrived (seconds since
 the command began): where a bake's wall time goes (docs/BENCHMARKS.md "End to
 end"). The stages of preparation are in the bake's manifest.json.
@@ -17,7 +17,7 @@ for line in p.stdout:
     except Exception:
         print(f"{t:7.2f} {line.strip()[:100]}"); continue
     ev=e.get("event")
-    if ev in ("start","snapshot","done"):
+    if ev in ("prepare","start","snapshot","done"):
         print(f"{t:7.2f} {ev} pass={e.get('pass', e.get('progress',{}).get('pass'))} secs={e.get('seconds', e.get('progress',{}).get('seconds'))} {str(e.get('files',''))[:60]} prep={e.get('prepare_seconds','')}")
     last=(t,e)
 p.wait()
