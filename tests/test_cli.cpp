@@ -814,7 +814,8 @@ TEST(CliBake, AmbientOcclusionBakesWithoutALightIntoTheLitScene) {
     const CliRun lit_too = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") +
                                          " --lightmap --ao --passes 2 --ao-passes 2 --res 64 --out " + both.string());
     ASSERT_EQ(lit_too.exit_code, 0) << lit_too.err;
-    for (const nlohmann::json& m : glb_json(both / "scene.lit.glb")["materials"]) {
+    const nlohmann::json lit_both = glb_json(both / "scene.lit.glb");  // held: the loop reads into it
+    for (const nlohmann::json& m : lit_both["materials"]) {
         EXPECT_TRUE(m.contains("occlusionTexture")) << m.dump();
         EXPECT_TRUE(m["extensions"].contains("MOZ_lightmap")) << m.dump();
     }

@@ -777,7 +777,8 @@ TEST_F(ServerTest, ACancelledJobsNewestSnapshotIsWhereItWasCancelledAndItHasNoEt
     // And the job list says the same.
     auto list = c.Get("/v1/jobs");
     ASSERT_EQ(list->status, 200);
-    for (const json& j : json::parse(list->body)["jobs"]) {
+    const json jobs = json::parse(list->body);  // held: a range over a temporary's member would dangle
+    for (const json& j : jobs["jobs"]) {
         if (j["id"] == id) {
             EXPECT_TRUE(j["progress"]["eta_seconds"].is_null()) << j.dump();
         }

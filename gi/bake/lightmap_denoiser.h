@@ -23,7 +23,9 @@ public:
 
     // Filters `image`'s RGB (the combined lightmap), guided by its "error"
     // channel (the standard error of each texel's estimate), and keeps the
-    // unfiltered RGB as layer "raw." (raw.R, raw.G, raw.B). The direct and
+    // unfiltered RGB as layer "raw." (raw.R, raw.G, raw.B). Each chart keeps
+    // its raw light: its filtered texels are scaled, channel by channel, to
+    // the raw texels' sum (conserve_chart_light). The direct and
     // indirect layers stay as baked. Dilated texels copy their filtered
     // source again. Its time (upload, filter, read back) goes into the
     // header attribute lightfarm.denoiseSeconds.
@@ -31,6 +33,7 @@ public:
 
 private:
     const TexelSamples& texels_;
+    std::vector<uint32_t> texel_chart_;  // per covered texel: its chart (the guide's)
     ComputeProgram program_;
     GpuBuffer guide_;
 };
