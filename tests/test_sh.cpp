@@ -612,7 +612,12 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
     std::vector<std::string> events;
     const protocol::DoneEvent done =
         run_bake_job(job, [&](const protocol::WorkerEvent& e) { events.push_back(protocol::to_json(e)["event"]); });
-    EXPECT_EQ(events.front(), "start");
+    // The stages of preparation first, then the start event, once.
+    const auto start = std::find(events.begin(), events.end(), "start");
+    ASSERT_NE(start, events.end());
+    EXPECT_TRUE(std::all_of(events.begin(), start, [](const std::string& e) { return e == "prepare"; }));
+    EXPECT_GT(start - events.begin(), 0) << "preparation's stages are said";
+    EXPECT_EQ(std::count(events.begin(), events.end(), "start"), 1);
     EXPECT_EQ(events.back(), "done");
     EXPECT_EQ(std::count(events.begin(), events.end(), "progress"), 3);
     EXPECT_EQ(std::count(events.begin(), events.end(), "snapshot"), 2);  // passes 1 and 2
