@@ -525,7 +525,7 @@ std::function<void(const PreparedScene&, const std::string&)> prepare_events(con
                                                                              Clock::time_point start) {
     auto estimate = std::make_shared<PreparationEstimate>(preparation_size(job));
     return [=, &job](const PreparedScene& p, const std::string& stage) {
-        if (p.scene.triangle_count() > 0) {
+        if (p.scene.triangle_count() > 0 && !estimate->knows_triangles()) {  // once, after loading
             uint64_t double_sided = 0;
             for (uint32_t material : p.scene.triangle_material)
                 double_sided += material < p.scene.materials.size() && p.scene.materials[material].double_sided;

@@ -41,6 +41,7 @@ public:
         size_.see_through = see_through;
     }
     void set_sample_points(uint64_t points) { size_.sample_points = points; }
+    bool knows_triangles() const { return size_.triangles > 0; }
 
     // The stages still to run, `stage` first, and their predicted seconds.
     std::vector<std::pair<std::string, double>> stages_from(const std::string& stage) const;
