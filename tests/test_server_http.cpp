@@ -126,6 +126,24 @@ private:
     std::string in_;
 };
 
+// How many of `sockets` are answered within `wait` with a 503 that names
+// `field` (with Retry-After); the others are still sending their bodies.
+int refused_naming(std::vector<std::unique_ptr<RawSocket>>& sockets, const std::string& field,
+                   std::chrono::milliseconds wait) {
+    int refused = 0;
+    const auto deadline = Clock::now() + wait;
+    for (auto& s : sockets) {
+        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+        s->read("\n}\n", std::max<std::chrono::milliseconds>(left, 20ms));
+        if (s->received().empty()) continue;
+        EXPECT_EQ(s->status(), 503) << s->received();
+        EXPECT_NE(s->received().find("Retry-After: 1"), std::string::npos) << s->received();
+        EXPECT_NE(s->received().find("\"field\": \"" + field + "\""), std::string::npos) << s->received();
+        ++refused;
+    }
+    return refused;
+}
+
 // kB from /proc/PID/status.
 long proc_status_kb(pid_t pid, const std::string& key) {
     std::ifstream in("/proc/" + std::to_string(pid) + "/status");
@@ -528,32 +546,16 @@ TEST_F(HttpTest, OneTokensSlowBodiesDoNotStopTheApi) {
                 "0123456789");
         return s;
     };
-    // Which of `sockets` are answered 503 naming `field` within about 2 s;
-    // the others are still sending their bodies.
-    auto refused_naming = [&](std::vector<std::unique_ptr<RawSocket>>& sockets, const std::string& field) {
-        int refused = 0;
-        const auto deadline = Clock::now() + 2s;
-        for (auto& s : sockets) {
-            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-            s->read("\n}\n", std::max<std::chrono::milliseconds>(left, 20ms));
-            if (s->received().empty()) continue;
-            EXPECT_EQ(s->status(), 503) << s->received();
-            EXPECT_NE(s->received().find("Retry-After:"), std::string::npos) << s->received();
-            EXPECT_NE(s->received().find("\"" + field + "\""), std::string::npos) << s->received();
-            ++refused;
-        }
-        return refused;
-    };
 
     std::vector<std::unique_ptr<RawSocket>> slow;
     for (int i = 0; i < 64; ++i) slow.push_back(slow_upload(slow_token));
-    EXPECT_EQ(refused_naming(slow, "body_reads_per_token"), 64 - 8);
+    EXPECT_EQ(refused_naming(slow, "body_reads_per_token", 2s), 64 - 8);
     // Another token from the same address: 8 more, and the address is at its
     // 16; a third token's body from there is refused.
     std::vector<std::unique_ptr<RawSocket>> second;
     for (int i = 0; i < 8; ++i) second.push_back(slow_upload(kTokens[3], true));
     second.push_back(slow_upload(kBob));
-    EXPECT_EQ(refused_naming(second, "body_reads_per_address"), 1);
+    EXPECT_EQ(refused_naming(second, "body_reads_per_address", 2s), 1);
 
     // Everyone else is answered at once.
     auto timed = [&](const std::string& what, const std::function<bool()>& call) {
@@ -616,21 +618,6 @@ TEST_F(HttpTest, SlowBodiesOfAllTenantsTogetherLeaveThreadsForTheApi) {
         }
         return sockets;
     };
-    // How many of `sockets` are answered 503 naming body_reads within about 1.5 s (the others are being read).
-    auto refused = [&](std::vector<std::unique_ptr<RawSocket>>& sockets) {
-        int n = 0;
-        const auto deadline = Clock::now() + 1500ms;
-        for (auto& s : sockets) {
-            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-            s->read("\n}\n", std::max<std::chrono::milliseconds>(left, 20ms));
-            if (s->received().empty()) continue;
-            EXPECT_EQ(s->status(), 503) << s->received();
-            EXPECT_NE(s->received().find("Retry-After: 1"), std::string::npos) << s->received();
-            EXPECT_NE(s->received().find("\"field\": \"body_reads\""), std::string::npos) << s->received();
-            ++n;
-        }
-        return n;
-    };
     auto api_answers_at_once = [&](const std::string& when) {
         const auto t0 = Clock::now();
         auto r = client("").Get("/healthz");
@@ -661,7 +648,7 @@ TEST_F(HttpTest, SlowBodiesOfAllTenantsTogetherLeaveThreadsForTheApi) {
 
     // Half the threads for bodies.
     auto bodies = slow_uploads(12);
-    EXPECT_EQ(refused(bodies), 12 - 8);
+    EXPECT_EQ(refused_naming(bodies, "body_reads", 1500ms), 12 - 8);
     EXPECT_EQ(metric("lightfarm_http_body_reads"), 8);
     api_answers_at_once("with 8 bodies being read");
     // Another tenant's first body is read beyond the total: others' slow bodies do not refuse its upload.
@@ -680,7 +667,7 @@ TEST_F(HttpTest, SlowBodiesOfAllTenantsTogetherLeaveThreadsForTheApi) {
     EXPECT_EQ(open_streams(kTokens[3], "127.0.0.3", 2) + open_streams(kTokens[4], "127.0.0.3", 2), 4);
     EXPECT_EQ(metric("lightfarm_event_streams"), 8);
     bodies = slow_uploads(12);
-    EXPECT_EQ(refused(bodies), 12 - 4);
+    EXPECT_EQ(refused_naming(bodies, "body_reads", 1500ms), 12 - 4);
     api_answers_at_once("with 8 streams and 4 bodies");
 }
 
