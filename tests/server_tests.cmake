@@ -18,47 +18,51 @@ endif()
 find_package(OpenEXR REQUIRED)  # the fake engine hands out a small EXR
 set(LIGHTFARM_OPENAPI_DOC "${CMAKE_CURRENT_LIST_DIR}/../protocol/openapi.json")
 
+# What the service's tests share: lightfarmd and fake engines started and
+# stopped (server_harness.cpp). Compiled once, not into each of eight tests
+# (55 s of CI's compile time).
+add_library(lightfarm_server_harness STATIC ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+target_include_directories(lightfarm_server_harness PUBLIC ${CMAKE_CURRENT_LIST_DIR})
+target_link_libraries(lightfarm_server_harness PUBLIC lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+target_compile_definitions(lightfarm_server_harness PUBLIC LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+add_dependencies(lightfarm_server_harness lightfarmd)
+
 lightfarm_test(test_protocol)
 target_link_libraries(test_protocol PRIVATE lightfarm_protocol)
 
-lightfarm_test(test_server ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
-target_link_libraries(test_server PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+lightfarm_test(test_server)
+target_link_libraries(test_server PRIVATE lightfarm_server lightfarm_server_harness)
 target_compile_definitions(test_server PRIVATE
-  LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
   LIGHTFARM_OPENAPI="${LIGHTFARM_OPENAPI_DOC}")
 add_dependencies(test_server lightfarmd)
 
 # The store, the data directory and the upload checks under failure (issue #15);
 # the store tests against SQLite and a PostgreSQL the test starts (issue #9).
-lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
-target_link_libraries(test_store PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
-target_compile_definitions(test_store PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+lightfarm_test(test_store ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
+target_link_libraries(test_store PRIVATE lightfarm_server lightfarm_server_harness)
 add_dependencies(test_store lightfarmd)
 
 # The HTTP layer under slow, idle, oversized and hostile clients (issue #15).
-lightfarm_test(test_server_http ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
-target_link_libraries(test_server_http PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
-target_compile_definitions(test_server_http PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+lightfarm_test(test_server_http)
+target_link_libraries(test_server_http PRIVATE lightfarm_server lightfarm_server_harness)
 add_dependencies(test_server_http lightfarmd)
 
 # client_cli/remote.cpp is compiled in here too, so that the client is tested
 # against a real server without the GL engine the lightfarm binary links.
-lightfarm_test(test_remote ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp
+lightfarm_test(test_remote ${CMAKE_CURRENT_LIST_DIR}/../client_cli/remote.cpp
   ${CMAKE_CURRENT_LIST_DIR}/../client_cli/bake_help.cpp)
 target_include_directories(test_remote PRIVATE ${CMAKE_CURRENT_LIST_DIR}/../client_cli)
-target_link_libraries(test_remote PRIVATE lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
-target_compile_definitions(test_remote PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+target_link_libraries(test_remote PRIVATE lightfarm_server_harness)
 add_dependencies(test_remote lightfarmd)
 
 # The service under load (50 jobs from 10 clients, 200 readers) with the fake
 # engine; LIGHTFARM_LOAD_ENGINE=real runs it with this build's lightfarm (the
 # figures in docs/service-benchmarks.md). Not lightfarm_test(): it loads both
 # cores for ~10 s, so ctest runs it alone (RUN_SERIAL), with a time limit.
-add_executable(test_server_load ${CMAKE_CURRENT_LIST_DIR}/test_server_load.cpp ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+add_executable(test_server_load ${CMAKE_CURRENT_LIST_DIR}/test_server_load.cpp)
 target_include_directories(test_server_load PRIVATE ${CMAKE_CURRENT_LIST_DIR})
-target_link_libraries(test_server_load PRIVATE GTest::gtest_main lightfarm_protocol PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
+target_link_libraries(test_server_load PRIVATE GTest::gtest_main lightfarm_server_harness)
 target_compile_definitions(test_server_load PRIVATE
-  LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
   LIGHTFARM_SHARED_SCENES="${LIGHTFARM_SHARED_SCENES}")
 if(TARGET lightfarm)
   target_compile_definitions(test_server_load PRIVATE LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>")
@@ -71,11 +75,10 @@ gtest_discover_tests(test_server_load DISCOVERY_TIMEOUT 60
 # box bake through the service against `lightfarm bake` (bit for bit); SIGKILL
 # of a worker, and of lightfarmd, mid-bake (about 15 s in all on llvmpipe).
 if(TARGET lightfarm)
-  lightfarm_test(test_server_e2e GL ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp)
+  lightfarm_test(test_server_e2e GL)
   # lightfarm_gi for its EXR reader only: the test compares pixels, the server stays GL-free.
-  target_link_libraries(test_server_e2e PRIVATE lightfarm_server lightfarm_gi PkgConfig::CPP_HTTPLIB)
+  target_link_libraries(test_server_e2e PRIVATE lightfarm_server lightfarm_gi lightfarm_server_harness)
   target_compile_definitions(test_server_e2e PRIVATE
-    LIGHTFARMD="$<TARGET_FILE:lightfarmd>"
     LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>"
     LIGHTFARM_SOURCE_DIR="${PROJECT_SOURCE_DIR}")
   add_dependencies(test_server_e2e lightfarmd lightfarm)
@@ -84,7 +87,6 @@ endif()
 # Many lightfarmd nodes on one PostgreSQL (started by the test) and one data
 # directory, with the fake engine: exactly-once across nodes, kill -9 of a
 # node, the database restarted mid-run (issue #9; about a minute).
-lightfarm_test(test_scale_out ${CMAKE_CURRENT_LIST_DIR}/server_harness.cpp ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
-target_link_libraries(test_scale_out PRIVATE lightfarm_server PkgConfig::CPP_HTTPLIB OpenEXR::OpenEXR)
-target_compile_definitions(test_scale_out PRIVATE LIGHTFARMD="$<TARGET_FILE:lightfarmd>")
+lightfarm_test(test_scale_out ${CMAKE_CURRENT_LIST_DIR}/postgres_server.cpp)
+target_link_libraries(test_scale_out PRIVATE lightfarm_server lightfarm_server_harness)
 add_dependencies(test_scale_out lightfarmd)
