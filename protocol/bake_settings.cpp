@@ -81,8 +81,9 @@ std::vector<Setting> build_catalog() {
         typed("lightmap", "stitch", T::Flag, true, "least-squares stitch of UV seams"),
         typed("lightmap", "directional", T::Flag, false,
               "L1 SH per texel too: layers L1x, L1y, L1z for normal-mapped shading"),
-        typed("lightmap", "denoise", T::Flag, false,
-              "edge-aware filter of the final lightmap (RGB; the raw result stays in layer raw.)"),
+        typed("lightmap", "denoise", T::Flag, true,
+              "edge-aware filter of the final lightmap, each chart keeping its raw light (RGB; the raw result "
+              "stays in layer raw.)"),
         with_auto(integer("lightmap", "passes_per_dispatch", 1, 1, 16, "",
                           "the most passes one GPU dispatch runs; the passes of a cell read the map published at its "
                           "start (auto: enough for 262,144 texel passes)")),
@@ -425,6 +426,24 @@ const Setting* find_setting_by_flag(const std::string& flag) {
     return nullptr;
 }
 
+namespace {
+
+// A flag that is on unless turned off (`--no-denoise`) still takes its
+// positive form (`--denoise`, from when it was off by default): it states the
+// default, and the scripts written then keep running.
+std::optional<std::string> positive_form(const Setting& s) {
+    if (s.type != SettingType::Flag || s.default_value != true) return std::nullopt;
+    return "--" + s.flag().substr(std::string("--no-").size());
+}
+
+const Setting* find_on_by_default_flag(const std::string& flag) {
+    for (const Setting& s : setting_catalog())
+        if (positive_form(s) == flag) return &s;
+    return nullptr;
+}
+
+}  // namespace
+
 BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     require_object(j, "");
     if (!j.contains("outputs")) throw SpecError("outputs", "is required");
@@ -591,8 +610,10 @@ json bake_json_from_flags(const std::map<std::string, std::string>& flags, const
             }
         if (is_output) continue;
         const Setting* s = find_setting_by_flag(flag);
-        if (!s) throw SpecError(flag, "unknown bake option");
-        const json value = value_from_text(*s, text);
+        const Setting* positive = s ? nullptr : find_on_by_default_flag(flag);
+        if (!s && !positive) throw SpecError(flag, "unknown bake option");
+        if (positive) s = positive;
+        const json value = positive ? json(true) : value_from_text(*s, text);
         if (s->group.empty()) {
             j[s->name] = value;
         } else if (s->group == "atlas") {
@@ -625,7 +646,10 @@ uint64_t estimated_bake_bytes(uint64_t atlas_texels, int subsamples) {
 std::vector<std::pair<std::string, bool>> bake_flags() {
     std::vector<std::pair<std::string, bool>> flags;
     for (const std::string& o : output_names()) flags.emplace_back("--" + o, false);
-    for (const Setting& s : setting_catalog()) flags.emplace_back(s.flag(), s.type != SettingType::Flag);
+    for (const Setting& s : setting_catalog()) {
+        flags.emplace_back(s.flag(), s.type != SettingType::Flag);
+        if (const auto positive = positive_form(s)) flags.emplace_back(*positive, false);
+    }
     return flags;
 }
 

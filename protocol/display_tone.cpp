@@ -6,12 +6,17 @@
 namespace lf::protocol {
 
 double automatic_exposure(const std::vector<float>& rgb) {
+    auto luminance = [&](size_t p) { return 0.2126f * rgb[p] + 0.7152f * rgb[p + 1] + 0.0722f * rgb[p + 2]; };
+    float brightest = 0.0f;
+    for (size_t p = 0; p + 2 < rgb.size(); p += 3)
+        if (std::isfinite(luminance(p))) brightest = std::max(brightest, luminance(p));
+    const float least = std::max(1e-8f, kExposureFloor * brightest);
     double log_sum = 0;
     size_t lit = 0;
     for (size_t p = 0; p + 2 < rgb.size(); p += 3) {
-        const float luminance = 0.2126f * rgb[p] + 0.7152f * rgb[p + 1] + 0.0722f * rgb[p + 2];
-        if (std::isfinite(luminance) && luminance > 1e-8f) {
-            log_sum += std::log(double(luminance));
+        const float l = luminance(p);
+        if (std::isfinite(l) && l > least) {
+            log_sum += std::log(double(l));
             ++lit;
         }
     }

@@ -11,9 +11,18 @@
 namespace lf::protocol {
 
 // The exposure that maps the geometric mean luminance of the lit values
-// (Rec. 709 luminance above 1e-8) to middle grey 0.18, Reinhard et al.'s
-// "key" (2002); 1 when nothing is lit. `rgb`: interleaved linear RGB.
+// (Rec. 709 luminance above 1e-8 and above kExposureFloor of the brightest)
+// to middle grey 0.18, Reinhard et al.'s "key" (2002); 1 when nothing is
+// lit. `rgb`: interleaved linear RGB.
 double automatic_exposure(const std::vector<float>& rgb);
+
+// Texels darker than this fraction of the brightest do not count towards
+// the exposure: an RGBM texel's smallest step is 1/65025 of its range, so a
+// viewer that reads the lightmap from scene.lit.glb sees them as black or
+// far off (a denoised map spreads a little light into texels whose paths
+// found none: 6% of the Cornell box's exposure at 96², 32 passes, counted in
+// the file and not in the view).
+constexpr float kExposureFloor = 1e-4f;
 
 // The filmic curve the 3D view renders with: three.js's
 // ACESFilmicToneMapping (r171), Stephen Hill's fit of the ACES reference

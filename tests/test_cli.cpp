@@ -157,8 +157,9 @@ TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
     EXPECT_EQ(image.number_attributes.at("lightfarm.pass"), 9.0);
     EXPECT_EQ(image.number_attributes.at("lightfarm.rays"), double(done["rays"].get<uint64_t>()));
     EXPECT_FALSE(image.string_attributes.at("lightfarm.renderer").empty());
-    // Combined = direct + indirect, texel by texel.
-    const auto &R = image.at("R"), &d = image.at("direct.R"), &i = image.at("indirect.R");
+    // The bake's combined light = direct + indirect, texel by texel (the
+    // layers stay as baked; RGB is the denoised combination, raw.R the bake's).
+    const auto &R = image.at("raw.R"), &d = image.at("direct.R"), &i = image.at("indirect.R");
     for (size_t k = 0; k < R.size(); ++k) ASSERT_NEAR(R[k], d[k] + i[k], 1e-4f * (1.0f + R[k]));
     fs::remove_all(out);
 }
@@ -541,18 +542,19 @@ TEST(CliBake, LightmapAndShShareOnePreparation) {
     for (const fs::path& d : {both, lightmap, sh}) fs::remove_all(d);
 }
 
-// --denoise: RGB filtered, the raw bake kept as raw.R/G/B (the same as a bake
-// without --denoise, bit for bit), the filter's time in the header; and
-// `compare --layer raw` against a bake that has no raw layer.
+// Denoised by default (issue #35): RGB filtered, the raw bake kept as
+// raw.R/G/B (the same as a bake with --no-denoise, bit for bit), the filter's
+// time in the header; `--denoise` (its form from when it was off by default)
+// is the default; and `compare --layer raw` against a bake that has no raw layer.
 TEST(CliBake, DenoiseKeepsTheRawBake) {
-    const fs::path raw = fresh_dir("raw"), denoised = fresh_dir("denoised");
+    const fs::path raw = fresh_dir("raw"), denoised = fresh_dir("denoised"), asked = fresh_dir("asked");
     const std::string common = " --res 64 --passes 8 --seed 3";
-    ASSERT_EQ(
-        run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + raw.string() + common).exit_code,
-        0);
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + denoised.string() +
-                                   common + " --denoise");
+    const std::string scene = test::shared_scene("cornell_box.gltf");
+    ASSERT_EQ(run_lightfarm("bake " + scene + " --out " + raw.string() + common + " --no-denoise").exit_code, 0);
+    const CliRun r = run_lightfarm("bake " + scene + " --out " + denoised.string() + common);
     ASSERT_EQ(r.exit_code, 0) << r.err;
+    ASSERT_EQ(run_lightfarm("bake " + scene + " --out " + asked.string() + common + " --denoise").exit_code, 0);
+    EXPECT_EQ(read_exr(asked / "lightmap.exr").at("R"), read_exr(denoised / "lightmap.exr").at("R"));
     const FloatImage a = read_exr(raw / "lightmap.exr"), b = read_exr(denoised / "lightmap.exr");
     EXPECT_EQ(b.at("raw.R"), a.at("R"));
     EXPECT_NE(b.at("R"), a.at("R"));
@@ -564,7 +566,7 @@ TEST(CliBake, DenoiseKeepsTheRawBake) {
                                    (raw / "lightmap.exr").string() + " --layer raw");
     ASSERT_EQ(c.exit_code, 0) << c.err;
     EXPECT_EQ(nlohmann::json::parse(c.out)["relative_rmse"], 0.0);
-    for (const fs::path& d : {raw, denoised}) fs::remove_all(d);
+    for (const fs::path& d : {raw, denoised, asked}) fs::remove_all(d);
 }
 
 // compare --layer: the error of one layer of two bakes, the same number as

@@ -102,6 +102,10 @@ TEST(DisplayTone, ExposureCurveAndSrgbAreTheViewsClosedForms) {
         << "unlit and non-finite values do not count";
     EXPECT_EQ(protocol::automatic_exposure({}), 1.0);
     EXPECT_EQ(protocol::automatic_exposure({0, 0, 0}), 1.0);
+    EXPECT_NEAR(protocol::automatic_exposure({2.0f, 2.0f, 2.0f, 1e-4f, 1e-4f, 1e-4f}), 0.09, 1e-6)
+        << "a texel below kExposureFloor of the brightest (RGBM's black) does not count";
+    EXPECT_NEAR(protocol::automatic_exposure({2.0f, 2.0f, 2.0f, 4e-4f, 4e-4f, 4e-4f}), 0.18 / std::sqrt(8e-4), 1e-4)
+        << "one above it does";
 
     const double fit_at_one = (1.0245786 - 0.000090537) / (0.983729 + 0.432951 + 0.238081);
     for (float c : protocol::aces_filmic({0.6f, 0.6f, 0.6f}, 1.0f)) EXPECT_NEAR(c, fit_at_one, 2e-5);
@@ -207,8 +211,25 @@ TEST(Catalog, BakeFlagsAreTheOutputsAndEverySetting) {
     std::map<std::string, bool> flags(listed.begin(), listed.end());
     EXPECT_EQ(flags.size(), listed.size()) << "a flag is listed twice";
     for (const std::string& o : output_names()) EXPECT_EQ(flags.at("--" + o), false) << o;
-    for (const Setting& s : setting_catalog()) EXPECT_EQ(flags.at(s.flag()), s.type != SettingType::Flag) << s.flag();
-    EXPECT_EQ(flags.size(), output_names().size() + setting_catalog().size());
+    size_t on_by_default = 0;
+    for (const Setting& s : setting_catalog()) {
+        EXPECT_EQ(flags.at(s.flag()), s.type != SettingType::Flag) << s.flag();
+        if (s.type == SettingType::Flag && s.default_value == true) {
+            // Its positive form too (`--denoise` beside `--no-denoise`): it says the default.
+            EXPECT_EQ(flags.at("--" + s.flag().substr(5)), false) << s.flag();
+            ++on_by_default;
+        }
+    }
+    EXPECT_EQ(flags.size(), output_names().size() + setting_catalog().size() + on_by_default);
+}
+
+// A flag that was off by default and is now on (`--denoise`) is still taken
+// as written then: it sets the default; its --no- form turns it off.
+TEST(Catalog, AnOnByDefaultFlagTakesBothForms) {
+    EXPECT_EQ(bake_json_from_flags({{"--denoise", ""}})["outputs"]["lightmap"]["denoise"], true);
+    EXPECT_EQ(bake_json_from_flags({{"--no-denoise", ""}})["outputs"]["lightmap"]["denoise"], false);
+    EXPECT_EQ(bake_json_from_flags({{"--stitch", ""}})["outputs"]["lightmap"]["stitch"], true);
+    EXPECT_THROW(bake_json_from_flags({{"--no-directional", ""}}), SpecError) << "off by default: no --no- form";
 }
 
 // ---------------------------------------------------------------------------

@@ -145,14 +145,18 @@ if (THREE) {
   }
   // The exposure the server's previews use (protocol/display_tone.h,
   // automatic_exposure): the geometric mean luminance of the lit values
-  // brought to 0.18. What is shown sets its own: a job's from the server, a
+  // (above 1e-4 of the brightest) brought to 0.18. What is shown sets its own: a job's from the server, a
   // file's or a probe set's from its own values (a file kept the previous
   // job's, issue #36).
   function setExposure(values) {
+    const luminance = (i) => 0.2126 * values[i] + 0.7152 * values[i + 1] + 0.0722 * values[i + 2];
+    let brightest = 0;
+    for (let i = 0; i + 2 < values.length; i += 3) if (Number.isFinite(luminance(i))) brightest = Math.max(brightest, luminance(i));
+    const least = Math.max(1e-8, 1e-4 * brightest);  // display_tone.h, kExposureFloor
     let logSum = 0, lit = 0;
     for (let i = 0; i + 2 < values.length; i += 3) {
-      const lum = 0.2126 * values[i] + 0.7152 * values[i + 1] + 0.0722 * values[i + 2];
-      if (Number.isFinite(lum) && lum > 1e-8) { logSum += Math.log(lum); lit++; }
+      const lum = luminance(i);
+      if (Number.isFinite(lum) && lum > least) { logSum += Math.log(lum); lit++; }
     }
     state.exposure = lit ? 0.18 / Math.exp(logSum / lit) : 1;
     renderer.toneMappingExposure = state.exposure;
