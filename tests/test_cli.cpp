@@ -302,7 +302,7 @@ void expect_clean_failure(const std::string& args, const std::string& must_menti
 TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
     const fs::path out = fresh_dir("sky");
     const CliRun r = run_lightfarm("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") +
-                                   " --out " + out.string() + " --res 512 --passes 4 --env 1,1,1 --no-stitch --json");
+                                   " --out " + out.string() + " --res 256 --passes 4 --env 1,1,1 --no-stitch --json");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const FloatImage image = read_exr(out / "lightmap.exr");
     float brightest = 0.0f;
