@@ -7,6 +7,8 @@
 // from its last snapshot.
 #include "server_harness.h"
 
+#include "bake_settings.h"
+
 #include "io/image_files.h"
 
 #include "subprocess.h"
@@ -325,6 +327,77 @@ TEST_F(EndToEnd, WhatIsKnownAtSubmitIsRefusedAtSubmit) {
         ASSERT_FALSE(id.empty());
         client().Post("/v1/jobs/" + id + "/cancel", "", "application/json");
     }
+}
+
+// Every numeric setting at both ends of its range, each alone on the Cornell
+// box (the rest small: 2 passes, a 64² atlas, one probe), on a server with caps (passes
+// 4, time_limit 10 s, res 256): each spec is refused at submit with a 400
+// naming its field (above a cap, or knowable from the scene: a grid of too
+// many probes, an atlas too small for the charts), or its job succeeds. A
+// job that the server accepts and the worker then fails is what issue #33
+// found eight of; this tries them all, the exclusive minimums as 1e-6.
+TEST_F(EndToEnd, EverySettingsExtremesAreRefusedAtSubmitOrBake) {
+    server->stop();
+    server = std::make_unique<Lightfarmd>(tmp.path / "data", tmp.path / "tokens", LIGHTFARM_ENGINE,
+                                          std::vector<std::string>{"--stall-timeout", "120", "--limit", "passes=4",
+                                                                   "--limit", "time_limit=10", "--limit", "res=256"});
+    server->start();
+    const std::string scene = upload_cornell_box();
+    ASSERT_FALSE(scene.empty());
+    const std::map<std::string, std::string> passes_of = {
+        {"lightmap", "passes"}, {"sh", "sh_passes"}, {"probes", "probe_passes"}, {"ao", "ao_passes"}};
+    struct Tried {
+        std::string what, id;
+    };
+    std::vector<Tried> accepted;
+    std::string problems;
+    int refused = 0;
+    for (const protocol::Setting& s : protocol::setting_catalog()) {
+        if (s.type != protocol::SettingType::Integer && s.type != protocol::SettingType::Number) continue;
+        for (const double value : {s.min_exclusive ? s.min + 1e-6 : s.min, s.max}) {
+            const std::string output = passes_of.count(s.group) ? s.group : "lightmap";
+            json spec = {
+                {"scene", scene}, {"outputs", {{output, {{passes_of.at(output), 2}}}}}, {"atlas", {{"res", 64}}}};
+            // One probe where the grid is not what is tried: a probe_res of
+            // 256 over the default grid is a valid job of two minutes here.
+            if (output == "probes" && s.name != "probe_spacing")
+                spec["outputs"]["probes"]["probe_positions"] = {{{"position", {0.278, 0.27, 0.28}}}};
+            const json v = s.type == protocol::SettingType::Integer ? json(int64_t(value)) : json(value);
+            if (s.group.empty()) {
+                spec[s.name] = v;
+            } else if (s.group == "atlas") {
+                if (s.name != "subsamples") spec["atlas"].erase("res");  // res, or what sizes the atlas instead
+                spec["atlas"][s.name] = v;
+            } else {
+                spec["outputs"][output][s.name] = v;
+            }
+            const std::string what = s.field() + " = " + v.dump();
+            auto r = client().Post("/v1/jobs", spec.dump(), "application/json");
+            if (!r) {
+                problems += what + ": no answer\n";
+            } else if (r->status == 400) {
+                const json body = json::parse(r->body, nullptr, false);
+                if (!body.is_object() || body.value("field", "").empty() || body.value("error", "").empty())
+                    problems += what + ": a 400 without its field and error: " + r->body + "\n";
+                ++refused;
+            } else if (r->status == 201) {
+                accepted.push_back({what, json::parse(r->body).value("id", "")});
+            } else {
+                problems += what + ": " + std::to_string(r->status) + " " + r->body + "\n";
+            }
+        }
+    }
+    for (const Tried& t : accepted) {
+        auto c = client();
+        const auto t0 = Clock::now();
+        const json status = wait_for_job(c, t.id, is_finished, std::chrono::seconds(120));
+        std::printf("  %-40s %s after %.1f s more\n", t.what.c_str(), status.value("state", "").c_str(),
+                    std::chrono::duration<double>(Clock::now() - t0).count());
+        if (status.value("state", "") != "succeeded") problems += t.what + ": accepted, then " + status.dump() + "\n";
+    }
+    std::printf("%d extremes refused at submit, %zu baked\n", refused, accepted.size());
+    EXPECT_TRUE(problems.empty()) << problems;
+    EXPECT_GT(accepted.size(), 20u) << "the small ends bake";
 }
 
 TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
