@@ -51,6 +51,21 @@ void kill_leftover_worker(const fs::path& dir, const std::string& this_node) {
     }
 }
 
+// "lightmap pass 40 (lightmap.pass-0040.exr), …" for the log.
+std::string snapshots_text(const std::map<std::string, LatestFile>& latest) {
+    std::string what;
+    for (const auto& [output, file] : latest)
+        what += (what.empty() ? "" : ", ") + output + " pass " + std::to_string(file.pass) + " (" + file.file + ")";
+    return what;
+}
+
+// "stopped 0.31 s after SIGTERM" for the log.
+std::string grace_text(bool ended, double after) {
+    char seconds[32];
+    std::snprintf(seconds, sizeof seconds, "%.2f", after);
+    return std::string(ended ? "stopped" : "was given") + " " + seconds + " s after SIGTERM";
+}
+
 // A file name the worker reported must stay inside its output directory.
 bool plain_file_name(const std::string& name) {
     return !name.empty() && name.find('/') == std::string::npos && name != "." && name != ".." && name[0] != '.';
@@ -641,6 +656,17 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
 
     for (std::string line;;) {
         if (stopping_) {
+            // Its last snapshot, state and all, is where the next start
+            // resumes: a bake killed at once resumed from its last periodic one.
+            const TerminateGrace grace = terminate_with_grace(job, bake, end.state, worker, kStopGraceSeconds, false);
+            std::map<std::string, LatestFile> latest;
+            for (const AttemptUpdate& update : grace.updates) {
+                unsaved.push_back(update);
+                for (const auto& [output, file] : update.latest) latest[output] = file;
+            }
+            const std::string what = snapshots_text(latest);
+            log_line("job " + id + ": lightfarmd stopping; its worker " + grace_text(grace.ended, grace.seconds) +
+                     (what.empty() ? "" : ", its last snapshot: " + what) + (grace.ended ? "" : "; killed"));
             worker.kill();
             end.status = worker.wait();
             try {
@@ -710,40 +736,47 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
     return end;
 }
 
-void Supervisor::keep_last_snapshot(const JobRecord& job, const protocol::BakeSettings& bake, AttemptState state,
-                                    const AttemptUpdate& seen, Subprocess& worker) {
-    const std::string& id = job.status.id;
+Supervisor::TerminateGrace Supervisor::terminate_with_grace(const JobRecord& job, const protocol::BakeSettings& bake,
+                                                            AttemptState& state, Subprocess& worker, double grace,
+                                                            bool until_stop) {
     const auto start = Clock::now();
-    const auto deadline =
-        start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(kCancelGraceSeconds));
+    const auto deadline = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(grace));
     worker.terminate();
-    std::optional<Progress> progress = seen.progress;
-    std::map<std::string, LatestFile> latest = seen.latest;
-    bool ended = false;
-    for (std::string line; !stopping_ && Clock::now() < deadline;) {
+    TerminateGrace out;
+    for (std::string line; !(until_stop && stopping_) && Clock::now() < deadline;) {
         const auto wait = std::clamp(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()),
                                      std::chrono::milliseconds(1), std::chrono::milliseconds(200));
         const Subprocess::Read r = worker.read_line(line, wait);
         if (r == Subprocess::Read::End) {
-            ended = true;
+            out.ended = true;
             break;
         }
         if (r == Subprocess::Read::Timeout) continue;
         AttemptUpdate update;
         try {
-            update = apply_worker_event(state, protocol::parse_worker_event(json::parse(line)), bake, id,
+            update = apply_worker_event(state, protocol::parse_worker_event(json::parse(line)), bake, job.status.id,
                                         job.status.attempts);
         } catch (const std::exception&) {
             continue;  // not an event: the log has had enough of this worker
         }
         if (!update.ignored.empty()) continue;
         state = update.state;
+        out.updates.push_back(std::move(update));
+    }
+    out.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+    return out;
+}
+
+void Supervisor::keep_last_snapshot(const JobRecord& job, const protocol::BakeSettings& bake, AttemptState state,
+                                    const AttemptUpdate& seen, Subprocess& worker) {
+    const std::string& id = job.status.id;
+    const TerminateGrace grace = terminate_with_grace(job, bake, state, worker, kCancelGraceSeconds, true);
+    std::optional<Progress> progress = seen.progress;
+    std::map<std::string, LatestFile> latest = seen.latest;
+    for (const AttemptUpdate& update : grace.updates) {
         if (update.progress) progress = update.progress;
         for (const auto& [output, file] : update.latest) latest[output] = file;
     }
-    std::string what;
-    for (const auto& [output, file] : latest)
-        what += (what.empty() ? "" : ", ") + output + " pass " + std::to_string(file.pass) + " (" + file.file + ")";
     if (progress || !latest.empty()) {
         try {
             store_.set_cancelled_result(id, progress, latest);
@@ -752,10 +785,9 @@ void Supervisor::keep_last_snapshot(const JobRecord& job, const protocol::BakeSe
             log_line("job " + id + ": cannot store what its worker wrote after the cancel: " + e.what());
         }
     }
-    char seconds[32];
-    std::snprintf(seconds, sizeof seconds, "%.2f", std::chrono::duration<double>(Clock::now() - start).count());
-    log_line("job " + id + ": cancelled; its worker " + (ended ? "stopped" : "was given") + " " + seconds +
-             " s after SIGTERM" + (what.empty() ? "" : ", its last snapshot: " + what) + (ended ? "" : "; killed"));
+    const std::string what = snapshots_text(latest);
+    log_line("job " + id + ": cancelled; its worker " + grace_text(grace.ended, grace.seconds) +
+             (what.empty() ? "" : ", its last snapshot: " + what) + (grace.ended ? "" : "; killed"));
 }
 
 bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, const Subprocess& worker,

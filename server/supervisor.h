@@ -87,9 +87,12 @@ public:
     // failed when none is left), then starts the worker threads and the
     // lease thread (heartbeat, lease renewal, jobs of lost nodes).
     void start();
-    // Kills running workers and puts their jobs back in the queue without
-    // counting the attempt: a restart is not the job's fault.
+    // Stops running workers and puts their jobs back in the queue without
+    // counting the attempt: a restart is not the job's fault. Each worker
+    // gets SIGTERM and up to kStopGraceSeconds to write its last snapshot
+    // (with its state: the next start resumes there), then SIGKILL.
     void stop();
+    static constexpr double kStopGraceSeconds = 5.0;
 
     // The job was marked cancelled in the store; stop its worker if it runs
     // here: SIGTERM, then up to kCancelGraceSeconds for its last snapshot
@@ -155,6 +158,16 @@ private:
     // kills it after.
     void keep_last_snapshot(const JobRecord& job, const protocol::BakeSettings& bake, AttemptState state,
                             const AttemptUpdate& seen, Subprocess& worker);
+    // SIGTERM to the worker, then its events until it ends or `grace`
+    // seconds pass (its last snapshot among them); with `until_stop`, a
+    // stop of lightfarmd cuts it short too. The caller kills it after.
+    struct TerminateGrace {
+        std::vector<AttemptUpdate> updates;
+        bool ended = false;  // the worker exited within the grace
+        double seconds = 0;  // how long it took
+    };
+    TerminateGrace terminate_with_grace(const JobRecord& job, const protocol::BakeSettings& bake, AttemptState& state,
+                                        Subprocess& worker, double grace, bool until_stop);
     bool cancel_requested(const std::string& job_id);
     bool lease_lost(const std::string& job_id);
     // Jobs taken over from a node that is gone (a previous lightfarmd of

@@ -632,5 +632,36 @@ TEST_F(EndToEnd, AServerKilledMidBakeFinishesTheJobAfterARestartWithWholeArtifac
         << "the re-run bake and `lightfarm bake` with the same seed";
 }
 
+// A stop (SIGTERM to lightfarmd) gives each worker a grace
+// (Supervisor::kStopGraceSeconds): it writes a last snapshot where the bake
+// stands, its state with it, and exits by itself; the next start's worker
+// resumes there. It was SIGKILLed at once and resumed from its last periodic
+// snapshot, losing every pass since (issue #36).
+TEST_F(EndToEnd, AStoppedServersWorkersSaveWhereTheyStoodAndResumeThere) {
+    const Bake bake = long_bake();
+    const std::string id = submit(bake.spec(upload_cornell_box()));
+    ASSERT_FALSE(id.empty());
+    const json mid = wait_snapshot_past(id, 4);
+    ASSERT_EQ(mid["state"], "running") << "the bake ended before it could be stopped: " << mid.dump();
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));  // passes beyond that snapshot
+    auto c = client();
+    const json before = wait_for_job(c, id, [](const json&) { return true; });
+    ASSERT_EQ(before["state"], "running") << before.dump();
+    const int newest = before["latest"]["lightmap"]["pass"];  // what a SIGKILL would resume from
+
+    server->stop();
+    const std::string log = server->log();
+    EXPECT_NE(log.find("job " + id + ": lightfarmd stopping; its worker stopped"), std::string::npos) << log;
+    server->start();
+
+    const json status = wait_finished(id);
+    EXPECT_EQ(status["state"], "succeeded") << status.dump();
+    const std::vector<int> resumed = resumed_after(id);
+    ASSERT_EQ(resumed.size(), 2u);
+    EXPECT_GT(resumed[1], newest) << "resumed from the snapshot the worker wrote at the stop";
+    EXPECT_TRUE(same_pixels(download(id, "lightmap.exr", "served"), tmp.path / "local" / "lightmap.exr"))
+        << "the resumed bake and `lightfarm bake` with the same seed";
+}
+
 }  // namespace
 }  // namespace lf::test
