@@ -76,7 +76,11 @@ inline thread_local RequestContext* tl_request = nullptr;
 inline constexpr size_t kRequestLineMax = 8192;  // CPPHTTPLIB_REQUEST_URI_MAX_LENGTH
 inline constexpr int kMaxRequestsPerConnection = 100;
 inline constexpr auto kLinger = std::chrono::seconds(1);
-inline constexpr size_t kLingerBytes = 1 << 20;
+// A client that writes its whole body before it reads (httplib's, Python's
+// requests) sees an early answer only if its body was drained, not reset:
+// 4 MiB covers a job spec four times over spec_bytes' default (1 MiB covered
+// none: a 2 MiB spec's 413 was lost to a reset, and killed its client).
+inline constexpr size_t kLingerBytes = 4 << 20;
 inline constexpr int kWriteTimeoutMs = 30000;
 inline constexpr int kMaxUncountedLingering = 256;
 

@@ -23,6 +23,15 @@ namespace lf::test {
 
 using nlohmann::json;
 
+// A server may answer before it has read a request's body (a 413, a 401): a
+// client still writing then gets EPIPE. Like lightfarmd (server/main.cpp),
+// every test that links this harness takes that as a failed call it can
+// report, not as a SIGPIPE that ends the test binary with no message.
+const bool kSigpipeIgnored = [] {
+    signal(SIGPIPE, SIG_IGN);
+    return true;
+}();
+
 TempDir::TempDir() {
     std::random_device rd;
     path = fs::temp_directory_path() / ("lightfarm-test-" + std::to_string(getpid()) + "-" + std::to_string(rd()));

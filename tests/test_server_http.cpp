@@ -823,6 +823,52 @@ TEST_F(HttpTest, OversizedRequestsAreRefusedBeforeMemoryGrows) {
     EXPECT_LT(hwm_after - hwm_before, 16 * 1024) << "peak memory grew by " << (hwm_after - hwm_before) << " kB";
 }
 
+// A client that writes its whole body before it reads its answer (httplib's
+// Client, Python's requests) gets every early refusal, not a reset: a job
+// spec one byte over spec_bytes, twice it, almost four times it; an upload
+// over upload_bytes; a body without a token. Each is written in full first,
+// then read. (A 2 MiB spec's 413 was lost to a reset once the server had
+// discarded 1 MiB, and the SIGPIPE ended the test binary that sent it.)
+TEST_F(HttpTest, ABodyWrittenInFullBeforeReadingStillGetsItsEarlyRefusal) {
+    start({"--limit", "upload_bytes=1048576", "--limit", "spec_bytes=1048576"});
+    struct Case {
+        const char* path;
+        std::string token;
+        size_t bytes;
+        int status;
+        const char* field;
+    };
+    const size_t mib = 1 << 20;
+    const std::vector<Case> cases = {
+        {"/v1/jobs", kAlice, mib + 1, 413, "spec_bytes"},
+        {"/v1/jobs", kAlice, 2 * mib, 413, "spec_bytes"},
+        {"/v1/jobs", kAlice, 4 * mib - 64 * 1024, 413, "spec_bytes"},
+        {"/v1/scenes", kAlice, 3 * mib, 413, "upload_bytes"},
+        {"/v1/jobs", "", 2 * mib, 401, nullptr},
+    };
+    for (const Case& c : cases) {
+        SCOPED_TRACE(std::string(c.path) + " with " + std::to_string(c.bytes) + " bytes");
+        RawSocket s(server->port);
+        ASSERT_TRUE(s.connected());
+        const std::string head =
+            request("POST", c.path, c.token,
+                    std::string("Content-Type: ") +
+                        (std::string(c.path) == "/v1/scenes" ? "model/gltf-binary" : "application/json") +
+                        "\r\nContent-Length: " + std::to_string(c.bytes) + "\r\n");
+        const std::string body(c.bytes, ' ');
+        EXPECT_EQ(s.send(head + body), head.size() + body.size()) << "the server stopped reading the body";
+        EXPECT_EQ(s.status(), c.status) << s.received().substr(0, 300);
+        s.peer_closed(2s);  // the whole answer, body included
+        if (c.field) {
+            EXPECT_NE(s.received().find(std::string("\"") + c.field + "\""), std::string::npos);
+        }
+    }
+    // The same through an HTTP client library that writes, then reads.
+    auto r = client().Post("/v1/jobs", std::string(2 * mib, ' '), "application/json");
+    ASSERT_TRUE(r) << httplib::to_string(r.error());
+    EXPECT_EQ(r->status, 413) << r->body;
+}
+
 // `curl -X POST -H "$T" $S/v1/jobs/JOB/cancel`: no body, no Content-Length.
 // SIGTERM with a slow upload in flight (issue #33): the upload may take up
 // to request_seconds (300 s by default), but a stop gives requests in flight
