@@ -124,18 +124,19 @@ void check_gltf_uris(const std::string& gltf_name, const std::string& text, cons
 // cannot take (full, an I/O error) is the server's trouble: 503, nothing
 // stored, never a scene kept cut short (the bytes that did not fit in the
 // stream's buffer reach the disk at close, which is checked).
+[[noreturn]] void cannot_store(const fs::path& path, const std::string& why) {
+    log_line("upload: cannot write " + path.string() + " (" + why + ")");
+    throw HttpError(503, "the server cannot store the upload now (" + why + "); nothing was stored, retry later",
+                    {{"retry_after", 5}});
+}
+
 void write_file(const fs::path& path, const std::string& bytes) {
     std::error_code ec;
     fs::create_directories(path.parent_path(), ec);
     std::ofstream out(path, std::ios::binary);
     out.write(bytes.data(), std::streamsize(bytes.size()));
     out.close();
-    if (ec || !out) {
-        const std::string why = ec ? ec.message() : std::strerror(errno);
-        log_line("upload: cannot write " + path.string() + " (" + why + ")");
-        throw HttpError(503, "the server cannot store the upload now (" + why + "); nothing was stored, retry later",
-                        {{"retry_after", 5}});
-    }
+    if (ec || !out) cannot_store(path, ec ? ec.message() : std::strerror(errno));
 }
 
 // The loader's own message without its "lightfarm inspect: error: " prefix.
@@ -320,10 +321,15 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
     if (known) return as_owner_sees_it(*known, store_.add_scene_owner(id, owner, main_name));
 
     const fs::path final_dir = data.scene(id);
-    fs::create_directories(final_dir.parent_path());
     std::error_code ec;
-    fs::rename(tmp, final_dir, ec);  // fails harmlessly when a concurrent upload of the same bytes won
+    fs::create_directories(final_dir.parent_path(), ec);
+    if (!ec) fs::rename(tmp, final_dir, ec);
     const bool moved = !ec;
+    // A rename fails harmlessly when a concurrent upload of the same bytes
+    // won (the directory is there); any other failure (a full disk, an I/O
+    // error) stores nothing: a scene on record without its files would fail
+    // every job that names it.
+    if (!moved && !fs::is_directory(final_dir)) cannot_store(final_dir, ec.message());
     SceneRecord record{id, main_name, summary};
     try {
         store_.add_scene(record);

@@ -231,6 +231,14 @@ SqliteConnection::SqliteConnection(const std::string& path) : path_(path) {
         sqlite3_close(db_);
         throw std::runtime_error("cannot open job store " + path + ": " + why);
     }
+    // SQLite opens a file it cannot open for writing (an I/O error, a full
+    // disk) read-only instead, without an error: a store that then refuses
+    // every write. Starting on it would answer every upload and job 503.
+    if (sqlite3_db_readonly(db_, "main") == 1) {
+        sqlite3_close(db_);
+        throw std::runtime_error("cannot open job store " + path +
+                                 " for writing (SQLite opened it read-only: a full disk, an I/O error, or its mode)");
+    }
     try {
         configure();
         migrate();

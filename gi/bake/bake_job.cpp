@@ -11,6 +11,7 @@
 #include "bake/snapshot_writer.h"
 #include "gpu/shader.h"
 #include "io/image_files.h"
+#include "io/write_error.h"
 #include "scene/gltf_loader.h"
 
 #include <algorithm>
@@ -425,7 +426,7 @@ void save_finished(const fs::path& out, const ProgressiveMethod& method, const s
                                  {"snapshots", snapshots},
                                  {"files", result.files},
                                  {"manifest", result.manifest}};
-    fs::create_directories(resume_dir(out));
+    make_directories(resume_dir(out));
     write_file_atomic(finished_path(out, method.output()), done.dump() + "\n");
 }
 
@@ -588,7 +589,7 @@ nlohmann::json manifest_of_preparation(const BakeJob& job, const PreparedScene& 
 
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
     const auto start = Clock::now();
-    fs::create_directories(job.out);
+    make_directories(job.out);
     const std::unique_ptr<PreparedScene> prepared = prepare(job, prepare_events(job, emit, start));
     std::vector<std::unique_ptr<ProgressiveMethod>> methods =
         prepared->timed("methods", [&] { return methods_that_fit(*prepared, job); });

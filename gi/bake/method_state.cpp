@@ -1,6 +1,7 @@
 #include "bake/method_state.h"
 
 #include "io/image_files.h"
+#include "io/write_error.h"
 
 #include <cstring>
 #include <fstream>
@@ -46,7 +47,7 @@ nlohmann::json header_of(const MethodState& s) {
 }  // namespace
 
 void write_method_state(const fs::path& path, const MethodState& state) {
-    fs::create_directories(path.parent_path());
+    make_directories(path.parent_path());
     write_file_atomic(path, [&](std::ostream& out) {
         Checksum sum;
         out.write(kMagic, sizeof kMagic);

@@ -21,4 +21,13 @@ inline WriteError write_error(const std::filesystem::path& path, int error = err
     return WriteError(path.string() + ": cannot write (" + (error ? std::strerror(error) : "unknown error") + ")");
 }
 
+// Creates `dir` and its parents. One it cannot make (a full disk, an I/O
+// error) is the machine's trouble like any other write: a WriteError naming
+// it, not the filesystem_error of std::filesystem::create_directories.
+inline void make_directories(const std::filesystem::path& dir) {
+    std::error_code ec;
+    std::filesystem::create_directories(dir, ec);
+    if (ec) throw write_error(dir, ec.value());
+}
+
 }  // namespace lf

@@ -1,0 +1,247 @@
+// Every call of lightfarmd and its SQLite store that changes a file, under
+// ENOSPC and under EIO (issue #33; the harness: fault_harness.h): nothing
+// accepted is lost, and no job fails for a fault of the machine. The
+// scenario, lightfarmd with the fake engine (server_harness.h): start,
+// upload a scene, submit a job, run it, stop, start again. Every answer is
+// 2xx or 503 (retried), never a 4xx or 500; the job succeeds, no attempt
+// spent on the machine's fault; the accepted scene and job are there after
+// the restart. No GL: ctest runs it beside other tests.
+#include "fault_harness.h"
+
+#include <thread>
+
+namespace lf::test {
+namespace {
+
+using nlohmann::json;
+
+const std::string kToken = "fault-token-0123456789";
+
+// ---------------------------------------------------------------- lightfarmd
+
+// The server's scenario, in phases; a fault is armed at the start of each
+// phase in which the dry run saw its site written, so that one run fails the
+// site's first write in each. "check" (the restart after the stop, and what
+// it finds) is never armed: it is where nothing accepted may be missing.
+const std::vector<std::string> kServerPhases = {"start", "upload", "job", "run", "stop"};
+
+class ServerScenario {
+public:
+    // `armed`: the phases to arm the shim's fault in (none for a dry run).
+    ServerScenario(const fs::path& dir, const FaultShim& shim, std::set<std::string> armed)
+        : shim_(shim),
+          armed_(std::move(armed)),
+          engine_(dir / "engine"),
+          server_(dir / "data", dir / "tokens", engine_.script, {"--workers", "1", "--node-name", "node"}) {
+        write_text(dir / "tokens", kToken + "\n");
+    }
+    // Runs every phase; returns what each armed phase's fault did, in the table's words.
+    std::map<std::string, std::string> run();
+
+private:
+    void enter(const std::string& phase);
+    void leave();
+    std::string start();
+    std::string post(const std::string& path, const std::string& body, const std::string& type, std::string& id);
+    void wait_for_worker();
+    bool finished_requeued(const std::string& job);
+    void check_nothing_lost(const std::string& scene, const std::string& job);
+    std::map<std::string, std::string> effects_of_armed_phases() const;
+    std::map<std::string, std::string> gave_up();
+
+    const FaultShim& shim_;
+    std::set<std::string> armed_;
+    FakeEngine engine_;
+    Lightfarmd server_;
+    std::string phase_;
+    std::map<std::string, std::string> effects_;
+};
+
+void ServerScenario::enter(const std::string& phase) {
+    phase_ = phase;
+    shim_.mark(phase);
+    if (armed_.count(phase)) shim_.arm();
+}
+
+// The phase's effect stands as found, or "not reached" when its fault was not taken.
+void ServerScenario::leave() {
+    if (!armed_.count(phase_)) return;
+    if (!shim_.fired()) effects_[phase_] = "not reached";
+    shim_.disarm();
+}
+
+// A start the fault stops is refused with a message (the log says what),
+// never a server that runs without what it could not write; then it starts.
+std::string ServerScenario::start() {
+    try {
+        server_.start();
+        return "no effect";
+    } catch (const std::exception&) {
+        shim_.disarm();
+        server_.start();
+        return "refuses to start, then starts";
+    }
+}
+
+// POSTs until it is not a 503 (at most 5 times): every answer 2xx or 503
+// (the machine's trouble, retried), never an input error or a 500.
+std::string ServerScenario::post(const std::string& path, const std::string& body, const std::string& type,
+                                 std::string& id) {
+    auto c = server_.client(kToken);
+    std::string answers;
+    for (int i = 0; i < 5; ++i) {
+        auto r = c.Post(path, body, type);
+        const int status = r ? r->status : 0;
+        answers += (answers.empty() ? "" : ", then ") + std::to_string(status);
+        EXPECT_TRUE(status == 200 || status == 201 || status == 503)
+            << phase_ << ": " << path << " answered " << status << ": " << (r ? r->body : "nothing");
+        if (status == 503) {
+            EXPECT_FALSE(r->get_header_value("Retry-After").empty()) << r->body;
+        }
+        if (status == 200 || status == 201) {
+            id = json::parse(r->body)["id"];
+            return answers == "201" || answers == "200" ? "no effect" : answers;
+        }
+        if (status != 503) break;
+        shim_.disarm();
+    }
+    ADD_FAILURE() << phase_ << ": " << path << " never accepted: " << answers;
+    return answers;
+}
+
+// Waits until the job's worker has started (its spec and pid file written)
+// and waits at the fake engine's gate: after a spec that could not be
+// written, the job is back in the queue and a later worker starts.
+void ServerScenario::wait_for_worker() {
+    for (int i = 0; i < 500 && engine_.runs() == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    EXPECT_GE(engine_.runs(), 1) << phase_ << ": the job's worker did not start";
+}
+
+// The job, once finished: it succeeded, at no attempt's cost; whether a
+// fault of the machine put it back in the queue.
+bool ServerScenario::finished_requeued(const std::string& job) {
+    auto c = server_.client(kToken);
+    const json status = wait_for_job(c, job, is_finished);
+    EXPECT_EQ(status.value("state", ""), "succeeded") << status.dump();
+    EXPECT_EQ(status.value("attempts", 0), 1) << "a fault of the machine cost the job an attempt: " << status.dump();
+    bool requeued = false;
+    for (const auto& e : read_events(server_.host, server_.port, kToken, job))
+        requeued |= e.type == "retrying" && e.data.value("server_fault", false);
+    return requeued;
+}
+
+std::map<std::string, std::string> ServerScenario::run() {
+    enter("start");
+    effects_["start"] = start();
+    leave();
+    enter("upload");
+    std::string scene, job;
+    const std::string glb = read_text(shared_scene("flower.glb"));
+    effects_["upload"] = post("/v1/scenes?name=flower.glb", glb, "model/gltf-binary", scene);
+    leave();
+    if (scene.empty()) return gave_up();
+    enter("job");
+    engine_.set("gate", "");  // the worker waits at its start until "run"
+    const json spec = {{"scene", scene}, {"outputs", {{"lightmap", {{"passes", 2}}}}}};
+    effects_["job"] = post("/v1/jobs", spec.dump(), "application/json", job);
+    if (job.empty()) return gave_up();
+    wait_for_worker();
+    const bool fired_in_job = shim_.fired();
+    leave();
+    enter("run");
+    fs::remove(engine_.dir / "gate");
+    effects_["run"] = "no effect";
+    if (finished_requeued(job)) effects_[fired_in_job ? "job" : "run"] = "requeued at no cost";
+    leave();
+    enter("stop");
+    server_.stop();
+    effects_["stop"] = "no effect";
+    leave();
+    enter("check");
+    if (start() != "no effect") effects_["stop"] = "the next start refused, then starts";
+    check_nothing_lost(scene, job);
+    std::map<std::string, std::string> effects = effects_of_armed_phases();
+    server_.kill9();  // nothing left to save: a stop would only wait for it (0.1 s a run)
+    return effects;
+}
+
+std::map<std::string, std::string> ServerScenario::effects_of_armed_phases() const {
+    std::map<std::string, std::string> armed;
+    for (const auto& [phase, effect] : effects_)
+        if (armed_.count(phase)) armed[phase] = effect;
+    if (::testing::Test::HasFailure()) std::cerr << "---- lightfarmd log ----\n" << server_.log();
+    return armed;
+}
+
+// A scenario that cannot go on (its upload or job never accepted: already
+// a failure) ends here, saying what it found.
+std::map<std::string, std::string> ServerScenario::gave_up() {
+    shim_.disarm();
+    return effects_of_armed_phases();
+}
+
+// After a restart, the accepted scene and job are there, the job succeeded.
+void ServerScenario::check_nothing_lost(const std::string& scene, const std::string& job) {
+    auto c = server_.client(kToken);
+    auto s = c.Get("/v1/scenes/" + scene);
+    EXPECT_TRUE(s && s->status == 200) << "the accepted scene is lost: " << (s ? s->body : "no answer");
+    auto j = c.Get("/v1/jobs/" + job);
+    ASSERT_TRUE(j && j->status == 200) << "the accepted job is lost: " << (j ? j->body : "no answer");
+    EXPECT_EQ(json::parse(j->body).value("state", ""), "succeeded") << j->body;
+}
+
+TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
+    TempDir tmp;
+    std::map<std::string, std::map<std::string, int>> sites;
+    {
+        const fs::path dir = tmp.path / "dry";
+        const FaultShim dry(dir / "data", dir);
+        ServerScenario(dir, dry, {}).run();
+        ASSERT_FALSE(::testing::Test::HasFailure()) << "the scenario fails without a fault";
+        sites = calls_by_site(dry.calls());
+        expect_every_file_seen(dir / "data", dry.sites(), [](const std::string& path) {
+            // The fake engine's files, which it writes through cp and mv.
+            const std::string name = fs::path(path).filename().string();
+            return name == "lightmap.exr" || name == "manifest.json" || name.rfind("lightmap.pass-", 0) == 0;
+        });
+    }
+    // Each call of each site fails in turn (the first, middle and last of a
+    // phase's calls where it makes more than three), in one run for each
+    // call number and error; a run fails that call in every phase with it.
+    // site -> phase -> error -> call -> effect
+    std::map<std::string, std::map<std::string, std::map<std::string, std::map<int, std::string>>>> effects;
+    int runs = 0;
+    for (const auto& [site, calls] : sites) {
+        std::map<int, std::set<std::string>> phases_by_call;
+        for (const auto& [phase, n] : calls)
+            if (std::find(kServerPhases.begin(), kServerPhases.end(), phase) != kServerPhases.end())
+                for (int nth : calls_to_fail(n)) phases_by_call[nth].insert(phase);
+        EXPECT_FALSE(phases_by_call.empty())
+            << site << " is called only where no fault is tried: " << calls.begin()->first;
+        for (const auto& [nth, armed] : phases_by_call) {
+            for (const std::string& error : kErrors) {
+                const fs::path dir = tmp.path / std::to_string(++runs);
+                const FaultShim shim(dir / "data", dir, site, error, nth);
+                SCOPED_TRACE(site + ", call " + std::to_string(nth) + ", " + error);
+                for (const auto& [phase, effect] : ServerScenario(dir, shim, armed).run()) {
+                    EXPECT_NE(effect, "not reached")
+                        << site << " call " << nth << " in " << phase << " under " << error;
+                    effects[site][phase][error][nth] = effect;
+                }
+            }
+        }
+    }
+    std::cerr << runs << " runs of the scenario\n";
+    std::string table =
+        row({"site (lightfarmd)", "phase", "calls", "ENOSPC", "EIO"}) + row({"---", "---", "---", "---", "---"});
+    for (const auto& [site, by_phase] : effects)
+        for (const std::string& phase : kServerPhases)
+            if (by_phase.count(phase))
+                table += row({"`" + operation_and_path(site) + "`", phase, calls_cell(sites[site][phase]),
+                              summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
+                              summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
+    expect_doc_table("server write-fault", table);
+}
+
+}  // namespace
+}  // namespace lf::test
