@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -252,7 +253,40 @@ protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_line
 // Which of a job's files to download.
 enum class Files { Final, FinalAndSnapshots, Latest };
 
-// Downloads artifacts into `dir` (temp file + rename, like the server's own).
+// GET `route` into `path`: into a temporary file, closed (its last bytes
+// reach the disk there, and a full disk shows), then renamed into place. A
+// failure leaves neither a temporary file nor a file cut short, and names
+// the file and why.
+void download(Remote& remote, const std::string& route, const fs::path& path) {
+    const fs::path tmp = path.parent_path() / ("." + path.filename().string() + ".tmp");
+    auto cannot_write = [&](const fs::path& file, int error) {
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+        return RemoteError(file.string() + ": cannot write (" + std::strerror(error) + ")");
+    };
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw cannot_write(tmp, errno);
+    int write_error = 0;
+    auto r = remote.http().Get(route, [&](const char* data, size_t n) {
+        if (!out.write(data, std::streamsize(n))) write_error = errno;
+        return bool(out);
+    });
+    if (write_error) throw cannot_write(tmp, write_error);
+    try {
+        remote.check(r, "download " + path.filename().string());
+    } catch (...) {
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+        throw;
+    }
+    out.close();
+    if (!out) throw cannot_write(tmp, errno);
+    std::error_code ec;
+    fs::rename(tmp, path, ec);
+    if (ec) throw cannot_write(path, ec.value());
+}
+
+// Downloads artifacts into `dir`.
 void fetch(Remote& remote, const std::string& job, const fs::path& dir, Files which) {
     std::vector<std::string> names;
     if (which == Files::Latest) {
@@ -270,19 +304,11 @@ void fetch(Remote& remote, const std::string& job, const fs::path& dir, Files wh
     if (names.empty())
         throw RemoteError("job " + job + " has no " + (which == Files::Final ? "final " : "") + "files yet" +
                           (which == Files::Final ? " (--latest: its newest snapshots)" : ""));
-    fs::create_directories(dir);
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    if (ec) throw RemoteError(dir.string() + ": cannot write (" + ec.message() + ")");
     for (const std::string& name : names) {
-        const fs::path tmp = dir / ("." + name + ".tmp");
-        {
-            std::ofstream out(tmp, std::ios::binary);
-            auto r = remote.http().Get("/v1/jobs/" + job + "/artifacts/" + name, [&](const char* data, size_t n) {
-                out.write(data, std::streamsize(n));
-                return bool(out);
-            });
-            remote.check(r, "download " + name);
-            if (!out) throw RemoteError("cannot write " + tmp.string());
-        }
-        fs::rename(tmp, dir / name);
+        download(remote, "/v1/jobs/" + job + "/artifacts/" + name, dir / name);
         std::cerr << "fetched " << (dir / name).string() << "\n";
     }
 }

@@ -6,6 +6,7 @@
 // 2xx or 503 (retried), never a 4xx or 500; the job succeeds, no attempt
 // spent on the machine's fault; the accepted scene and job are there after
 // the restart. No GL: ctest runs it beside other tests.
+#include "cli_runner.h"
 #include "fault_harness.h"
 
 #include <thread>
@@ -241,6 +242,102 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
                               summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
                               summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
     expect_doc_table("server write-fault", table);
+}
+
+// ---------------------------------------------------------------- the client
+
+// A finished job of the fake engine on a lightfarmd without faults, for the
+// client to fetch: its id.
+std::string finished_job(Lightfarmd& server) {
+    auto c = server.client(kToken);
+    auto up = c.Post("/v1/scenes?name=flower.glb", read_text(shared_scene("flower.glb")), "model/gltf-binary");
+    EXPECT_TRUE(up && up->status == 201) << (up ? up->body : "no answer");
+    if (!up || up->status != 201) return "";
+    const json spec = {{"scene", json::parse(up->body)["id"]}, {"outputs", {{"lightmap", {{"passes", 2}}}}}};
+    auto job = c.Post("/v1/jobs", spec.dump(), "application/json");
+    EXPECT_TRUE(job && job->status == 201) << (job ? job->body : "no answer");
+    if (!job || job->status != 201) return "";
+    const std::string id = json::parse(job->body)["id"];
+    EXPECT_EQ(wait_for_job(c, id, is_finished).value("state", ""), "succeeded");
+    return id;
+}
+
+// Each file under `dir` by its name, with its bytes.
+std::map<std::string, std::string> files_in(const fs::path& dir) {
+    std::map<std::string, std::string> files;
+    for (const auto& entry : fs::recursive_directory_iterator(dir))
+        if (entry.is_regular_file()) files[fs::relative(entry.path(), dir).string()] = read_text(entry.path());
+    return files;
+}
+
+// `lightfarm fetch` of a finished job's files: a call that fails exits 1,
+// its last line naming the file and the error; it leaves neither a
+// temporary file nor a file cut short (each file there is whole); fetched
+// again without the fault, every file arrives. (Before: a write that failed
+// at close left a file cut short, renamed into place.)
+TEST(ClientFaults, EveryCallOfAFetch) {
+    TempDir tmp;
+    FakeEngine engine(tmp.path / "engine");
+    write_text(tmp.path / "tokens", kToken + "\n");
+    Lightfarmd server(tmp.path / "data", tmp.path / "tokens", engine.script, {"--workers", "1"});
+    server.start();
+    const std::string job = finished_job(server);
+    ASSERT_FALSE(job.empty());
+    auto fetch = [&](const fs::path& out) {
+        return run_lightfarm("fetch " + job + " --server " + server.url + " --token " + kToken + " --out " +
+                             out.string());
+    };
+    std::map<std::string, std::string> whole;
+    std::map<std::string, int> sites;
+    {
+        // The shim's root holds the fetch's directory: its mkdir counts.
+        const fs::path dir = tmp.path / "dry";
+        const FaultShim dry(dir / "root", dir);
+        const CliRun run = fetch(dir / "root" / "out");
+        ASSERT_EQ(run.exit_code, 0) << run.err;
+        whole = files_in(dir / "root" / "out");
+        ASSERT_GE(whole.size(), 2u) << "the fake engine's job has a lightmap and a manifest";
+        expect_every_file_seen(dir / "root", dry.sites(), [](const std::string&) { return false; });
+        for (const auto& [s, calls] : dry.calls()) sites[s.substr(s.find(' ') + 1)] = calls;
+    }
+    std::string table = row({"site (lightfarm fetch)", "calls", "ENOSPC", "EIO"}) + row({"---", "---", "---", "---"});
+    int runs = 0;
+    for (const auto& [site, calls] : sites) {
+        std::map<std::string, std::map<int, std::string>> effect;
+        for (int nth : calls_to_fail(calls)) {
+            for (const std::string& error : kErrors) {
+                SCOPED_TRACE(site + ", call " + std::to_string(nth) + ", " + error);
+                const fs::path dir = tmp.path / std::to_string(++runs), out = dir / "root" / "out";
+                {
+                    const FaultShim shim(dir / "root", dir, site, error, nth);
+                    shim.arm();
+                    const CliRun run = fetch(out);
+                    EXPECT_TRUE(shim.fired()) << "the call was not made";
+                    const std::string last = run.err.substr(run.err.rfind('\n', run.err.size() - 2) + 1);
+                    const std::string words = error == "EIO" ? "Input/output error" : "No space left on device";
+                    EXPECT_EQ(run.exit_code, 1) << run.err;
+                    EXPECT_NE(last.find(words), std::string::npos) << last;
+                    std::string file = file_of(site);
+                    if (file[0] == '.') file = file.substr(1);
+                    EXPECT_NE(last.find(file.substr(0, file.find(".tmp"))), std::string::npos) << last;
+                    if (fs::exists(out))
+                        for (const auto& [name, bytes] : files_in(out)) {
+                            EXPECT_EQ(name.find(".tmp"), std::string::npos) << "left " << name;
+                            EXPECT_TRUE(whole.count(name) && whole[name] == bytes) << name << " is not whole";
+                        }
+                    effect[error][nth] = run.exit_code == 1 && last.find(words) != std::string::npos
+                                             ? "exit 1, names the file and the error"
+                                             : "exit " + std::to_string(run.exit_code) + ": " + last;
+                }
+                const CliRun again = fetch(out);
+                EXPECT_EQ(again.exit_code, 0) << again.err;
+                EXPECT_EQ(files_in(out), whole) << "fetched again, not every file arrived whole";
+            }
+        }
+        table += row({"`" + operation_and_path(site) + "`", calls_cell(calls), summary(effect["ENOSPC"], calls),
+                      summary(effect["EIO"], calls)});
+    }
+    expect_doc_table("client write-fault", table);
 }
 
 }  // namespace
