@@ -17,7 +17,8 @@
 // LF_FAULT_ROOT with its variable parts (ids, hashes, pids, pass numbers:
 // any word with a digit in it, or 8 hex digits or more) written as '#', e.g.
 // "lightfarmd write jobs/#/lightmap.pass-#.exr". The operations:
-//   write     write, writev, pwrite(64), pwritev, fsync, fdatasync: the bytes
+//   write     write, writev, pwrite(64), pwritev: the bytes
+//   sync      fsync, fdatasync: the bytes reach the disk (or fail to)
 //   create    open(at)(64) for writing or creating, fopen(64) to write
 //   mkdir     mkdir
 //   rename    rename, renameat, renameat2 (the site is the new name)
@@ -259,12 +260,12 @@ ssize_t pwritev(int fd, const struct iovec* iov, int count, off_t at) {
 }
 
 int fsync(int fd) {
-    if (inject(fd, "write")) return -1;
+    if (inject(fd, "sync")) return -1;
     return NEXT(fsync)(fd);
 }
 
 int fdatasync(int fd) {
-    if (inject(fd, "write")) return -1;
+    if (inject(fd, "sync")) return -1;
     return NEXT(fdatasync)(fd);
 }
 

@@ -200,6 +200,11 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
         ServerScenario(dir, dry, {}).run();
         ASSERT_FALSE(::testing::Test::HasFailure()) << "the scenario fails without a fault";
         sites = calls_by_site(dry.calls());
+        // A 201 is on the disk when it is answered: the phases that answer
+        // one (an upload, a job) sync the store's WAL, as a power loss needs.
+        for (const std::string phase : {"upload", "job"})
+            EXPECT_GT(sites["lightfarmd sync jobs.sqlite-wal"][phase], 0)
+                << "the store's WAL is not synced before a 201 in " << phase;
         expect_every_file_seen(dir / "data", dry.sites(), [](const std::string& path) {
             // The fake engine's files, which it writes through cp and mv.
             const std::string name = fs::path(path).filename().string();
