@@ -43,12 +43,15 @@ REFERENCE_SEED = 7919
 
 
 def bake(scene, scheme, res, passes, out_dir, device, env=None, seed=None):
-    """`scheme` is a --scheme, or one with "+denoise" (the same bake, --denoise)."""
+    """`scheme` is a --scheme, or one with "+denoise" (the same bake, denoised).
+
+    The filter is on by default since 2026-11-28: a plain scheme bakes with
+    --no-denoise, so that its curve (and a path-traced reference) stays raw."""
     base, _, variant = scheme.partition("+")
     size = [] if res == "auto" else ["--res", str(res)]
     lines = run([LIGHTFARM, "bake", os.path.join(SCENES, scene), "--out", out_dir] + size
                 + ["--passes", str(passes), "--scheme", base, "--device", device, "--json"]
-                + (["--denoise"] if variant == "denoise" else []) + (["--env", env] if env else [])
+                + (["--denoise"] if variant == "denoise" else ["--no-denoise"]) + (["--env", env] if env else [])
                 + (["--seed", str(seed)] if seed is not None else [])).splitlines()
     # The start event (the "prepare" events of preparation's stages come first).
     return next(e for e in map(json.loads, lines) if e["event"] == "start")
