@@ -6,6 +6,9 @@
 #include "log.h"
 #include "subprocess.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cstring>
@@ -130,6 +133,18 @@ void check_gltf_uris(const std::string& gltf_name, const std::string& text, cons
                     {{"retry_after", 5}});
 }
 
+// Syncs a file, or a directory whose entries changed, to the disk: the
+// store that records a scene syncs every commit, so its files must be on
+// the disk before it, or a power loss leaves a scene on record without them.
+void sync_to_disk(const fs::path& path) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) cannot_store(path, std::strerror(errno));
+    const int synced = ::fsync(fd);
+    const int error = errno;
+    ::close(fd);
+    if (synced != 0) cannot_store(path, std::strerror(error));
+}
+
 void write_file(const fs::path& path, const std::string& bytes) {
     std::error_code ec;
     fs::create_directories(path.parent_path(), ec);
@@ -137,6 +152,7 @@ void write_file(const fs::path& path, const std::string& bytes) {
     out.write(bytes.data(), std::streamsize(bytes.size()));
     out.close();
     if (ec || !out) cannot_store(path, ec ? ec.message() : std::strerror(errno));
+    sync_to_disk(path);
 }
 
 // The loader's own message without its "lightfarm inspect: error: " prefix.
@@ -330,6 +346,14 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
     // error) stores nothing: a scene on record without its files would fail
     // every job that names it.
     if (!moved && !fs::is_directory(final_dir)) cannot_store(final_dir, ec.message());
+    if (moved) {
+        try {
+            sync_to_disk(final_dir.parent_path());
+        } catch (const HttpError&) {
+            fs::remove_all(final_dir, ec);  // no directory the store does not know of
+            throw;
+        }
+    }
     SceneRecord record{id, main_name, summary};
     try {
         store_.add_scene(record);

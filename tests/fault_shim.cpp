@@ -18,7 +18,8 @@
 // any word with a digit in it, or 8 hex digits or more) written as '#', e.g.
 // "lightfarmd write jobs/#/lightmap.pass-#.exr". The operations:
 //   write     write, writev, pwrite(64), pwritev: the bytes
-//   sync      fsync, fdatasync: the bytes reach the disk (or fail to)
+//   sync      fsync, fdatasync of a file or a directory: the bytes (or a
+//             rename) reach the disk, or fail to
 //   create    open(at)(64) for writing or creating, fopen(64) to write
 //   mkdir     mkdir
 //   rename    rename, renameat, renameat2 (the site is the new name)
@@ -105,7 +106,7 @@ int site_of_absolute(const char* path, const char* op, char* site, size_t size) 
 // counts (a pipe, a socket, a file outside the root, another process).
 int site_of_fd(int fd, const char* op, char* site, size_t size) {
     struct stat st;
-    if (!getenv("LF_FAULT_ROOT") || fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) return 0;
+    if (!getenv("LF_FAULT_ROOT") || fstat(fd, &st) != 0 || !(S_ISREG(st.st_mode) || S_ISDIR(st.st_mode))) return 0;
     char link[64], path[4096];
     snprintf(link, sizeof link, "/proc/self/fd/%d", fd);
     const ssize_t n = readlink(link, path, sizeof path - 1);

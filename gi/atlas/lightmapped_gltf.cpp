@@ -355,13 +355,7 @@ void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) 
             throw error;
         }
     }
-    std::error_code ec;
-    std::filesystem::rename(temp, out, ec);
-    if (ec) {
-        std::error_code ignored;
-        std::filesystem::remove(temp, ignored);
-        throw write_error(out, ec.value());
-    }
+    commit_file(temp, out);
 }
 
 void use_extension(tinygltf::Model& model, const std::string& name) {

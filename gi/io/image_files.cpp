@@ -30,17 +30,6 @@ fs::path temp_path_for(const fs::path& path) {
     return path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(getpid()));
 }
 
-// Renames a complete temporary file into place; a rename that fails leaves
-// no temporary file behind and is a WriteError.
-void rename_into_place(const fs::path& tmp, const fs::path& path) {
-    std::error_code ec;
-    fs::rename(tmp, path, ec);
-    if (!ec) return;
-    std::error_code ignored;
-    fs::remove(tmp, ignored);
-    throw write_error(path, ec.value());
-}
-
 }  // namespace
 
 const std::vector<float>& FloatImage::at(const std::string& name) const {
@@ -64,7 +53,7 @@ void write_file_atomic(const fs::path& path, const std::function<void(std::ostre
             throw error;
         }
     }
-    rename_into_place(tmp, path);
+    commit_file(tmp, path);
 }
 
 void write_file_atomic(const fs::path& path, const std::string& bytes) {
@@ -117,7 +106,7 @@ void write_exr(const fs::path& path, const FloatImage& image) {
         fs::remove(tmp, ignored);
         throw error;
     }
-    rename_into_place(tmp, path);
+    commit_file(tmp, path);
 }
 
 FloatImage read_exr(const fs::path& path) {

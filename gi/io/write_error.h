@@ -4,6 +4,9 @@
 // and the server puts the job back in its queue without counting the attempt.
 #pragma once
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -28,6 +31,38 @@ inline void make_directories(const std::filesystem::path& dir) {
     std::error_code ec;
     std::filesystem::create_directories(dir, ec);
     if (ec) throw write_error(dir, ec.value());
+}
+
+// Syncs `path` (a file, or a directory after an entry in it changed) to the
+// disk; a failure is a WriteError naming `named`.
+inline void sync_to_disk(const std::filesystem::path& path, const std::filesystem::path& named) {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) throw write_error(named);
+    const int synced = ::fsync(fd);
+    const int error = errno;
+    ::close(fd);
+    if (synced != 0) throw write_error(named, error);
+}
+
+// A complete, closed temporary file becomes `path`: synced, renamed into
+// place, and the rename synced in its directory, so that a power loss after
+// a bake reported its files leaves them whole, not empty (the store that
+// recorded the job syncs every commit). A failure leaves no temporary file
+// behind and is a WriteError.
+inline void commit_file(const std::filesystem::path& tmp, const std::filesystem::path& path) {
+    std::error_code ec, ignored;
+    try {
+        sync_to_disk(tmp, tmp);
+    } catch (const WriteError&) {
+        std::filesystem::remove(tmp, ignored);
+        throw;
+    }
+    std::filesystem::rename(tmp, path, ec);
+    if (ec) {
+        std::filesystem::remove(tmp, ignored);
+        throw write_error(path, ec.value());
+    }
+    sync_to_disk(path.parent_path().empty() ? "." : path.parent_path(), path);
 }
 
 }  // namespace lf
