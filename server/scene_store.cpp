@@ -325,6 +325,10 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
         }
     } cleanup{tmp};
     for (const UploadFile& f : files) write_file(tmp / fs::path(f.name).lexically_normal(), f.bytes);
+    // The files' names too: each directory of the upload holds its entries.
+    for (const auto& entry : fs::recursive_directory_iterator(tmp))
+        if (entry.is_directory()) sync_to_disk(entry.path());
+    sync_to_disk(tmp);
 
     const json summary = inspect(tmp / main_name);
     // Each owner sees the scene under its own name (its summary's, its jobs',
