@@ -69,7 +69,14 @@ struct NodeRecord {
     double started_at = 0;     // seconds since the epoch
     double heartbeat_at = 0;   // the newest heartbeat
     double heartbeat_age = 0;  // seconds since it, by the store's clock (the database's: one for all nodes)
-    nlohmann::json info;       // what the node said of itself: {"gpus", "workers", "url", "lease_seconds"}
+    nlohmann::json info;       // what the node said of itself: {"gpus", "workers", "url", "lease_seconds", "stopped"}
+
+    // Its lease, as it said (30 s, the default, if it did not).
+    double lease_seconds() const { return info.is_object() ? info.value("lease_seconds", 30.0) : 30.0; }
+    // Signed off at a clean stop (Supervisor::stop): its name is free at once.
+    bool stopped() const { return info.is_object() && info.value("stopped", false); }
+    // Renewing its heartbeat: not stopped, its last heartbeat within its lease.
+    bool alive() const { return !stopped() && heartbeat_age < lease_seconds(); }
 };
 
 struct JobRecord {

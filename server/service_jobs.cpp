@@ -187,17 +187,16 @@ json Service::nodes_json(const std::string& owner) const {
     }
     json nodes = json::array();
     for (const NodeRecord& n : store_->nodes()) {
-        const double lease = n.info.is_object() ? n.info.value("lease_seconds", 30.0) : 30.0;
         const json& r = running.count(n.name) ? running.at(n.name) : json{{"count", 0}, {"jobs", json::array()}};
         nodes.push_back({{"name", n.name},
-                         {"alive", n.heartbeat_age < lease},
+                         {"alive", n.alive()},
                          {"self", n.name == store_->node().name},
                          {"started_at", n.started_at},
                          {"last_heartbeat", n.heartbeat_at},
                          {"seconds_since_heartbeat", std::max(0.0, n.heartbeat_age)},
                          {"gpus", n.info.is_object() ? n.info.value("gpus", 0) : 0},
                          {"workers", n.info.is_object() ? n.info.value("workers", 0) : 0},
-                         {"lease_seconds", lease},
+                         {"lease_seconds", n.lease_seconds()},
                          {"running", r["count"]},
                          {"jobs", r["jobs"]}});
     }

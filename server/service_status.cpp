@@ -29,10 +29,8 @@ void Service::metrics(const httplib::Request&, httplib::Response& res, const Cal
     std::vector<Metrics::NodeGauge> nodes;
     std::map<std::string, int> running;
     for (const JobRecord& job : store_->running_jobs()) ++running[job.node];
-    for (const NodeRecord& n : store_->nodes()) {
-        const double lease = n.info.is_object() ? n.info.value("lease_seconds", 30.0) : 30.0;
-        nodes.push_back({n.name, n.heartbeat_age < lease, running[n.name], std::max(0.0, n.heartbeat_age)});
-    }
+    for (const NodeRecord& n : store_->nodes())
+        nodes.push_back({n.name, n.alive(), running[n.name], std::max(0.0, n.heartbeat_age)});
     const std::string lost =
         "# HELP lightfarm_jobs_without_records job directories whose records the store lost "
         "(counted at start)\n# TYPE lightfarm_jobs_without_records gauge\n"

@@ -79,7 +79,8 @@ std::vector<fs::path> record_dirs(const std::string& data_dir) {
 // each other's leases: a node refuses a name whose heartbeat still
 // advances. A recent heartbeat alone may be this node's own from before a
 // crash, so it is watched for one renewal period (a third of that node's
-// lease) before the name is taken.
+// lease) before the name is taken; a node that stopped cleanly signed off,
+// and its name is free at once.
 void check_node_name_is_free(const ServerConfig& config) {
     const std::unique_ptr<JobStore> store = open_job_store(config);
     const std::string& name = store->node().name;
@@ -89,9 +90,8 @@ void check_node_name_is_free(const ServerConfig& config) {
         return std::nullopt;
     };
     const std::optional<NodeRecord> before = record();
-    if (!before) return;
-    const double lease = before->info.value("lease_seconds", config.lease_seconds);
-    if (before->heartbeat_age >= lease) return;  // that node stopped renewing: the name is free
+    if (!before || !before->alive()) return;  // signed off, or stopped renewing: the name is free
+    const double lease = before->lease_seconds();
     log_line("a node named " + name + " renewed its heartbeat " + std::to_string(int(before->heartbeat_age)) +
              " s ago: watching it for " + std::to_string(int(lease / 3 + 1)) +
              " s (alive, or this node before a restart?)");

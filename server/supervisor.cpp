@@ -126,6 +126,18 @@ void Supervisor::end_abandoned_attempts(const std::vector<JobRecord>& jobs) {
     if (!jobs.empty()) changes_.notify();
 }
 
+Supervisor::RunningHere::RunningHere(Supervisor& supervisor, std::string job_id)
+    : s(supervisor), id(std::move(job_id)) {
+    std::lock_guard lock(s.cancel_mutex_);
+    s.running_here_.insert(id);
+}
+
+Supervisor::RunningHere::~RunningHere() {
+    std::lock_guard lock(s.cancel_mutex_);
+    s.running_here_.erase(id);
+    s.lost_.erase(id);
+}
+
 void Supervisor::heartbeat() {
     try {
         store_.heartbeat(node_info_);
@@ -155,9 +167,37 @@ void Supervisor::keep_leases() {
     }
     try {
         end_abandoned_attempts(store_.take_over_abandoned(/*at_start=*/false));
+        requeue_unrun_claims();
     } catch (const StoreError& e) {
         store_trouble(std::string("cannot look for jobs of lost nodes: ") + e.what());
     }
+}
+
+// A claim whose commit was cut off (the database crashed as it committed:
+// a PANIC on a WAL it could not sync) failed here but may be stored all the
+// same: the job then runs on this node in the store, no slot runs it, and
+// no other node takes it over while this one renews its heartbeat. Seen so
+// at two renewals in a row (a slot registers the job it claims at once, so
+// one renewal apart nothing is in between), it goes back to the queue with
+// its attempt refunded: no worker ran. Found by the PostgreSQL fault harness.
+void Supervisor::requeue_unrun_claims() {
+    std::set<std::string> unrun;
+    const std::vector<JobRecord> running = store_.running_jobs();
+    {
+        std::lock_guard lock(cancel_mutex_);
+        for (const JobRecord& job : running)
+            if (job.node == store_.node().name && !running_here_.count(job.status.id)) unrun.insert(job.status.id);
+    }
+    for (const JobRecord& job : running) {
+        const std::string& id = job.status.id;
+        if (!unrun.count(id) || !unrun_seen_.count(id)) continue;
+        const std::string cause = "lightfarmd lost the answer to its claim; no worker ran";
+        if (store_.requeue(id, protocol::job_event(protocol::JobRetrying{job.status.attempts, cause, true}), true))
+            log_line("job " + id + ": " + cause + ", queued again");
+        unrun.erase(id);
+        changes_.notify();
+    }
+    unrun_seen_ = std::move(unrun);
 }
 
 void Supervisor::lease_loop() {
@@ -192,8 +232,15 @@ void Supervisor::stop() {
     std::lock_guard lock(lifecycle_mutex_);
     stopping_ = true;
     changes_.notify();
+    const bool started = !threads_.empty();
     for (std::thread& t : threads_) t.join();
     threads_.clear();
+    // Signed off: a lightfarmd started again under this name takes it at
+    // once, rather than watching for a live twin (check_node_name_is_free).
+    if (started) {
+        node_info_["stopped"] = true;
+        heartbeat();
+    }
 }
 
 void Supervisor::cancel(const std::string& job_id) {
@@ -275,6 +322,7 @@ void Supervisor::worker_loop(const std::string& device) {
             continue;
         }
         changes_.notify();
+        const RunningHere running_here(*this, job->status.id);
         bool machine_fault = false;
         try {
             machine_fault = run_attempt(*job, device);
@@ -579,7 +627,6 @@ struct Supervisor::WorkerEnd {
 };
 
 bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
-    const std::string& id = job.status.id;
     // Validated once, at submit, against the limits of that day: a lower
     // --limit since then applies to new jobs, not to this one.
     protocol::JobSpec spec;
@@ -599,21 +646,6 @@ bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         fail_now(job, "scene " + spec.scene + " is missing", "");
         return false;
     }
-
-    // Known to the lease loop while it runs here.
-    struct RunningHere {
-        Supervisor& s;
-        std::string id;
-        RunningHere(Supervisor& s, std::string id) : s(s), id(std::move(id)) {
-            std::lock_guard lock(s.cancel_mutex_);
-            s.running_here_.insert(this->id);
-        }
-        ~RunningHere() {
-            std::lock_guard lock(s.cancel_mutex_);
-            s.running_here_.erase(id);
-            s.lost_.erase(id);
-        }
-    } running_here{*this, id};
 
     if (const std::string full = disk_full(); !full.empty()) {
         server_fault(job, full);

@@ -179,6 +179,17 @@ private:
     // jobs of lost nodes.
     void lease_loop();
     void keep_leases();
+    void requeue_unrun_claims();
+    // A job this node claimed, known to the lease loop (running_here_) from
+    // its claim until its attempt's end is stored.
+    struct RunningHere {
+        Supervisor& s;
+        std::string id;
+        RunningHere(Supervisor& supervisor, std::string job_id);
+        ~RunningHere();
+        RunningHere(const RunningHere&) = delete;
+        RunningHere& operator=(const RunningHere&) = delete;
+    };
     void heartbeat();
     void attempt_failed(const JobRecord& job, const std::string& cause);
     // Ends the job now, without another attempt (input errors, a stored spec gone bad, a missing scene).
@@ -196,6 +207,7 @@ private:
     std::set<std::string> cancelled_;     // running here, to be killed
     std::set<std::string> running_here_;  // jobs whose lease this node renews
     std::set<std::string> lost_;          // running here but no longer ours in the store: to be killed
+    std::set<std::string> unrun_seen_;    // running here in the store, by no slot, at the last renewal
     nlohmann::json node_info_;            // what the heartbeat says of this node
     std::mutex trouble_mutex_;
     Clock::time_point last_trouble_log_{};

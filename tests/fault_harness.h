@@ -62,9 +62,26 @@ public:
         }
     }
     ~FaultShim() {
-        for (const char* name : {"LD_PRELOAD", "LF_FAULT_ROOT", "LF_FAULT_ARMED", "LF_FAULT_LOG", "LF_FAULT_SITE",
-                                 "LF_FAULT_ERRNO", "LF_FAULT_NTH"})
-            unsetenv(name);
+        for (const auto& [name, value] : environment_) unsetenv(name.c_str());
+    }
+    // Only the calls of these processes count (by name; the shim's default
+    // is "lightfarmd lightfarm"), which may run as another user: the log
+    // and the armed file are made theirs to write too.
+    void count_only(const std::string& processes) {
+        set("LF_FAULT_PROCS", processes);
+        write_text(armed_, "-");  // not armed yet
+        for (const fs::path& file : {log_, armed_}) {
+            std::ofstream(file, std::ios::app).flush();
+            fs::permissions(file, fs::perms::owner_read | fs::perms::owner_write | fs::perms::group_read |
+                                      fs::perms::group_write | fs::perms::others_read | fs::perms::others_write);
+        }
+        fs::permissions(log_.parent_path(), fs::perms::all);
+    }
+    // The settings as "NAME=VALUE", for a process started by other means (env(1)).
+    std::vector<std::string> environment() const {
+        std::vector<std::string> all;
+        for (const auto& [name, value] : environment_) all.push_back(name + "=" + value);
+        return all;
     }
     // From now on the site's nth call fails, once: the shim appends an 'x'.
     void arm() const { write_text(armed_, ""); }
@@ -90,7 +107,10 @@ public:
     }
 
 private:
-    static void set(const char* name, const std::string& value) { setenv(name, value.c_str(), 1); }
+    void set(const std::string& name, const std::string& value) {
+        setenv(name.c_str(), value.c_str(), 1);
+        environment_[name] = value;
+    }
     // Each call of the log as ("PHASE SITE", how many such calls so far).
     std::vector<std::pair<std::string, int>> calls_in_order() const {
         std::vector<std::pair<std::string, int>> calls;
@@ -107,6 +127,7 @@ private:
         return calls;
     }
     fs::path log_, armed_;
+    std::map<std::string, std::string> environment_;
 };
 
 // A file name as the shim writes it in a site: any word with a digit, or of

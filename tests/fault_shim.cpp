@@ -80,11 +80,21 @@ void normalise(const char* path, char* out, size_t size) {
     out[o] = 0;
 }
 
+// The process's name as it started: PostgreSQL writes its processes'
+// titles over argv[0], where program_invocation_short_name points, so the
+// name is copied when the shim is loaded (children forked later keep it).
+char process_name[64];
+
+__attribute__((constructor)) void remember_process_name(void) {
+    snprintf(process_name, sizeof process_name, "%s", program_invocation_short_name);
+}
+
 int counted_process(void) {
     const char* procs = getenv("LF_FAULT_PROCS");
     if (!procs) procs = "lightfarmd lightfarm";
-    const size_t n = strlen(program_invocation_short_name);
-    for (const char* p = procs; (p = strstr(p, program_invocation_short_name)); p += n)
+    const size_t n = strlen(process_name);
+    if (n == 0) return 0;
+    for (const char* p = procs; (p = strstr(p, process_name)); p += n)
         if ((p == procs || p[-1] == ' ') && (p[n] == 0 || p[n] == ' ')) return 1;
     return 0;
 }
@@ -98,7 +108,7 @@ int site_of_absolute(const char* path, const char* op, char* site, size_t size) 
     if (strncmp(path, root, root_len) != 0 || path[root_len] != '/') return 0;
     char rel[4096];
     normalise(path + root_len + 1, rel, sizeof rel);
-    snprintf(site, size, "%s %s %s", program_invocation_short_name, op, rel);
+    snprintf(site, size, "%s %s %s", process_name, op, rel);
     return 1;
 }
 

@@ -8,8 +8,11 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <fstream>
+#include <iterator>
 #include <random>
 #include <stdexcept>
+#include <thread>
 
 namespace lf::test {
 
@@ -48,7 +51,8 @@ int free_loopback_port() {
     return ntohs(a.sin_port);
 }
 
-PostgresServer::PostgresServer() : bin_(find_postgres_bin()), as_postgres_(::geteuid() == 0) {
+PostgresServer::PostgresServer(bool durable)
+    : bin_(find_postgres_bin()), as_postgres_(::geteuid() == 0), durable_(durable) {
     std::random_device rd;
     dir_ = fs::temp_directory_path() / ("lightfarm-pg-" + std::to_string(::getpid()) + "-" + std::to_string(rd()));
     fs::create_directories(dir_);
@@ -88,15 +92,36 @@ std::string PostgresServer::run(const std::vector<std::string>& argv) const {
     return r.out;
 }
 
-void PostgresServer::start() {
-    // Fast and throwaway: no fsync, a socket directory of its own, loopback only.
-    run({bin_ + "/pg_ctl", "--pgdata", (dir_ / "data").string(), "--log", (dir_ / "server.log").string(), "--wait",
-         "--options",
-         "-p " + std::to_string(port_) + " -k " + dir_.string() +
-             " -c listen_addresses=127.0.0.1 -c fsync=off -c synchronous_commit=off -c full_page_writes=off "
-             "-c max_connections=200",
-         "start"});
+void PostgresServer::start(const std::vector<std::string>& environment) {
+    // A socket directory of its own, loopback only; fast and throwaway
+    // (no fsync) unless durable.
+    std::string options = "-p " + std::to_string(port_) + " -k " + dir_.string() +
+                          " -c listen_addresses=127.0.0.1 -c max_connections=200";
+    if (!durable_) options += " -c fsync=off -c synchronous_commit=off -c full_page_writes=off";
+    // env(1) rather than this process's environment: runuser may not pass it on.
+    std::vector<std::string> argv = {"/usr/bin/env"};
+    argv.insert(argv.end(), environment.begin(), environment.end());
+    argv.insert(argv.end(), {bin_ + "/pg_ctl", "--pgdata", (dir_ / "data").string(), "--log",
+                             (dir_ / "server.log").string(), "--wait", "--options", options, "start"});
+    run(argv);
     running_ = true;
+}
+
+void PostgresServer::wait_until_ready(std::chrono::seconds timeout) const {
+    const auto until = std::chrono::steady_clock::now() + timeout;
+    for (;;) {
+        const server::RunResult r = server::run_command(
+            {bin_ + "/pg_isready", "--host", "127.0.0.1", "--port", std::to_string(port_), "--timeout", "1"},
+            std::chrono::seconds(5));
+        if (r.status.success()) return;
+        if (std::chrono::steady_clock::now() > until) {
+            std::ifstream log(dir_ / "server.log");
+            const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+            throw std::runtime_error("PostgreSQL did not accept connections again; its log ends:\n" +
+                                     text.substr(text.size() > 2000 ? text.size() - 2000 : 0));
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
 }
 
 void PostgresServer::stop() {

@@ -5,6 +5,7 @@
 // install.
 #pragma once
 
+#include <chrono>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -16,7 +17,11 @@ int free_loopback_port();
 
 class PostgresServer {
 public:
-    PostgresServer();   // initdb + start; throws std::runtime_error saying what failed or is missing
+    // initdb + start; throws std::runtime_error saying what failed or is
+    // missing. Fast and throwaway by default (no fsync, commits not waited
+    // for); `durable`: PostgreSQL's defaults, each commit written and synced
+    // to its WAL before it returns (what the fault harness fails).
+    explicit PostgresServer(bool durable = false);
     ~PostgresServer();  // stops it (immediately) and deletes its directory
 
     // A new, empty database; returns its URI (postgresql://postgres@127.0.0.1:PORT/NAME).
@@ -24,9 +29,17 @@ public:
     // Runs one SQL command in the database `uri` names (psql); throws on failure.
     void sql(const std::string& uri, const std::string& command) const;
 
-    void stop();   // fast shutdown: clients lose their connections
-    void start();  // again, on the same port
+    void stop();  // fast shutdown: clients lose their connections
+    // Again, on the same port; `environment` ("NAME=VALUE") is given to the
+    // server's processes (the fault harness's shim).
+    void start(const std::vector<std::string>& environment = {});
+    // Waits until it accepts connections again (after a crash it restarts by
+    // itself, recovering from its WAL); throws after `timeout`.
+    void wait_until_ready(std::chrono::seconds timeout = std::chrono::seconds(60)) const;
     int port() const { return port_; }
+    std::filesystem::path data_dir() const { return dir_ / "data"; }
+    // The directory the server's user may write to, for files a test shares with it.
+    std::filesystem::path shared_dir() const { return dir_; }
 
 private:
     // Runs a PostgreSQL program as the server's user; throws with its output on failure.
@@ -34,6 +47,7 @@ private:
     std::filesystem::path dir_;
     std::string bin_;           // the directory of initdb, pg_ctl, createdb, psql
     bool as_postgres_ = false;  // running as root: the programs run as user postgres
+    bool durable_ = false;
     int port_ = 0;
     int databases_ = 0;
     bool running_ = false;

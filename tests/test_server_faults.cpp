@@ -8,6 +8,7 @@
 // the restart. No GL: ctest runs it beside other tests.
 #include "cli_runner.h"
 #include "fault_harness.h"
+#include "postgres_server.h"
 
 #include <thread>
 
@@ -29,17 +30,30 @@ const std::vector<std::string> kServerPhases = {"start", "upload", "job", "run",
 class ServerScenario {
 public:
     // `armed`: the phases to arm the shim's fault in (none for a dry run).
-    ServerScenario(const fs::path& dir, const FaultShim& shim, std::set<std::string> armed)
+    // `store`: lightfarmd's --store (empty: SQLite in its data directory);
+    // `recover`: waits until the store is back after a fault was taken (a
+    // PostgreSQL that crashed restarts by itself).
+    ServerScenario(
+        const fs::path& dir, const FaultShim& shim, std::set<std::string> armed, const std::string& store = "",
+        std::function<void()> recover = [] {})
         : shim_(shim),
           armed_(std::move(armed)),
+          recover_(std::move(recover)),
           engine_(dir / "engine"),
-          server_(dir / "data", dir / "tokens", engine_.script, {"--workers", "1", "--node-name", "node"}) {
+          server_(dir / "data", dir / "tokens", engine_.script, lightfarmd_args(store)) {
         write_text(dir / "tokens", kToken + "\n");
     }
     // Runs every phase; returns what each armed phase's fault did, in the table's words.
     std::map<std::string, std::string> run();
 
 private:
+    static std::vector<std::string> lightfarmd_args(const std::string& store) {
+        std::vector<std::string> args = {"--workers", "1", "--node-name", "node"};
+        // A lease of 3 s: a job whose claim was cut off is back in the
+        // queue after two renewals (2 s) rather than 20.
+        if (!store.empty()) args.insert(args.end(), {"--store", store, "--lease-seconds", "3"});
+        return args;
+    }
     void enter(const std::string& phase);
     void leave();
     std::string start();
@@ -52,6 +66,7 @@ private:
 
     const FaultShim& shim_;
     std::set<std::string> armed_;
+    std::function<void()> recover_;
     FakeEngine engine_;
     Lightfarmd server_;
     std::string phase_;
@@ -68,6 +83,7 @@ void ServerScenario::enter(const std::string& phase) {
 void ServerScenario::leave() {
     if (!armed_.count(phase_)) return;
     if (!shim_.fired()) effects_[phase_] = "not reached";
+    else recover_();
     shim_.disarm();
 }
 
@@ -79,6 +95,7 @@ std::string ServerScenario::start() {
         return "no effect";
     } catch (const std::exception&) {
         shim_.disarm();
+        recover_();
         server_.start();
         return "refuses to start, then starts";
     }
@@ -105,6 +122,7 @@ std::string ServerScenario::post(const std::string& path, const std::string& bod
         }
         if (status != 503) break;
         shim_.disarm();
+        recover_();
     }
     ADD_FAILURE() << phase_ << ": " << path << " never accepted: " << answers;
     return answers;
@@ -247,6 +265,88 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
                               summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
                               summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
     expect_doc_table("server write-fault", table);
+}
+
+// ---------------------------------------------------------------- PostgreSQL
+
+// The scale-out store's own disk. Every commit lightfarmd makes waits for
+// PostgreSQL to write its WAL and sync it (synchronous_commit on, its
+// default), so those two calls are failed, in each phase of the server's
+// scenario above, under ENOSPC and EIO. PostgreSQL takes either as a PANIC:
+// it drops every connection, recovers from its WAL and starts again by
+// itself. (It writes its data files at checkpoints, apart from any commit:
+// a failure there fails the checkpoint, which it retries; lightfarmd never
+// sees it.) lightfarmd answers 503 meanwhile and loses nothing it answered
+// 2xx; the job succeeds at no attempt's cost.
+const std::vector<std::string> kWalSites = {"postgres write pg_wal/#", "postgres sync pg_wal/#"};
+
+class PostgresFaults {
+public:
+    PostgresFaults() : postgres_(/*durable=*/true) {}
+    // The server's scenario on a new database of a PostgreSQL whose
+    // processes carry the shim: `site` empty for a dry run. Returns the
+    // effects of the armed phases; `calls` gets the dry run's calls.
+    std::map<std::string, std::string> run(const std::string& name, const std::string& site, const std::string& error,
+                                           int nth, const std::set<std::string>& armed,
+                                           std::map<std::string, int>* calls = nullptr) {
+        const fs::path dir = postgres_.shared_dir() / "faults" / name;
+        FaultShim shim(postgres_.data_dir(), dir, site, error, nth);
+        shim.count_only("postgres");
+        postgres_.stop();
+        postgres_.start(shim.environment());
+        const std::string uri = postgres_.create_database();
+        std::map<std::string, std::string> effects =
+            ServerScenario(dir, shim, armed, uri, [&] { postgres_.wait_until_ready(); }).run();
+        if (calls) *calls = shim.calls();
+        return effects;
+    }
+
+private:
+    PostgresServer postgres_;
+};
+
+TEST(StoreFaults, EveryWalCallOfPostgreSQLUnderTheServer) {
+    PostgresFaults postgres;
+    std::map<std::string, int> dry_calls;
+    postgres.run("dry", "", "", 1, {}, &dry_calls);
+    ASSERT_FALSE(::testing::Test::HasFailure()) << "the scenario fails without a fault";
+    std::map<std::string, std::map<std::string, int>> sites = calls_by_site(dry_calls);
+    // Every phase that answers a 2xx commits, so writes and syncs the WAL.
+    for (const std::string& site : kWalSites)
+        for (const std::string phase : {"start", "upload", "job", "run"})
+            EXPECT_GT(sites[site][phase], 0) << site << " is not called in " << phase;
+    // site -> phase -> error -> call -> effect, as the server's test above.
+    std::map<std::string, std::map<std::string, std::map<std::string, std::map<int, std::string>>>> effects;
+    int runs = 0;
+    for (const std::string& site : kWalSites) {
+        // Each call where a phase makes up to three (an upload's and a
+        // job's commits); where it makes more (the schema at start, the
+        // progress of a run) the first only: how many WAL writes those
+        // take depends on PostgreSQL's WAL writer's timing, so no middle or
+        // last call is the same from run to run.
+        std::map<int, std::set<std::string>> phases_by_call;
+        for (const auto& [phase, n] : sites[site])
+            if (std::find(kServerPhases.begin(), kServerPhases.end(), phase) != kServerPhases.end())
+                for (int nth : n <= 3 ? calls_to_fail(n) : std::set<int>{1}) phases_by_call[nth].insert(phase);
+        for (const auto& [nth, armed] : phases_by_call)
+            for (const std::string& error : kErrors) {
+                SCOPED_TRACE(site + ", call " + std::to_string(nth) + ", " + error);
+                for (const auto& [phase, effect] : postgres.run(std::to_string(++runs), site, error, nth, armed)) {
+                    EXPECT_NE(effect, "not reached") << site << " call " << nth << " in " << phase;
+                    effects[site][phase][error][nth] = effect;
+                }
+            }
+    }
+    std::cerr << runs << " runs of the scenario on PostgreSQL\n";
+    std::string table = row({"site (PostgreSQL under lightfarmd)", "phase", "calls", "ENOSPC", "EIO"}) +
+                        row({"---", "---", "---", "---", "---"});
+    for (const auto& [site, by_phase] : effects)
+        for (const std::string& phase : kServerPhases)
+            if (by_phase.count(phase))
+                table += row({"`" + operation_and_path(site) + "`", phase, calls_cell(sites[site][phase]),
+                              summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
+                              summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
+    expect_doc_table("postgresql write-fault", table);
 }
 
 // ---------------------------------------------------------------- the client
