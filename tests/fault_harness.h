@@ -106,12 +106,7 @@ public:
         return calls;
     }
 
-private:
-    void set(const std::string& name, const std::string& value) {
-        setenv(name.c_str(), value.c_str(), 1);
-        environment_[name] = value;
-    }
-    // Each call of the log as ("PHASE SITE", how many such calls so far).
+    // Each call of the log, in order, as ("PHASE SITE", how many such calls so far).
     std::vector<std::pair<std::string, int>> calls_in_order() const {
         std::vector<std::pair<std::string, int>> calls;
         std::map<std::string, int> so_far;
@@ -125,6 +120,12 @@ private:
             }
         }
         return calls;
+    }
+
+private:
+    void set(const std::string& name, const std::string& value) {
+        setenv(name.c_str(), value.c_str(), 1);
+        environment_[name] = value;
     }
     fs::path log_, armed_;
     std::map<std::string, std::string> environment_;

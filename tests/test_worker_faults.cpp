@@ -7,6 +7,8 @@
 #include "fault_harness.h"
 #include "worker_protocol.h"
 
+#include <sstream>
+
 namespace lf::test {
 namespace {
 
@@ -51,6 +53,43 @@ std::string worker_effect(const CliRun& run, const std::string& site, const std:
     }
     return run.exit_code == protocol::kExitMachineFault ? "exit 5, names the file and the error"
                                                         : "exit " + std::to_string(run.exit_code) + ": " + last;
+}
+
+// Every directory a bake makes (its output directory and the parents it
+// lacks, .resume) is synced into its parent after it is made and before
+// anything is created in it: the files' commits sync their names in the
+// directory, and a power loss must not drop the directory's own name.
+TEST(WorkerFaults, EveryDirectoryItMakesIsSyncedIntoItsParentFirst) {
+    TempDir tmp;
+    const FaultShim dry(tmp.path / "root", tmp.path);
+    const CliRun run = bake(worker_scenarios(tmp.path)[0], tmp.path / "root" / "a" / "b");
+    ASSERT_EQ(run.exit_code, 0) << run.err;
+    std::vector<std::string> calls;  // "PHASE lightfarm OP PATH", in order
+    for (const auto& [site, n] : dry.calls_in_order()) calls.push_back(site);
+    // The first call from `from` on that matches.
+    using Match = std::function<bool(const std::string& op, const fs::path& path)>;
+    const auto first = [&](size_t from, const Match& match) {
+        for (size_t i = from; i < calls.size(); ++i) {
+            std::istringstream words(calls[i]);
+            std::string phase, process, op, path;
+            words >> phase >> process >> op >> path;
+            if (match(op, path)) return i;
+        }
+        return calls.size();
+    };
+    for (const fs::path made : {"a/b", "a/b/.resume"}) {
+        SCOPED_TRACE(made.string());
+        const size_t mkdir =
+            first(0, [&](const std::string& op, const fs::path& p) { return op == "mkdir" && p == made; });
+        ASSERT_LT(mkdir, calls.size()) << "never made";
+        const size_t synced = first(
+            mkdir, [&](const std::string& op, const fs::path& p) { return op == "sync" && p == made.parent_path(); });
+        const size_t used = first(mkdir, [&](const std::string& op, const fs::path& p) {
+            return op != "mkdir" && op != "sync" && p.parent_path() == made;
+        });
+        ASSERT_LT(used, calls.size()) << "nothing written in it";
+        EXPECT_LT(synced, used) << "a file is created in it before its name is synced in its parent";
+    }
 }
 
 TEST(WorkerFaults, EveryCallOfABake) {

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace lf {
 
@@ -24,15 +25,6 @@ inline WriteError write_error(const std::filesystem::path& path, int error = err
     return WriteError(path.string() + ": cannot write (" + (error ? std::strerror(error) : "unknown error") + ")");
 }
 
-// Creates `dir` and its parents. One it cannot make (a full disk, an I/O
-// error) is the machine's trouble like any other write: a WriteError naming
-// it, not the filesystem_error of std::filesystem::create_directories.
-inline void make_directories(const std::filesystem::path& dir) {
-    std::error_code ec;
-    std::filesystem::create_directories(dir, ec);
-    if (ec) throw write_error(dir, ec.value());
-}
-
 // Syncs `path` (a file, or a directory after an entry in it changed) to the
 // disk; a failure is a WriteError naming `named`.
 inline void sync_to_disk(const std::filesystem::path& path, const std::filesystem::path& named) {
@@ -42,6 +34,27 @@ inline void sync_to_disk(const std::filesystem::path& path, const std::filesyste
     const int error = errno;
     ::close(fd);
     if (synced != 0) throw write_error(named, error);
+}
+
+// Creates `dir` and its parents, each synced into its parent directory
+// once made: commit_file syncs the names of the files in a directory, and a
+// power loss must not drop the directory's own name from its parent. One
+// it cannot make or sync (a full disk, an I/O error) is the machine's
+// trouble like any other write: a WriteError naming it, not the
+// filesystem_error of std::filesystem::create_directories.
+inline void make_directories(const std::filesystem::path& dir) {
+    namespace fs = std::filesystem;
+    std::vector<fs::path> missing;  // innermost first
+    std::error_code ec;
+    for (fs::path p = dir.has_filename() ? dir : dir.parent_path(); !p.empty() && !fs::exists(p, ec);
+         p = p.parent_path()) {
+        missing.push_back(p);
+        if (p == p.parent_path()) break;
+    }
+    fs::create_directories(dir, ec);
+    if (ec) throw write_error(dir, ec.value());
+    for (auto made = missing.rbegin(); made != missing.rend(); ++made)
+        sync_to_disk(made->has_parent_path() ? made->parent_path() : fs::path("."), *made);
 }
 
 // A complete, closed temporary file becomes `path`: synced, renamed into
