@@ -140,7 +140,7 @@ std::vector<Setting> build_catalog() {
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
         typed("", "env", T::Environment, nullptr,
-              "environment: a uniform sky R,G,B (W/(sr m^2)); an .exr/.hdr map for sh (CLI only)"),
+              "environment: a uniform sky R,G,B (W/(sr m^2)), or an .exr/.hdr equirectangular map (CLI only)"),
     };
 }
 
@@ -309,16 +309,6 @@ void check_combination(const BakeSettings& b) {
             throw SpecError("probes.probe_m", std::to_string(probes->integer("probe_m")) +
                                                   " does not divide probe_res " +
                                                   std::to_string(probes->integer("probe_res")) + " (M must divide R)");
-    if (b.env.map_file.empty()) return;
-    std::vector<std::string> takers;
-    for (const OutputKind& o : output_registry())
-        if (o.takes_environment_map) takers.push_back(o.name);
-    for (const auto& [name, settings] : b.outputs)
-        if (!find_output(name)->takes_environment_map)
-            throw SpecError("env", "the " + name +
-                                       " output's environment is a uniform sky R,G,B; environment maps "
-                                       "work with the " +
-                                       joined(takers, ", ") + " output only");
 }
 
 }  // namespace

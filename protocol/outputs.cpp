@@ -25,7 +25,6 @@ std::vector<OutputKind> build_registry() {
     sh.name = "sh";
     sh.help = "per-vertex SH transfer for relighting under any environment";
     sh.domain = OutputDomain::Vertex;
-    sh.takes_environment_map = true;
     sh.per_texel_setting = "sh_per_texel";
     sh.stop_prefix = "sh_";
     sh.pass_unit = "64 rays per vertex";

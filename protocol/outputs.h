@@ -35,8 +35,6 @@ struct OutputKind {
     OutputDomain domain = OutputDomain::Texel;
     // Black without an emitter, a punctual light or a sky: refused at submit.
     bool needs_light = false;
-    // Takes an environment map file (not only a uniform sky).
-    bool takes_environment_map = false;
     // A flag setting of this output that puts it on the atlas as well
     // (a per-vertex output also baked per texel); "" when none.
     std::string per_texel_setting;

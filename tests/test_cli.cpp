@@ -323,7 +323,23 @@ TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
     }
     EXPECT_LT(sum / texels, 1.0);
     EXPECT_GT(sum / texels, 0.01);
+
+    // An environment map lights it too: a map of radiance 1 everywhere (a
+    // Radiance .hdr, 1.0 as RGBE 128 128 128 129) is the same sky, so every
+    // ray sees the same light and the lightmap is the same, bit for bit.
+    const fs::path map = out.parent_path() / "one.hdr";
+    std::string hdr = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 4\n";
+    for (int t = 0; t < 8; ++t) hdr += "\x80\x80\x80\x81";
+    std::ofstream(map, std::ios::binary) << hdr;
+    const fs::path out_map = fresh_dir("sky-map");
+    const CliRun m =
+        run_lightfarm("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") + " --out " +
+                      out_map.string() + " --res 256 --passes 4 --env " + map.string() + " --no-stitch --json");
+    ASSERT_EQ(m.exit_code, 0) << m.err;
+    EXPECT_EQ(read_exr(out_map / "lightmap.exr").at("G"), g) << "a map of 1 is not the uniform sky of 1";
     fs::remove_all(out);
+    fs::remove_all(out_map);
+    fs::remove(map);
 }
 
 // The final gather computes the first bounce where a ray lands and reads
@@ -374,7 +390,9 @@ TEST(CliBake, FailuresAreOneClearLine) {
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "R,G,B", kUsage);
+    // A map file it cannot read is the job's input, named (every output takes a map).
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "sky.exr", kInput);
+    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --sh --env sky.exr", "sky.exr", kInput);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --sh-bands 0", "--sh-bands", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --seed 4294967296", "--seed", kUsage);
     expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 64 --texel-density 10", "res",

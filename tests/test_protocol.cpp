@@ -476,7 +476,8 @@ TEST(JobSpec, EnvironmentIsASkyOrAFileTheServiceRefuses) {
     EXPECT_EQ(field_of(j), "env");
     j["env"] = 3;
     EXPECT_EQ(field_of(j), "env");
-    // A map file: for sh only, and never on a server.
+    // A map file: for every output (the lightmap's and the probes' rays
+    // see it as SH's do), and never on a server.
     json sh = sh_spec("sh_bands", 4);
     sh["env"] = "sky.hdr";
     EXPECT_EQ(parse_job_spec(sh).bake.env.map_file, "sky.hdr");
@@ -484,7 +485,8 @@ TEST(JobSpec, EnvironmentIsASkyOrAFileTheServiceRefuses) {
     server.allow_local_files = false;
     EXPECT_EQ(field_of(sh, server), "env");
     j["env"] = "sky.hdr";
-    EXPECT_EQ(field_of(j), "env") << "a lightmap's environment is a uniform sky";
+    EXPECT_EQ(parse_job_spec(j).bake.env.map_file, "sky.hdr");
+    EXPECT_EQ(field_of(j, server), "env");
 }
 
 TEST(JobSpec, SpecErrorCarriesTheField) {

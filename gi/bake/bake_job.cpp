@@ -13,6 +13,7 @@
 #include "io/image_files.h"
 #include "io/write_error.h"
 #include "scene/gltf_loader.h"
+#include "util/hash.h"
 
 #include <algorithm>
 #include <chrono>
@@ -21,6 +22,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <functional>
+#include <iterator>
 #include <future>
 #include <map>
 #include <memory>
@@ -191,7 +193,8 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScen
     p->file = job.scene;
     p->scene = p->timed("load", [&] { return load_scene(job.scene); });
     const protocol::BakeSettings& s = job.settings;
-    if (s.needs_light() && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !s.env.sky)
+    p->environment = read_environment(s.env);
+    if (s.needs_light() && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !p->environment)
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "
                              "environment was given (give a uniform sky with --env R,G,B)");
@@ -275,8 +278,8 @@ fs::path finished_path(const fs::path& out, const std::string& output) {
 
 // What a saved state of `output` must match to be restored: the output's
 // canonical settings, the atlas's (when the job has one), the seed, the
-// environment and the scene's content (Scene::content_hash: the file and
-// every buffer and image it names). Each of them changes the sums a pass
+// environment (a map's bytes, not only its name) and the scene's content
+// (Scene::content_hash: the file and every buffer and image it names). Each of them changes the sums a pass
 // adds to. Not the method's description: counts the GPU makes there (texels
 // moved out of geometry) may differ by a few from one device to another;
 // which texel, vertex or probe each entry is, is the state's layout hash,
@@ -291,6 +294,13 @@ std::string state_key(const BakeJob& job, const Scene& scene, const std::string&
                           {"env", settings.value("env", nlohmann::json())},
                           {"scene", content}};
     if (job.settings.uses_atlas()) key["atlas"] = settings["atlas"];
+    if (const std::string& map = job.settings.env.map_file; !map.empty()) {
+        std::ifstream in(map, std::ios::binary);
+        const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        std::snprintf(content, sizeof content, "%016llx",
+                      static_cast<unsigned long long>(hash_bytes(bytes.data(), bytes.size())));
+        key["env_content"] = content;
+    }
     return key.dump();
 }
 
@@ -500,6 +510,18 @@ std::optional<std::string> write_lit_scene(const BakeJob& job, const PreparedSce
 }
 
 }  // namespace
+
+std::optional<Environment> read_environment(const protocol::EnvironmentSetting& env) {
+    try {
+        if (!env.map_file.empty()) return load_environment(env.map_file);
+    } catch (const std::runtime_error& e) {
+        throw BakeInputError(e.what());
+    }
+    if (!env.sky) return std::nullopt;
+    char text[96];  // a sky's source reads as it was given: "R,G,B"
+    std::snprintf(text, sizeof text, "%.9g,%.9g,%.9g", (*env.sky)[0], (*env.sky)[1], (*env.sky)[2]);
+    return load_environment(text);
+}
 
 // What preparation will be made of, as far as it is known before loading.
 PreparationSize preparation_size(const BakeJob& job) {

@@ -7,11 +7,13 @@
 #pragma once
 
 #include "bake_settings.h"
+#include "sh/environment.h"
 #include "gpu/context.h"
 #include "worker_protocol.h"
 
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -36,6 +38,10 @@ class BakeInputError : public std::runtime_error {
 public:
     using std::runtime_error::runtime_error;
 };
+
+// The job's environment (--env): its map file (.exr, .hdr), its uniform sky,
+// or none. A map that cannot be read is a BakeInputError naming it.
+std::optional<Environment> read_environment(const protocol::EnvironmentSetting& env);
 
 // Worker events as they happen: start, progress and snapshot per pass, done.
 using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;

@@ -8,6 +8,7 @@
 #include "bake/double_sided.h"
 #include "gpu/context.h"
 #include "scene/scene.h"
+#include "sh/environment.h"
 #include "trace/tracer.h"
 
 #include <nlohmann/json.hpp>
@@ -40,6 +41,9 @@ struct PreparedScene {
     // takes atlas_scene's winding (Tracer::rewind) where double-sided charts
     // were turned.
     std::unique_ptr<Tracer> tracer;
+    // The job's environment (--env), read once: a uniform sky, a map, or
+    // none (escaping rays see black).
+    std::optional<Environment> environment;
     double prepare_seconds = 0.0;
     // What preparation did otherwise than asked (the start event's and the
     // manifest's "warnings").

@@ -69,11 +69,10 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
       settings_(ProbesSettings::from(*settings.output("probes"))),
       stop_(stop_rule_from(settings.output("probes")->stop())),
       seed_(settings.seed),
-      shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
+      shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene,
+               prepared.environment.value_or(Environment{})),
       surface_textures_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
       capture_(prepared.tracer->program("probe_capture.comp", {{"LF_EXACT_TEXTURES", "1"}})) {
-    if (settings.env.sky)
-        background_ = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
     positions_ = place(prepared.scene, settings_, &spacing_);
     if (positions_.empty())
         throw BakeInputError(prepared.file.filename().string() + ": probes: no point to place a probe at");
@@ -95,7 +94,7 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
 // What the capture and the corner rays share; each sets its count on top.
 ProbesParams ProbesMethod::params() const {
     ProbesParams p{};
-    shading_.fill(p, background_);
+    shading_.fill(p);
     p.resolution = uint32_t(settings_.res);
     p.pass = uint32_t(stats_.pass);
     p.seed = seed_;

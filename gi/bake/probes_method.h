@@ -83,7 +83,6 @@ private:
     ProbesSettings settings_;
     StopRule stop_;
     uint32_t seed_;
-    glm::vec3 background_{0.0f};
     float spacing_ = 0.0f;  // 0 for explicit points
     std::vector<glm::vec3> positions_;
     SceneShading shading_;

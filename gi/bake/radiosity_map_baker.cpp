@@ -112,7 +112,7 @@ RadiosityMapBaker::RadiosityMapBaker(const Scene& scene, const TexelSamples& tex
       height_(texels.height),
       gather_(tracer.program("radiosity_gather.comp", gather_defines(settings, passes_per_dispatch_))),
       publish_(tracer.program("radiosity_publish.comp", publish_defines(settings))),
-      shading_(scene) {
+      shading_(scene, settings.environment) {
     if (settings.scheme == RadiosityScheme::PathTracing) surface_textures_.emplace(scene);
     upload_texels(texels);
 }
@@ -257,7 +257,7 @@ int cell_end_after(int pass, int passes_per_dispatch) {
 // What every dispatch of the bake shares; each sets its own fields on top.
 RadiosityParams RadiosityMapBaker::params() const {
     RadiosityParams p{};
-    shading_.fill(p, settings_.background);
+    shading_.fill(p);
     p.atlas_width = uint32_t(width_);
     p.atlas_height = uint32_t(height_);
     p.covered_count = uint32_t(covered_count_);

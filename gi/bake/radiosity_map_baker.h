@@ -69,7 +69,7 @@ struct RadiosityMapSettings {
     int light_samples = 1;  // emitter samples per texel per pass
     LightSampling light_sampling = LightSampling::Mis;
     uint32_t seed = 1;
-    glm::vec3 background{0.0f};  // radiance of escaping rays (W/(sr·m²))
+    Environment environment;  // what escaping rays see (default: black)
     // > 0: a texel whose own relative standard error falls below this stops
     // tracing (adaptive sampling); set from the bake's target error.
     double converged_texel_error = 0.0;

@@ -37,15 +37,15 @@ std::vector<SeamEdge> smooth_seams(const Scene& scene) {
 
 }  // namespace
 
-RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) {
+RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings,
+                                        const std::optional<Environment>& environment) {
     const protocol::OutputSettings& l = *settings.output("lightmap");
     RadiosityMapSettings r;
     r.scheme = parse_radiosity_scheme(l.choice("scheme"));
     r.light_samples = l.integer("light_samples");
     r.light_sampling = parse_light_sampling(l.choice("light_sampling"));
     r.seed = settings.seed;
-    if (settings.env.sky)
-        r.background = glm::vec3((*settings.env.sky)[0], (*settings.env.sky)[1], (*settings.env.sky)[2]);
+    if (environment) r.environment = *environment;
     // Adaptive sampling: a texel well below the target stops tracing.
     if (l.stop().target_error > 0.0) r.converged_texel_error = 0.5 * l.stop().target_error;
     r.directional = l.flag("directional");
@@ -56,13 +56,14 @@ RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings) 
 RadiosityMapMethod::RadiosityMapMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings)
     : prepared_(prepared),
       stop_(stop_rule_from(settings.output("lightmap")->stop())),
-      baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer, radiosity_settings(settings)),
+      baker_(*prepared.atlas_scene, prepared.texels, *prepared.tracer,
+             radiosity_settings(settings, prepared.environment)),
       seams_(smooth_seams(*prepared.atlas_scene)) {
     const protocol::OutputSettings& lightmap = *settings.output("lightmap");
     if (lightmap.flag("stitch") && !seams_.empty())
         stitcher_.emplace(seams_, prepared.atlas.width, prepared.atlas.height);
     if (lightmap.flag("denoise")) denoiser_.emplace(*prepared.atlas_scene, prepared.texels);
-    const RadiosityMapSettings r = radiosity_settings(settings);
+    const RadiosityMapSettings r = radiosity_settings(settings, std::nullopt);
     settings_json_ = {
         {"method", "radiosity_map"},
         {"scheme", to_string(r.scheme)},

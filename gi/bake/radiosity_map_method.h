@@ -53,7 +53,9 @@ private:
     int last_snapshot_pass_ = 0;
 };
 
-// The baker's settings for a job's lightmap settings (public for tests).
-RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings);
+// The baker's settings for a job's lightmap settings and its environment
+// (PreparedScene::environment; public for tests).
+RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings,
+                                        const std::optional<Environment>& environment);
 
 }  // namespace lf

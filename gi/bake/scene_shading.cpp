@@ -11,7 +11,7 @@ float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
 }  // namespace
 
-SceneShading::SceneShading(const Scene& scene) {
+SceneShading::SceneShading(const Scene& scene, const Environment& environment) : environment_(environment) {
     // Emissive triangles, chosen in proportion to their power (area x radiance).
     std::vector<uint32_t> emitter_triangles;
     std::vector<glm::vec3> emitter_radiance;  // each one's mean (a texture average: computed once)
@@ -79,6 +79,7 @@ void SceneShading::bind() const {
     surface_triangles_.bind(LF_BINDING_SURFACE_TRIANGLES);
     emitters_.bind(LF_BINDING_EMITTERS);
     punctual_lights_.bind(LF_BINDING_PUNCTUAL_LIGHTS);
+    environment_.bind();
 }
 
 }  // namespace lf

@@ -3,11 +3,13 @@
 // sidedness, emission and emitter-sampling density, and albedo
 // (lightmap_lookup.glsl's SurfaceTriangles); the emissive triangles chosen
 // in proportion to their power (direct_light.glsl's Emitters); and the
-// punctual lights (bindings in shaders/buffer_bindings.glsl).
+// punctual lights (bindings in shaders/buffer_bindings.glsl); and where it
+// escapes, the environment (EnvironmentLight).
 #pragma once
 
 #include "gpu/shader.h"
 #include "scene/scene.h"
+#include "trace/environment_light.h"
 
 #include <glm/vec3.hpp>
 
@@ -17,21 +19,20 @@ namespace lf {
 
 class SceneShading {
 public:
-    explicit SceneShading(const Scene& scene);
+    // `environment`: what rays that escape see (none: black).
+    explicit SceneShading(const Scene& scene, const Environment& environment = {});
 
-    // Binds the three buffers at the bindings the shaders declare.
+    // Binds the buffers at the bindings the shaders declare.
     void bind() const;
     // Sets a parameter block's LF_SHADING_PARAMS (shaders/params_block.glsl):
-    // the counts direct_light.glsl samples, and the radiance of rays that
-    // escape. Rays have no length limit: they end at the scene's bounds.
+    // the counts direct_light.glsl samples, and the environment. Rays have
+    // no length limit: they end at the scene's bounds.
     template <class Params>
-    void fill(Params& p, glm::vec3 background) const {
+    void fill(Params& p) const {
         p.emitter_count = emitter_count_;
         p.punctual_count = punctual_count_;
         p.far = 1e30f;
-        p.background_r = background.r;
-        p.background_g = background.g;
-        p.background_b = background.b;
+        environment_.fill(p);
     }
 
     uint32_t emitter_count() const { return emitter_count_; }
@@ -39,6 +40,7 @@ public:
 
 private:
     GpuBuffer surface_triangles_, emitters_, punctual_lights_;
+    EnvironmentLight environment_;
     uint32_t emitter_count_ = 0, punctual_count_ = 0;
 };
 

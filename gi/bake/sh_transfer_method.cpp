@@ -130,17 +130,6 @@ ShTransferSettings transfer_settings(const ShSettings& sh, uint32_t seed) {
     return t;
 }
 
-// The job's environment for SH: a map file, a uniform sky, or none.
-std::optional<Environment> sh_environment(const protocol::EnvironmentSetting& env) {
-    if (!env.map_file.empty()) return load_environment(env.map_file);
-    if (env.sky) {
-        char text[96];
-        std::snprintf(text, sizeof text, "%.9g,%.9g,%.9g", (*env.sky)[0], (*env.sky)[1], (*env.sky)[2]);
-        return load_environment(text);
-    }
-    return std::nullopt;
-}
-
 // Occluder and receiver sets name glTF meshes: every one must be drawn.
 void check_mesh_sets(const PreparedScene& prepared, const ShSettings& sh) {
     std::set<int> meshes;
@@ -161,7 +150,7 @@ ShTransferMethod::ShTransferMethod(const PreparedScene& prepared, const protocol
       settings_(ShSettings::from(*settings.output("sh"))),
       transfer_(transfer_settings(settings_, settings.seed)),
       stop_(stop_rule_from(settings.output("sh")->stop())),
-      environment_(sh_environment(settings.env)),
+      environment_(prepared.environment),
       window_(parse_sh_window(settings_.window)),
       subsamples_(settings.atlas.subsamples),
       uniform_light_(settings.env.sky.has_value()) {

@@ -125,6 +125,8 @@ ComputeProgram::ComputeProgram(const std::string& name, const ShaderDefines& def
 
 // Finds the program's parameter block (LF_BINDING_PARAMS), and refuses a
 // uniform outside it: every value a dispatch takes goes through use(params).
+// The one exception is a buffer texture (the environment's texels,
+// environment.glsl): a binding, not a value.
 void ComputeProgram::read_parameter_block() {
     GLint blocks = 0, uniforms = 0;
     glGetProgramiv(id_, GL_ACTIVE_UNIFORM_BLOCKS, &blocks);
@@ -137,8 +139,10 @@ void ComputeProgram::read_parameter_block() {
     glGetProgramiv(id_, GL_ACTIVE_UNIFORMS, &uniforms);
     for (GLuint u = 0; u < GLuint(uniforms); ++u) {
         GLint block = -1;
+        GLint type = 0;
         glGetActiveUniformsiv(id_, 1, &u, GL_UNIFORM_BLOCK_INDEX, &block);
-        if (block != -1) continue;
+        glGetActiveUniformsiv(id_, 1, &u, GL_UNIFORM_TYPE, &type);
+        if (block != -1 || type == GL_SAMPLER_BUFFER) continue;
         char uniform_name[128] = {};
         glGetActiveUniformName(id_, u, sizeof uniform_name, nullptr, uniform_name);
         glDeleteProgram(id_);  // the constructor throws: no destructor will

@@ -4,6 +4,7 @@
 #include "gpu/shader.h"
 #include "shaders/buffer_bindings.glsl"
 #include "shaders/sh_reference_params.glsl"
+#include "trace/environment_light.h"
 
 #include <algorithm>
 #include <cmath>
@@ -24,23 +25,18 @@ std::vector<glm::vec3> reference_irradiance(const Scene& scene, const Tracer& tr
         vertices.push_back(glm::vec4(scene.positions[v], 0.0f));
         vertices.push_back(glm::vec4(glm::normalize(scene.normals[v]), 0.0f));
     }
-    std::vector<glm::vec4> texels;
-    for (const glm::vec3& t : env.texels) texels.push_back(glm::vec4(t, 0.0f));
-    GpuBuffer vertex_buffer(vertices), env_buffer(texels), out(scene.positions.size() * sizeof(glm::vec4));
+    GpuBuffer vertex_buffer(vertices), out(scene.positions.size() * sizeof(glm::vec4));
+    const EnvironmentLight environment(env);
 
     const ComputeProgram program = tracer.program("sh_reference.comp");
     tracer.bind();
     vertex_buffer.bind(LF_BINDING_SH_VERTICES);
-    env_buffer.bind(LF_BINDING_ENV_TEXELS);
+    environment.bind();
     out.bind(LF_BINDING_IRRADIANCE);
     ShReferenceParams params{};
     params.vertex_count = uint32_t(scene.positions.size());
     params.seed = seed;
-    params.env_width = uint32_t(env.width);
-    params.env_height = uint32_t(env.height);
-    params.env_constant_r = env.constant.r;
-    params.env_constant_g = env.constant.g;
-    params.env_constant_b = env.constant.b;
+    environment.fill(params);
     out.clear_zero();
     // Slices of a few rays per dispatch: Mesa's llvmpipe ends any shader
     // invocation after 65535 loop iterations in all (LP_MAX_TGSI_LOOP_ITERATIONS),

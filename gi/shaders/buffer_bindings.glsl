@@ -57,6 +57,9 @@
 #define LF_BINDING_PUNCTUAL_LIGHTS 8
 #define LF_BINDING_SURFACE_TEXCOORDS 17
 #define LF_BINDING_MATERIAL_TEXTURES 18
+// The environment's equirectangular texels (environment.glsl,
+// EnvironmentLight): a buffer texture, at this texture unit (the only one).
+#define LF_TEXTURE_ENVIRONMENT 0
 
 // The probes' capture (probe_capture.comp, probe_corners.comp), beside the scene's shading.
 #define LF_BINDING_PROBE_POSITIONS 12
@@ -71,7 +74,6 @@
 #define LF_BINDING_SH_TRIANGLE_IDS 5
 #define LF_BINDING_SH_TRIANGLE_ALBEDO 6
 #define LF_BINDING_SH_ERROR_PARTIALS 7
-#define LF_BINDING_ENV_TEXELS 3  // sh_reference.comp
 #define LF_BINDING_IRRADIANCE 4  // sh_reference.comp
 
 // Rays and hits through the tracer (trace_rays.comp, raybench.comp).

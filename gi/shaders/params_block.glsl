@@ -41,9 +41,16 @@
     LF_U32 emitter_count;  /* emitter triangles (SceneShading) */             \
     LF_U32 punctual_count; /* glTF punctual lights */                         \
     float far;             /* longer than any ray inside the scene */         \
-    float background_r;    /* radiance of rays that escape (W/(sr m^2)) */    \
-    float background_g;                                                       \
-    float background_b;
+    LF_ENVIRONMENT_PARAMS
+
+// The fields of every program whose escaping rays see the environment
+// (environment.glsl): a uniform sky, or a map it scales.
+#define LF_ENVIRONMENT_PARAMS                                                      \
+    float background_r; /* the sky's radiance (W/(sr m^2)), or the map's scale */ \
+    float background_g;                                                            \
+    float background_b;                                                            \
+    LF_U32 env_width; /* the equirectangular map's size; 0 x 0: no map */          \
+    LF_U32 env_height;
 
 // The fields of every program that reads the lightmap atlas
 // (lightmap_lookup.glsl): its size in texels.

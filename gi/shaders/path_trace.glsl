@@ -2,10 +2,7 @@
 // map's path-tracing baseline, the probes' capture): next-event estimation
 // at every vertex (direct_light.glsl), Russian roulette after three bounces.
 // Needs trace.glsl, sampling.glsl, random.glsl, lightmap_lookup.glsl (the hit
-// surfaces) and direct_light.glsl included first.
-
-// far and the background: the program's parameter block (LF_SHADING_PARAMS).
-vec3 lf_background() { return vec3(background_r, background_g, background_b); }
+// surfaces), direct_light.glsl and environment.glsl included first.
 
 // Radiance reflected towards the previous vertex by the path continuing from
 // `hit` (emission excluded: the first vertex counts it by MIS), E/pi units.
@@ -32,7 +29,7 @@ vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint ray
         hit = trace_closest(origin, dir, far);
         throughput *= hit.tint;  // through the see-through surfaces it passed
         rays += 1u;
-        if (hit.triangle == LF_NO_HIT) { result += throughput * lf_background(); break; }
+        if (hit.triangle == LF_NO_HIT) { result += throughput * lf_background(dir); break; }
         if (!(hit.front || hit_is_double_sided(hit))) break;
     }
     return result;

@@ -17,6 +17,7 @@ layout(local_size_x = 64) in;
 #include "trace.glsl"
 #include "lightmap_lookup.glsl"
 #include "direct_light.glsl"
+#include "environment.glsl"
 #include "path_trace.glsl"
 #include "probe_cube.glsl"
 
@@ -47,7 +48,7 @@ void main() {
     uint rays = 1u;
     Hit h = trace_closest(origin, dir, far);
     if (h.triangle == LF_NO_HIT) {
-        radiance = h.tint * lf_background();
+        radiance = h.tint * lf_background(dir);
     } else if (h.front || hit_is_double_sided(h)) {
         distance = h.t;
         hit = 1.0;

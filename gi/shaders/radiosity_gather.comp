@@ -16,6 +16,7 @@ layout(local_size_x = 64) in;  // before the includes: they use gl_WorkGroupSize
 #include "trace.glsl"
 #include "lightmap_lookup.glsl"
 #include "direct_light.glsl"
+#include "environment.glsl"
 #include "radiosity_texels.glsl"
 #include "path_trace.glsl"
 #include "radiosity_resolve.glsl"
@@ -33,9 +34,10 @@ layout(std430, binding = LF_BINDING_DIRECTIONAL_ACCUMULATORS) buffer Directional
 // The sky's irradiance at y over pi, by one cosine ray: the sky's radiance
 // where the ray escapes (0 without a sky: no ray).
 vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
-    if (lf_background() == vec3(0.0)) return vec3(0.0);
+    if (!lf_has_background()) return vec3(0.0);
     rays += 1u;
-    return trace_transmittance(y, sample_cosine_hemisphere(ny, rng_next2(rng)), far) * lf_background();
+    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
+    return trace_transmittance(y, dir, far) * lf_background(dir);
 }
 
 // The radiance the front of a surface reflects towards the texel at the
@@ -100,7 +102,7 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
         Hit next = trace_closest(y, dir, far);
         throughput *= next.tint;  // through the see-through surfaces it passed
         rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
-        if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background();
+        if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background(dir);
         if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
@@ -190,7 +192,7 @@ uint gather_texel(uint i, uint pass) {
         Hit hit = trace_closest(origin, dir, far);
         if (hit.triangle == LF_NO_HIT) {
             indirect = vec3(0.0);
-            sky = hit.tint * lf_background();  // through any window on the way
+            sky = hit.tint * lf_background(dir);  // through any window on the way
         } else if (hit.front || hit_is_double_sided(hit)) {
             // The hit point, lifted off its surface on the ray's side.
             vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);

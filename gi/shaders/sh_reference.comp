@@ -2,7 +2,7 @@
 // Brute-force irradiance under an environment, for checking SH shading:
 // E(x) = ∫ V(x,ω) L(ω) max(0, n·ω) dω ≈ (pi/N) Σ V L over cosine-distributed
 // rays (shadowed only, like the T^0 transfer). L from an equirectangular map
-// (gi/sh/environment.h's convention), nearest texel, or a constant colour.
+// or a constant colour (environment.glsl).
 layout(local_size_x = 64) in;
 
 #include "buffer_bindings.glsl"
@@ -10,21 +10,10 @@ layout(local_size_x = 64) in;
 #include "random.glsl"
 #include "sampling.glsl"
 #include "trace.glsl"
+#include "environment.glsl"
 
 layout(std430, binding = LF_BINDING_SH_VERTICES) readonly buffer ShVertices { vec4 sh_vertices[]; };
-layout(std430, binding = LF_BINDING_ENV_TEXELS) readonly buffer EnvTexels { vec4 env_texels[]; };
 layout(std430, binding = LF_BINDING_IRRADIANCE) buffer Irradiance { vec4 irradiance[]; };
-
-uvec2 env_size() { return uvec2(env_width, env_height); }
-
-vec3 environment(vec3 d) {
-    if (env_size().x == 0u) return vec3(env_constant_r, env_constant_g, env_constant_b);
-    float u = 0.5 + atan(d.z, d.x) / (2.0 * PI);
-    float v = acos(clamp(d.y, -1.0, 1.0)) / PI;
-    uint x = min(uint(u * float(env_size().x)), env_size().x - 1u);
-    uint y = min(uint(v * float(env_size().y)), env_size().y - 1u);
-    return env_texels[y * env_size().x + x].rgb;
-}
 
 void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
@@ -36,7 +25,7 @@ void main() {
     vec3 sum = vec3(0.0);
     for (uint s = 0u; s < samples; ++s) {
         vec3 dir = sample_cosine_hemisphere(n, rng_next2(rng));
-        sum += trace_transmittance(origin, dir, 1e30) * environment(dir);
+        sum += trace_transmittance(origin, dir, 1e30) * lf_background(dir);
     }
     irradiance[i] += vec4(sum * weight, 0.0);
 }

@@ -11,11 +11,7 @@ LF_PARAMS_BEGIN(ShReferenceParams)
     LF_U32 chunk;             // dispatches so far: each adds its samples to the sum
     float weight;             // pi / total samples
     LF_U32 seed;
-    LF_U32 env_width;         // 0 x 0: the constant environment env_constant
-    LF_U32 env_height;
-    float env_constant_r;
-    float env_constant_g;
-    float env_constant_b;
+    LF_ENVIRONMENT_PARAMS     // the environment (environment.glsl)
 LF_PARAMS_END(ShReferenceParams)
 
 #endif
