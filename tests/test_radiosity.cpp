@@ -991,7 +991,7 @@ TEST(RadiosityMap, AnEnvironmentMapLightsPlanesAtEveryAngleByItsIntegral) {
                     mean.b, expected.r, expected.g, expected.b, std::max(worst.r, std::max(worst.g, worst.b)));
         for (int k = 0; k < 3; ++k) {
             EXPECT_NEAR(mean[k] / expected[k], 1.0, 0.003) << "channel " << k;  // measured: 0.03% at most
-            EXPECT_LT(worst[k], 0.03) << "channel " << k;                      // measured: 0.9% at most
+            EXPECT_LT(worst[k], 0.03) << "channel " << k;                       // measured: 0.9% at most
         }
     }
 }
