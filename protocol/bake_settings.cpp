@@ -134,6 +134,9 @@ std::vector<Setting> build_catalog() {
         with_auto(integer("atlas", "max_res", 0, 256, 16384, "res",
                           "the largest atlas side when res is auto or follows texel_density (the density shrinks to "
                           "fit; auto: 4096, or the server's res limit where lower)")),
+        typed("atlas", "mesh_scale", T::MeshScales, json::object(),
+              "per glTF mesh, its charts' texel density over the atlas's, 0 < S <= 64 (2: twice the resolution; "
+              "0.25: a quarter); over the file's extras lightfarm_lightmap_scale"),
         typed("atlas", "glass_texels", T::Flag, false,
               "glass (KHR_materials_transmission) gets texels at the scene's density; off: 1/8 of it, as charts no "
               "light reaches (light passes glass, which reflects little)"),
@@ -225,6 +228,24 @@ json check_positions(const json& v, const std::string& field) {
     return v;
 }
 
+// {"MESH": SCALE, ...}: mesh indices as decimal keys, scales in (0, 64].
+json check_mesh_scales(const json& v, const std::string& field) {
+    if (!v.is_object())
+        throw SpecError(field, "must be an object of glTF mesh index to scale ({\"3\": 2}), not " + type_name(v));
+    if (v.size() > kMaxMeshList)
+        throw SpecError(field, std::to_string(v.size()) + " meshes exceed the maximum " + std::to_string(kMaxMeshList));
+    json out = json::object();
+    for (const auto& [key, scale] : v.items()) {
+        if (key.empty() || key.size() > 9 || key.find_first_not_of("0123456789") != std::string::npos ||
+            (key.size() > 1 && key[0] == '0'))
+            throw SpecError(field, "keys are glTF mesh indices (\"0\", \"3\"), not \"" + key + "\"");
+        if (!scale.is_number() || !(scale.get<double>() > 0.0) || scale.get<double>() > kMaxLightmapScale)
+            throw SpecError(field + "." + key, "a scale is a number > 0 and <= 64, not " + scale.dump());
+        out[key] = scale;
+    }
+    return out;
+}
+
 // One value against its setting: returns it in canonical form.
 json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
     const std::string field = s.field();
@@ -257,6 +278,7 @@ json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
         }
         return out;
     }
+    case SettingType::MeshScales: return check_mesh_scales(v, field);
     case SettingType::Environment: return check_environment(v, limits, field);
     case SettingType::Positions: return check_positions(v, field);
     }
@@ -337,6 +359,7 @@ std::string Setting::value_syntax() const {
     case SettingType::Choice: return joined(choices, "|");
     case SettingType::Flag: return "";
     case SettingType::MeshList: return "MESHES";
+    case SettingType::MeshScales: return "MESH=S,...";
     case SettingType::Environment: return "R,G,B|FILE";
     case SettingType::Positions: return "FILE.json";
     }
@@ -467,6 +490,7 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     b.atlas.subsamples = atlas["subsamples"].get<int>();
     b.atlas.max_res = int_or_auto(atlas["max_res"]);
     b.atlas.glass_texels = atlas["glass_texels"].get<bool>();
+    for (const auto& [mesh, scale] : atlas["mesh_scale"].items()) b.atlas.mesh_scale[std::stoi(mesh)] = scale;
     if (!b.atlas.max_res && limits.cap("res") < kAutoMaxAtlasRes)
         b.atlas.max_res = int(std::max(256.0, limits.cap("res")));  // the smallest max_res: the default atlas
     for (const OutputKind& kind : output_registry()) {
@@ -482,11 +506,10 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
 json to_json(const BakeSettings& b) {
     auto or_auto = [](const auto& v) { return v ? json(*v) : json("auto"); };
     json j = {{"outputs", json::object()}, {"seed", b.seed}};
-    j["atlas"] = {{"res", or_auto(b.atlas.res)},
-                  {"texel_density", or_auto(b.atlas.texel_density)},
-                  {"subsamples", b.atlas.subsamples},
-                  {"max_res", or_auto(b.atlas.max_res)},
-                  {"glass_texels", b.atlas.glass_texels}};
+    j["atlas"] = {{"res", or_auto(b.atlas.res)},      {"texel_density", or_auto(b.atlas.texel_density)},
+                  {"subsamples", b.atlas.subsamples}, {"max_res", or_auto(b.atlas.max_res)},
+                  {"mesh_scale", json::object()},     {"glass_texels", b.atlas.glass_texels}};
+    for (const auto& [mesh, scale] : b.atlas.mesh_scale) j["atlas"]["mesh_scale"][std::to_string(mesh)] = scale;
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;
     for (const auto& [name, settings] : b.outputs) j["outputs"][name] = settings.values;
@@ -508,6 +531,24 @@ std::optional<T> parse_whole(const std::string& text, Parse parse) {
 }
 
 // A command-line value as the JSON the catalog checks.
+namespace {
+
+// "a,b,c" -> {"a", "b", "c"}; `wrong` for an empty text or item.
+std::vector<std::string> comma_separated(const std::string& text, const SpecError& wrong) {
+    std::vector<std::string> items;
+    size_t at = 0;
+    while (at < text.size()) {
+        const size_t comma = std::min(text.find(',', at), text.size());
+        items.push_back(text.substr(at, comma - at));
+        if (items.back().empty()) throw wrong;
+        at = comma + 1;
+    }
+    if (text.empty() || text.back() == ',') throw wrong;
+    return items;
+}
+
+}  // namespace
+
 json value_from_text(const Setting& s, const std::string& text) {
     const std::string flag = s.flag();
     if (s.accepts_auto && text == "auto") return "auto";
@@ -527,17 +568,25 @@ json value_from_text(const Setting& s, const std::string& text) {
     case SettingType::Flag: return s.default_value != true;
     case SettingType::MeshList: {
         json meshes = json::array();
-        size_t at = 0;
-        while (at < text.size()) {
-            const size_t comma = std::min(text.find(',', at), text.size());
-            const std::string item = text.substr(at, comma - at);
-            if (item.empty() || item.find_first_not_of("0123456789") != std::string::npos || item.size() > 9)
+        for (const std::string& item : comma_separated(text, bad("a list of glTF mesh indices like 0,3,4"))) {
+            if (item.find_first_not_of("0123456789") != std::string::npos || item.size() > 9)
                 throw bad("a list of glTF mesh indices like 0,3,4");
             meshes.push_back(std::stoi(item));
-            at = comma + 1;
         }
-        if (text.empty() || text.back() == ',') throw bad("a list of glTF mesh indices like 0,3,4");
         return meshes;
+    }
+    case SettingType::MeshScales: {
+        const SpecError wrong = bad("a list of glTF mesh indices and scales like 3=2,5=0.25");
+        json scales = json::object();
+        for (const std::string& item : comma_separated(text, wrong)) {
+            const size_t equals = item.find('=');
+            if (equals == 0 || equals == std::string::npos) throw wrong;
+            const auto scale = parse_whole<double>(
+                item.substr(equals + 1), [](const std::string& t, size_t* used) { return std::stod(t, used); });
+            if (!scale) throw wrong;
+            scales[item.substr(0, equals)] = *scale;  // the key is checked with the spec's
+        }
+        return scales;
     }
     case SettingType::Positions: {
         // The JSON itself, or a file holding it.

@@ -58,6 +58,10 @@ struct SpecLimits {
 // The most entries a list of glTF meshes may hold (a spec is small: a list
 // is bounded like every other value).
 inline constexpr size_t kMaxMeshList = 65536;
+// A mesh's lightmap scale (its charts' texel density over the atlas's): a
+// glTF extras lightfarm_lightmap_scale or the spec's atlas.mesh_scale, in
+// (0, kMaxLightmapScale].
+inline constexpr double kMaxLightmapScale = 64.0;
 
 enum class SettingType {
     Integer,      // JSON integer; CLI "12"
@@ -65,6 +69,7 @@ enum class SettingType {
     Choice,       // one of `choices`; CLI the word
     Flag,         // JSON bool; CLI --name (true) or --no-name (false) per its default
     MeshList,     // glTF mesh indices: JSON [0, 3]; CLI "0,3"
+    MeshScales,   // glTF mesh index -> scale: JSON {"3": 2, "5": 0.25}; CLI "3=2,5=0.25"
     Environment,  // JSON [r, g, b] or a file name; CLI "R,G,B" or FILE
     Positions,    // points: JSON [{"position": [x, y, z]}, …]; CLI a JSON file of that (or the JSON itself)
 };
@@ -112,6 +117,9 @@ struct AtlasSettings {
     // worker keeps to the limit of the server that took the job.
     std::optional<int> max_res;
     bool glass_texels = false;  // glass charts at the scene's density, not kUnlitChartScale's
+    // Per glTF mesh, its charts' texel density over the atlas's, over the
+    // file's own extras (lightfarm_lightmap_scale).
+    std::map<int, double> mesh_scale;
 };
 
 // One requested output's settings: every setting of its catalog group,

@@ -109,16 +109,20 @@ std::array<uint64_t, 3> probe_grid_counts(const std::array<double, 3>& extent, d
 
 namespace {
 
-// Mesh indices the scene does not draw (its summary's "meshes": drawn meshes).
-void check_mesh_lists(const OutputSettings& sh, const SceneSummary& scene, const std::string& name) {
+// Mesh indices the scene does not draw (its summary's "meshes": drawn
+// meshes), in the SH lists and the atlas's per-mesh scales.
+void check_mesh_indices(const BakeSettings& bake, const SceneSummary& scene, const std::string& name) {
     if (!scene.details.contains("meshes")) return;
     const int64_t meshes = scene.details["meshes"].get<int64_t>();
-    for (const char* list : {"sh_occluders", "sh_receivers"})
-        for (const json& m : sh.values.at(list))
-            if (m.get<int64_t>() >= meshes)
-                throw SpecError(std::string("sh.") + list, "mesh " + m.dump() + " is not drawn by " + name +
-                                                               " (it has " + std::to_string(meshes) + " meshes: 0 to " +
-                                                               std::to_string(meshes - 1) + ")");
+    auto check = [&](const std::string& field, int64_t mesh) {
+        if (mesh >= meshes)
+            throw SpecError(field, "mesh " + std::to_string(mesh) + " is not drawn by " + name + " (it has " +
+                                       std::to_string(meshes) + " meshes: 0 to " + std::to_string(meshes - 1) + ")");
+    };
+    if (const OutputSettings* sh = bake.output("sh"))
+        for (const char* list : {"sh_occluders", "sh_receivers"})
+            for (const json& m : sh->values.at(list)) check(std::string("sh.") + list, m.get<int64_t>());
+    for (const auto& [mesh, scale] : bake.atlas.mesh_scale) check("atlas.mesh_scale", mesh);
 }
 
 // The probes a job would place: its own points, else (a file without probe
@@ -175,7 +179,7 @@ void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scen
         throw SpecError("atlas.max_res", std::to_string(*bake.atlas.max_res) + " is too small for " + name +
                                              "'s generated atlas; the smallest that fits is " +
                                              std::to_string(scene.min_atlas_res));
-    if (const OutputSettings* sh = bake.output("sh")) check_mesh_lists(*sh, scene, name);
+    check_mesh_indices(bake, scene, name);
     if (const OutputSettings* probes = bake.output("probes")) check_probes(*probes, scene, name);
 }
 

@@ -57,7 +57,8 @@ std::array<uint64_t, 3> probe_grid_counts(const std::array<double, 3>& extent, d
 // What can be known before a worker runs, from the scene's summary: a bake
 // that the scene makes impossible or too large (a lightmap with no light and
 // no environment; a generated atlas smaller than the scene's charts need,
-// by res or by max_res; a mesh index the scene does not draw; a probe grid
+// by res or by max_res; a mesh index the scene does not draw (SH lists,
+// atlas.mesh_scale); a probe grid
 // or capture over the limits). Throws SpecError naming the field and the fix.
 void check_spec_against_scene(const BakeSettings& bake, const SceneSummary& scene);
 

@@ -1,6 +1,7 @@
 // `lightfarm bake` as a user runs it: the files it promises, its JSON lines,
 // its stop rules, and one clear line for every kind of failure.
 #include "cli_runner.h"
+#include "gltf_test_files.h"
 #include "gpu_fixture.h"
 
 #include "io/image_files.h"
@@ -323,23 +324,73 @@ TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
     }
     EXPECT_LT(sum / texels, 1.0);
     EXPECT_GT(sum / texels, 0.01);
+    fs::remove_all(out);
+}
 
-    // An environment map lights it too: a map of radiance 1 everywhere (a
-    // Radiance .hdr, 1.0 as RGBE 128 128 128 129) is the same sky, so every
-    // ray sees the same light and the lightmap is the same, bit for bit.
-    const fs::path map = out.parent_path() / "one.hdr";
+// An environment map lights a scene as a uniform sky does: a map of radiance
+// 1 everywhere (a Radiance .hdr, 1.0 as RGBE 128 128 128 129) is the same
+// sky, so every ray sees the same light and the lightmap is the same, bit
+// for bit. The scene, a lone quad, has no light of its own (a map counts as
+// one), and every ray from it escapes: without a sky its chart would be
+// packed as one no light reaches (the atlas once asked "a sky?" of the
+// R,G,B setting alone, and packed it so under a map).
+TEST(CliBake, AnEnvironmentMapLightsAsTheSkyItHolds) {
+    const fs::path dir = fresh_dir("env-map");
+    fs::create_directories(dir);
+    const fs::path map = dir / "one.hdr";
     std::string hdr = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 4\n";
     for (int t = 0; t < 8; ++t) hdr += "\x80\x80\x80\x81";
     std::ofstream(map, std::ios::binary) << hdr;
-    const fs::path out_map = fresh_dir("sky-map");
-    const CliRun m =
-        run_lightfarm("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") + " --out " +
-                      out_map.string() + " --res 256 --passes 4 --env " + map.string() + " --no-stitch --json");
-    ASSERT_EQ(m.exit_code, 0) << m.err;
-    EXPECT_EQ(read_exr(out_map / "lightmap.exr").at("G"), g) << "a map of 1 is not the uniform sky of 1";
-    fs::remove_all(out);
-    fs::remove_all(out_map);
-    fs::remove(map);
+    const fs::path quad = test::quad_file().write(dir, "lone_quad.gltf");
+    std::vector<std::vector<float>> lightmaps;
+    for (const std::string& env : {std::string("1,1,1"), map.string()}) {
+        const fs::path out = dir / ("out-" + std::to_string(lightmaps.size()));
+        const CliRun q = run_lightfarm("bake " + quad.string() + " --out " + out.string() +
+                                       " --res 16 --passes 4 --no-denoise --env " + env + " --json");
+        ASSERT_EQ(q.exit_code, 0) << q.err;
+        std::ifstream manifest(out / "manifest.json");
+        EXPECT_EQ(nlohmann::json::parse(manifest)["prepared"].value("unlit_charts", -1), 0) << "--env " << env;
+        lightmaps.push_back(read_exr(out / "lightmap.exr").at("G"));
+    }
+    EXPECT_EQ(lightmaps[0], lightmaps[1]) << "a map of 1 is not the uniform sky of 1";
+    EXPECT_NEAR(*std::max_element(lightmaps[0].begin(), lightmaps[0].end()), 1.0f, 1e-5f)
+        << "an open quad under a sky of 1 has E/pi = 1";
+    fs::remove_all(dir);
+}
+
+// A job's atlas.mesh_scale (--mesh-scale MESH=S,...) gives a mesh's charts
+// S times the atlas's texel density, as the file's extras would: the
+// manifest counts them and its spec keeps the setting, and at the same
+// density the atlas grows. A mesh the scene does not draw is the job's
+// input, named; a scale over 64 a usage error.
+TEST(CliBake, AMeshScaleFromTheJobGivesThatMeshItsDensity) {
+    const std::string scene = test::shared_scene("monkey.glb");  // 5 meshes, no lightmap UVs of its own
+    auto bake = [&](const std::string& extra, const fs::path& out) {
+        return run_lightfarm("bake " + scene + " --out " + out.string() + " --passes 1 --texel-density 20 --json" +
+                             extra);
+    };
+    const fs::path plain = fresh_dir("mesh-scale-plain"), scaled = fresh_dir("mesh-scale");
+    const CliRun a = bake("", plain), b = bake(" --mesh-scale 1=2", scaled);
+    ASSERT_EQ(a.exit_code, 0) << a.err;
+    ASSERT_EQ(b.exit_code, 0) << b.err;
+    auto atlas_of = [](const fs::path& out) {
+        std::ifstream in(out / "manifest.json");
+        return nlohmann::json::parse(in)["lightmap"]["settings"]["atlas"];
+    };
+    const nlohmann::json before = atlas_of(plain), after = atlas_of(scaled);
+    EXPECT_EQ(before.value("mesh_scaled_charts", -1), 0);
+    EXPECT_GT(after.value("mesh_scaled_charts", 0), 0);
+    // The atlas's own density is kept (20 texels/m); mesh 1's charts take
+    // 2x per side, so the atlas grows.
+    EXPECT_NEAR(after.value("texel_density", 0.0), 20.0, 0.5);
+    EXPECT_GT(after.value("width", 0) * after.value("height", 0), before.value("width", 0) * before.value("height", 0));
+    std::ifstream manifest(scaled / "manifest.json");
+    EXPECT_EQ(nlohmann::json::parse(manifest)["settings"]["atlas"]["mesh_scale"], nlohmann::json({{"1", 2.0}}))
+        << "the manifest's spec reproduces the bake";
+    expect_clean_failure("bake " + scene + " --mesh-scale 99=2", "atlas.mesh_scale: mesh 99 is not drawn", 3);
+    expect_clean_failure("bake " + scene + " --mesh-scale 0=65", "mesh_scale", 2);
+    fs::remove_all(plain);
+    fs::remove_all(scaled);
 }
 
 // The final gather computes the first bounce where a ray lands and reads

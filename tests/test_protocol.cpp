@@ -15,6 +15,7 @@
 #include <limits>
 
 #include <algorithm>
+#include <regex>
 #include <array>
 #include <cmath>
 #include <filesystem>
@@ -635,6 +636,58 @@ TEST(Flags, BecomeTheSameSettingsAsJson) {
     EXPECT_EQ(to_json(b), to_json(same));
 }
 
+// atlas.mesh_scale: glTF mesh index -> its charts' texel density over the
+// atlas's, as the file's extras say it, from a spec (JSON keys) or the CLI
+// ("3=2,5=0.25"); each mistake names the field, a scale the key too.
+TEST(JobSpec, AtlasMeshScaleMapsMeshesToScales) {
+    json j = valid_spec();
+    j["atlas"] = {{"mesh_scale", {{"3", 2}, {"0", 0.25}}}};
+    const JobSpec spec = parse_job_spec(j);
+    EXPECT_EQ(spec.bake.atlas.mesh_scale, (std::map<int, double>{{0, 0.25}, {3, 2.0}}));
+    EXPECT_EQ(to_json(spec.bake)["atlas"]["mesh_scale"], json({{"0", 0.25}, {"3", 2}}));
+    EXPECT_EQ(parse_job_spec(valid_spec()).bake.atlas.mesh_scale.size(), 0u);
+    for (const auto& [value, field] :
+         std::vector<std::pair<json, std::string>>{{json::array({3}), "atlas.mesh_scale"},
+                                                   {json{{"x", 1}}, "atlas.mesh_scale"},
+                                                   {json{{"-1", 1}}, "atlas.mesh_scale"},
+                                                   {json{{"03", 1}}, "atlas.mesh_scale"},
+                                                   {json{{"3", 0}}, "atlas.mesh_scale.3"},
+                                                   {json{{"3", 64.5}}, "atlas.mesh_scale.3"},
+                                                   {json{{"3", "2"}}, "atlas.mesh_scale.3"}}) {
+        j["atlas"] = {{"mesh_scale", value}};
+        EXPECT_EQ(field_of(j), field) << value.dump();
+    }
+    j["atlas"] = {{"mesh_scale", {{"3", 64}}}};
+    EXPECT_EQ(field_of(j), "") << "64 is the largest scale, as for the file's extras";
+
+    const BakeSettings flags = parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=2,5=0.25"}}));
+    EXPECT_EQ(flags.atlas.mesh_scale, (std::map<int, double>{{3, 2.0}, {5, 0.25}}));
+    for (const char* bad : {"3", "3=", "=2", "3=2,", "3=x", "a=2"})
+        EXPECT_THROW(bake_json_from_flags({{"--mesh-scale", bad}}), SpecError) << bad;
+    EXPECT_THROW(parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=0"}})), SpecError);
+}
+
+// The server checks a spec's mesh indices against the scene it names.
+TEST(JobSpec, MeshIndicesTheSceneDoesNotDrawAreRefusedAtSubmit) {
+    SceneSummary scene;
+    scene.source = "room.glb";
+    scene.emissive_triangles = 2;
+    scene.details = {{"meshes", 4}};
+    json j = valid_spec();
+    j["atlas"] = {{"res", 256}, {"mesh_scale", {{"3", 2}}}};
+    EXPECT_NO_THROW(check_spec_against_scene(parse_job_spec(j).bake, scene));
+    j["atlas"]["mesh_scale"] = {{"4", 2}};
+    try {
+        check_spec_against_scene(parse_job_spec(j).bake, scene);
+        ADD_FAILURE() << "mesh 4 of 4 accepted";
+    } catch (const SpecError& e) {
+        EXPECT_EQ(e.field(), "atlas.mesh_scale");
+        EXPECT_NE(std::string(e.what()).find("mesh 4 is not drawn by room.glb (it has 4 meshes: 0 to 3)"),
+                  std::string::npos)
+            << e.what();
+    }
+}
+
 TEST(Flags, OverrideABaseSpec) {
     const json base = {{"scene", "ignored"},
                        {"outputs", {{"lightmap", {{"passes", 64}, {"scheme", "thesis"}}}}},
@@ -1086,6 +1139,13 @@ json schema_of(const Setting& s) {
         break;
     case SettingType::Choice: range = {{"type", "string"}, {"enum", s.choices}}; break;
     case SettingType::Flag: range = {{"type", "boolean"}}; break;
+    case SettingType::MeshScales:
+        range = {
+            {"type", "object"},
+            {"propertyNames", {{"pattern", "^(0|[1-9][0-9]{0,8})$"}}},
+            {"additionalProperties", {{"type", "number"}, {"exclusiveMinimum", 0}, {"maximum", kMaxLightmapScale}}},
+            {"maxProperties", kMaxMeshList}};
+        break;
     case SettingType::MeshList:
         range = {{"type", "array"},
                  {"items", {{"type", "integer"}, {"minimum", 0}, {"maximum", 1 << 30}}},
@@ -1236,6 +1296,11 @@ bool valid_against(const json& doc, const json& schema_ref, const json& v) {
     }
     if (v.is_object()) {
         if (schema.contains("minProperties") && v.size() < schema["minProperties"].get<size_t>()) return false;
+        if (schema.contains("maxProperties") && v.size() > schema["maxProperties"].get<size_t>()) return false;
+        if (schema.contains("propertyNames"))
+            for (auto it = v.begin(); it != v.end(); ++it)
+                if (!std::regex_search(it.key(), std::regex(schema["propertyNames"]["pattern"].get<std::string>())))
+                    return false;
         if (schema.contains("required"))
             for (const json& r : schema["required"])
                 if (!v.contains(r.get<std::string>())) return false;
@@ -1244,6 +1309,9 @@ bool valid_against(const json& doc, const json& schema_ref, const json& v) {
             if (props.contains(it.key())) {
                 if (!valid_against(doc, props[it.key()], it.value())) return false;
             } else if (schema.value("additionalProperties", json(true)) == false) {
+                return false;
+            } else if (schema.contains("additionalProperties") && schema["additionalProperties"].is_object() &&
+                       !valid_against(doc, schema["additionalProperties"], it.value())) {
                 return false;
             }
         }
@@ -1275,6 +1343,10 @@ TEST(OpenApi, SchemaAcceptsExactlyWhatTheServerAccepts) {
         for (const std::string& c : s.choices) values.push_back(c);
         for (const json& v : {json::array({0, 3}), json::array({-1}), json::array({1.5}), json::array({1, 2, 3}),
                               json::array({0.5, 0.5}), json::array({-1, 0, 0}), json("0,3"), json("sky.hdr")})
+            values.push_back(v);
+        for (const json& v : {json{{"3", 2}}, json{{"0", 64}, {"12", 0.25}}, json{{"3", 0}}, json{{"3", 64.5}},
+                              json{{"3", -1}}, json{{"3", "2"}}, json{{"03", 1}}, json{{"-1", 1}}, json{{"x", 1}},
+                              json{{"1234567890", 1}}, json{{"", 1}}})
             values.push_back(v);
         for (const json& v : values) {
             json spec = base;
@@ -1335,6 +1407,7 @@ std::string values_cell(const Setting& s) {
         break;
     case SettingType::Flag: v = std::string("flag: sets `") + (s.default_value == true ? "false" : "true") + "`"; break;
     case SettingType::MeshList: v = "glTF mesh indices: `0,3` (JSON `[0, 3]`)"; break;
+    case SettingType::MeshScales: v = "glTF mesh index = scale: `3=2,5=0.25` (JSON `{\"3\": 2, \"5\": 0.25}`)"; break;
     case SettingType::Environment: v = "`R,G,B` (JSON `[R, G, B]`), or a map file (CLI)"; break;
     case SettingType::Positions: v = "a JSON file of `[{\"position\": [x, y, z]}, …]` (JSON: that array)"; break;
     }

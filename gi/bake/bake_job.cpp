@@ -25,6 +25,7 @@
 #include <iterator>
 #include <future>
 #include <map>
+#include <set>
 #include <memory>
 #include <optional>
 
@@ -129,8 +130,7 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
     options.find_unlit_charts = [&](const std::vector<uint32_t>& chart, size_t count) {
         std::vector<uint8_t> few(count, 0);
         if (settings.atlas_needs_light()) {
-            const UnlitCharts unlit =
-                find_unlit_charts(p.scene, geometry(), chart, count, settings.env.sky.has_value());
+            const UnlitCharts unlit = find_unlit_charts(p.scene, geometry(), chart, count, p.environment.has_value());
             p.unlit_chart_rays = unlit.rays;
             few = unlit.unlit;
         }
@@ -162,7 +162,8 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                                      [](const PrimitiveInstance& i) { return i.lightmap_scale != 1.0f; });
     if (!p.atlas.generated && scaled != p.scene.instances.end())
         p.warnings.push_back("node " + std::to_string(scaled->node) +
-                             "'s lightfarm_lightmap_scale is not applied: the scene has its own lightmap UVs "
+                             "'s lightmap scale (lightfarm_lightmap_scale, atlas.mesh_scale) is not applied: the scene "
+                             "has its own lightmap UVs "
                              "(TEXCOORD_1), which are baked as they are");
     // A density asked for that the largest atlas cannot hold is baked lower: said, not silent.
     if (options.texel_density > 0.0f && p.atlas.texel_density < 0.99f * options.texel_density)
@@ -187,6 +188,20 @@ void prepare_texels(PreparedScene& p, const protocol::AtlasSettings& settings, c
 
 // Everything the outputs share, made once: scene, atlas, GL context, tracer;
 // `on_stage` is told as each stage begins.
+// The job's atlas.mesh_scale over the file's extras: each listed mesh's
+// instances take its scale. A mesh the scene does not draw is the job's
+// input error.
+void apply_mesh_scales(PreparedScene& p, const std::map<int, double>& mesh_scale) {
+    std::set<int> drawn;
+    for (const PrimitiveInstance& i : p.scene.instances) drawn.insert(i.mesh);
+    for (const auto& [mesh, scale] : mesh_scale)
+        if (!drawn.count(mesh))
+            throw BakeInputError("atlas.mesh_scale: mesh " + std::to_string(mesh) + " is not drawn by " +
+                                 p.file.filename().string() + " (it has " + std::to_string(drawn.size()) + " meshes)");
+    for (PrimitiveInstance& i : p.scene.instances)
+        if (const auto it = mesh_scale.find(i.mesh); it != mesh_scale.end()) i.lightmap_scale = float(it->second);
+}
+
 std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScene::on_stage) on_stage) {
     auto p = std::make_unique<PreparedScene>();
     p->on_stage = std::move(on_stage);
@@ -194,6 +209,7 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScen
     p->scene = p->timed("load", [&] { return load_scene(job.scene); });
     const protocol::BakeSettings& s = job.settings;
     p->environment = read_environment(s.env);
+    apply_mesh_scales(*p, s.atlas.mesh_scale);
     if (s.needs_light() && p->scene.emissive_triangle_count() == 0 && p->scene.lights.empty() && !p->environment)
         throw BakeInputError(job.scene.filename().string() +
                              ": nothing to bake: the scene has no emissive surface and no punctual light, and no "

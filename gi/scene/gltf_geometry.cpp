@@ -5,6 +5,8 @@
 // the world-space arrays are allocated; then every placement is emitted.
 #include "scene/gltf_build.h"
 
+#include "bake_settings.h"
+
 #include <glm/gtc/matrix_access.hpp>
 
 #include <algorithm>
@@ -280,7 +282,6 @@ void GeometryBuilder::build(const std::vector<PlacedNode>& meshes) {
 // The node's extras.lightfarm_lightmap_scale, else its mesh's, else 1.
 float GeometryBuilder::lightmap_scale(const PlacedNode& placed) const {
     constexpr const char* kKey = "lightfarm_lightmap_scale";
-    constexpr double kMost = 64.0;
     const tinygltf::Node& node = model_.nodes[size_t(placed.node)];
     const tinygltf::Mesh& mesh = model_.meshes[size_t(placed.item)];
     const bool on_node = node.extras.IsObject() && node.extras.Has(kKey);
@@ -288,7 +289,7 @@ float GeometryBuilder::lightmap_scale(const PlacedNode& placed) const {
     if (!extras.IsObject() || !extras.Has(kKey)) return 1.0f;
     const tinygltf::Value& v = extras.Get(kKey);
     const double scale = v.IsNumber() ? v.GetNumberAsDouble() : std::nan("");
-    if (!(scale > 0.0 && scale <= kMost))
+    if (!(scale > 0.0 && scale <= protocol::kMaxLightmapScale))
         errors_.fail(on_node ? "node" : "mesh", on_node ? placed.node : placed.item,
                      std::string("extras.") + kKey +
                          " must be a number above 0 and at most 64 (the charts' texel "
