@@ -1210,6 +1210,11 @@ TEST_F(ServerTest, EveryKnowableMistakeIsA400AtSubmitNamingTheField) {
     EXPECT_EQ(low->status, 400) << low->body;
     EXPECT_EQ(json::parse(low->body)["field"], "atlas.max_res");
     EXPECT_NE(low->body.find("286"), std::string::npos) << low->body;
+    auto unscaled = post_job(
+        {{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"mesh_scale", {{"4", 2}}}}}});
+    EXPECT_EQ(unscaled->status, 400) << unscaled->body;
+    EXPECT_EQ(json::parse(unscaled->body)["field"], "atlas.mesh_scale");
+    EXPECT_NE(unscaled->body.find("mesh 4 is not drawn"), std::string::npos) << unscaled->body;
     auto instant =
         post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"limits", {{"max_seconds", 1e-9}}}});
     EXPECT_EQ(instant->status, 400) << instant->body;
@@ -1233,6 +1238,11 @@ TEST_F(ServerTest, EveryKnowableMistakeIsA400AtSubmitNamingTheField) {
     EXPECT_EQ(post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"max_res", 286}}}})
                   ->status,
               201);
+    EXPECT_EQ(
+        post_job(
+            {{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"mesh_scale", {{"3", 2}}}}}})
+            ->status,
+        201);
 }
 
 // ---- Supervision: input errors, deadlines, stored specs, the newest snapshot.
