@@ -959,9 +959,10 @@ TEST(RadiosityMap, AnEnvironmentMapLightsPlanesAtEveryAngleByItsIntegral) {
     const glm::dvec3 c0(1.0, 0.8, 0.6);
     const glm::dmat3 c(glm::dvec3(0.3, 0.0, -0.2), glm::dvec3(0.5, -0.4, 0.1),
                        glm::dvec3(0.0, 0.3, -0.3));  // columns: the coefficients of x, y, z (RGB each)
-    RadiosityMapSettings settings;
-    settings.environment = environment_from_function(
+    const Environment sky = environment_from_function(
         512, 256, [&](glm::vec3 d) { return glm::vec3(c0 + c * glm::dvec3(d)); }, "linear test sky");
+    RadiosityMapSettings settings;
+    settings.environment = &sky;
     const glm::dvec3 normals[] = {{0, 1, 0},
                                   {0, -1, 0},
                                   {1, 0, 0},
@@ -1011,7 +1012,9 @@ TEST(RadiosityMap, DirectionalLightmapFollowsTiltedNormalsUnderTheSky) {
     test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, black, grid_cell(0, 1, res));
     RadiosityMapSettings settings;
     settings.directional = true;
-    settings.environment.constant = glm::vec3(1.0f);  // a uniform sky
+    Environment sky;
+    sky.constant = glm::vec3(1.0f);  // a uniform sky
+    settings.environment = &sky;
     const BakeResult r = bake(s, res, 1024, settings);
     size_t count = 0;
     const auto [l0, l1] = tilted_normal_errors(

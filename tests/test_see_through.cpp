@@ -283,7 +283,9 @@ Scene room_with_window(const Material* sheet) {
 // way, within 4x the draws' noise on the floor's sum at 256 passes (0.6%).
 TEST(SeeThrough, TheSkyThroughAWindowIsTheOpeningTimesItsTransmittance) {
     RadiosityMapSettings settings;
-    settings.environment.constant = glm::vec3(1.0f);  // a uniform sky
+    Environment sky;
+    sky.constant = glm::vec3(1.0f);  // a uniform sky
+    settings.environment = &sky;
     constexpr int kDrawnPasses = 256, kExactPasses = 64;
     auto ratio_of = [&](const Material* sheet, int passes) {
         const FloorTexels f =

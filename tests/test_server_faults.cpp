@@ -209,6 +209,24 @@ void ServerScenario::check_nothing_lost(const std::string& scene, const std::str
     EXPECT_EQ(json::parse(j->body).value("state", ""), "succeeded") << j->body;
 }
 
+// site -> phase -> error -> call -> what failing that call did.
+using PhaseEffects = std::map<std::string, std::map<std::string, std::map<std::string, std::map<int, std::string>>>>;
+
+// The docs' table of the server's scenario: a row per site and phase, in
+// the phases' order, with what each error did at each call.
+std::string phase_table(const std::string& who, const PhaseEffects& effects,
+                        std::map<std::string, std::map<std::string, int>>& sites) {
+    std::string table =
+        row({"site (" + who + ")", "phase", "calls", "ENOSPC", "EIO"}) + row({"---", "---", "---", "---", "---"});
+    for (const auto& [site, by_phase] : effects)
+        for (const std::string& phase : kServerPhases)
+            if (by_phase.count(phase))
+                table += row({"`" + operation_and_path(site) + "`", phase, calls_cell(sites[site][phase]),
+                              summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
+                              summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
+    return table;
+}
+
 TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
     TempDir tmp;
     std::map<std::string, std::map<std::string, int>> sites;
@@ -232,8 +250,7 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
     // Each call of each site fails in turn (the first, middle and last of a
     // phase's calls where it makes more than three), in one run for each
     // call number and error; a run fails that call in every phase with it.
-    // site -> phase -> error -> call -> effect
-    std::map<std::string, std::map<std::string, std::map<std::string, std::map<int, std::string>>>> effects;
+    PhaseEffects effects;
     int runs = 0;
     for (const auto& [site, calls] : sites) {
         std::map<int, std::set<std::string>> phases_by_call;
@@ -256,15 +273,7 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
         }
     }
     std::cerr << runs << " runs of the scenario\n";
-    std::string table =
-        row({"site (lightfarmd)", "phase", "calls", "ENOSPC", "EIO"}) + row({"---", "---", "---", "---", "---"});
-    for (const auto& [site, by_phase] : effects)
-        for (const std::string& phase : kServerPhases)
-            if (by_phase.count(phase))
-                table += row({"`" + operation_and_path(site) + "`", phase, calls_cell(sites[site][phase]),
-                              summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
-                              summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
-    expect_doc_table("server write-fault", table);
+    expect_doc_table("server write-fault", phase_table("lightfarmd", effects, sites));
 }
 
 // ---------------------------------------------------------------- PostgreSQL
@@ -315,8 +324,7 @@ TEST(StoreFaults, EveryWalCallOfPostgreSQLUnderTheServer) {
     for (const std::string& site : kWalSites)
         for (const std::string phase : {"start", "upload", "job", "run"})
             EXPECT_GT(sites[site][phase], 0) << site << " is not called in " << phase;
-    // site -> phase -> error -> call -> effect, as the server's test above.
-    std::map<std::string, std::map<std::string, std::map<std::string, std::map<int, std::string>>>> effects;
+    PhaseEffects effects;
     int runs = 0;
     for (const std::string& site : kWalSites) {
         // Each call where a phase makes up to three (an upload's and a
@@ -338,15 +346,7 @@ TEST(StoreFaults, EveryWalCallOfPostgreSQLUnderTheServer) {
             }
     }
     std::cerr << runs << " runs of the scenario on PostgreSQL\n";
-    std::string table = row({"site (PostgreSQL under lightfarmd)", "phase", "calls", "ENOSPC", "EIO"}) +
-                        row({"---", "---", "---", "---", "---"});
-    for (const auto& [site, by_phase] : effects)
-        for (const std::string& phase : kServerPhases)
-            if (by_phase.count(phase))
-                table += row({"`" + operation_and_path(site) + "`", phase, calls_cell(sites[site][phase]),
-                              summary(by_phase.at(phase).at("ENOSPC"), sites[site][phase]),
-                              summary(by_phase.at(phase).at("EIO"), sites[site][phase])});
-    expect_doc_table("postgresql write-fault", table);
+    expect_doc_table("postgresql write-fault", phase_table("PostgreSQL under lightfarmd", effects, sites));
 }
 
 // ---------------------------------------------------------------- the client

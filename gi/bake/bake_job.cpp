@@ -22,7 +22,6 @@
 #include <cstdlib>
 #include <fstream>
 #include <functional>
-#include <iterator>
 #include <future>
 #include <map>
 #include <set>
@@ -294,13 +293,14 @@ fs::path finished_path(const fs::path& out, const std::string& output) {
 
 // What a saved state of `output` must match to be restored: the output's
 // canonical settings, the atlas's (when the job has one), the seed, the
-// environment (a map's bytes, not only its name) and the scene's content
+// environment (a map's texels, not only its name) and the scene's content
 // (Scene::content_hash: the file and every buffer and image it names). Each of them changes the sums a pass
 // adds to. Not the method's description: counts the GPU makes there (texels
 // moved out of geometry) may differ by a few from one device to another;
 // which texel, vertex or probe each entry is, is the state's layout hash,
 // which restore() checks.
-std::string state_key(const BakeJob& job, const Scene& scene, const std::string& output) {
+std::string state_key(const BakeJob& job, const PreparedScene& prepared, const std::string& output) {
+    const Scene& scene = prepared.scene;
     const nlohmann::json settings = protocol::to_json(job.settings);
     char content[17];
     std::snprintf(content, sizeof content, "%016llx", static_cast<unsigned long long>(scene.content_hash));
@@ -310,11 +310,9 @@ std::string state_key(const BakeJob& job, const Scene& scene, const std::string&
                           {"env", settings.value("env", nlohmann::json())},
                           {"scene", content}};
     if (job.settings.uses_atlas()) key["atlas"] = settings["atlas"];
-    if (const std::string& map = job.settings.env.map_file; !map.empty()) {
-        std::ifstream in(map, std::ios::binary);
-        const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (prepared.environment && !prepared.environment->is_constant()) {
         std::snprintf(content, sizeof content, "%016llx",
-                      static_cast<unsigned long long>(hash_bytes(bytes.data(), bytes.size())));
+                      static_cast<unsigned long long>(hash_vector(prepared.environment->texels)));
         key["env_content"] = content;
     }
     return key.dump();
@@ -637,7 +635,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     // Each output from where an interrupted run of this job left it; a
     // fresh run first drops any state an older run left behind.
     std::vector<std::string> keys;
-    for (const auto& m : methods) keys.push_back(state_key(job, prepared->scene, m->output()));
+    for (const auto& m : methods) keys.push_back(state_key(job, *prepared, m->output()));
     std::vector<ResumePoint> resumed(methods.size());
     if (job.resume) {
         for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], keys[i], started);

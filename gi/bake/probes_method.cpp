@@ -70,7 +70,7 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
       stop_(stop_rule_from(settings.output("probes")->stop())),
       seed_(settings.seed),
       shading_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene,
-               prepared.environment.value_or(Environment{})),
+               prepared.environment ? &*prepared.environment : nullptr),
       surface_textures_(prepared.atlas_scene ? *prepared.atlas_scene : prepared.scene),
       capture_(prepared.tracer->program("probe_capture.comp", {{"LF_EXACT_TEXTURES", "1"}})) {
     positions_ = place(prepared.scene, settings_, &spacing_);

@@ -69,7 +69,7 @@ struct RadiosityMapSettings {
     int light_samples = 1;  // emitter samples per texel per pass
     LightSampling light_sampling = LightSampling::Mis;
     uint32_t seed = 1;
-    Environment environment;  // what escaping rays see (default: black)
+    const Environment* environment = nullptr;  // what escaping rays see (null: black); the caller keeps it
     // > 0: a texel whose own relative standard error falls below this stops
     // tracing (adaptive sampling); set from the bake's target error.
     double converged_texel_error = 0.0;

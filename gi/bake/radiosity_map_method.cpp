@@ -45,7 +45,7 @@ RadiosityMapSettings radiosity_settings(const protocol::BakeSettings& settings,
     r.light_samples = l.integer("light_samples");
     r.light_sampling = parse_light_sampling(l.choice("light_sampling"));
     r.seed = settings.seed;
-    if (environment) r.environment = *environment;
+    r.environment = environment ? &*environment : nullptr;
     // Adaptive sampling: a texel well below the target stops tracing.
     if (l.stop().target_error > 0.0) r.converged_texel_error = 0.5 * l.stop().target_error;
     r.directional = l.flag("directional");

@@ -11,7 +11,7 @@ float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
 }  // namespace
 
-SceneShading::SceneShading(const Scene& scene, const Environment& environment) : environment_(environment) {
+SceneShading::SceneShading(const Scene& scene, const Environment* environment) : environment_(environment) {
     // Emissive triangles, chosen in proportion to their power (area x radiance).
     std::vector<uint32_t> emitter_triangles;
     std::vector<glm::vec3> emitter_radiance;  // each one's mean (a texture average: computed once)

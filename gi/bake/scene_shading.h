@@ -19,8 +19,8 @@ namespace lf {
 
 class SceneShading {
 public:
-    // `environment`: what rays that escape see (none: black).
-    explicit SceneShading(const Scene& scene, const Environment& environment = {});
+    // `environment`: what rays that escape see (null: black).
+    explicit SceneShading(const Scene& scene, const Environment* environment = nullptr);
 
     // Binds the buffers at the bindings the shaders declare.
     void bind() const;

@@ -92,7 +92,7 @@ private:
     ShSettings settings_;
     ShTransferSettings transfer_;
     StopRule stop_;
-    std::optional<Environment> environment_;
+    const std::optional<Environment>& environment_;  // the prepared scene's
     ShWindow window_;
     int subsamples_;
     bool uniform_light_;  // a uniform sky (--env R,G,B): the same radiance from every direction

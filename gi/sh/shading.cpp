@@ -26,7 +26,7 @@ std::vector<glm::vec3> reference_irradiance(const Scene& scene, const Tracer& tr
         vertices.push_back(glm::vec4(glm::normalize(scene.normals[v]), 0.0f));
     }
     GpuBuffer vertex_buffer(vertices), out(scene.positions.size() * sizeof(glm::vec4));
-    const EnvironmentLight environment(env);
+    const EnvironmentLight environment(&env);
 
     const ComputeProgram program = tracer.program("sh_reference.comp");
     tracer.bind();

@@ -22,16 +22,17 @@ std::vector<glm::vec4> texels_of(const Environment& environment) {
 
 }  // namespace
 
-EnvironmentLight::EnvironmentLight(const Environment& environment)
-    : texels_(texels_of(environment)),
-      // A map's texels are its radiance: scaled by 1.
-      scale_(environment.is_constant() ? environment.constant : glm::vec3(1.0f)),
-      width_(uint32_t(environment.width)),
-      height_(uint32_t(environment.height)) {
+EnvironmentLight::EnvironmentLight(const Environment* environment) {
+    static const Environment kBlack;
+    const Environment& env = environment ? *environment : kBlack;
+    texels_ = GpuBuffer(texels_of(env));
+    scale_ = env.is_constant() ? env.constant : glm::vec3(1.0f);  // a map's texels are its radiance
+    width_ = uint32_t(env.width);
+    height_ = uint32_t(env.height);
     GLint largest = 0;
     glGetIntegerv(GL_MAX_TEXTURE_BUFFER_SIZE, &largest);
     if (uint64_t(width_) * height_ > uint64_t(largest))
-        throw GpuError(environment.source + ": the environment map's " + std::to_string(width_) + " x " +
+        throw GpuError(env.source + ": the environment map's " + std::to_string(width_) + " x " +
                        std::to_string(height_) + " texels are more than this device's " + std::to_string(largest) +
                        " in one buffer texture; give a smaller map");
     glCreateTextures(GL_TEXTURE_BUFFER, 1, &texture_);

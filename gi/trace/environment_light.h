@@ -17,9 +17,10 @@ namespace lf {
 
 class EnvironmentLight {
 public:
-    // Black (no light from beyond) unless given.
-    // Throws GpuError for a map over the device's largest buffer texture.
-    explicit EnvironmentLight(const Environment& environment = {});
+    // `environment` null: black (no light from beyond). Reads it once, to
+    // upload; the caller keeps it. Throws GpuError for a map over the
+    // device's largest buffer texture.
+    explicit EnvironmentLight(const Environment* environment = nullptr);
     ~EnvironmentLight();
     EnvironmentLight(const EnvironmentLight&) = delete;
     EnvironmentLight& operator=(const EnvironmentLight&) = delete;
