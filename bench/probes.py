@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Probes, speed against accuracy: runs `lightfarm probebench` on a scene,
 writes its JSON and two CSVs, and draws with gnuplot
-  - error against evaluation cost (C++ points/s) for the four estimators (and polygon-to-point clipped to the horizon) at
+  - error against evaluation cost (C++ points/s) for the four estimators (and polygon-to-point as the paper clamps it) at
     M = 1, 2, 4, 8 (one curve per estimator, one point per M), and
   - error against the distance to a wall, the paper's experiment (its
     Figures 4-5): points moving from the probe to the wall, normals facing it.
@@ -21,7 +21,7 @@ import subprocess
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LIGHTFARM = os.path.join(ROOT, "build", "client_cli", "lightfarm")
 SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "..", "shared", "scenes"))
-ESTIMATORS = ["sh9", "point_to_point", "polygon_to_point", "polygon_to_point_clipped", "ddgi"]
+ESTIMATORS = ["sh9", "point_to_point", "polygon_to_point", "polygon_to_point_paper", "ddgi"]
 
 
 def write_csvs(bench, out, name):

@@ -74,10 +74,9 @@ std::vector<EvalPoint> random_points(const ProbeSet& full, int count, uint32_t s
     return points;
 }
 
-// The four of the issue, and polygon_to_point with each texel's polygon
-// clipped to the point's horizon (ProbeEvalOptions::clip_to_horizon) beside
-// the paper's clamp.
-const char* const kEstimators[] = {"sh9", "point_to_point", "polygon_to_point", "polygon_to_point_clipped", "ddgi"};
+// The four of the issue, and polygon_to_point as the paper clamps it
+// (ProbeEvalOptions::clip_to_horizon = false) beside lightfarm's.
+const char* const kEstimators[] = {"sh9", "point_to_point", "polygon_to_point", "polygon_to_point_paper", "ddgi"};
 constexpr int kEstimatorCount = 5;
 
 // One estimator of one probe at (x, n); index into kEstimators. (ddgi with a
@@ -87,7 +86,7 @@ glm::vec3 estimate(int estimator, const PreparedProbe& p, const EvalPoint& q) {
     case 0: return probe_sh9(p, q.n);
     case 1: return probe_point_to_point(p, q.x, q.n);
     case 2: return probe_polygon_to_point(p, q.x, q.n);
-    case 3: return probe_polygon_to_point(p, q.x, q.n, true);
+    case 3: return probe_polygon_to_point(p, q.x, q.n, false);
     default: return probe_convolved_irradiance(p, q.n);
     }
 }

@@ -9,13 +9,15 @@
 //   point_to_point   every texel a point light at probe + distance·direction
 //                    (the paper's baseline). Blows up as x nears a wall: kept.
 //   polygon_to_point every texel a quadrilateral whose corners lie at the
-//                    corner distances (below) along the corner directions;
-//                    contribution L_i · max(F_i, 0), F_i the polygon-to-point
-//                    form factor (the paper's eq. 1 and listing), at x or,
-//                    where x lies just beyond a texel's polygon that cuts
-//                    across a room's edge, just inside it (probe_point_inside).
-//                    Clipped to x's horizon (ProbeEvalOptions), each quad as
-//                    its two triangles split along corners 0-2.
+//                    corner distances (below) along the corner directions,
+//                    as its two triangles split along corners 0-2; each
+//                    clipped to x's horizon, contribution L_i · F_i with F_i
+//                    the signed polygon-to-point form factor (the paper's
+//                    eq. 1 and listing), at x or, where x lies just beyond a
+//                    texel's polygon that cuts across a room's edge, just
+//                    inside it (probe_point_inside). The paper instead takes
+//                    L_i · max(F_i, 0) of the unclipped quad
+//                    (ProbeEvalOptions::clip_to_horizon = false, to compare).
 //   ddgi             Majercik et al. 2019: the probe's cosine-convolved
 //                    radiance at n, blended over probes with trilinear ×
 //                    backface × Chebyshev-visibility weights from the
@@ -89,10 +91,10 @@ namespace lf {
 // a Lambertian receiver's irradiance) for any planar polygon entirely above
 // x's tangent plane. For a polygon partly below the plane the formula
 // integrates the signed cosine, so the part below subtracts; the result is
-// returned as is (it can be negative): polygon_to_point clamps it at 0 per
-// texel polygon as the paper does (which loses that texel's above-plane part
-// when the sum goes negative), and clipped_polygon_to_point_form_factor is the
-// exact value. An edge through x (|R_l × R_{l+1}| = 0) contributes 0.
+// returned as is (it can be negative): the paper clamps it at 0 per texel
+// polygon (which loses that texel's above-plane part when the sum goes
+// negative), and clipped_polygon_to_point_form_factor is the exact value. An edge through x (|R_l × R_{l+1}| = 0)
+// contributes 0.
 float polygon_to_point_form_factor(glm::vec3 x, glm::vec3 n, const glm::vec3* corners, int count);
 
 // The exact form factor of a planar polygon partly below the tangent plane:
@@ -136,9 +138,12 @@ struct ProbeEvaluation {
 };
 
 struct ProbeEvalOptions {
-    // polygon_to_point: false = the paper (clamp each texel's sum at 0), true
-    // = clip each texel polygon to the tangent plane (exact per polygon).
-    bool clip_to_horizon = false;
+    // polygon_to_point: true = each texel's two triangles clipped to the
+    // point's tangent plane, their signed form factors summed (exact for
+    // uniform radiance in any room: probe_eval.cpp says why); false = the
+    // paper's clamp, max(F, 0) per texel of the unclipped sum (kept to
+    // compare: it loses up to half the light 1 cm from two walls).
+    bool clip_to_horizon = true;
     // DDGI: x is moved by normal_bias along n before the visibility test
     // (Majercik's self-shadow bias), in metres.
     float ddgi_normal_bias = 0.02f;
@@ -177,7 +182,7 @@ glm::vec3 probe_point_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n)
 // across a room's edge and the edge), the point just inside that polygon on
 // the line from the probe to x (probe_eval.cpp says why).
 glm::vec3 probe_point_inside(const PreparedProbe& p, glm::vec3 x);
-glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, bool clip_to_horizon = false);
+glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, bool clip_to_horizon = true);
 // The probe's cosine-convolved radiance at n, / π: the piecewise-constant
 // texel radiance integrated exactly against max(0, n·ω) (each texel's
 // spherical quad clipped to the hemisphere) — DDGI's irradiance texel.

@@ -54,6 +54,26 @@ float lf_polygon_to_point_form_factor(vec3 x, vec3 n, vec3 c0, vec3 c1, vec3 c2,
     return sum / LF_TWO_PI;
 }
 
+// Form factor from x (unit normal n) to the triangle a, b, c (relative to x)
+// clipped to x's horizon, n · r >= 0 (Sutherland–Hodgman: at most four
+// corners), signed by its winding as above: exact for any planar triangle
+// (lf::clipped_polygon_to_point_form_factor).
+float lf_clipped_triangle_form_factor(vec3 a, vec3 b, vec3 c, vec3 n) {
+    vec3 corners[3] = vec3[3](a, b, c);
+    vec3 kept[4];
+    int k = 0;
+    for (int l = 0; l < 3; ++l) {
+        vec3 p = corners[l], q = corners[(l + 1) % 3];
+        float hp = dot(n, p), hq = dot(n, q);
+        if (hp >= 0.0) kept[k++] = p;
+        if ((hp >= 0.0) != (hq >= 0.0)) kept[k++] = p + (q - p) * (hp / (hp - hq));
+    }
+    if (k < 3) return 0.0;
+    float sum = 0.0;
+    for (int l = 0; l < k; ++l) sum += lf_edge_term(kept[l], kept[(l + 1) % k], n);
+    return sum / LF_TWO_PI;
+}
+
 // As packed: negative where the corner's own ray met no surface (its place
 // comes from a rule: lf::pack_probe_buffer).
 float lf_probe_corner_signed(uint base, int m, int face, int a, int b) {
@@ -114,7 +134,9 @@ vec3 lf_probe_point_inside(uint base, int m, vec3 probe_position, vec3 x) {
 
 // Irradiance / π at x (unit normal n) from probe `probe` (index into the
 // buffer, M texels per face side, reference point probe_position): every
-// texel a quad with corners at the corner distances, L_i · max(F_i, 0).
+// texel a quad with corners at the corner distances, as its two triangles
+// split along corners 0-2, each clipped to x's horizon; Σ L_i · F_i signed,
+// clamped at 0 in total (lf::probe_polygon_to_point says why).
 vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, vec3 n) {
     uint base = probe * lf_probe_stride(m);
     float inv_m = 1.0 / float(m);
@@ -134,9 +156,11 @@ vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, v
                                                lf_cube_direction(face, vec2(i + 1, j + 1) * inv_m);
                 vec3 c3 = probe_position + lf_probe_corner_distance(base, m, face, i + 1, j) *
                                                lf_cube_direction(face, vec2(i + 1, j) * inv_m);
-                sum += radiance * max(lf_polygon_to_point_form_factor(x, n, c0, c1, c2, c3), 0.0);
+                vec3 r0 = c0 - x, r2 = c2 - x;
+                sum += radiance * (lf_clipped_triangle_form_factor(r0, c1 - x, r2, n) +
+                                   lf_clipped_triangle_form_factor(r0, r2, c3 - x, n));
             }
-    return sum;
+    return max(sum, vec3(0.0));
 }
 
 // ----------------------------------------------------------- a grid ----
