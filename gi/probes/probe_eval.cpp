@@ -404,8 +404,13 @@ glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 
         dvec3 r[4];
         for (int c = 0; c < 4; ++c) r[c] = dvec3(t.corners[c]) - xd;
         if (clip_to_horizon) {
+            int above = 0;
+            for (const dvec3& c : r) above += glm::dot(nd, c) >= 0.0;
+            if (above == 0) continue;
+            // Wholly above, the two triangles' shared edge cancels: the quad's own sum.
             const dvec3 second[3] = {r[0], r[2], r[3]};
-            sum += dvec3(t.radiance) * (clipped_sum(r, 3, nd) + clipped_sum(second, 3, nd));
+            const double f = above == 4 ? lambert_sum(r, 4, nd) : clipped_sum(r, 3, nd) + clipped_sum(second, 3, nd);
+            sum += dvec3(t.radiance) * f;
         } else {
             sum += dvec3(t.radiance) * std::max(lambert_sum(r, 4, nd), 0.0);
         }

@@ -54,24 +54,33 @@ float lf_polygon_to_point_form_factor(vec3 x, vec3 n, vec3 c0, vec3 c1, vec3 c2,
     return sum / LF_TWO_PI;
 }
 
-// Form factor from x (unit normal n) to the triangle a, b, c (relative to x)
-// clipped to x's horizon, n · r >= 0 (Sutherland–Hodgman: at most four
-// corners), signed by its winding as above: exact for any planar triangle
-// (lf::clipped_polygon_to_point_form_factor).
-float lf_clipped_triangle_form_factor(vec3 a, vec3 b, vec3 c, vec3 n) {
-    vec3 corners[3] = vec3[3](a, b, c);
-    vec3 kept[4];
-    int k = 0;
-    for (int l = 0; l < 3; ++l) {
-        vec3 p = corners[l], q = corners[(l + 1) % 3];
-        float hp = dot(n, p), hq = dot(n, q);
-        if (hp >= 0.0) kept[k++] = p;
-        if ((hp >= 0.0) != (hq >= 0.0)) kept[k++] = p + (q - p) * (hp / (hp - hq));
+// One edge p -> q (relative to x, heights hp, hq above x's horizon) of a
+// polygon clipped to that horizon: the part above it, and where it leaves or
+// re-enters it (Sutherland–Hodgman, without a corner list).
+float lf_clipped_edge_term(vec3 p, vec3 q, float hp, float hq, vec3 n, inout vec3 leaves, inout vec3 enters) {
+    if (hp >= 0.0 && hq >= 0.0) return lf_edge_term(p, q, n);
+    if (hp < 0.0 && hq < 0.0) return 0.0;
+    vec3 crossing = p + (q - p) * (hp / (hp - hq));
+    if (hp >= 0.0) {
+        leaves = crossing;
+        return lf_edge_term(p, crossing, n);
     }
-    if (k < 3) return 0.0;
-    float sum = 0.0;
-    for (int l = 0; l < k; ++l) sum += lf_edge_term(kept[l], kept[(l + 1) % k], n);
-    return sum / LF_TWO_PI;
+    enters = crossing;
+    return lf_edge_term(crossing, q, n);
+}
+
+// Form factor from x (unit normal n) to the triangle a, b, c (relative to x)
+// clipped to x's horizon, n · r >= 0, signed by its winding as above: exact
+// for any planar triangle (lf::clipped_polygon_to_point_form_factor). A
+// triangle across the horizon crosses it on two edges; the clipped polygon
+// closes along the horizon from where it leaves to where it re-enters.
+float lf_clipped_triangle_form_factor(vec3 a, vec3 b, vec3 c, vec3 n) {
+    float ha = dot(n, a), hb = dot(n, b), hc = dot(n, c);
+    vec3 leaves = vec3(0.0), enters = vec3(0.0);
+    float sum = lf_clipped_edge_term(a, b, ha, hb, n, leaves, enters) +
+                lf_clipped_edge_term(b, c, hb, hc, n, leaves, enters) +
+                lf_clipped_edge_term(c, a, hc, ha, n, leaves, enters);
+    return (sum + lf_edge_term(leaves, enters, n)) / LF_TWO_PI;
 }
 
 // As packed: negative where the corner's own ray met no surface (its place
@@ -156,9 +165,16 @@ vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, v
                                                lf_cube_direction(face, vec2(i + 1, j + 1) * inv_m);
                 vec3 c3 = probe_position + lf_probe_corner_distance(base, m, face, i + 1, j) *
                                                lf_cube_direction(face, vec2(i + 1, j) * inv_m);
-                vec3 r0 = c0 - x, r2 = c2 - x;
-                sum += radiance * (lf_clipped_triangle_form_factor(r0, c1 - x, r2, n) +
-                                   lf_clipped_triangle_form_factor(r0, r2, c3 - x, n));
+                vec3 r0 = c0 - x, r1 = c1 - x, r2 = c2 - x, r3 = c3 - x;
+                vec4 h = vec4(dot(n, r0), dot(n, r1), dot(n, r2), dot(n, r3));
+                if (all(lessThan(h, vec4(0.0)))) continue;  // below the horizon
+                float f;
+                if (all(greaterThanEqual(h, vec4(0.0))))  // above: the two triangles' shared edge cancels
+                    f = (lf_edge_term(r0, r1, n) + lf_edge_term(r1, r2, n) + lf_edge_term(r2, r3, n) +
+                         lf_edge_term(r3, r0, n)) / LF_TWO_PI;
+                else
+                    f = lf_clipped_triangle_form_factor(r0, r1, r2, n) + lf_clipped_triangle_form_factor(r0, r2, r3, n);
+                sum += radiance * f;
             }
     return max(sum, vec3(0.0));
 }
