@@ -115,8 +115,11 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
     }
     // Irradiance/pi is L everywhere inside, whatever the normal: the
     // polygon-to-point estimate holds it from the probe out to 1 cm from a
-    // wall facing it, where texels are large in the point's hemisphere; 5% is
-    // the capture's noise at 48 passes.
+    // wall facing it, and at the room's edges and corners below (issue #34:
+    // within 2% as close as 1 cm to a wall). The estimator is exact for
+    // uniform radiance (tests/test_probes.cpp, by ray casting); what is left
+    // here is the capture's noise at 48 passes of 16 x 16 texels, measured
+    // at most 1.45% over these ten points.
     const ProbeEvaluator eval(set);
     for (const auto& [x, n] : std::vector<std::pair<glm::vec3, glm::vec3>>{{centre, {0, 1, 0}},
                                                                            {{0.3f, -0.4f, 0.2f}, {1, 0, 0}},
@@ -125,7 +128,9 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
                                                                            {{0.4f, 0.5f, -0.99f}, {0, 0, -1}},
                                                                            {{0, -0.9f, 0}, {0, -1, 0}}}) {
         const ProbeEvaluation e = eval.evaluate(x, n);
-        EXPECT_NEAR(e.polygon_to_point.g, expected, 0.05 * expected) << x.x << "," << x.y << "," << x.z;
+        std::printf("  furnace at (%.2f, %.2f, %.2f): polygon_to_point %+.4f\n", x.x, x.y, x.z,
+                    e.polygon_to_point.g / expected - 1.0f);
+        EXPECT_NEAR(e.polygon_to_point.g, expected, 0.02 * expected) << x.x << "," << x.y << "," << x.z;
     }
     // At the room's edges and corners (issue #34), each point with the
     // normal of every wall near it: a texel that sees
@@ -141,7 +146,7 @@ TEST(ProbeCapture, FurnaceRadianceDistancesAndIrradianceAreExact) {
             n[a] = x[a] > 0.0f ? -1.0f : 1.0f;
             const float g = eval.evaluate(x, n).polygon_to_point.g;
             worst = std::max(worst, std::abs(g / expected - 1.0));
-            EXPECT_NEAR(g, expected, 0.05 * expected) << x.x << "," << x.y << "," << x.z << " n " << a;
+            EXPECT_NEAR(g, expected, 0.02 * expected) << x.x << "," << x.y << "," << x.z << " n " << a;
         }
     std::printf("  furnace at the room's edges: worst relative error %.4f\n", worst);
 }
