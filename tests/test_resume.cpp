@@ -423,6 +423,14 @@ TEST_F(Resume, AStateIsRestoredOnlyIntoTheBakeThatSavedIt) {
     const std::string gltf = file_bytes(job.scene);
     write_bytes(scene_dir / "cornell_box.gltf", gltf);
     job.scene = scene_dir / "cornell_box.gltf";
+    // A 4 x 2 Radiance map of one value (RGBE: mantissas 128, exponent e),
+    // for the case where only the map's bytes change.
+    const auto radiance_hdr = [](char exponent) {
+        std::string hdr = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 4\n";
+        for (int t = 0; t < 8; ++t) hdr += std::string("\x80\x80\x80") + exponent;
+        return hdr;
+    };
+    const fs::path map = root / "sky.hdr";
 
     // Each change, and the outputs whose sums it changes (an output's own
     // settings are its key alone: the other output still resumes).
@@ -440,6 +448,13 @@ TEST_F(Resume, AStateIsRestoredOnlyIntoTheBakeThatSavedIt) {
          {"lightmap"}},
         {"probes setting", [](BakeJob& j) { j.settings.output("probes")->values["probe_passes"] = 9; }, {"probes"}},
         {"atlas", [](BakeJob& j) { j.settings.atlas.subsamples = 1; }, both},
+        {"environment map's content",
+         [&](BakeJob& j) {  // the same file name, other texels
+             j.settings.env = {};
+             j.settings.env.map_file = map.string();
+             write_bytes(map, radiance_hdr(char(0x82)));
+         },
+         both},
         {"scene content",
          [&](BakeJob&) {  // the light's strength, same geometry and texels
              std::string other = gltf;
@@ -453,7 +468,12 @@ TEST_F(Resume, AStateIsRestoredOnlyIntoTheBakeThatSavedIt) {
     for (const auto& [what, change, refused] : changes) {
         SCOPED_TRACE(what);
         write_bytes(job.scene, gltf);
+        write_bytes(map, radiance_hdr(char(0x81)));
         BakeJob first = job;
+        if (what == "environment map's content") {  // the first bake under the map, as it was
+            first.settings.env = {};
+            first.settings.env.map_file = map.string();
+        }
         first.out = root / ("changed " + what);
         ASSERT_FALSE(bake(first, "probes", 3).done);
         // The same job resumes each output (the control)…
