@@ -39,9 +39,12 @@ std::string bake_help() {
     for (const std::string& o : protocol::output_names()) outputs += " [--" + o + "]";
     return "usage: lightfarm bake SCENE --out DIR [--spec SPEC.json]" + outputs +
            "\n"
-           "                      [--device auto|gpu|gpu:N|cpu] [--json] [--resume] [settings]\n\n"
+           "                      [--device auto|gpu|gpu:N|cpu] [--json] [--resume] [settings]\n"
+           "       lightfarm bake SCENE --plan [--json] [--OUTPUT …] [settings]\n\n"
            "  --resume  continue an interrupted bake into the same DIR from its last snapshot\n"
-           "            (an output whose saved state is another bake's starts from pass 0)\n\n" +
+           "            (an output whose saved state is another bake's starts from pass 0)\n"
+           "  --plan    print the atlas this bake would make (size, texel density, charts,\n"
+           "            border fraction) and its warnings, without baking\n\n" +
            bake_outputs_help() + "\n" + bake_settings_help();
 }
 

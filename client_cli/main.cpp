@@ -44,6 +44,8 @@ commands:
        [--resume] [bake settings: `lightfarm bake --help`, or the README's table]
                                      bake the outputs asked for (`lightfarm bake --help`
                                      lists them; without one, the lightmap)
+  bake SCENE --plan [--json] [bake settings]
+                                     the atlas that bake would make, without baking
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
@@ -212,16 +214,38 @@ void stop_on_sigterm() {
     sigaction(SIGTERM, &action, nullptr);
 }
 
+// `bake --plan`: the atlas the bake would make, and its warnings, without baking.
+int plan(const lf::BakeJob& job, bool json) {
+    const nlohmann::json plan = lf::plan_bake_atlas(job);
+    if (json) {
+        std::cout << plan.dump(2) << "\n";
+        return 0;
+    }
+    const nlohmann::json& a = plan["atlas"];
+    const size_t few = a["unlit_charts"].get<size_t>();
+    std::printf(
+        "%s: a %dx%d atlas, %.2f texels/m%s, %zu charts%s, border fraction %.3f, %.0f%% of its texels "
+        "used; planned in %.1f s\n",
+        plan["scene"].get<std::string>().c_str(), a["width"].get<int>(), a["height"].get<int>(),
+        a["texel_density"].get<double>(), a["density_from_scene"].get<bool>() ? " (from the scene)" : "",
+        a["charts"].get<size_t>(),
+        few ? (" (" + std::to_string(few) + " unlit or glass, at 1/8 of the density)").c_str() : "",
+        a["border_fraction"].get<double>(), 100.0 * a["utilisation"].get<double>(), plan["seconds"].get<double>());
+    for (const auto& w : plan["warnings"]) std::printf("warning: %s\n", w.get<std::string>().c_str());
+    return 0;
+}
+
 int bake(int argc, char** argv) {
-    std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json", "--resume"};
+    std::set<std::string> valued = {"--out", "--device", "--spec"}, flags = {"--json", "--resume", "--plan"};
     for (const auto& [flag, takes_value] : lf::protocol::bake_flags()) (takes_value ? valued : flags).insert(flag);
     Args args(argc, argv, 2, valued, flags);
     lf::BakeJob job;
     job.scene = one_scene(args, "bake");
-    if (!args.has("--out")) throw UsageError("bake needs --out DIR");
-    job.out = args.get("--out");
     job.device = lf::parse_device_choice(args.get("--device", "auto"));
     job.settings = bake_settings(args, job.scene.string());
+    if (args.flag("--plan")) return plan(job, args.flag("--json"));
+    if (!args.has("--out")) throw UsageError("bake needs --out DIR");
+    job.out = args.get("--out");
     job.resume = args.flag("--resume");
 
     lf::cli::BakeReporter report(args.flag("--json"), job.settings);

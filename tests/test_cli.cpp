@@ -393,6 +393,47 @@ TEST(CliBake, AMeshScaleFromTheJobGivesThatMeshItsDensity) {
     fs::remove_all(scaled);
 }
 
+// `bake --plan` prints the atlas the bake would make without baking, and
+// the README's auto atlas sizes ("Resolution from the scene") are what it
+// gives: they drifted twice (issue #36: 531², then 440², for the
+// staircase's 433²). A plan makes no files and the bake with the same
+// settings gets the planned atlas (monkey.glb, one pass).
+TEST(CliBake, APlanIsTheAtlasTheBakeMakesAndTheReadmesSizesAreItsOwn) {
+    std::ifstream in(fs::path(__FILE__).parent_path().parent_path() / "README.md");
+    std::string readme((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::replace(readme.begin(), readme.end(), '\n', ' ');
+    const std::vector<std::tuple<std::string, std::string, std::string>> scenes = {
+        {"the staircase gets ", "real/wooden_staircase/wooden_staircase.gltf", ""},
+        {"grey_white_room ", "real/grey_white_room/grey_white_room.gltf", " --env 1,1,1"},
+        {"the breakfast room ", "real/breakfast_room/breakfast_room.gltf", " --env 1,1,1"}};
+    size_t at = 0;  // the one sentence: "the staircase gets N², grey_white_room N², the breakfast room N²"
+    for (const auto& [said, scene, extra] : scenes) {
+        SCOPED_TRACE(scene);
+        at = readme.find(said, at);
+        ASSERT_NE(at, std::string::npos) << "README.md no longer says \"" << said << "N²\"";
+        const int readme_side = std::atoi(readme.c_str() + at + said.size());
+        const CliRun plan = run_lightfarm("bake " + test::shared_scene(scene) + extra + " --plan --json");
+        ASSERT_EQ(plan.exit_code, 0) << plan.err;
+        const nlohmann::json atlas = nlohmann::json::parse(plan.out)["atlas"];
+        EXPECT_EQ(atlas["width"].get<int>(), readme_side) << "README.md: \"" << said << readme_side << "²\"";
+        EXPECT_TRUE(atlas["density_from_scene"].get<bool>());
+    }
+    const std::string monkey = test::shared_scene("monkey.glb");
+    const CliRun plan = run_lightfarm("bake " + monkey + " --texel-density 30 --plan --json");
+    ASSERT_EQ(plan.exit_code, 0) << plan.err;
+    const fs::path out = fresh_dir("planned");
+    const CliRun bake = run_lightfarm("bake " + monkey + " --texel-density 30 --passes 1 --json --out " + out.string());
+    ASSERT_EQ(bake.exit_code, 0) << bake.err;
+    std::ifstream manifest(out / "manifest.json");
+    const nlohmann::json baked = nlohmann::json::parse(manifest)["lightmap"]["settings"]["atlas"];
+    EXPECT_EQ(nlohmann::json::parse(plan.out)["atlas"], baked);
+    fs::remove_all(out);
+    // Without the atlas, nothing to plan; a bad input fails as the bake would.
+    expect_clean_failure("bake " + monkey + " --sh --plan", "nothing to plan", 3);
+    expect_clean_failure("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") + " --plan",
+                         "nothing to bake", 3);
+}
+
 // The final gather computes the first bounce where a ray lands and reads
 // only the light beyond it from the map. On grey_white_room's wall mouldings
 // a texel cut by geometry averages creased points (much bounced light) with

@@ -201,7 +201,12 @@ void apply_mesh_scales(PreparedScene& p, const std::map<int, double>& mesh_scale
         if (const auto it = mesh_scale.find(i.mesh); it != mesh_scale.end()) i.lightmap_scale = float(it->second);
 }
 
-std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScene::on_stage) on_stage) {
+// How far preparation goes: everything the methods need, or the atlas only
+// (plan_bake_atlas: what a bake would make, without its texels).
+enum class PrepareUntil { Methods, Atlas };
+
+std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScene::on_stage) on_stage,
+                                       PrepareUntil until = PrepareUntil::Methods) {
     auto p = std::make_unique<PreparedScene>();
     p->on_stage = std::move(on_stage);
     p->file = job.scene;
@@ -226,12 +231,27 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScen
     };
     if (s.uses_atlas()) {
         prepare_atlas(*p, s, tracer);
+        if (until == PrepareUntil::Atlas) return p;  // (the BVH's future waits for its thread)
         prepare_texels(*p, s.atlas, tracer());
         if (p->turned.charts > 0) p->timed("bvh_turned", [&] { p->tracer->rewind(*p->atlas_scene); });
     }
     tracer();
     return p;
 }
+
+}  // namespace
+
+nlohmann::json plan_bake_atlas(const BakeJob& job) {
+    const auto start = std::chrono::steady_clock::now();
+    if (!job.settings.uses_atlas()) throw BakeInputError("nothing to plan: no requested output uses the atlas");
+    const std::unique_ptr<PreparedScene> p = prepare(job, nullptr, PrepareUntil::Atlas);
+    nlohmann::json plan = {{"scene", job.scene.filename().string()}, {"atlas", atlas_json(p->atlas)}};
+    plan["warnings"] = p->warnings;
+    plan["seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return plan;
+}
+
+namespace {
 
 // Every requested output's method, in the registry's order.
 std::vector<std::unique_ptr<ProgressiveMethod>> make_methods(const PreparedScene& p, const protocol::BakeSettings& s) {

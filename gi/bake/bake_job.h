@@ -43,6 +43,14 @@ public:
 // or none. A map that cannot be read is a BakeInputError naming it.
 std::optional<Environment> read_environment(const protocol::EnvironmentSetting& env);
 
+// What a bake of `job` would make of its atlas, without baking (`lightfarm
+// bake --plan`): {"scene", "atlas": the manifest's atlas section (size,
+// texel density, charts, border fraction…), "warnings", "seconds"}. Loads
+// the scene and builds the atlas as the bake would (the unlit charts traced
+// too); stops before the texels. A BakeInputError where the bake would fail
+// on its input, and when no requested output uses the atlas.
+nlohmann::json plan_bake_atlas(const BakeJob& job);
+
 // Worker events as they happen: start, progress and snapshot per pass, done.
 using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;
 
