@@ -50,7 +50,8 @@
     float background_g;                                                            \
     float background_b;                                                            \
     LF_U32 env_width; /* the equirectangular map's size; 0 x 0: no map */          \
-    LF_U32 env_height;
+    LF_U32 env_height;                                                             \
+    float env_pdf_scale; /* importance sampling's W H / (2 pi^2 total); 0: none */
 
 // The fields of every program that reads the lightmap atlas
 // (lightmap_lookup.glsl): its size in texels.

@@ -1,6 +1,7 @@
 // Paths through the scene for the brute-force estimates (the radiosity
 // map's path-tracing baseline, the probes' capture): next-event estimation
-// at every vertex (direct_light.glsl), Russian roulette after three bounces.
+// at every vertex (direct_light.glsl; a map's sample, environment.glsl),
+// Russian roulette after three bounces.
 // Needs trace.glsl, sampling.glsl, random.glsl, lightmap_lookup.glsl (the hit
 // surfaces), direct_light.glsl and environment.glsl included first.
 
@@ -19,7 +20,8 @@ vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint ray
         if (keep <= 0.0) break;
         vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
         rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
-        result += throughput * e * (1.0 / PI);
+        vec3 unused;
+        result += throughput * (e * (1.0 / PI) + lf_environment_light(y, ny, rng, far, rays, unused));
         if (bounce >= 3) {
             if (rng_next(rng) >= keep) break;
             throughput /= keep;
@@ -29,7 +31,10 @@ vec3 path_radiance(Hit hit, vec3 origin, vec3 dir, inout Rng rng, inout uint ray
         hit = trace_closest(origin, dir, far);
         throughput *= hit.tint;  // through the see-through surfaces it passed
         rays += 1u;
-        if (hit.triangle == LF_NO_HIT) { result += throughput * lf_background(dir); break; }
+        if (hit.triangle == LF_NO_HIT) {
+            result += throughput * lf_background(dir) * lf_escape_weight(dir, ny);  // the map's sample above is its other half
+            break;
+        }
         if (!(hit.front || hit_is_double_sided(hit))) break;
     }
     return result;

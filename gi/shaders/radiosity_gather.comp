@@ -31,13 +31,15 @@ layout(std430, binding = LF_BINDING_TEXEL_TOTALS) writeonly buffer TexelTotals {
 layout(std430, binding = LF_BINDING_DIRECTIONAL_ACCUMULATORS) buffer DirectionalAccumulators { vec4 directional_accumulators[]; };
 #endif
 
-// The sky's irradiance at y over pi, by one cosine ray: the sky's radiance
-// where the ray escapes (0 without a sky: no ray).
+// The sky's irradiance at y over pi, by one cosine ray (the sky's radiance
+// where it escapes) and, under a map, one sample of the map, the two
+// weighted by the balance heuristic (environment.glsl). 0 without a sky: no ray.
 vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
     if (!lf_has_background()) return vec3(0.0);
     rays += 1u;
-    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
-    return trace_transmittance(y, dir, far) * lf_background(dir);
+    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng)), unused;
+    return trace_transmittance(y, dir, far) * lf_background(dir) * lf_escape_weight(dir, ny) +
+           lf_environment_light(y, ny, rng, far, rays, unused);
 }
 
 // The radiance the front of a surface reflects towards the texel at the
@@ -97,12 +99,13 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
     for (uint depth = 1u;; ++depth) {
         throughput *= hit_texel_albedo(hit);
         vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
-        radiance += throughput * e * (1.0 / PI);
+        vec3 unused;
+        radiance += throughput * (e * (1.0 / PI) + lf_environment_light(y, ny, rng, far, rays, unused));
         vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
         Hit next = trace_closest(y, dir, far);
         throughput *= next.tint;  // through the see-through surfaces it passed
         rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
-        if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background(dir);
+        if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background(dir) * lf_escape_weight(dir, ny);
         if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
@@ -185,14 +188,19 @@ uint gather_texel(uint i, uint pass) {
     vec3 dir = sample_cosine_hemisphere(n, r2_sample(rotation, pass));
     vec3 indirect;
     vec3 sky = vec3(0.0);  // E/pi of the sky by this cosine ray
-    uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final gathers, gathers where the map cannot say)
+    uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final gathers, gathers where the map cannot say, map samples)
+    // Under a map, one sample of it, weighted against the cosine ray
+    // (environment.glsl); stratified over the bake as the cosine ray is.
+    vec3 map_dir;
+    uvec2 map_rotation = uvec2(pcg_hash(i * 13u + seed), pcg_hash(i ^ pcg_hash(seed + 2u)));
+    vec3 map_light = lf_environment_light_at(origin, n, r2_sample(map_rotation, pass), far, path_rays, map_dir);
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
         Hit hit = trace_closest(origin, dir, far);
         if (hit.triangle == LF_NO_HIT) {
             indirect = vec3(0.0);
-            sky = hit.tint * lf_background(dir);  // through any window on the way
+            sky = hit.tint * lf_background(dir) * lf_escape_weight(dir, n);  // through any window on the way
         } else if (hit.front || hit_is_double_sided(hit)) {
             // The hit point, lifted off its surface on the ray's side.
             vec3 n_hit = normalize(hit.front ? hit.normal : -hit.normal);
@@ -224,11 +232,12 @@ uint gather_texel(uint i, uint pass) {
             indirect = vec3(0.0);  // the back of a one-sided surface is the inside of something
         }
     }
-    direct = direct * (1.0 / PI) + sky;
+    direct = direct * (1.0 / PI) + sky + map_light;
 #ifdef LF_DIRECTIONAL
     // The cosine ray's sample: E/pi = L for a cosine ray, so its irradiance is pi L.
     lf_directional_on = true;
     lf_add_directional(PI * (indirect + sky), dir, n);
+    lf_add_directional(PI * map_light, map_dir, n);
     lf_directional_on = false;
 #endif
     accumulate_pass(i, direct, indirect);
