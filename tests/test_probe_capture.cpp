@@ -3,6 +3,7 @@
 #include "form_factors.h"
 #include "gpu_fixture.h"
 #include "scene_builders.h"
+#include "sky_maps.h"
 
 #include "bake/bake_job.h"
 #include "bake/prepared_scene.h"
@@ -265,12 +266,8 @@ std::filesystem::path write_map(const Environment& sky) {
 // geometry is a 1 cm speck 100 m below. Measured: polygon-to-point, ddgi
 // and sh9 within 0.4% at every point (M = 8, R = 32, 8 passes).
 TEST(ProbeCapture, AProbeInTheOpenSeesTheEnvironmentMap) {
-    const glm::dvec3 c0(1.0, 0.8, 0.6);
-    const glm::dmat3 c(glm::dvec3(0.3, 0.0, -0.2), glm::dvec3(0.5, -0.4, 0.1),
-                       glm::dvec3(0.0, 0.3, -0.3));  // columns: the coefficients of x, y, z (RGB each)
-    const Environment sky = environment_from_function(
-        256, 128, [&](glm::vec3 d) { return glm::vec3(c0 + c * glm::dvec3(d)); }, "linear test sky");
-    const std::filesystem::path map = write_map(sky);
+    const test::LinearSky linear;
+    const std::filesystem::path map = write_map(linear.map(256, 128));
     Scene s;
     test::add_quad(s, {0, -100, 0}, {0.01f, 0, 0}, {0, 0, -0.01f}, test::add_material(s, glm::vec3(0.0f)));
     const ProbeSet set = capture(s, {glm::vec3(0.0f)}, 32, 8, 8, {std::nullopt, map.string()});
@@ -284,7 +281,7 @@ TEST(ProbeCapture, AProbeInTheOpenSeesTheEnvironmentMap) {
         for (const glm::dvec3& n : {glm::dvec3(0, 1, 0), glm::dvec3(0, -1, 0), glm::dvec3(1, 0, 0),
                                     glm::dvec3(0, 0, -1), glm::normalize(glm::dvec3(1, 2, -3))}) {
             SCOPED_TRACE("x (" + std::to_string(x.x) + ", " + std::to_string(x.y) + ", " + std::to_string(x.z) + ")");
-            const glm::dvec3 expected = c0 + (2.0 / 3.0) * (c * n);
+            const glm::dvec3 expected = linear.irradiance_over_pi(n);
             const ProbeEvaluation e = eval.evaluate(x, glm::vec3(n));
             std::printf(
                 "  x = (%.1f, %.1f, %.1f), n = (%.2f, %.2f, %.2f): polygon-to-point %.4f %.4f %.4f, ddgi "
@@ -309,20 +306,14 @@ TEST(ProbeCapture, AProbeInTheOpenSeesTheEnvironmentMap) {
 // 0.14%, its worst texel 4.7%; with the map's sampling turned off, the
 // mean 9.7% low and the worst texel 5.9 times too bright.
 TEST(ProbeCapture, AFloorUnderASunInTheMapIsLitByEveryPath) {
-    const int width = 256, height = 128;
-    Environment sky;
-    sky.width = width;
-    sky.height = height;
-    sky.texels.assign(size_t(width) * height, glm::vec3(0.05f));
-    for (int y = 28; y < 30; ++y)
-        for (int x = 100; x < 102; ++x) sky.texels[size_t(y) * width + size_t(x)] = glm::vec3(2500.0f);
-    const std::filesystem::path map = write_map(sky);
+    const test::SunSky sun;
+    const std::filesystem::path map = write_map(sun.map());
     Scene s;
     test::add_quad(s, {-200, 0, 200}, {400, 0, 0}, {0, 0, -400}, test::add_material(s, glm::vec3(0.5f)));
     const ProbeSet set = capture(s, {glm::vec3(0.0f, 1.0f, 0.0f)}, 16, 4, 16, {std::nullopt, map.string()});
     std::filesystem::remove(map);
     ASSERT_EQ(set.probes.size(), 1u);
-    const double expected = 0.5 * 0.9980;  // tests/test_radiosity.cpp's closed form for a plane facing up
+    const double expected = 0.5 * sun.irradiance_over_pi({0, 1, 0});
     double mean = 0.0, worst = 0.0;
     for (int j = 0; j < set.m; ++j)
         for (int i = 0; i < set.m; ++i) {

@@ -2,6 +2,7 @@
 // properties every correct bake has, and against an independent renderer.
 #include "gpu_fixture.h"
 #include "lightmap_closed_forms.h"
+#include "sky_maps.h"
 #include "scene_builders.h"
 
 #include "atlas/atlas.h"
@@ -957,11 +958,8 @@ std::pair<double, double> tilted_normal_errors(const BakeResult& r, Expected exp
 // map (each an R2 sequence per texel, combined by MIS: environment.glsl):
 // under 1% a texel, 0.04% over a plane's mean.
 TEST(RadiosityMap, AnEnvironmentMapLightsPlanesAtEveryAngleByItsIntegral) {
-    const glm::dvec3 c0(1.0, 0.8, 0.6);
-    const glm::dmat3 c(glm::dvec3(0.3, 0.0, -0.2), glm::dvec3(0.5, -0.4, 0.1),
-                       glm::dvec3(0.0, 0.3, -0.3));  // columns: the coefficients of x, y, z (RGB each)
-    const Environment sky = environment_from_function(
-        512, 256, [&](glm::vec3 d) { return glm::vec3(c0 + c * glm::dvec3(d)); }, "linear test sky");
+    const test::LinearSky linear;
+    const Environment sky = linear.map(512, 256);
     RadiosityMapSettings settings;
     settings.environment = &sky;
     const glm::dvec3 normals[] = {{0, 1, 0},
@@ -982,7 +980,7 @@ TEST(RadiosityMap, AnEnvironmentMapLightsPlanesAtEveryAngleByItsIntegral) {
         test::add_quad(s, glm::vec3(-t - b), glm::vec3(2.0 * t), glm::vec3(2.0 * b), black, grid_cell(0, 1, 16));
         const BakeResult r = bake(s, 16, 256, settings);
         ASSERT_GT(r.texels.covered_count(), 50u);
-        const glm::dvec3 expected = c0 + (2.0 / 3.0) * (c * n);
+        const glm::dvec3 expected = linear.irradiance_over_pi(n);
         glm::dvec3 mean(0.0), worst(0.0);
         for (uint32_t a : r.texels.texels) {
             const glm::dvec3 got(r.image.at("R")[a], r.image.at("G")[a], r.image.at("B")[a]);
@@ -1011,35 +1009,9 @@ TEST(RadiosityMap, AnEnvironmentMapLightsPlanesAtEveryAngleByItsIntegral) {
 // plane's hemisphere (the sun's texels subdivided 64 x 64, exact).
 // Measured at 64 passes: means within 0.03%, worst texel 3.9%, 4.7%, 4.3%.
 TEST(RadiosityMap, ASunInTheEnvironmentMapIsFoundByEveryPass) {
-    const int width = 256, height = 128, sun_x = 100, sun_y = 28;  // θ from 39.4° to 42.2°
-    const float sky = 0.05f, sun = 2500.0f;
-    Environment map;
-    map.width = width;
-    map.height = height;
-    map.source = "a sky with a sun";
-    map.texels.assign(size_t(width) * height, glm::vec3(sky));
-    for (int y = sun_y; y < sun_y + 2; ++y)
-        for (int x = sun_x; x < sun_x + 2; ++x) map.texels[size_t(y) * width + size_t(x)] = glm::vec3(sun);
-    // E/π of the map over the hemisphere of n: the sky's part is exact (a
-    // constant L over a hemisphere gives E/π = L), the sun's by subdivision.
-    const auto expected = [&](glm::dvec3 n) {
-        double sum = 0.0;
-        const int k = 64;
-        for (int y = sun_y; y < sun_y + 2; ++y)
-            for (int x = sun_x; x < sun_x + 2; ++x)
-                for (int j = 0; j < k; ++j)
-                    for (int i = 0; i < k; ++i) {
-                        const double theta = (y + (j + 0.5) / k) / height * M_PI;
-                        const double phi = ((x + (i + 0.5) / k) / width - 0.5) * 2.0 * M_PI;
-                        const glm::dvec3 w(std::sin(theta) * std::cos(phi), std::cos(theta),
-                                           std::sin(theta) * std::sin(phi));
-                        const double d_omega = (2.0 * M_PI / width / k) * (M_PI / height / k) * std::sin(theta);
-                        sum += (sun - sky) * std::max(0.0, glm::dot(n, w)) * d_omega;
-                    }
-        return sky + sum / M_PI;
-    };
-    const glm::dvec3 towards_sun(std::cos((sun_x + 1.0) / width * 2.0 * M_PI - M_PI), 0.0,
-                                 std::sin((sun_x + 1.0) / width * 2.0 * M_PI - M_PI));
+    const test::SunSky sun;
+    const Environment map = sun.map();
+    const glm::dvec3 towards_sun = sun.towards_sun();
     RadiosityMapSettings settings;
     settings.environment = &map;
     for (const glm::dvec3& n :
@@ -1055,7 +1027,7 @@ TEST(RadiosityMap, ASunInTheEnvironmentMapIsFoundByEveryPass) {
         test::add_quad(s, glm::vec3(-t - b), glm::vec3(2.0 * t), glm::vec3(2.0 * b),
                        test::add_material(s, glm::vec3(0.0f)), grid_cell(0, 1, 16));
         const BakeResult r = bake(s, 16, 64, settings);
-        const double truth = expected(n);
+        const double truth = sun.irradiance_over_pi(n);
         double mean = 0.0, worst = 0.0;
         for (uint32_t a : r.texels.texels) {
             const double got = r.image.at("G")[a];
