@@ -28,7 +28,7 @@ struct LinearSky {
 };
 
 // A sky with a sun: a 256 x 128 map of 0.05 everywhere but a 2 x 2-texel
-// sun of 2,500, its rows θ 39.4°–42.2° from the zenith, which gives 2/3 of
+// sun of 2,500, its rows θ 39.4°–42.2° from the zenith, which gives 95% of
 // what a plane facing up receives (E/π 0.998). The sky's part of E/π over a
 // hemisphere is exactly 0.05; the sun's is integrated over its texels
 // subdivided 64 x 64.

@@ -60,13 +60,14 @@ float lf_environment_pdf(vec3 d) {
 }
 
 // The first of `count` CDF values from texel `first` (channel w, or x) that
-// is at least u, and where u falls between it and the one before (0..1).
+// is above u (the last if none), and where u falls between it and the one
+// before (0..1).
 uint lf_cdf_search(int first, uint count, bool row_cdf, float u, out float within) {
     uint lo = 0u, hi = count - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
         vec4 t = texelFetch(environment_texels, first + int(mid));
-        if ((row_cdf ? t.w : t.x) < u) lo = mid + 1u; else hi = mid;
+        if ((row_cdf ? t.w : t.x) <= u) lo = mid + 1u; else hi = mid;  // the first above u: never a bin of no weight
     }
     vec4 at = texelFetch(environment_texels, first + int(lo));
     float below = 0.0;
@@ -96,7 +97,8 @@ vec3 lf_sample_environment(vec2 u, out float pdf) {
 float lf_escape_weight(vec3 d, vec3 n) {
     if (!lf_environment_sampled()) return 1.0;
     float p_cosine = max(dot(d, n), 0.0) / PI;
-    return p_cosine / (p_cosine + lf_environment_pdf(d));
+    float sum = p_cosine + lf_environment_pdf(d);
+    return sum > 0.0 ? p_cosine / sum : 0.0;  // a tangent ray into a black texel: 0, not 0/0
 }
 
 // One sample of the map's irradiance / π at a point of normal n (rays from

@@ -47,7 +47,8 @@ float lf_edge_term(vec3 a, vec3 b, vec3 n) {
 // Form factor from x (unit normal n) to the quad c0..c3, which winds
 // counter-clockwise about the direction from x towards it (the other winding
 // gives the negative). Exact for a planar quad above x's tangent plane; a quad
-// partly below gets the signed-cosine integral (the caller clamps it).
+// partly below gets the signed-cosine integral (lf_probe_polygon_to_point
+// clips instead, and uses this for a quad wholly above).
 float lf_polygon_to_point_form_factor(vec3 x, vec3 n, vec3 c0, vec3 c1, vec3 c2, vec3 c3) {
     vec3 r0 = c0 - x, r1 = c1 - x, r2 = c2 - x, r3 = c3 - x;
     float sum = lf_edge_term(r0, r1, n) + lf_edge_term(r1, r2, n) + lf_edge_term(r2, r3, n) + lf_edge_term(r3, r0, n);

@@ -194,6 +194,7 @@ uint gather_texel(uint i, uint pass) {
     vec3 map_dir;
     uvec2 map_rotation = uvec2(pcg_hash(i * 13u + seed), pcg_hash(i ^ pcg_hash(seed + 2u)));
     vec3 map_light = lf_environment_light_at(origin, n, r2_sample(map_rotation, pass), far, path_rays, map_dir);
+    if (dot(map_dir, ng) <= 0.0) map_light = vec3(0.0);  // below the surface, as the cosine ray is below
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
