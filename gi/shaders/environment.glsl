@@ -8,13 +8,16 @@
 //
 // A map is importance-sampled: a direction is drawn in proportion to its
 // texel's luminance (the mean of R, G, B) times the texel's solid angle
-// (sin θ), and combined with the cosine ray that every gathering point
-// also traces, by the balance heuristic (Veach 1997): lf_environment_light
+// (sin θ), and combined with the cosine ray that the point also traces, by
+// the balance heuristic (Veach 1997): lf_environment_light
 // is the map's sample, lf_escape_weight the weight of a cosine ray that
 // escaped. A small bright sun, which a cosine ray finds with the
 // probability of its projected solid angle, is then found by every sample.
 // The uniform sky keeps cosine rays alone (their density is the
-// integrand's). The buffer holds, after the W x H texels (rgb; w: the
+// integrand's). A texel's pass and each path vertex take a map sample; a
+// final gather's hit points and the gathers where the map cannot say do
+// not (each call inlines a traversal: compile time on llvmpipe,
+// BENCHMARKS.md), and count their escaping cosine rays whole. The buffer holds, after the W x H texels (rgb; w: the
 // row's CDF up to and including that texel), the H rows' CDF (x).
 #ifndef LF_ENVIRONMENT_GLSL
 #define LF_ENVIRONMENT_GLSL

@@ -31,15 +31,16 @@ layout(std430, binding = LF_BINDING_TEXEL_TOTALS) writeonly buffer TexelTotals {
 layout(std430, binding = LF_BINDING_DIRECTIONAL_ACCUMULATORS) buffer DirectionalAccumulators { vec4 directional_accumulators[]; };
 #endif
 
-// The sky's irradiance at y over pi, by one cosine ray (the sky's radiance
-// where it escapes) and, under a map, one sample of the map, the two
-// weighted by the balance heuristic (environment.glsl). 0 without a sky: no ray.
+// The sky's irradiance at y over pi, by one cosine ray: the sky's radiance
+// where the ray escapes (0 without a sky: no ray). A final gather's hit
+// points take no sample of a map (environment.glsl): each would be one more
+// inlined traversal in an already large program, compiled at every
+// bake's start on llvmpipe; their cosine rays count the sky whole.
 vec3 sky_light(vec3 y, vec3 ny, inout Rng rng, inout uint rays) {
     if (!lf_has_background()) return vec3(0.0);
     rays += 1u;
-    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng)), unused;
-    return trace_transmittance(y, dir, far) * lf_background(dir) * lf_escape_weight(dir, ny) +
-           lf_environment_light(y, ny, rng, far, rays, unused);
+    vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
+    return trace_transmittance(y, dir, far) * lf_background(dir);
 }
 
 // The radiance the front of a surface reflects towards the texel at the
@@ -99,13 +100,12 @@ vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout ui
     for (uint depth = 1u;; ++depth) {
         throughput *= hit_texel_albedo(hit);
         vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
-        vec3 unused;
-        radiance += throughput * (e * (1.0 / PI) + lf_environment_light(y, ny, rng, far, rays, unused));
+        radiance += throughput * e * (1.0 / PI);
         vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
         Hit next = trace_closest(y, dir, far);
         throughput *= next.tint;  // through the see-through surfaces it passed
         rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
-        if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background(dir) * lf_escape_weight(dir, ny);
+        if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background(dir);  // no map sample here (sky_light)
         if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
