@@ -35,14 +35,18 @@ vec3 lf_background_scale() { return vec3(background_r, background_g, background_
 // Whether escaping rays see any light (a sky ray is worth tracing).
 bool lf_has_background() { return lf_background_scale() != vec3(0.0); }
 
+// The map's texel (x, y) in direction d (unit length), nearest.
+uvec2 lf_environment_texel(vec3 d) {
+    float u = 0.5 + atan(d.z, d.x) / (2.0 * PI);
+    float v = acos(clamp(d.y, -1.0, 1.0)) / PI;
+    return uvec2(min(uint(u * float(env_width)), env_width - 1u), min(uint(v * float(env_height)), env_height - 1u));
+}
+
 // The radiance seen along the escaping direction d (unit length).
 vec3 lf_background(vec3 d) {
     if (env_width == 0u) return lf_background_scale();
-    float u = 0.5 + atan(d.z, d.x) / (2.0 * PI);
-    float v = acos(clamp(d.y, -1.0, 1.0)) / PI;
-    uint x = min(uint(u * float(env_width)), env_width - 1u);
-    uint y = min(uint(v * float(env_height)), env_height - 1u);
-    return lf_background_scale() * texelFetch(environment_texels, int(y * env_width + x)).rgb;
+    uvec2 t = lf_environment_texel(d);
+    return lf_background_scale() * texelFetch(environment_texels, int(t.y * env_width + t.x)).rgb;
 }
 
 // Whether the environment is a map that is importance-sampled (not black).
@@ -53,12 +57,9 @@ bool lf_environment_sampled() { return env_pdf_scale > 0.0; }
 // map's total: env_pdf_scale holds W H / (2 π² total)) over the solid angle
 // d's point of the texel stands for (sin θ at d: rows are drawn uniformly in θ).
 float lf_environment_pdf(vec3 d) {
-    float u = 0.5 + atan(d.z, d.x) / (2.0 * PI);
-    float v = acos(clamp(d.y, -1.0, 1.0)) / PI;
-    uint x = min(uint(u * float(env_width)), env_width - 1u);
-    uint y = min(uint(v * float(env_height)), env_height - 1u);
-    float luminance = dot(texelFetch(environment_texels, int(y * env_width + x)).rgb, vec3(1.0 / 3.0));
-    float sin_centre = sin((float(y) + 0.5) / float(env_height) * PI);
+    uvec2 t = lf_environment_texel(d);
+    float luminance = dot(texelFetch(environment_texels, int(t.y * env_width + t.x)).rgb, vec3(1.0 / 3.0));
+    float sin_centre = sin((float(t.y) + 0.5) / float(env_height) * PI);
     return luminance * sin_centre * env_pdf_scale / max(sqrt(max(1.0 - d.y * d.y, 0.0)), 1e-6);
 }
 

@@ -191,10 +191,12 @@ uint gather_texel(uint i, uint pass) {
     uint path_rays = 0u;  // rays beyond the pass's fixed ones (paths, final gathers, gathers where the map cannot say, map samples)
     // Under a map, one sample of it, weighted against the cosine ray
     // (environment.glsl); stratified over the bake as the cosine ray is.
-    vec3 map_dir;
-    uvec2 map_rotation = uvec2(pcg_hash(i * 13u + seed), pcg_hash(i ^ pcg_hash(seed + 2u)));
-    vec3 map_light = lf_environment_light_at(origin, n, r2_sample(map_rotation, pass), far, path_rays, map_dir);
-    if (dot(map_dir, ng) <= 0.0) map_light = vec3(0.0);  // below the surface, as the cosine ray is below
+    vec3 map_dir = n, map_light = vec3(0.0);
+    if (lf_environment_sampled()) {  // no hashing per texel and pass without a map
+        uvec2 map_rotation = uvec2(pcg_hash(i * 13u + seed), pcg_hash(i ^ pcg_hash(seed + 2u)));
+        map_light = lf_environment_light_at(origin, n, r2_sample(map_rotation, pass), far, path_rays, map_dir);
+        if (dot(map_dir, ng) <= 0.0) map_light = vec3(0.0);  // below the surface, as the cosine ray is below
+    }
     if (dot(dir, ng) <= 0.0) {
         indirect = vec3(0.0);  // below the surface (shading normal differs from geometry)
     } else {
