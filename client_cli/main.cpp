@@ -223,10 +223,13 @@ int plan(const lf::BakeJob& job, bool json) {
     }
     const nlohmann::json& a = plan["atlas"];
     const size_t few = a["unlit_charts"].get<size_t>();
+    const int pages = a["pages"].get<int>();
+    const std::string size = std::to_string(a["width"].get<int>()) + "x" + std::to_string(a["page_height"].get<int>());
     std::printf(
-        "%s: a %dx%d atlas, %.2f texels/m%s, %zu charts%s, border fraction %.3f, %.0f%% of its texels "
+        "%s: %s, %.2f texels/m%s, %zu charts%s, border fraction %.3f, %.0f%% of its texels "
         "used; planned in %.1f s\n",
-        plan["scene"].get<std::string>().c_str(), a["width"].get<int>(), a["height"].get<int>(),
+        plan["scene"].get<std::string>().c_str(),
+        (pages == 1 ? "a " + size + " atlas" : std::to_string(pages) + " atlas pages of " + size).c_str(),
         a["texel_density"].get<double>(), a["density_from_scene"].get<bool>() ? " (from the scene)" : "",
         a["charts"].get<size_t>(),
         few ? (" (" + std::to_string(few) + " unlit or glass, at 1/8 of the density)").c_str() : "",

@@ -132,8 +132,12 @@ std::vector<Setting> build_catalog() {
             number("atlas", "texel_density", 0, 0, true, 1e4, "", "texels per metre of surface (auto: from res)")),
         integer("atlas", "subsamples", 2, 1, 8, "", "sample points per texel along each axis"),
         with_auto(integer("atlas", "max_res", 0, 256, 16384, "res",
-                          "the largest atlas side when res is auto or follows texel_density (the density shrinks to "
-                          "fit; auto: 4096, or the server's res limit where lower)")),
+                          "the largest atlas side when res is auto or follows texel_density (a chosen density shrinks "
+                          "to fit, an asked one goes on pages: max_pages; auto: 4096, or the server's res limit where "
+                          "lower)")),
+        integer("atlas", "max_pages", 8, 1, 64, "pages",
+                "where the charts at an asked texel_density do not fit one max_res atlas, up to this many pages of "
+                "max_res texels square (one lightmap file per page); past this, the density shrinks"),
         typed("atlas", "mesh_scale", T::MeshScales, json::object(),
               "per glTF mesh, its charts' texel density over the atlas's, 0 < S <= 64 (2: twice the resolution; "
               "0.25: a quarter); over the file's extras lightfarm_lightmap_scale"),
@@ -489,6 +493,9 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     if (!atlas["texel_density"].is_string()) b.atlas.texel_density = atlas["texel_density"].get<double>();
     b.atlas.subsamples = atlas["subsamples"].get<int>();
     b.atlas.max_res = int_or_auto(atlas["max_res"]);
+    b.atlas.max_pages = atlas["max_pages"].get<int>();
+    if (!atlas_given.contains("max_pages"))  // the default within this server's limit, as max_res's
+        b.atlas.max_pages = int(std::clamp(limits.cap("pages"), 1.0, double(b.atlas.max_pages)));
     b.atlas.glass_texels = atlas["glass_texels"].get<bool>();
     for (const auto& [mesh, scale] : atlas["mesh_scale"].items()) b.atlas.mesh_scale[std::stoi(mesh)] = scale;
     if (!b.atlas.max_res && limits.cap("res") < kAutoMaxAtlasRes)
@@ -506,9 +513,10 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
 json to_json(const BakeSettings& b) {
     auto or_auto = [](const auto& v) { return v ? json(*v) : json("auto"); };
     json j = {{"outputs", json::object()}, {"seed", b.seed}};
-    j["atlas"] = {{"res", or_auto(b.atlas.res)},      {"texel_density", or_auto(b.atlas.texel_density)},
-                  {"subsamples", b.atlas.subsamples}, {"max_res", or_auto(b.atlas.max_res)},
-                  {"mesh_scale", json::object()},     {"glass_texels", b.atlas.glass_texels}};
+    j["atlas"] = {{"res", or_auto(b.atlas.res)},         {"texel_density", or_auto(b.atlas.texel_density)},
+                  {"subsamples", b.atlas.subsamples},    {"max_res", or_auto(b.atlas.max_res)},
+                  {"max_pages", b.atlas.max_pages},      {"mesh_scale", json::object()},
+                  {"glass_texels", b.atlas.glass_texels}};
     for (const auto& [mesh, scale] : b.atlas.mesh_scale) j["atlas"]["mesh_scale"][std::to_string(mesh)] = scale;
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;

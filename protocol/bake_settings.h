@@ -43,11 +43,12 @@ private:
 };
 
 // Caps that a server puts on what a job may ask for, by limit key. The keys
-// are the catalog's Setting::limit ("res", "passes", "time_limit") plus the
+// are the catalog's Setting::limit ("res", "pages", "passes", "time_limit") plus the
 // job's own "max_seconds" and "max_attempts".
 struct SpecLimits {
     std::map<std::string, double> caps = {
-        {"res", 8192}, {"passes", 100000}, {"time_limit", 4 * 3600}, {"max_seconds", 4 * 3600}, {"max_attempts", 10},
+        {"res", 8192},        {"pages", 16}, {"passes", 100000}, {"time_limit", 4 * 3600}, {"max_seconds", 4 * 3600},
+        {"max_attempts", 10},
     };
     // An environment map is a file on the machine that runs the bake: the
     // CLI may read one, a server must not be told to read its own files.
@@ -116,6 +117,9 @@ struct AtlasSettings {
     // below that is written in here when the spec is parsed, so that the
     // worker keeps to the limit of the server that took the job.
     std::optional<int> max_res;
+    // Where the charts at an asked texel_density do not fit one atlas of res
+    // (or max_res), they go on up to this many pages of that side.
+    int max_pages = 0;
     bool glass_texels = false;  // glass charts at the scene's density, not kUnlitChartScale's
     // Per glTF mesh, its charts' texel density over the atlas's, over the
     // file's own extras (lightfarm_lightmap_scale).

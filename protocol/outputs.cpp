@@ -19,7 +19,7 @@ std::vector<OutputKind> build_registry() {
     lightmap.stop_prefix = "";
     lightmap.pass_unit = "one gather per sample point";
     lightmap.lit_scene_slot = "lightmap";
-    lightmap.files = {{"lightmap.exr", exr}, {"lightmap.pass-NNNN.exr", exr}};
+    lightmap.files = {{"lightmap.exr", exr}, {"lightmap.page-N.exr", exr}, {"lightmap.pass-NNNN.exr", exr}};
 
     OutputKind sh;
     sh.name = "sh";
@@ -28,9 +28,13 @@ std::vector<OutputKind> build_registry() {
     sh.per_texel_setting = "sh_per_texel";
     sh.stop_prefix = "sh_";
     sh.pass_unit = "64 rays per vertex";
-    sh.files = {{"sh_transfer.bin", binary}, {"sh_transfer.half.bin", binary},
-                {"scene.sh.glb", glb},       {"sh_transfer.pass-NNNN.bin", binary},
-                {"sh_transfer.exr", exr},    {"sh_transfer.pass-NNNN.exr", exr},
+    sh.files = {{"sh_transfer.bin", binary},
+                {"sh_transfer.half.bin", binary},
+                {"scene.sh.glb", glb},
+                {"sh_transfer.pass-NNNN.bin", binary},
+                {"sh_transfer.exr", exr},
+                {"sh_transfer.page-N.exr", exr},
+                {"sh_transfer.pass-NNNN.exr", exr},
                 {"env_sh.json", json}};
 
     OutputKind probes;
@@ -50,7 +54,7 @@ std::vector<OutputKind> build_registry() {
     ao.stop_prefix = "ao_";
     ao.pass_unit = "one cosine-weighted ray per sample point";
     ao.lit_scene_slot = "occlusion";
-    ao.files = {{"ao.exr", exr}, {"ao.pass-NNNN.exr", exr}};
+    ao.files = {{"ao.exr", exr}, {"ao.page-N.exr", exr}, {"ao.pass-NNNN.exr", exr}};
 
     return {lightmap, sh, probes, ao};
 }
@@ -78,10 +82,10 @@ const std::vector<std::string>& output_names() {
 }
 
 std::string content_type_of(const std::string& file) {
-    const std::string pattern = snapshot_pattern(file);
+    const std::string pattern = snapshot_pattern(file), page = page_pattern(file);
     for (const OutputKind& o : output_registry())
         for (const OutputFile& f : o.files)
-            if (f.name == file || f.name == pattern) return f.content_type;
+            if (f.name == file || f.name == pattern || f.name == page) return f.content_type;
     const std::string ext = std::filesystem::path(file).extension().string();
     if (ext == ".exr") return "image/x-exr";
     if (ext == ".png") return "image/png";

@@ -69,6 +69,19 @@ std::string snapshot_pattern(const std::string& name) {
     return name.substr(0, at) + "NNNN" + name.substr(name.find('.', at));
 }
 
+std::string page_file_name(const std::string& stem, int page, const std::string& extension) {
+    return stem + ".page-" + std::to_string(page) + "." + extension;
+}
+
+std::string page_pattern(const std::string& name) {
+    const size_t at = name.find(".page-");
+    if (at == std::string::npos) return name;
+    size_t digits = at + 6;
+    while (digits < name.size() && name[digits] >= '0' && name[digits] <= '9') ++digits;
+    if (digits == at + 6 || digits == name.size() || name[digits] != '.') return name;
+    return name.substr(0, at + 6) + "N" + name.substr(digits);
+}
+
 bool is_snapshot_file(const std::string& name) {
     const size_t at = name.find(".pass-");
     if (at == std::string::npos) return false;

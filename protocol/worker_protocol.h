@@ -60,6 +60,12 @@ bool is_snapshot_file(const std::string& name);
 // other name as it is.
 std::string snapshot_pattern(const std::string& name);
 
+// "<stem>.page-N.<extension>": page N (from 0) of an atlas image whose
+// charts took several pages (a final file), and its pattern
+// ("lightmap.page-2.exr" -> "lightmap.page-N.exr"; any other name as it is).
+std::string page_file_name(const std::string& stem, int page, const std::string& extension);
+std::string page_pattern(const std::string& name);
+
 // Where a progressive bake stands: totals after the latest pass. The engine's
 // pass statistics and the server's progress are this one type.
 struct Progress {

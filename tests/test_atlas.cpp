@@ -348,6 +348,207 @@ TEST(Atlas, DensityTooHighForTheResolutionShrinks) {
     EXPECT_GT(report.texel_density, 1.0f);
 }
 
+// ---------------------------------------------------------------------------
+// Atlas pages (issue #36): charts that do not fit one page at an asked
+// density go on several pages of max_resolution² (LightmapPages).
+
+// The page whose rows hold each triangle, checking that all three corners
+// lie on it (a chart never crosses a page or reaches into the rows between).
+std::vector<int> triangle_pages(const Scene& s, const LightmapPages& pages, int height) {
+    std::vector<int> page(s.triangles.size());
+    for (size_t t = 0; t < s.triangles.size(); ++t) {
+        const glm::uvec3& tri = s.triangles[t];
+        const float centre = (s.uv1[tri.x].y + s.uv1[tri.y].y + s.uv1[tri.z].y) / 3.0f;
+        page[t] = pages.page_of(centre);
+        const double top = double(page[t]) * pages.stride(), bottom = top + pages.rows;
+        for (uint32_t v : {tri.x, tri.y, tri.z}) {
+            const double row = double(s.uv1[v].y) * height;
+            EXPECT_GE(row, top - 1e-3) << "triangle " << t << " reaches above page " << page[t];
+            EXPECT_LE(row, bottom + 1e-3) << "triangle " << t << " reaches below page " << page[t];
+        }
+    }
+    return page;
+}
+
+// Each chart's texels per metre over its world area (charts under a texel
+// take the minimum size, and are left out).
+void expect_density(const Scene& s, const AtlasReport& report, double density) {
+    std::vector<double> world(report.charts, 0.0), uv(report.charts, 0.0);
+    for (size_t t = 0; t < s.triangles.size(); ++t) {
+        world[report.triangle_chart[t]] += s.triangle_area(t);
+        uv[report.triangle_chart[t]] += uv_pixel_area(s, t, report.width, report.height);
+    }
+    for (size_t c = 0; c < report.charts; ++c) {
+        if (world[c] * density * density < 1.0) continue;
+        EXPECT_NEAR(std::sqrt(uv[c] / world[c]), density, 0.001 * density + 0.02) << "chart " << c;
+    }
+}
+
+// The mixed scene and six more boxes, 61 m² in all (the floor's 4 m the largest chart).
+Scene paged_scene() {
+    Scene s = mixed_scene();
+    const uint32_t grey = test::add_material(s, glm::vec3(0.5f));
+    for (int k = 0; k < 6; ++k) test::add_box(s, {3.0f + 1.5f * float(k), 0, 0}, {4.0f + 1.5f * float(k), 1, 1}, grey);
+    return s;
+}
+
+// At densities whose charts take one to several 128² pages: the density
+// asked is kept; the stacked atlas is the pages `padding` rows apart; every
+// triangle lies inside one page; charts keep their padding on the stacked
+// atlas (across a page's edge too) and no texel lies between pages; every
+// chart has the density; the pages are used (each holds a chart).
+TEST(AtlasPages, ChartsThatDoNotFitOnePageGoOnPagesAtTheAskedDensity) {
+    int most_pages = 0;
+    for (const float density : {8.0f, 20.0f, 31.0f}) {
+        SCOPED_TRACE(density);
+        Scene s = paged_scene();
+        const AtlasOptions options{.texel_density = density, .padding = 2, .max_resolution = 128, .max_pages = 8};
+        const AtlasReport report = generate_lightmap_uvs(s, options);
+        const LightmapPages& pages = report.pages;
+        EXPECT_FLOAT_EQ(report.texel_density, density);
+        // One page: the smallest square that holds the charts, as before.
+        EXPECT_EQ(report.width, pages.count > 1 ? 128 : report.height);
+        EXPECT_LE(report.width, 128);
+        EXPECT_EQ(pages.rows, report.width);
+        EXPECT_EQ(pages.gap, pages.count > 1 ? options.padding : 0);
+        EXPECT_EQ(report.height, pages.count * pages.rows + (pages.count - 1) * pages.gap);
+        EXPECT_EQ(s.lightmap_pages.count, pages.count);
+        most_pages = std::max(most_pages, pages.count);
+
+        const std::vector<int> page = triangle_pages(s, pages, report.height);
+        const TexelSamples texels = rasterize_texel_samples(s, report.width, report.height);
+        expect_charts_apart(chart_per_texel(s, report, texels), report.width, report.height, options.padding);
+        for (uint32_t t : texels.texels) {
+            const int row = int(t / uint32_t(report.width));
+            EXPECT_LT(row % pages.stride(), pages.rows) << "a texel between pages, row " << row;
+        }
+        expect_density(s, report, density);
+        std::set<int> used(page.begin(), page.end());
+        EXPECT_EQ(int(used.size()), pages.count) << "every page holds a chart";
+    }
+    EXPECT_GE(most_pages, 3) << "the family reaches several pages";
+}
+
+// More pages than max_pages would hold: the density shrinks until the
+// charts fill max_pages, to 2% (one: the single atlas as before); a chart
+// wider than a page at the density asked sets the density at which it
+// spans one.
+TEST(AtlasPages, PastMaxPagesOrAPageTheDensityShrinks) {
+    for (const int max_pages : {1, 2}) {
+        Scene s = paged_scene();
+        const AtlasReport report =
+            generate_lightmap_uvs(s, {.texel_density = 31.0f, .max_resolution = 128, .max_pages = max_pages});
+        EXPECT_EQ(report.pages.count, max_pages);
+        EXPECT_LT(report.texel_density, 31.0f);
+        expect_density(s, report, report.texel_density);
+        // Within 2% of the densest that fits: 2% more takes more pages.
+        Scene denser = paged_scene();
+        const AtlasReport more = generate_lightmap_uvs(
+            denser, {.texel_density = report.texel_density * 1.02f, .max_resolution = 128, .max_pages = 64});
+        EXPECT_GT(more.pages.count, max_pages) << report.texel_density << " texels/m";
+    }
+    // The 4 m floor spans a 128-texel page at 32 texels/m.
+    Scene s = mixed_scene();
+    const AtlasReport report =
+        generate_lightmap_uvs(s, {.texel_density = 100.0f, .max_resolution = 128, .max_pages = 64});
+    EXPECT_LE(report.texel_density, 32.0f);
+    EXPECT_GT(report.texel_density, 31.5f);
+    EXPECT_GT(report.pages.count, 1);
+}
+
+// One accessor's values as doubles, `components` per element (float, or the
+// unsigned integer types of indices).
+std::vector<double> accessor_values(const tinygltf::Model& model, int index) {
+    const tinygltf::Accessor& a = model.accessors[size_t(index)];
+    const tinygltf::BufferView& view = model.bufferViews[size_t(a.bufferView)];
+    const unsigned char* data = model.buffers[size_t(view.buffer)].data.data() + view.byteOffset + a.byteOffset;
+    const int components = tinygltf::GetNumComponentsInType(uint32_t(a.type));
+    const int size = tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType));
+    const size_t stride = view.byteStride ? view.byteStride : size_t(components * size);
+    std::vector<double> out;
+    for (size_t i = 0; i < a.count; ++i)
+        for (int c = 0; c < components; ++c) {
+            const unsigned char* p = data + i * stride + size_t(c * size);
+            if (a.componentType == TINYGLTF_COMPONENT_TYPE_FLOAT) out.push_back(*reinterpret_cast<const float*>(p));
+            else if (size == 4) out.push_back(*reinterpret_cast<const uint32_t*>(p));
+            else if (size == 2) out.push_back(*reinterpret_cast<const uint16_t*>(p));
+            else out.push_back(*p);
+        }
+    return out;
+}
+
+// The files of a paged atlas: each primitive whose triangles lie on several
+// pages is one primitive per page, their triangles together the
+// primitive's; each piece's TEXCOORD_1 is its page's v (in [0, 1]), and its
+// extras' lightfarm_lightmap_stacked_v maps it back to the stacked atlas's
+// uv1 exactly; in scene.lit.glb each piece's material carries its own
+// page's lightmap: a lightmap whose page p holds p + 1 everywhere decodes to
+// p + 1 on every piece of page p.
+TEST(AtlasPages, EveryPrimitiveOfTheGlbsIsOnItsPageAndItsPagesLightmap) {
+    const fs::path dir = fs::temp_directory_path() / ("lightfarm_pages_test_" + std::to_string(::getpid()));
+    fs::create_directories(dir);
+    Scene scene = load_scene(kScenes / "monkey.glb");
+    const AtlasReport report =
+        generate_lightmap_uvs(scene, {.texel_density = 100.0f, .max_resolution = 256, .max_pages = 8});
+    const LightmapPages& pages = report.pages;
+    ASSERT_GE(pages.count, 3);
+    std::vector<float> rgb(size_t(report.width) * size_t(report.height) * 3, 0.0f);
+    for (int row = 0; row < report.height; ++row)
+        if (row % pages.stride() < pages.rows)
+            std::fill_n(rgb.begin() + std::ptrdiff_t(size_t(row) * size_t(report.width) * 3), report.width * 3,
+                        float(row / pages.stride() + 1));
+    const protocol::RgbmImage lightmap = protocol::encode_rgbm(rgb, report.width, report.height);
+    write_lit_glb(kScenes / "monkey.glb", scene, {&lightmap}, dir / "scene.lit.glb");
+
+    tinygltf::Model model;
+    tinygltf::TinyGLTF gltf;
+    std::string err, warn;
+    ASSERT_TRUE(gltf.LoadBinaryFromFile(&model, &err, &warn, (dir / "scene.lit.glb").string())) << err;
+    size_t split = 0;
+    std::set<int> pages_seen;
+    for (const PrimitiveInstance& inst : scene.instances) {
+        const std::vector<tinygltf::Primitive>& primitives =
+            model.meshes[size_t(model.nodes[size_t(inst.node)].mesh)].primitives;
+        const int uv_accessor = primitives[size_t(inst.primitive)].attributes.at("TEXCOORD_1");
+        const std::vector<double> uv = accessor_values(model, uv_accessor);
+        size_t triangles = 0, pieces = 0;
+        for (const tinygltf::Primitive& piece : primitives) {
+            if (piece.attributes.at("TEXCOORD_1") != uv_accessor) continue;
+            ++pieces;
+            const int page = piece.extras.Get("lightfarm_lightmap_page").GetNumberAsInt();
+            pages_seen.insert(page);
+            const tinygltf::Value& stacked = piece.extras.Get("lightfarm_lightmap_stacked_v");
+            const double offset = stacked.Get(0).GetNumberAsDouble(), scale = stacked.Get(1).GetNumberAsDouble();
+            EXPECT_NEAR(offset, double(page) * pages.stride() / report.height, 1e-12);
+            const std::vector<double> indices = accessor_values(model, piece.indices);
+            triangles += indices.size() / 3;
+            for (double k : indices) {
+                const glm::vec2 want = scene.uv1[inst.first_vertex + uint32_t(k)];
+                const double u = uv[2 * size_t(k)], v = uv[2 * size_t(k) + 1];
+                EXPECT_GE(v, -1e-6);
+                EXPECT_LE(v, 1.0 + 1e-6);
+                EXPECT_FLOAT_EQ(float(u), want.x);
+                EXPECT_NEAR(offset + scale * v, want.y, 1e-6) << "vertex " << k << " of page " << page;
+            }
+            // Its material's lightmap is its page's.
+            const tinygltf::Material& material = model.materials[size_t(piece.material)];
+            const int texture = material.extensions.at("MOZ_lightmap").Get("index").GetNumberAsInt();
+            const tinygltf::Image& image = model.images[size_t(model.textures[size_t(texture)].source)];
+            ASSERT_EQ(image.width, pages.rows);
+            ASSERT_EQ(image.height, pages.rows);
+            for (size_t i = 0; i < image.image.size(); i += 4 * 997) {
+                const double value = lightmap.range * image.image[i] / 255.0 * image.image[i + 3] / 255.0;
+                ASSERT_NEAR(value, page + 1, 0.02 * (page + 1)) << "page " << page << " shows another page";
+            }
+        }
+        EXPECT_EQ(triangles, inst.triangle_count) << "the pieces hold the primitive's triangles";
+        split += pieces > 1;
+    }
+    EXPECT_EQ(int(pages_seen.size()), pages.count);
+    EXPECT_GT(split, 0u) << "a primitive spans pages";
+    fs::remove_all(dir);
+}
+
 // A unit cube's faces are its six charts (90° apart): 24 m of chart border
 // over 6 m², so at d texels per metre the surface within half a texel of a
 // border is 24 / (2 · 6 · d) = 2 / d of it.

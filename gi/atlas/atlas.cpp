@@ -805,15 +805,16 @@ double padded_texels(const TexelMasks& set, const Mask& m, int r) {
 }
 
 // The texel masks of every chart at `density`, in every turn, into `set`;
-// false when they cannot fit a size x size atlas: a rectangle wider than it,
+// false when they cannot fit a size x size atlas (or `pages` of them): a rectangle wider than it,
 // too many texels (padded_texels), or (a hostile scene's hollow charts)
 // masks of more than 32 bits per atlas texel.
 //
 // The charts are rasterized on every core, a block at a time, and their
 // masks added in chart order (the same set on any number of threads); an
 // attempt that cannot fit stops at the block where it fails.
-bool chart_masks(const ChartLayout& layout, double density, int size, int padding, TexelMasks& set) {
-    const double atlas = double(size) * double(size), padded_atlas = double(size + padding) * double(size + padding);
+bool chart_masks(const ChartLayout& layout, double density, int size, int padding, TexelMasks& set, int pages = 1) {
+    const double atlas = double(size) * double(size) * pages,
+                 padded_atlas = double(size + padding) * double(size + padding) * pages;
     set.clear();
     constexpr size_t kBlock = 2048;
     std::vector<RasterizedChart> block(std::min(kBlock, layout.charts.size()));
@@ -1061,8 +1062,9 @@ private:
 };
 
 struct Placement {
-    glm::ivec2 at{0};  // top-left texel of the chart's (turned) rectangle
+    glm::ivec2 at{0};  // top-left texel of the chart's (turned) rectangle on its page
     int turn = 0;      // turn_corner's
+    int page = 0;
 };
 
 // One packing attempt, and what it says about the density to try next.
@@ -1070,48 +1072,105 @@ struct PackAttempt {
     std::optional<std::vector<Placement>> at;  // when every chart fits
     int rows = 0;                              // fits: rows down to the lowest chart's bottom
     bool one_texel_each = false;               // misses: as small as the charts get
+    int pages = 1;                             // fits: the pages used
+    double placed_padded = 0.0;                // misses (pages): padded texels of the charts placed
 };
 
 // Charts tallest first as laid out (then with most texels first; the
-// staircase at 1024² took 31.5 texels/m so, 29.5 with most texels first),
-// each at the lowest (then leftmost) place it fits, in whichever of its
-// turns ends lowest (its bottom row, then its left column).
-PackAttempt pack_charts(const TexelMasks& set, int size, int padding, ShapePacker& packer) {
-    const size_t n = set.masks.size() / kTurns;
-    std::vector<uint32_t> order(n);
+// staircase at 1024² took 31.5 texels/m so, 29.5 with most texels first).
+std::vector<uint32_t> packing_order(const TexelMasks& set) {
+    std::vector<uint32_t> order(set.masks.size() / kTurns);
     std::iota(order.begin(), order.end(), 0u);
     std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
         const Mask &x = set.mask(a, 0), &y = set.mask(b, 0);
         return x.size.y != y.size.y ? x.size.y > y.size.y : x.texels != y.texels ? x.texels > y.texels : a < b;
     });
+    return order;
+}
+
+// Chart c at the lowest (then leftmost) place it fits in `packer`'s atlas,
+// in whichever of its turns ends lowest (its bottom row, then its left
+// column). open_row: per shape, the first row where it may still fit
+// (texels are only ever taken, so where one chart did not fit, no chart of
+// the same shape will).
+std::optional<Placement> best_place(const TexelMasks& set, uint32_t c, int size, const ShapePacker& packer,
+                                    std::vector<int>& open_row) {
+    std::optional<Placement> best;
+    int best_bottom = INT32_MAX;
+    for (int turn = 0; turn < kTurns; ++turn) {
+        const Mask& m = set.mask(c, turn);
+        if (m.same_as >= 0 || m.size.x > size || m.size.y > size) continue;
+        // Only a place ending no lower than the best so far is looked for,
+        // so one that ends as low wins by its column.
+        const auto at = packer.find(set, m, open_row[m.shape], best ? best_bottom - m.size.y : size);
+        if (at && (!best || at->y + m.size.y < best_bottom || at->x < best->at.x)) {
+            best = Placement{*at, turn};
+            best_bottom = at->y + m.size.y;
+        }
+    }
+    return best;
+}
+
+PackAttempt pack_charts(const TexelMasks& set, int size, int padding, ShapePacker& packer) {
     packer.reset(size, padding);
     PackAttempt attempt;
-    std::vector<Placement> placed(n);
-    // Per shape, the first row where it may still fit: texels are only ever
-    // taken, so where one chart did not fit, no chart of the same shape will.
+    std::vector<Placement> placed(set.masks.size() / kTurns);
     std::vector<int> open_row(set.shapes, 0);
-    for (uint32_t c : order) {
-        std::optional<Placement> best;
-        int best_bottom = INT32_MAX;
-        for (int turn = 0; turn < kTurns; ++turn) {
-            const Mask& m = set.mask(c, turn);
-            if (m.same_as >= 0 || m.size.x > size || m.size.y > size) continue;
-            // Only a place ending no lower than the best so far is looked
-            // for, so one that ends as low wins by its column.
-            const auto at = packer.find(set, m, open_row[m.shape], best ? best_bottom - m.size.y : size);
-            if (at && (!best || at->y + m.size.y < best_bottom || at->x < best->at.x)) {
-                best = Placement{*at, turn};
-                best_bottom = at->y + m.size.y;
-            }
-        }
+    for (uint32_t c : packing_order(set)) {
+        const std::optional<Placement> best = best_place(set, c, size, packer, open_row);
         if (!best) {
             attempt.one_texel_each = set.one_texel_each;
             return attempt;
         }
         packer.take(set, set.mask(c, best->turn), best->at);
         placed[c] = *best;
-        attempt.rows = std::max(attempt.rows, best_bottom);
+        attempt.rows = std::max(attempt.rows, best->at.y + set.mask(c, best->turn).size.y);
     }
+    attempt.at = std::move(placed);
+    return attempt;
+}
+
+// The charts on pages of size x size, in packing_order, each on the first
+// open page where it fits, a new page opened where none holds it. Only the
+// last kOpenPages pages stay open (each packer is ~40 MB at 8192²): an
+// older one is as good as full, its gaps too small for what still comes.
+// Misses when more than max_pages would be needed.
+PackAttempt pack_charts_on_pages(const TexelMasks& set, int size, int padding, int max_pages) {
+    constexpr size_t kOpenPages = 4;
+    struct OpenPage {
+        int number = 0;
+        ShapePacker packer;
+        std::vector<int> open_row;
+    };
+    std::vector<std::unique_ptr<OpenPage>> open;
+    PackAttempt attempt;
+    attempt.pages = 0;
+    std::vector<Placement> placed(set.masks.size() / kTurns);
+    for (uint32_t c : packing_order(set)) {
+        std::optional<Placement> best;
+        for (size_t k = 0; k < open.size() && !best; ++k)
+            if ((best = best_place(set, c, size, open[k]->packer, open[k]->open_row))) best->page = open[k]->number;
+        if (!best) {
+            if (attempt.pages == max_pages) {
+                attempt.one_texel_each = set.one_texel_each;
+                return attempt;
+            }
+            if (open.size() == kOpenPages) open.erase(open.begin());
+            open.push_back(std::make_unique<OpenPage>());
+            OpenPage& page = *open.back();
+            page.number = attempt.pages++;
+            page.packer.reset(size, padding);
+            page.open_row.assign(set.shapes, 0);
+            best = best_place(set, c, size, page.packer, page.open_row);
+            if (!best) return attempt;  // wider or taller than a page
+            best->page = page.number;
+        }
+        for (const auto& page : open)
+            if (page->number == best->page) page->packer.take(set, set.mask(c, best->turn), best->at);
+        placed[c] = *best;
+        attempt.placed_padded += padded_texels(set, set.mask(c, 0), padding / 2);
+    }
+    attempt.rows = size;
     attempt.at = std::move(placed);
     return attempt;
 }
@@ -1149,9 +1208,12 @@ double estimate_density(const ChartLayout& layout, double atlas_texels, int padd
 }
 
 struct Packing {
-    int size = 0;  // square atlas side
+    int size = 0;  // square atlas side (with pages: a page's)
     double density = 0.0;
     std::vector<Placement> at;
+    int pages = 1;
+    int gap = 0;  // empty rows between pages (LightmapPages::gap)
+    LightmapPages layout() const { return {pages, size, pages > 1 ? gap : 0}; }
 };
 
 // A packing that fitted: its density and the rows down to its lowest chart's bottom.
@@ -1233,23 +1295,68 @@ std::optional<Packing> smallest_square(const ChartLayout& layout, double density
     return Packing{size, density, std::move(*fit)};
 }
 
+// The charts at `density`, or the largest density below it (to 1%) at
+// which they fit, on at most max_pages pages of size x size, `padding` rows
+// apart. While nothing fits, the density shrinks by the root of the share
+// of the charts that found a place; then it is bisected between the last
+// fit and the last miss. None when even one texel each does not fit.
+std::optional<Packing> pack_on_pages(const ChartLayout& layout, double density, int size, int padding, int max_pages) {
+    // No page holds a chart wider or taller than its side (in either turn):
+    // the largest chart spans one page at most.
+    double largest = 0.0;
+    for (const ChartShape& shape : layout.shapes) largest = std::max({largest, shape.size.x, shape.size.y});
+    if (largest > 0.0) density = std::min(density, double(size) / largest * (1.0 - 1e-6));
+    std::optional<Packing> best;
+    PackScratch scratch;
+    double lo = 0.0, hi = density * 1.0000001;  // lo fitted, hi did not (the asked density bounds it)
+    for (int tries = 0; tries < 60 && density > 1e-12 && hi > lo * 1.01; ++tries) {
+        double placed = 0.0;  // the share of the charts' texels that found a place
+        if (chart_masks(layout, density, size, padding, scratch.masks, max_pages)) {
+            PackAttempt attempt = pack_charts_on_pages(scratch.masks, size, padding, max_pages);
+            if (attempt.at) {
+                best = Packing{size, density, std::move(*attempt.at), attempt.pages, padding};
+                lo = density;
+            } else if (attempt.one_texel_each) {
+                break;
+            } else {
+                placed = attempt.placed_padded / scratch.masks.padded;
+            }
+        }
+        if (lo < density) hi = density;
+        density = best ? std::sqrt(lo * hi) : density * std::clamp(0.98 * std::sqrt(placed), 0.5, 0.98);
+    }
+    return best;
+}
+
 Packing pack_atlas(const ChartLayout& layout, const AtlasOptions& options) {
-    const int padding = std::max(0, options.padding);
+    const int padding = std::max(0, options.padding), max_pages = std::max(1, options.max_pages);
     auto too_small = [&](int size) {
-        return AtlasDoesNotFit("atlas: " + std::to_string(layout.charts.size()) + " charts do not fit a " +
+        return AtlasDoesNotFit("atlas: " + std::to_string(layout.charts.size()) + " charts do not fit " +
+                               (max_pages > 1 ? std::to_string(max_pages) + " pages of " : std::string("a ")) +
                                std::to_string(size) + "x" + std::to_string(size) +
-                               " atlas even at one texel each; raise the resolution");
+                               " even at one texel each; raise the resolution" +
+                               (max_pages > 1 ? " or the pages" : ""));
     };
-    if (options.resolution > 0 || options.texel_density <= 0.0f) {
+    const double asked = options.texel_density;
+    if (options.resolution > 0 || asked <= 0.0) {
         const int size = options.resolution > 0 ? options.resolution : kDefaultResolution;
-        auto packing = pack_at_resolution(layout, size, padding, options.texel_density);
+        std::optional<Packing> packing = pack_at_resolution(layout, size, padding, asked);
+        // Pages of this side where one holds less than the asked density, or nothing.
+        if (max_pages > 1 && (!packing || (asked > 0.0 && packing->density < 0.99 * asked))) {
+            const double density =
+                asked > 0.0 ? asked : estimate_density(layout, double(size) * size * max_pages, padding, 0.8);
+            std::optional<Packing> paged = pack_on_pages(layout, density, size, padding, max_pages);
+            if (paged && (!packing || paged->density > packing->density)) return *paged;
+        }
         if (!packing) throw too_small(size);
         return *packing;
     }
-    // Density given: the smallest square that holds the charts, up to the cap.
-    if (auto packing = smallest_square(layout, options.texel_density, padding, options.max_resolution, false))
-        return *packing;
-    auto packing = pack_at_resolution(layout, options.max_resolution, padding, options.texel_density);
+    // Density given: the smallest square that holds the charts, up to the
+    // cap; else pages of the cap's side; else the density shrinks.
+    if (auto packing = smallest_square(layout, asked, padding, options.max_resolution, false)) return *packing;
+    if (max_pages > 1)
+        if (auto paged = pack_on_pages(layout, asked, options.max_resolution, padding, max_pages)) return *paged;
+    auto packing = pack_at_resolution(layout, options.max_resolution, padding, asked);
     if (!packing) throw too_small(options.max_resolution);
     return *packing;
 }
@@ -1269,6 +1376,7 @@ AtlasOptions with_density_from_scene(const AtlasOptions& options, double border_
     AtlasOptions chosen = options;
     chosen.texel_density = float(border_length / (2.0 * area * double(options.max_border_fraction)));
     chosen.max_resolution = std::min(options.max_resolution, options.auto_max_resolution);
+    chosen.max_pages = 1;  // a density chosen for its border fraction shrinks to one page, where a given one pages
     return chosen;
 }
 
@@ -1333,18 +1441,21 @@ double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, Chart
 // mask was rasterized.
 CornerUVs chart_corner_uvs(const ChartLayout& layout, const Packing& packing) {
     CornerUVs corner_uv(layout.corners.size());  // one per triangle
-    const double d = packing.density, side = packing.size;
+    const LightmapPages pages = packing.layout();
+    const double d = packing.density;
+    const glm::dvec2 atlas(packing.size, pages.total_rows());  // pages stacked top to bottom
     for (size_t c = 0; c < layout.charts.size(); ++c) {
         const Placement& place = packing.at[c];
         const glm::dvec2 size = layout.shapes[c].size, turned = turned_size(size, place.turn);
-        const glm::dvec2 lo(place.at), hi = lo + glm::dvec2(chart_rect(turned, d));
+        const glm::dvec2 lo = glm::dvec2(place.at) + glm::dvec2(0.0, double(place.page) * pages.stride());
+        const glm::dvec2 hi = lo + glm::dvec2(chart_rect(turned, d));
         const glm::dvec2 origin = lo + chart_offset(turned, d);
         const std::vector<uint32_t>& triangles = layout.charts[c].triangles;
         for (size_t i = 0; i < triangles.size(); ++i)
             for (size_t k = 0; k < 3; ++k) {
                 // The clamp only removes rounding (chart_rect tolerates 1e-9 texel).
                 const glm::dvec2 corner = turn_corner(layout.corners_of(c)[i][k], size, place.turn);
-                corner_uv[triangles[i]][k] = glm::vec2(glm::clamp(origin + corner * d, lo, hi) / side);
+                corner_uv[triangles[i]][k] = glm::vec2(glm::clamp(origin + corner * d, lo, hi) / atlas);
             }
     }
     return corner_uv;
@@ -1473,7 +1584,10 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     const Packing packing = pack_atlas_for_scene(layout, options, border, lit_area, report.density_from_scene);
     write_corner_uvs(scene, report.triangle_chart, chart_corner_uvs(layout, packing));
 
-    report.width = report.height = packing.size;
+    scene.lightmap_pages = packing.layout();
+    report.width = packing.size;
+    report.height = scene.lightmap_pages.total_rows();
+    report.pages = scene.lightmap_pages;
     report.texel_density = float(packing.density);
     report.border_fraction = border_fraction(border, lit_area, packing.density);
     report.charts = layout.charts.size();

@@ -21,6 +21,8 @@
 //      by 180° (and 90°, 270° for larger charts) where that places it lower,
 //      so charts nest and small ones fill the gaps beside large ones; if they
 //      do not fit, the density shrinks;
+//      with pages (AtlasOptions::max_pages), each chart goes on the first
+//      page where it fits, a new page opened where none holds it;
 //   4. vertices on chart borders split (one copy per chart), UV1 written.
 #pragma once
 
@@ -52,6 +54,12 @@ struct AtlasOptions {
     // 0: kDefaultAtlasResolution.
     float max_border_fraction = 0.0f;
     int auto_max_resolution = 4096;
+    // Pages: where an asked texel_density does not fit one page (of
+    // `resolution`, else max_resolution), or the charts do not fit it even at
+    // one texel each, they are packed on up to this many pages of that side
+    // (LightmapPages) rather than the density shrinking; more than this, and
+    // the density shrinks until they fit. 1: one page, as before.
+    int max_pages = 1;
     // Generated atlases: called once the charts are made, with each
     // triangle's chart (ids below chart_count); returns 1 for each chart no
     // light can reach (gi/bake/unlit_charts.h). Those are packed at
@@ -65,7 +73,8 @@ constexpr double kUnlitChartScale = 0.125;
 
 struct AtlasReport {
     int width = 0;
-    int height = 0;
+    int height = 0;                        // with pages: all of them stacked, each width x width
+    LightmapPages pages;                   // as Scene::lightmap_pages
     float texel_density = 0.0f;            // texels per metre (for existing or baseline UVs: the average)
     size_t charts = 0;                     // charts (existing UVs: islands of triangles sharing vertices)
     double utilisation = 0.0;              // texels touched by some triangle / all texels

@@ -12,9 +12,9 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
-#include <set>
 #include <fstream>
 #include <map>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -198,6 +198,13 @@ int gather_accessor(tinygltf::Model& model, int source_accessor, const std::vect
     return int(model.accessors.size() - 1);
 }
 
+// The lightmap page a triangle's charts lie on (its UV1's centre's: a chart
+// never crosses a page).
+int triangle_page(const Scene& scene, size_t t) {
+    const glm::uvec3& tri = scene.triangles[t];
+    return scene.lightmap_pages.page_of((scene.uv1[tri.x].y + scene.uv1[tri.y].y + scene.uv1[tri.z].y) / 3.0f);
+}
+
 int add_float_accessor(tinygltf::Model& model, const VertexAttribute& attribute, uint32_t vertex_count) {
     static const int types[] = {0, TINYGLTF_TYPE_SCALAR, TINYGLTF_TYPE_VEC2, TINYGLTF_TYPE_VEC3, TINYGLTF_TYPE_VEC4};
     if (attribute.components < 1 || attribute.components > 4 ||
@@ -220,21 +227,23 @@ int add_float_accessor(tinygltf::Model& model, const VertexAttribute& attribute,
 // file's own winding: the loader turned mirrored nodes' triangles around to
 // make them counter-clockwise in world space, and the bake may have turned
 // double-sided ones to face the scene; turning them back restores it.
-int add_index_accessor(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst) {
-    std::vector<unsigned char> bytes(size_t(inst.triangle_count) * 3 * sizeof(uint32_t));
-    uint32_t max_index = 0;
+// With `page` >= 0, only the triangles on that lightmap page (triangle_page).
+int add_index_accessor(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst, int page = -1) {
+    std::vector<unsigned char> bytes;
+    bytes.reserve(size_t(inst.triangle_count) * 3 * sizeof(uint32_t));
     for (uint32_t i = 0; i < inst.triangle_count; ++i) {
         const size_t t = inst.first_triangle + i;
+        if (page >= 0 && triangle_page(scene, t) != page) continue;
         glm::uvec3 tri = scene.triangles[t] - glm::uvec3(inst.first_vertex);
         const bool turned = !scene.triangle_turned.empty() && scene.triangle_turned[t];
         if (inst.mirrored != turned) std::swap(tri.y, tri.z);
-        max_index = std::max({max_index, tri.x, tri.y, tri.z});
-        std::memcpy(&bytes[size_t(i) * 12], &tri, 12);
+        const auto* b = reinterpret_cast<const unsigned char*>(&tri);
+        bytes.insert(bytes.end(), b, b + 12);
     }
     tinygltf::Accessor accessor;
     accessor.componentType = TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT;
     accessor.type = TINYGLTF_TYPE_SCALAR;
-    accessor.count = size_t(inst.triangle_count) * 3;
+    accessor.count = bytes.size() / sizeof(uint32_t);
     accessor.bufferView = append_view(model, bytes, TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER);
     model.accessors.push_back(accessor);
     return int(model.accessors.size() - 1);
@@ -397,73 +406,120 @@ int add_png_texture(tinygltf::Model& model, const std::string& png, const std::s
     return int(model.textures.size() - 1);
 }
 
-// The materials of `primitives`, a default one given to those without.
-std::set<int> materials_of(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives) {
+// A baked primitive, and the lightmap page its triangles lie on.
+struct BakedPrimitive {
+    tinygltf::Primitive* primitive;
+    int page = 0;
+};
+
+// The materials of each page's primitives, a default one given to those
+// without. A material used on several pages is copied for each page after
+// its first, as each page's materials take that page's maps.
+std::vector<std::set<int>> materials_by_page(tinygltf::Model& model, const std::vector<BakedPrimitive>& baked,
+                                             int pages) {
     int default_material = -1;
-    std::set<int> materials;
-    for (tinygltf::Primitive* primitive : primitives) {
-        if (primitive->material < 0) {
+    std::map<int, int> first_page;              // material -> the page that keeps it
+    std::map<std::pair<int, int>, int> copies;  // (material, page) -> its copy
+    std::vector<std::set<int>> materials(size_t(std::max(pages, 1)));
+    for (const BakedPrimitive& b : baked) {
+        int& material = b.primitive->material;
+        if (material < 0) {
             if (default_material < 0) default_material = add_default_lambertian_material(model);
-            primitive->material = default_material;
+            material = default_material;
         }
-        materials.insert(primitive->material);
+        const int page = first_page.try_emplace(material, b.page).first->second;
+        if (page != b.page) {
+            auto [copy, added] = copies.try_emplace({material, b.page}, int(model.materials.size()));
+            if (added) {
+                tinygltf::Material m = model.materials[size_t(material)];
+                m.name += " (lightmap page " + std::to_string(b.page) + ")";
+                model.materials.push_back(std::move(m));
+            }
+            material = copy->second;
+        }
+        materials[size_t(b.page)].insert(material);
     }
     return materials;
 }
 
-// The lightmap applied with MOZ_lightmap to the materials of `primitives`.
-void embed_lightmap(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+// Page `page`'s rows of an image of the stacked pages (channels bytes per texel).
+std::vector<uint8_t> page_rows(const std::vector<uint8_t>& pixels, int width, int channels, const LightmapPages& pages,
+                               int page) {
+    if (pages.count == 1) return pixels;
+    const size_t row = size_t(width) * size_t(channels);
+    const auto first = pixels.begin() + std::ptrdiff_t(size_t(page) * size_t(pages.stride()) * row);
+    return {first, first + std::ptrdiff_t(size_t(pages.rows) * row)};
+}
+
+int page_height(const LightmapPages& pages, int height) { return pages.count == 1 ? height : pages.rows; }
+
+// The lightmap applied with MOZ_lightmap to each page's materials.
+void embed_lightmap(tinygltf::Model& model, const std::vector<std::set<int>>& materials, const LightmapPages& pages,
                     const protocol::RgbmImage& lightmap) {
-    const int texture = add_png_texture(model, protocol::rgbm_png(lightmap, png_strips_in_parallel), "lightmap (RGBM)");
     tinygltf::Value::Object extras{{"encoding", tinygltf::Value(std::string("RGBM"))},
                                    {"rgbm_range", tinygltf::Value(double(lightmap.range))}};
-    tinygltf::Value::Object extension{{"index", tinygltf::Value(texture)},
-                                      {"texCoord", tinygltf::Value(1)},
-                                      {"intensity", tinygltf::Value(M_PI)},
-                                      {"extras", tinygltf::Value(extras)}};
-    for (int m : materials_of(model, primitives))
-        model.materials[size_t(m)].extensions["MOZ_lightmap"] = tinygltf::Value(extension);
+    for (int page = 0; page < pages.count; ++page) {
+        const protocol::RgbmImage image{lightmap.width, page_height(pages, lightmap.height), lightmap.range,
+                                        page_rows(lightmap.rgba, lightmap.width, 4, pages, page)};
+        const std::string name = pages.count == 1 ? "" : " page " + std::to_string(page);
+        const int texture =
+            add_png_texture(model, protocol::rgbm_png(image, png_strips_in_parallel), "lightmap (RGBM)" + name);
+        tinygltf::Value::Object extension{{"index", tinygltf::Value(texture)},
+                                          {"texCoord", tinygltf::Value(1)},
+                                          {"intensity", tinygltf::Value(M_PI)},
+                                          {"extras", tinygltf::Value(extras)}};
+        for (int m : materials[size_t(page)])
+            model.materials[size_t(m)].extensions["MOZ_lightmap"] = tinygltf::Value(extension);
+    }
     use_extension(model, "MOZ_lightmap");
 }
 
-// Ambient occlusion as the core occlusionTexture of the materials of `primitives`.
-void embed_occlusion(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+// Ambient occlusion as the core occlusionTexture of each page's materials.
+void embed_occlusion(tinygltf::Model& model, const std::vector<std::set<int>>& materials, const LightmapPages& pages,
                      const GreyImage& occlusion) {
-    std::vector<uint8_t> rgb(occlusion.values.size() * 3);
-    for (size_t i = 0; i < occlusion.values.size(); ++i)
-        rgb[3 * i] = rgb[3 * i + 1] = rgb[3 * i + 2] = occlusion.values[i];
-    const std::string png =
-        protocol::encode_png(rgb.data(), occlusion.width, occlusion.height, 3, png_strips_in_parallel);
-    const int texture = add_png_texture(model, png, "ambient occlusion");
-    for (int m : materials_of(model, primitives)) {
-        tinygltf::OcclusionTextureInfo& info = model.materials[size_t(m)].occlusionTexture;
-        info = tinygltf::OcclusionTextureInfo();
-        info.index = texture;
-        info.texCoord = 1;
-        info.strength = 1.0;
+    for (int page = 0; page < pages.count; ++page) {
+        const std::vector<uint8_t> grey = page_rows(occlusion.values, occlusion.width, 1, pages, page);
+        std::vector<uint8_t> rgb(grey.size() * 3);
+        for (size_t i = 0; i < grey.size(); ++i) rgb[3 * i] = rgb[3 * i + 1] = rgb[3 * i + 2] = grey[i];
+        const std::string png = protocol::encode_png(rgb.data(), occlusion.width, page_height(pages, occlusion.height),
+                                                     3, png_strips_in_parallel);
+        const int texture = add_png_texture(
+            model, png, "ambient occlusion" + (pages.count == 1 ? "" : " page " + std::to_string(page)));
+        for (int m : materials[size_t(page)]) {
+            tinygltf::OcclusionTextureInfo& info = model.materials[size_t(m)].occlusionTexture;
+            info = tinygltf::OcclusionTextureInfo();
+            info.index = texture;
+            info.texCoord = 1;
+            info.strength = 1.0;
+        }
     }
 }
 
 // The baked look as every material's only texture, unlit (write_unlit_glb).
-void embed_unlit_look(tinygltf::Model& model, const std::vector<tinygltf::Primitive*>& primitives,
+void embed_unlit_look(tinygltf::Model& model, const std::vector<std::set<int>>& materials, const LightmapPages& pages,
                       const ColourImage& look) {
-    const std::string png = protocol::encode_png(look.rgb.data(), look.width, look.height, 3, png_strips_in_parallel);
-    const int texture = add_png_texture(model, png, "baked look (sRGB)");
     std::set<std::string> dropped;
-    for (int m : materials_of(model, primitives)) {
-        tinygltf::Material& material = model.materials[size_t(m)];
-        const double alpha = material.pbrMetallicRoughness.baseColorFactor.at(3);
-        material.pbrMetallicRoughness = tinygltf::PbrMetallicRoughness();
-        material.pbrMetallicRoughness.baseColorFactor = {1.0, 1.0, 1.0, alpha};
-        material.pbrMetallicRoughness.baseColorTexture.index = texture;
-        material.pbrMetallicRoughness.baseColorTexture.texCoord = 1;
-        material.normalTexture = tinygltf::NormalTextureInfo();
-        material.occlusionTexture = tinygltf::OcclusionTextureInfo();
-        material.emissiveTexture = tinygltf::TextureInfo();
-        material.emissiveFactor = {0.0, 0.0, 0.0};
-        for (const auto& [name, value] : material.extensions) dropped.insert(name);
-        material.extensions.clear();  // transmission, emissive strength …: the look holds their effect
-        material.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
+    for (int page = 0; page < pages.count; ++page) {
+        const std::vector<uint8_t> rgb = page_rows(look.rgb, look.width, 3, pages, page);
+        const std::string png =
+            protocol::encode_png(rgb.data(), look.width, page_height(pages, look.height), 3, png_strips_in_parallel);
+        const int texture = add_png_texture(
+            model, png, "baked look (sRGB)" + (pages.count == 1 ? "" : " page " + std::to_string(page)));
+        for (int m : materials[size_t(page)]) {
+            tinygltf::Material& material = model.materials[size_t(m)];
+            const double alpha = material.pbrMetallicRoughness.baseColorFactor.at(3);
+            material.pbrMetallicRoughness = tinygltf::PbrMetallicRoughness();
+            material.pbrMetallicRoughness.baseColorFactor = {1.0, 1.0, 1.0, alpha};
+            material.pbrMetallicRoughness.baseColorTexture.index = texture;
+            material.pbrMetallicRoughness.baseColorTexture.texCoord = 1;
+            material.normalTexture = tinygltf::NormalTextureInfo();
+            material.occlusionTexture = tinygltf::OcclusionTextureInfo();
+            material.emissiveTexture = tinygltf::TextureInfo();
+            material.emissiveFactor = {0.0, 0.0, 0.0};
+            for (const auto& [name, value] : material.extensions) dropped.insert(name);
+            material.extensions.clear();  // transmission, emissive strength …: the look holds their effect
+            material.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
+        }
     }
     // An extension no material uses any more is no longer used, or required.
     for (const tinygltf::Material& material : model.materials)
@@ -473,21 +529,10 @@ void embed_unlit_look(tinygltf::Model& model, const std::vector<tinygltf::Primit
     use_extension(model, "KHR_materials_unlit");
 }
 
-// write_glb_with_vertex_attributes, and the lightmap embedded when given.
-void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
-               const std::vector<std::vector<VertexAttribute>>& per_instance, const std::filesystem::path& out_glb,
-               bool unlit_materials, const LitSceneMaps& maps, const ColourImage* look = nullptr) {
-    if (per_instance.size() != scene.instances.size())
-        fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
-                              std::to_string(scene.instances.size()));
-    LoadedModel loaded;
-    load_model(source_gltf, loaded);
-    tinygltf::Model& model = loaded.model;
-    merge_buffers(model);
-    embed_images(loaded);
-
-    // Each node placement of a mesh gets its own mesh: the first node keeps
-    // the original, every further node a copy.
+// Each node placement of a mesh gets its own mesh (each has its own atlas
+// region): the first node keeps the original, every further node a copy.
+// Returns the mesh written for each node.
+std::map<int, int> mesh_per_node(tinygltf::Model& model, const Scene& scene, const std::filesystem::path& source_gltf) {
     std::map<int, int> mesh_of_node;  // node -> mesh index written for it
     std::vector<bool> mesh_taken(model.meshes.size(), false);
     for (const PrimitiveInstance& inst : scene.instances) {
@@ -507,34 +552,106 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
         mesh_taken[size_t(inst.mesh)] = true;
         mesh_of_node[inst.node] = mesh;
     }
-    std::vector<tinygltf::Primitive*> baked;
+    return mesh_of_node;
+}
+
+// A primitive whose triangles lie on several lightmap pages becomes one
+// primitive per page (the same vertices, each page's triangles), and each
+// says in its extras its page (lightfarm_lightmap_page) and where that page
+// lies in the files that hold every page stacked, lightmap.exr
+// (lightfarm_lightmap_stacked_v: [offset, scale], v there = offset + scale
+// x TEXCOORD_1's v); with one page, nothing changes. Returns the (mesh,
+// primitive index, page) of each piece.
+std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst,
+                                              int mesh) {
+    std::vector<std::array<int, 3>> pieces;
+    if (scene.lightmap_pages.count == 1) return {{mesh, inst.primitive, 0}};
+    std::set<int> pages;
+    for (uint32_t i = 0; i < inst.triangle_count; ++i) pages.insert(triangle_page(scene, inst.first_triangle + i));
+    auto& primitives = model.meshes[size_t(mesh)].primitives;
+    for (int page : pages) {
+        int index = inst.primitive;
+        if (page != *pages.begin()) {
+            primitives.push_back(primitives[size_t(inst.primitive)]);
+            index = int(primitives.size() - 1);
+        }
+        tinygltf::Primitive& piece = primitives[size_t(index)];
+        if (pages.size() > 1) {
+            piece.indices = add_index_accessor(model, scene, inst, page);
+            piece.mode = TINYGLTF_MODE_TRIANGLES;
+        }
+        tinygltf::Value::Object extras =
+            piece.extras.IsObject() ? piece.extras.Get<tinygltf::Value::Object>() : tinygltf::Value::Object();
+        const LightmapPages& layout = scene.lightmap_pages;
+        extras["lightfarm_lightmap_page"] = tinygltf::Value(page);
+        extras["lightfarm_lightmap_stacked_v"] = tinygltf::Value(tinygltf::Value::Array{
+            tinygltf::Value(double(page) * layout.stride() / layout.total_rows()),
+            tinygltf::Value(double(layout.rows) / layout.total_rows())});
+        piece.extras = tinygltf::Value(extras);
+        pieces.push_back({mesh, index, page});
+    }
+    return pieces;
+}
+
+// write_glb_with_vertex_attributes, and the lightmap embedded when given.
+void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
+               const std::vector<std::vector<VertexAttribute>>& per_instance, const std::filesystem::path& out_glb,
+               bool unlit_materials, const LitSceneMaps& maps, const ColourImage* look = nullptr) {
+    if (per_instance.size() != scene.instances.size())
+        fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
+                              std::to_string(scene.instances.size()));
+    LoadedModel loaded;
+    load_model(source_gltf, loaded);
+    tinygltf::Model& model = loaded.model;
+    merge_buffers(model);
+    embed_images(loaded);
+
+    std::map<int, int> mesh_of_node = mesh_per_node(model, scene, source_gltf);
+    std::vector<std::array<int, 3>> pieces;  // (mesh, primitive, page) of every baked primitive
     for (size_t i = 0; i < scene.instances.size(); ++i) {
         const PrimitiveInstance& inst = scene.instances[i];
-        auto& primitives = model.meshes[size_t(mesh_of_node[inst.node])].primitives;
+        const int mesh = mesh_of_node[inst.node];
+        auto& primitives = model.meshes[size_t(mesh)].primitives;
         if (inst.primitive < 0 || size_t(inst.primitive) >= primitives.size())
             fail(source_gltf, "scene does not match the file (mesh " + std::to_string(inst.mesh) + ")");
         add_vertex_attributes(model, primitives[size_t(inst.primitive)], scene, inst, per_instance[i], source_gltf);
-        baked.push_back(&primitives[size_t(inst.primitive)]);
+        for (const auto& piece : split_by_page(model, scene, inst, mesh)) pieces.push_back(piece);
     }
+    // Pointers once every piece is in place (a split appends primitives).
+    std::vector<BakedPrimitive> baked;
+    for (const auto& [mesh, primitive, page] : pieces)
+        baked.push_back({&model.meshes[size_t(mesh)].primitives[size_t(primitive)], page});
     if (unlit_materials && !model.materials.empty()) {
         for (tinygltf::Material& m : model.materials)
             m.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
         use_extension(model, "KHR_materials_unlit");
     }
-    if (maps.lightmap) embed_lightmap(model, baked, *maps.lightmap);
-    if (maps.occlusion) embed_occlusion(model, baked, *maps.occlusion);
-    if (look) embed_unlit_look(model, baked, *look);
+    if (maps.lightmap || maps.occlusion || look) {
+        const LightmapPages& pages = scene.lightmap_pages;
+        const std::vector<std::set<int>> materials = materials_by_page(model, baked, pages.count);
+        if (maps.lightmap) embed_lightmap(model, materials, pages, *maps.lightmap);
+        if (maps.occlusion) embed_occlusion(model, materials, pages, *maps.occlusion);
+        if (look) embed_unlit_look(model, materials, pages, *look);
+    }
     write_atomically(model, out_glb);
 }
 
-// TEXCOORD_1 = the scene's lightmap UVs, per instance.
+// TEXCOORD_1 = the scene's lightmap UVs, per instance, each on its page.
 std::vector<std::vector<VertexAttribute>> lightmap_uvs(const Scene& scene) {
     std::vector<std::vector<VertexAttribute>> uv1(scene.instances.size());
     for (size_t i = 0; i < scene.instances.size(); ++i) {
         const PrimitiveInstance& inst = scene.instances[i];
+        // A vertex's page is its triangles' (a chart's vertex may lie on a page's edge).
+        std::vector<int> page(inst.vertex_count, 0);
+        for (uint32_t t = inst.first_triangle; t < inst.first_triangle + inst.triangle_count; ++t)
+            for (int k = 0; k < 3; ++k) page[scene.triangles[t][k] - inst.first_vertex] = triangle_page(scene, t);
         VertexAttribute a{"TEXCOORD_1", 2, {}};
         a.values.resize(size_t(inst.vertex_count) * 2);
-        std::memcpy(a.values.data(), &scene.uv1[inst.first_vertex], a.values.size() * sizeof(float));
+        for (uint32_t k = 0; k < inst.vertex_count; ++k) {
+            const glm::vec2 uv = scene.uv1[inst.first_vertex + k];
+            a.values[2 * k] = uv.x;
+            a.values[2 * k + 1] = scene.lightmap_pages.v_on_page(uv.y, page[k]);
+        }
         uv1[i].push_back(std::move(a));
     }
     return uv1;

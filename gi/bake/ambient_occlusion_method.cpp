@@ -1,5 +1,6 @@
 #include "bake/ambient_occlusion_method.h"
 
+#include "bake/atlas_files.h"
 #include "atlas/texel_samples.h"
 
 #include <algorithm>
@@ -160,9 +161,8 @@ SnapshotWrite AmbientOcclusionMethod::snapshot(const std::filesystem::path& dir,
 
 MethodResult AmbientOcclusionMethod::finish(const std::filesystem::path& dir, const PassStats& stats) {
     auto final_image = std::make_shared<const FloatImage>(image(unoccluded_.read<float>(), stats.pass));
-    write_exr(dir / "ao.exr", *final_image);
     MethodResult result;
-    result.files = {"ao.exr"};
+    result.files = write_atlas_exr(dir, "ao.exr", *final_image, prepared_.atlas.pages);
     result.image = std::move(final_image);
     result.manifest = {
         {"settings", settings_json_},
@@ -174,6 +174,7 @@ MethodResult AmbientOcclusionMethod::finish(const std::filesystem::path& dir, co
            "open, 0 enclosed); layers samples, error, covered"},
           {"ao.pass-NNNN.exr", "intermediate ambient occlusion snapshots"}}},
     };
+    if (prepared_.atlas.pages.count > 1) result.manifest["files"]["ao.page-N.exr"] = page_files_description("ao.exr");
     return result;
 }
 

@@ -101,6 +101,7 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
     options.resolution = s.atlas.res.value_or(0);
     options.texel_density = float(s.atlas.texel_density.value_or(0.0));
     options.max_resolution = options.auto_max_resolution = s.atlas.max_res.value_or(protocol::kAutoMaxAtlasRes);
+    options.max_pages = s.atlas.max_pages;
     // The tightest target error of the per-texel outputs.
     double target = kDefaultResolutionBias;
     bool targeted = false;
@@ -166,9 +167,14 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                              "(TEXCOORD_1), which are baked as they are");
     // A density asked for that the largest atlas cannot hold is baked lower: said, not silent.
     if (options.texel_density > 0.0f && p.atlas.texel_density < 0.99f * options.texel_density)
-        p.warnings.push_back("texel density " + texels_per_metre(options.texel_density) + " does not fit in a " +
-                             std::to_string(options.max_resolution) + "² atlas (max_res): baked at " +
-                             texels_per_metre(p.atlas.texel_density) + "; raise --max-res (at most 16384) for more");
+        p.warnings.push_back(
+            "texel density " + texels_per_metre(options.texel_density) + " does not fit in " +
+            (options.max_pages > 1 ? std::to_string(options.max_pages) + " pages of " : std::string("a ")) +
+            std::to_string(options.max_resolution) + "² (max_pages, max_res): baked at " +
+            texels_per_metre(p.atlas.texel_density) +
+            (p.atlas.pages.count < options.max_pages
+                 ? ", where its largest chart spans a whole page; raise --max-res (at most 16384) for more"
+                 : "; raise --max-res (at most 16384) or --max-pages for more"));
 }
 
 // The atlas's texels: double-sided charts turned to face the scene first
@@ -285,22 +291,25 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
             const nlohmann::json& known = manifest[output]["files"];
             if (known.contains(f)) out[f] = known[f];
             else if (known.contains(protocol::snapshot_pattern(f))) out[f] = known[protocol::snapshot_pattern(f)];
+            else if (known.contains(protocol::page_pattern(f))) out[f] = known[protocol::page_pattern(f)];
         }
     }
     return out;
 }
 
 // A fresh bake into a folder that holds an older bake: the older one's
-// snapshots go (the files that fit an output's snapshot pattern, nothing
-// else), so that its higher pass numbers are not taken for this bake's.
+// snapshots and atlas pages go (the files that fit an output's snapshot or
+// page pattern, nothing else), so that its higher pass numbers are not
+// taken for this bake's, nor its pages for pages this bake has not.
 void remove_old_snapshots(const fs::path& out) {
     std::error_code ec;
     for (const fs::directory_entry& e : fs::directory_iterator(out, ec)) {
-        const std::string name = e.path().filename().string(), pattern = protocol::snapshot_pattern(name);
-        if (pattern == name || !e.is_regular_file()) continue;
+        const std::string name = e.path().filename().string();
+        const std::string snapshot = protocol::snapshot_pattern(name), page = protocol::page_pattern(name);
+        if ((snapshot == name && page == name) || !e.is_regular_file()) continue;
         for (const protocol::OutputKind& o : protocol::output_registry())
             for (const protocol::OutputFile& f : o.files)
-                if (f.name == pattern) fs::remove(e.path(), ec);
+                if (f.name == snapshot || f.name == page) fs::remove(e.path(), ec);
     }
 }
 

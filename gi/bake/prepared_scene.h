@@ -81,7 +81,10 @@ private:
 // The atlas as every per-texel method's manifest section describes it.
 inline nlohmann::json atlas_json(const AtlasReport& atlas) {
     return {{"width", atlas.width},
-            {"height", atlas.height},
+            {"height", atlas.height},  // with pages: all of them stacked, page_gap rows apart
+            {"pages", atlas.pages.count},
+            {"page_height", atlas.pages.count > 1 ? atlas.pages.rows : atlas.height},
+            {"page_gap", atlas.pages.gap},
             {"texel_density", atlas.texel_density},
             {"density_from_scene", atlas.density_from_scene},
             {"border_fraction", atlas.border_fraction},

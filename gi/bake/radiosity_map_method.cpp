@@ -1,5 +1,6 @@
 #include "bake/radiosity_map_method.h"
 
+#include "bake/atlas_files.h"
 #include "io/image_files.h"
 
 #include <future>
@@ -140,9 +141,8 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
             ? std::move(last_snapshot_)
             : stitched_image(baker_.read_back(), /*during_passes=*/false, denoiser_ ? &*denoiser_ : nullptr));
     const FloatImage& image = *final_image;
-    write_exr(dir / "lightmap.exr", image);
     MethodResult result;
-    result.files = {"lightmap.exr"};
+    result.files = write_atlas_exr(dir, "lightmap.exr", image, prepared_.atlas.pages);
     result.image = std::move(final_image);
     result.manifest = {
         {"settings", settings_json_},
@@ -161,6 +161,8 @@ MethodResult RadiosityMapMethod::finish(const std::filesystem::path& dir, const 
                                (image.channels.count("L1x.R") ? ", L1x, L1y, L1z (directional)" : "")},
           {"lightmap.pass-NNNN.exr", "intermediate lightmap snapshots"}}},
     };
+    if (prepared_.atlas.pages.count > 1)
+        result.manifest["files"]["lightmap.page-N.exr"] = page_files_description("lightmap.exr");
     return result;
 }
 

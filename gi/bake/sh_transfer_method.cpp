@@ -1,5 +1,6 @@
 #include "bake/sh_transfer_method.h"
 
+#include "bake/atlas_files.h"
 #include "bake/bake_job.h"
 
 #include "atlas/atlas.h"
@@ -271,8 +272,11 @@ MethodResult ShTransferMethod::finish(const fs::path& dir, const PassStats& stat
 
     nlohmann::json per_texel = false;
     if (settings_.per_texel) {
-        write_exr(dir / "sh_transfer.exr", texel_image(transfer, bands, stats));
-        result.files.push_back("sh_transfer.exr");
+        for (const std::string& file :
+             write_atlas_exr(dir, "sh_transfer.exr", texel_image(transfer, bands, stats), prepared_.atlas.pages))
+            result.files.push_back(file);
+        if (prepared_.atlas.pages.count > 1)
+            files["sh_transfer.page-N.exr"] = page_files_description("sh_transfer.exr");
         files["sh_transfer.exr"] =
             "per-texel SH transfer in the lightmap atlas: channels sh.0 … sh.{bands²-1} "
             "(coefficient l(l+1)+m), coverage; dilated past chart borders";

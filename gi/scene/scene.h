@@ -8,6 +8,7 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <cstdint>
 #include <limits>
 #include <string>
@@ -105,6 +106,27 @@ struct PrimitiveInstance {
     float lightmap_scale = 1.0f;
 };
 
+// The lightmap's pages. A generated atlas whose charts do not fit one page
+// (at the asked texel density) holds several, each `rows` x `rows` texels:
+// the bake sees them stacked top to bottom, `gap` empty rows apart (no
+// lookup blends two pages), and uv1 spans the whole stack; the files split
+// it again (one image per page, each primitive on its page's UVs).
+struct LightmapPages {
+    int count = 1;
+    int rows = 0;  // a page's side; 0 with one page (the atlas is its own page)
+    int gap = 0;
+    int stride() const { return rows + gap; }
+    int total_rows() const { return count * rows + (count - 1) * gap; }
+    // The page that the stacked atlas's v (uv1.y) lies on (inside a chart:
+    // a chart's edge may lie on a page's), and v on page `page`.
+    int page_of(float v) const {
+        return count == 1 ? 0 : std::clamp(int(double(v) * total_rows() / stride()), 0, count - 1);
+    }
+    float v_on_page(float v, int page) const {
+        return count == 1 ? v : float((double(v) * total_rows() - double(page) * stride()) / rows);
+    }
+};
+
 struct Scene {
     std::string source;  // file the scene was loaded from, for messages
 
@@ -113,6 +135,7 @@ struct Scene {
     std::vector<glm::vec3> normals;  // unit length; area-weighted when the file had none
     std::vector<glm::vec2> uv0;      // TEXCOORD_0, or zero
     std::vector<glm::vec2> uv1;      // TEXCOORD_1 (lightmap UVs), or zero
+    LightmapPages lightmap_pages;    // the pages uv1 spans (one unless a generated atlas needed more)
     // Per-vertex: the index of the vertex within its glTF primitive. Empty
     // means identity (vertex v of instance i is glTF vertex v - first_vertex).
     // A generated atlas splits vertices that lie on a chart border into one

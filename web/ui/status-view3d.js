@@ -51,8 +51,27 @@ if (THREE) {
   const decodeRgbm = (shader) => {
     shader.fragmentShader = shader.fragmentShader.replace("#include <lights_fragment_maps>", rgbmChunk);
   };
-  const lightmapOn = (material) => {
-    material.lightMap = lightmap;
+  // A bake of several atlas pages: each primitive's TEXCOORD_1 is on its
+  // page, and a job's lightmap and error map hold every page stacked; the
+  // primitive's extras say where its page lies in them (v = offset + scale
+  // x its v). A scene.lit.glb opened from disk has each page's lightmap on
+  // that page's materials.
+  const pageTextures = new Map();
+  const onPage = (texture, geometry) => {
+    const stacked = geometry.userData.lightfarm_lightmap_stacked_v;
+    if (!stacked || !texture) return texture;
+    const key = texture.uuid + stacked.join(",");
+    if (!pageTextures.has(key)) {
+      const page = texture.clone();
+      page.offset.set(0, stacked[0]);
+      page.repeat.set(1, stacked[1]);
+      page.needsUpdate = true;  // a clone is a texture of its own to upload (of the same image)
+      pageTextures.set(key, page);
+    }
+    return pageTextures.get(key);
+  };
+  const lightmapOn = (material, node) => {
+    material.lightMap = originals.get(node).lightMap || onPage(lightmap, node.geometry);
     material.lightMapIntensity = Math.PI * range;
     material.metalness = 0;  // the bake is Lambertian
     material.onBeforeCompile = decodeRgbm;
@@ -71,9 +90,9 @@ if (THREE) {
       const original = originals.get(node);
       if (node.material !== original) node.material.dispose();  // the last pass's or mode's copy
       if (state.mode === "error" && !errorMap) node.material = original;
-      else if (state.mode === "lit") node.material = lightmapOn(original.clone());
-      else if (state.mode === "lightmap") node.material = Object.assign(lightmapOn(white.clone()), { side: original.side });
-      else node.material = new THREE.MeshBasicMaterial({ map: errorMap, side: original.side });
+      else if (state.mode === "lit") node.material = lightmapOn(original.clone(), node);
+      else if (state.mode === "lightmap") node.material = Object.assign(lightmapOn(white.clone(), node), { side: original.side });
+      else node.material = new THREE.MeshBasicMaterial({ map: onPage(errorMap, node.geometry), side: original.side });
     });
     draw();
   }
@@ -229,6 +248,7 @@ if (THREE) {
       error.texture.colorSpace = THREE.SRGBColorSpace;
       if (lightmap) lightmap.dispose();
       if (errorMap) errorMap.dispose();
+      pageTextures.clear();  // its clones shared the old ones' images
       lightmap = rgbm.texture;
       errorMap = error.texture;
       range = Number(rgbm.headers.get("X-Lightfarm-Rgbm-Range")) || 1;
@@ -294,9 +314,10 @@ if (THREE) {
     model.traverse((node) => {
       if (!node.isMesh) return;
       originals.set(node, node.material);
-      if (node.material.lightMap) lightmap = node.material.lightMap;
+      if (!node.material.lightMap) return;
+      lightmap = node.material.lightMap;  // one page's, for the exposure: each page's material keeps its own
+      lightmap.colorSpace = THREE.NoColorSpace;
     });
-    lightmap.colorSpace = THREE.NoColorSpace;
     if (errorMap) errorMap.dispose();
     errorMap = null;
     range = (plugin.found.intensity / Math.PI) * extras.rgbm_range;  // lightmapOn multiplies by pi
