@@ -508,23 +508,26 @@ TEST(CliBake, FailuresAreOneClearLine) {
 }
 
 // A second bake into the same folder leaves none of the first one's
-// snapshots (its higher pass numbers read as this bake's newest), and
-// nothing else of the folder is touched.
-TEST(CliBake, ABakeIntoAnOlderBakesFolderRemovesItsSnapshots) {
+// snapshots (its higher pass numbers read as this bake's newest) nor its
+// atlas pages (pages this bake has not), and nothing else of the folder is
+// touched.
+TEST(CliBake, ABakeIntoAnOlderBakesFolderRemovesItsSnapshotsAndPages) {
     const fs::path out = fresh_dir("rebake");
     const std::string scene = test::shared_scene("cornell_box.gltf");
     ASSERT_EQ(run_lightfarm("bake " + scene + " --res 32 --passes 8 --out " + out.string()).exit_code, 0);
-    // An older bake's snapshots of every kind, at passes this one does not reach.
-    for (const char* old :
-         {"lightmap.pass-0512.exr", "sh_transfer.pass-0064.bin", "probes.pass-0016.json", "ao.pass-0128.exr"})
-        fs::copy_file(out / "lightmap.exr", out / old);
+    // An older bake's snapshots of every kind, at passes this one does not
+    // reach, and its pages of every atlas output.
+    const std::vector<std::string> older = {
+        "lightmap.pass-0512.exr", "sh_transfer.pass-0064.bin", "probes.pass-0016.json", "ao.pass-0128.exr",
+        "lightmap.page-0.exr",    "lightmap.page-12.exr",      "ao.page-1.exr",         "sh_transfer.page-2.exr"};
+    for (const std::string& old : older) fs::copy_file(out / "lightmap.exr", out / old);
     std::ofstream(out / "notes.pass-0008.txt") << "mine";
+    std::ofstream(out / "notes.page-1.txt") << "mine";
     ASSERT_EQ(run_lightfarm("bake " + scene + " --res 32 --passes 2 --out " + out.string()).exit_code, 0);
-    for (const char* old :
-         {"lightmap.pass-0512.exr", "sh_transfer.pass-0064.bin", "probes.pass-0016.json", "ao.pass-0128.exr"})
-        EXPECT_FALSE(fs::exists(out / old)) << old;
+    for (const std::string& old : older) EXPECT_FALSE(fs::exists(out / old)) << old;
     EXPECT_TRUE(fs::exists(out / "lightmap.pass-0001.exr"));
     EXPECT_TRUE(fs::exists(out / "notes.pass-0008.txt")) << "not a lightfarm file";
+    EXPECT_TRUE(fs::exists(out / "notes.page-1.txt")) << "not a lightfarm file";
     fs::remove_all(out);
 }
 

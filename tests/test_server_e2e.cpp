@@ -434,6 +434,47 @@ TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
     EXPECT_EQ(png->body.substr(1, 3), "PNG");
 }
 
+// Atlas pages through the service (issue #36): monkey.glb at 100 texels/m
+// in atlases of at most 256² (its charts take three pages) bakes on pages:
+// each page is an artifact that downloads whole, the manifest says the
+// pages, and the served pages equal `lightfarm bake`'s with the same
+// settings and seed, pixel for pixel. A job asking more pages than the
+// server allows is refused at submit, naming the limit.
+TEST_F(EndToEnd, ABakeOnAtlasPagesThroughTheServiceEqualsTheCli) {
+    auto r = client().Post("/v1/scenes", read_text(scenes_dir() / "monkey.glb"), "model/gltf-binary");
+    ASSERT_TRUE(r && (r->status == 201 || r->status == 200)) << (r ? r->body : "no answer");
+    const std::string scene = json::parse(r->body).value("id", "");
+    const json atlas = {{"texel_density", 100}, {"max_res", 256}};
+    const std::string id =
+        submit({{"scene", scene}, {"outputs", {{"lightmap", {{"passes", 4}}}}}, {"atlas", atlas}, {"seed", 3}});
+    ASSERT_EQ(wait_finished(id)["state"], "succeeded");
+    expect_whole_artifacts(id);
+    const json manifest = json::parse(read_text(download(id, "manifest.json", "pages")));
+    const json& baked_atlas = manifest["lightmap"]["settings"]["atlas"];
+    ASSERT_EQ(baked_atlas["pages"], 3) << baked_atlas.dump();
+    EXPECT_EQ(baked_atlas["texel_density"], 100.0);
+
+    const fs::path local = tmp.path / "local-pages";
+    const server::RunResult cli =
+        server::run_command({LIGHTFARM_ENGINE, "bake", (scenes_dir() / "monkey.glb").string(), "--out", local.string(),
+                             "--passes", "4", "--texel-density", "100", "--max-res", "256", "--seed", "3"},
+                            std::chrono::seconds(300));
+    ASSERT_TRUE(cli.status.success()) << cli.status.describe() << ": " << cli.err_last_line;
+    for (int page = 0; page < 3; ++page) {
+        const std::string name = "lightmap.page-" + std::to_string(page) + ".exr";
+        EXPECT_TRUE(same_pixels(download(id, name, "pages"), local / name)) << name;
+    }
+
+    auto refused = client().Post(
+        "/v1/jobs",
+        json{{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"max_pages", 17}}}}.dump(),
+        "application/json");
+    ASSERT_TRUE(refused);
+    EXPECT_EQ(refused->status, 400) << refused->body;
+    EXPECT_NE(refused->body.find("atlas.max_pages"), std::string::npos) << refused->body;
+    EXPECT_NE(refused->body.find("limit 16"), std::string::npos) << refused->body;
+}
+
 // `node SCRIPT ARGS...` from tests/web (its packages in web/node_modules,
 // installed by the scripts); stdout and stderr in `output`.
 int run_node(const std::string& script, const std::vector<std::string>& args, std::string& output) {

@@ -1335,7 +1335,7 @@ Packing pack_atlas(const ChartLayout& layout, const AtlasOptions& options) {
                                (max_pages > 1 ? std::to_string(max_pages) + " pages of " : std::string("a ")) +
                                std::to_string(size) + "x" + std::to_string(size) +
                                " even at one texel each; raise the resolution" +
-                               (max_pages > 1 ? " or the pages" : ""));
+                               (max_pages > 1 ? " or max_pages" : ""));
     };
     const double asked = options.texel_density;
     if (options.resolution > 0 || asked <= 0.0) {

@@ -1,7 +1,10 @@
 // node tests/web/any_viewer.mjs SCENE.unlit.glb SCENE.lit.glb EXPOSURE OUT_DIR
 // Renders one bake twice in a real headless Chromium (Debian's
 // /usr/bin/chromium, or $LIGHTFARM_CHROMIUM, driven by playwright-core), from
-// the same camera (the box of the scene, seen from -z):
+// the same camera (the box of the scene, seen from -z). Each file is shown
+// by what it is: one with MOZ_lightmap as lightfarm's view shows
+// scene.lit.glb, any other as a stock viewer would (so two bakes of one
+// scene can be compared as either):
 //  * scene.unlit.glb as any viewer would: a stock three.js GLTFLoader and a
 //    WebGLRenderer with its defaults (no tone mapping, sRGB output), no
 //    lights, nothing of lightfarm's;
@@ -28,6 +31,13 @@ const [unlitGlb, litGlb, exposureText, outDir] = process.argv.slice(2);
 if (!outDir || !(Number(exposureText) > 0)) {
   console.error("usage: node tests/web/any_viewer.mjs SCENE.unlit.glb SCENE.lit.glb EXPOSURE OUT_DIR");
   process.exit(2);
+}
+
+// Whether a glb carries MOZ_lightmap (its JSON chunk lists the extension).
+function isLit(file) {
+  const glb = fs.readFileSync(file);
+  const json = JSON.parse(glb.subarray(20, 20 + glb.readUInt32LE(12)).toString("utf8"));
+  return (json.extensionsUsed || []).includes("MOZ_lightmap");
 }
 
 const page = `<!doctype html><html><body style="margin:0;background:#000">
@@ -88,9 +98,8 @@ class MozLightmap {
   }
 }
 
-window.result = (async () => {
-  const unlit = await render("/unlit.glb", null);
-  const lit = await render("/lit.glb", async (renderer, gltf, lightmaps) => {
+// lightfarm's view of a scene.lit.glb: its lightmaps read as RGBM, tone-mapped.
+const asLightfarmsView = async (renderer, gltf, lightmaps) => {
     if (!lightmaps.found.length) throw new Error("lit.glb: no MOZ_lightmap");
     renderer.toneMapping = THREE.ACESFilmicToneMapping;
     renderer.toneMappingExposure = ${Number(exposureText)};
@@ -108,7 +117,11 @@ window.result = (async () => {
       node.material.customProgramCacheKey = () => "rgbm";
       node.material.needsUpdate = true;
     });
-  });
+};
+
+window.result = (async () => {
+  const unlit = await render("/unlit.glb", ${isLit(unlitGlb)} ? asLightfarmsView : null);
+  const lit = await render("/lit.glb", ${isLit(litGlb)} ? asLightfarmsView : null);
   const diffs = [];
   let covered = 0;
   const mean = { unlit: [0, 0, 0], lit: [0, 0, 0] };
