@@ -584,9 +584,9 @@ std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scen
             piece.extras.IsObject() ? piece.extras.Get<tinygltf::Value::Object>() : tinygltf::Value::Object();
         const LightmapPages& layout = scene.lightmap_pages;
         extras["lightfarm_lightmap_page"] = tinygltf::Value(page);
-        extras["lightfarm_lightmap_stacked_v"] = tinygltf::Value(tinygltf::Value::Array{
-            tinygltf::Value(double(page) * layout.stride() / layout.total_rows()),
-            tinygltf::Value(double(layout.rows) / layout.total_rows())});
+        extras["lightfarm_lightmap_stacked_v"] = tinygltf::Value(
+            tinygltf::Value::Array{tinygltf::Value(double(page) * layout.stride() / layout.total_rows()),
+                                   tinygltf::Value(double(layout.rows) / layout.total_rows())});
         piece.extras = tinygltf::Value(extras);
         pieces.push_back({mesh, index, page});
     }
