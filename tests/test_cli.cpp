@@ -178,27 +178,40 @@ TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
 }
 
 // --max-res bounds an atlas the engine sizes: a texel density that would
-// need a larger atlas shrinks to fit (a service's res limit arrives so).
+// need a larger atlas goes on pages of max_res² (README, "Atlas pages"), and
+// shrinks to fit where it needs more pages than max_pages, or where its
+// largest chart spans a page (a service's res limit arrives so): said, not
+// silent (5,000 asked and 115 given was not), on stderr, in the manifest
+// and (with --json) in the start event.
 TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
     const fs::path out = fresh_dir("max_res");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
-                                   " --texel-density 2000 --max-res 256 --passes 1");
-    ASSERT_EQ(r.exit_code, 0) << r.err;
-    std::ifstream manifest_in(out / "manifest.json");
-    const nlohmann::json manifest = nlohmann::json::parse(manifest_in);
-    const nlohmann::json atlas = manifest["lightmap"]["settings"]["atlas"];
-    EXPECT_EQ(atlas["width"], 256) << atlas.dump();
-    EXPECT_LT(atlas["texel_density"].get<double>(), 2000.0) << "the density shrank to fit";
-    // Said, not silent (5,000 asked and 115 given was not): on stderr, in the
-    // manifest and (with --json) in the start event.
-    ASSERT_TRUE(manifest.contains("warnings"));
-    ASSERT_EQ(manifest["warnings"].size(), 1u);
-    const std::string warning = manifest["warnings"][0];
-    EXPECT_NE(warning.find("texel density 2000 texels/m does not fit in a 256² atlas"), std::string::npos) << warning;
-    char given[32];
-    std::snprintf(given, sizeof given, "baked at %.4g texels/m", atlas["texel_density"].get<double>());
-    EXPECT_NE(warning.find(given), std::string::npos) << warning;
-    EXPECT_NE(r.err.find("warning: " + warning), std::string::npos) << r.err;
+    struct Case {
+        std::string flags, said;
+        int pages;
+    };
+    // monkey.glb's largest chart spans 256 texels at 128 texels/m.
+    for (const Case& c : {Case{"--max-pages 1", "does not fit in a 256² (max_pages, max_res): baked at", 1},
+                          Case{"", "does not fit in 8 pages of 256² (max_pages, max_res): baked at", 5}}) {
+        SCOPED_TRACE(c.flags);
+        const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
+                                       " --texel-density 2000 --max-res 256 --passes 1 " + c.flags);
+        ASSERT_EQ(r.exit_code, 0) << r.err;
+        std::ifstream manifest_in(out / "manifest.json");
+        const nlohmann::json manifest = nlohmann::json::parse(manifest_in);
+        const nlohmann::json atlas = manifest["lightmap"]["settings"]["atlas"];
+        EXPECT_EQ(atlas["width"], 256) << atlas.dump();
+        EXPECT_EQ(atlas["pages"], c.pages) << atlas.dump();
+        EXPECT_LT(atlas["texel_density"].get<double>(), 2000.0) << "the density shrank to fit";
+        ASSERT_TRUE(manifest.contains("warnings"));
+        ASSERT_EQ(manifest["warnings"].size(), 1u);
+        const std::string warning = manifest["warnings"][0];
+        EXPECT_NE(warning.find("texel density 2000 texels/m " + c.said), std::string::npos) << warning;
+        char given[32];
+        std::snprintf(given, sizeof given, "baked at %.4g texels/m", atlas["texel_density"].get<double>());
+        EXPECT_NE(warning.find(given), std::string::npos) << warning;
+        EXPECT_EQ(warning.find("largest chart spans a whole page") != std::string::npos, c.pages > 1) << warning;
+        EXPECT_NE(r.err.find("warning: " + warning), std::string::npos) << r.err;
+    }
     // A density that fits, or none asked: no warning.
     for (const std::string density : {"--texel-density 20", ""}) {
         const CliRun fits = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() + " " +
