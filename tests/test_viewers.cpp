@@ -76,21 +76,21 @@ TEST(AnyViewer, AStockThreeJsShowsTheUnlitSceneAsLightfarmsViewShowsTheLitOne) {
     fs::remove_all(out);
 }
 
-// Atlas pages (issue #36) in a stock viewer: spheres.glb (one primitive of
-// 5,036 charts, no TEXCOORD_0) at 10 texels/m on pages of 256² takes three,
-// its primitive split in three, each piece on its page's material. Its
-// scene.unlit.glb in a stock three.js, and its scene.lit.glb in lightfarm's
-// view, look as the same scene's baked on one page (405²): a piece on the
-// wrong page's texture, or a v not moved onto its page, shows another
-// page's charts. Each page file is its rows of the stacked lightmap.exr,
-// and every glb passes the Khronos validator.
+// Atlas pages (issue #36) in a stock viewer: monkey.glb (five meshes) at
+// 70 texels/m on pages of 256² takes three, primitives split across pages,
+// each piece on its page's material. Its scene.unlit.glb in a stock
+// three.js, and its scene.lit.glb in lightfarm's view, look as the same
+// scene's baked on one page (324²): a piece on the wrong page's texture, or
+// a v not moved onto its page, shows another page's charts. Each page file
+// is its rows of the stacked lightmap.exr, and every glb passes the Khronos
+// validator.
 TEST(AnyViewer, ABakeOnPagesLooksAsTheSameBakeOnOnePage) {
     const fs::path out = fs::temp_directory_path() / ("lightfarm-pages-viewer-" + std::to_string(getpid()));
     fs::remove_all(out);
     for (const char* max_res : {"256", "512"}) {
         const test::CliRun bake =
-            test::run_lightfarm("bake " + test::shared_scene("spheres.glb") + " --texel-density 10 --max-res " +
-                                max_res + " --passes 32 --out " + (out / max_res).string());
+            test::run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --texel-density 70 --max-res " +
+                                max_res + " --passes 16 --out " + (out / max_res).string());
         ASSERT_EQ(bake.exit_code, 0) << bake.err;
     }
     const fs::path paged = out / "256", single = out / "512";
@@ -122,11 +122,11 @@ TEST(AnyViewer, ABakeOnPagesLooksAsTheSameBakeOnOnePage) {
     // Each file against the one-page bake's, as a stock viewer shows the
     // unlit one and as lightfarm's view shows the lit one (any_viewer.mjs
     // renders a file by what it is). Measured 2026-11-28 (SwiftShader): a
-    // mean difference of 2.6 (unlit) and 2.3 (lit) of 255, the two bakes'
-    // noise at 32 passes (9% per texel) and their different texel grids;
-    // the same file against itself: 0. With each vertex's v put on the next
-    // page (a deliberate fault): 40. The bound, 6, holds the one with room
-    // and fails the other sevenfold.
+    // mean difference of 3.0 (unlit) and 1.9 (lit) of 255, the two bakes'
+    // noise at 16 passes and their different texel grids; the same file
+    // against itself: 0. With each vertex's v put on the next page (a
+    // deliberate fault): 68.7 and 30.4. The bound, 6, holds the one with
+    // room and fails the other fivefold or more.
     const double exposure = exposure_of(read_exr(single / "lightmap.exr"));
     for (const char* file : {"scene.unlit.glb", "scene.lit.glb"}) {
         std::string report;
