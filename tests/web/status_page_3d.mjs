@@ -5,7 +5,9 @@
 // the three modes, and checks what a person would see: the canvas drew the
 // scene (its pixels are not one colour), and no error reached the console.
 // With SCENE.lit.glb, also opens that file in the view, as a person would, and
-// checks that it draws by its own embedded lightmap (MOZ_lightmap, RGBM).
+// checks that it draws by its own embedded lightmap (MOZ_lightmap, RGBM); the
+// result's file_against_job is the mean difference between that view and the
+// job's own lit view (0-255, over the scene's pixels).
 // With PROBES.json (the job's), checks that the job's view shows every one of
 // its probes, and opens that file in the view alone: its probes, drawn; then
 // the lit glb, whose exposure must be its own lightmap's (the job's, within
@@ -63,7 +65,7 @@ try {
     if (state.error) throw new Error("3D view: " + state.error);
     if (!file && state.job !== job) throw new Error(`3D view: shows job ${state.job}, not ${job}`);
     // The canvas's pixels (preserveDrawingBuffer): how many distinct colours.
-    const pixels = await page.evaluate(() => {
+    const pixels = await page.evaluate((name) => {
       const gl = document.querySelector("#view3d-canvas canvas");
       const c = document.createElement("canvas");
       c.width = gl.width;
@@ -77,8 +79,9 @@ try {
         colours.add((data[i] >> 2) << 12 | (data[i + 1] >> 2) << 6 | data[i + 2] >> 2);
         if (data[i] === 0x30 && data[i + 1] === 0x30 && data[i + 2] === 0x30) background++;
       }
+      (window.canvases = window.canvases || {})[name] = data;  // kept for file_against_job
       return { distinct: colours.size, scene_fraction: 1 - background / (data.length / 4) };
-    });
+    }, file ? (file.endsWith(".json") ? "probes_file" : "file") : mode);
     const name = file ? (file.endsWith(".json") ? "probes_file" : "file") : mode;
     result[name] = { pass: state.pass, frames: state.frames, probes: state.probes, exposure: state.exposure, ...pixels };
     if (probeCount && name !== "file" && state.probes !== probeCount)
@@ -109,6 +112,20 @@ try {
     const own = result.file.exposure / result.lit.exposure;
     if (!(Math.abs(own - 1) < 0.05))
       problems.push(`file: exposure ${result.file.exposure}, the job's own ${result.lit.exposure}`);
+    // The job's lit view (its lightmap from the service) against the same
+    // bake's scene.lit.glb opened from disk, from the same camera: the mean
+    // absolute difference of the pixels either shows as the scene (0-255).
+    result.file_against_job = await page.evaluate(() => {
+      const a = window.canvases.lit, b = window.canvases.file;
+      let sum = 0, count = 0;
+      for (let i = 0; i < a.length; i += 4) {
+        const bg = (d) => d[i] === 0x30 && d[i + 1] === 0x30 && d[i + 2] === 0x30;
+        if (bg(a) && bg(b)) continue;
+        for (let c = 0; c < 3; c++) sum += Math.abs(a[i + c] - b[i + c]);
+        count += 3;
+      }
+      return count ? sum / count : 0;
+    });
   }
 } catch (e) {
   problems.push(e.message);

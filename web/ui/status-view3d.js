@@ -311,17 +311,21 @@ if (THREE) {
     model = gltf.scene;
     originals = new Map();
     lightmap = null;
+    // A bake on atlas pages: each page's materials have that page's lightmap
+    // (the loader's copies of one texture share its image).
+    const pages = new Map();
     model.traverse((node) => {
       if (!node.isMesh) return;
       originals.set(node, node.material);
       if (!node.material.lightMap) return;
-      lightmap = node.material.lightMap;  // one page's, for the exposure: each page's material keeps its own
+      lightmap = node.material.lightMap;
       lightmap.colorSpace = THREE.NoColorSpace;
+      pages.set(lightmap.image, lightmap);
     });
     if (errorMap) errorMap.dispose();
     errorMap = null;
     range = (plugin.found.intensity / Math.PI) * extras.rgbm_range;  // lightmapOn multiplies by pi
-    setExposure(lightmapValues(lightmap, range));
+    setExposure([...pages.values()].flatMap((page) => lightmapValues(page, range)));  // every page's, as the job's
     world.add(model);
     frame(gltf);
     state.file = file.name;
