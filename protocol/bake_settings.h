@@ -117,8 +117,9 @@ struct AtlasSettings {
     // below that is written in here when the spec is parsed, so that the
     // worker keeps to the limit of the server that took the job.
     std::optional<int> max_res;
-    // Where the charts at an asked texel_density do not fit one atlas of res
-    // (or max_res), they go on up to this many pages of that side.
+    // Where the charts at an asked texel_density do not fit one max_res
+    // atlas, they go on up to this many pages of max_res² (README, "Atlas
+    // pages"); 0 until parsed.
     int max_pages = 0;
     bool glass_texels = false;  // glass charts at the scene's density, not kUnlitChartScale's
     // Per glTF mesh, its charts' texel density over the atlas's, over the

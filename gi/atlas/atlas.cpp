@@ -1070,7 +1070,7 @@ struct Placement {
 // One packing attempt, and what it says about the density to try next.
 struct PackAttempt {
     std::optional<std::vector<Placement>> at;  // when every chart fits
-    int rows = 0;                              // fits: rows down to the lowest chart's bottom
+    int rows = 0;                              // fits, one page: rows down to the lowest chart's bottom
     bool one_texel_each = false;               // misses: as small as the charts get
     int pages = 1;                             // fits: the pages used
     double placed_padded = 0.0;                // misses (pages): padded texels of the charts placed
@@ -1170,7 +1170,6 @@ PackAttempt pack_charts_on_pages(const TexelMasks& set, int size, int padding, i
         placed[c] = *best;
         attempt.placed_padded += padded_texels(set, set.mask(c, 0), padding / 2);
     }
-    attempt.rows = size;
     attempt.at = std::move(placed);
     return attempt;
 }

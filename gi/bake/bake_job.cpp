@@ -301,7 +301,7 @@ nlohmann::json describe_files(const std::vector<std::string>& files, const nlohm
 // snapshots and atlas pages go (the files that fit an output's snapshot or
 // page pattern, nothing else), so that its higher pass numbers are not
 // taken for this bake's, nor its pages for pages this bake has not.
-void remove_old_snapshots(const fs::path& out) {
+void remove_old_numbered_files(const fs::path& out) {
     std::error_code ec;
     for (const fs::directory_entry& e : fs::directory_iterator(out, ec)) {
         const std::string name = e.path().filename().string();
@@ -670,7 +670,7 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
         for (size_t i = 0; i < methods.size(); ++i) resumed[i] = resume_point(job.out, *methods[i], keys[i], started);
     } else {
         fs::remove_all(resume_dir(job.out));
-        remove_old_snapshots(job.out);
+        remove_old_numbered_files(job.out);
     }
     emit(started);
     // The geometry a viewer needs to show the lightmap's snapshots on the

@@ -113,7 +113,7 @@ struct PrimitiveInstance {
 // it again (one image per page, each primitive on its page's UVs).
 struct LightmapPages {
     int count = 1;
-    int rows = 0;  // a page's side; 0 with one page (the atlas is its own page)
+    int rows = 0;  // a page's side (a generated atlas's; 0 for a file's own UVs: one page, the atlas)
     int gap = 0;
     int stride() const { return rows + gap; }
     int total_rows() const { return count * rows + (count - 1) * gap; }

@@ -65,6 +65,7 @@ try {
     if (state.error) throw new Error("3D view: " + state.error);
     if (!file && state.job !== job) throw new Error(`3D view: shows job ${state.job}, not ${job}`);
     // The canvas's pixels (preserveDrawingBuffer): how many distinct colours.
+    const name = file ? (file.endsWith(".json") ? "probes_file" : "file") : mode;
     const pixels = await page.evaluate((name) => {
       const gl = document.querySelector("#view3d-canvas canvas");
       const c = document.createElement("canvas");
@@ -81,8 +82,7 @@ try {
       }
       (window.canvases = window.canvases || {})[name] = data;  // kept for file_against_job
       return { distinct: colours.size, scene_fraction: 1 - background / (data.length / 4) };
-    }, file ? (file.endsWith(".json") ? "probes_file" : "file") : mode);
-    const name = file ? (file.endsWith(".json") ? "probes_file" : "file") : mode;
+    }, name);
     result[name] = { pass: state.pass, frames: state.frames, probes: state.probes, exposure: state.exposure, ...pixels };
     if (probeCount && name !== "file" && state.probes !== probeCount)
       problems.push(`${name}: ${state.probes} probes shown, not ${probeCount}`);

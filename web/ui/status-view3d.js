@@ -248,7 +248,8 @@ if (THREE) {
       error.texture.colorSpace = THREE.SRGBColorSpace;
       if (lightmap) lightmap.dispose();
       if (errorMap) errorMap.dispose();
-      pageTextures.clear();  // its clones shared the old ones' images
+      for (const page of pageTextures.values()) page.dispose();  // clones of the old ones (their own uploads)
+      pageTextures.clear();
       lightmap = rgbm.texture;
       errorMap = error.texture;
       range = Number(rgbm.headers.get("X-Lightfarm-Rgbm-Range")) || 1;
