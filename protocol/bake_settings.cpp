@@ -139,8 +139,9 @@ std::vector<Setting> build_catalog() {
                 "where the charts at an asked texel_density do not fit one max_res atlas, up to this many pages of "
                 "max_res texels square (one lightmap file per page); past this, the density shrinks"),
         typed("atlas", "mesh_scale", T::MeshScales, json::object(),
-              "per glTF mesh, its charts' texel density over the atlas's, 0 < S <= 64 (2: twice the resolution; "
-              "0.25: a quarter); over the file's extras lightfarm_lightmap_scale"),
+              "per glTF mesh, its charts' texel density over the atlas's, 0 <= S <= 64 (2: twice the resolution; "
+              "0.25: a quarter; 0: no lightmap, while it still casts and bounces light); over the file's extras "
+              "lightfarm_lightmap_scale"),
         typed("atlas", "glass_texels", T::Flag, false,
               "glass (KHR_materials_transmission) gets texels at the scene's density; off: 1/8 of it, as charts no "
               "light reaches (light passes glass, which reflects little)"),
@@ -232,7 +233,7 @@ json check_positions(const json& v, const std::string& field) {
     return v;
 }
 
-// {"MESH": SCALE, ...}: mesh indices as decimal keys, scales in (0, 64].
+// {"MESH": SCALE, ...}: mesh indices as decimal keys, scales in [0, 64].
 json check_mesh_scales(const json& v, const std::string& field) {
     if (!v.is_object())
         throw SpecError(field, "must be an object of glTF mesh index to scale ({\"3\": 2}), not " + type_name(v));
@@ -243,8 +244,8 @@ json check_mesh_scales(const json& v, const std::string& field) {
         if (key.empty() || key.size() > 9 || key.find_first_not_of("0123456789") != std::string::npos ||
             (key.size() > 1 && key[0] == '0'))
             throw SpecError(field, "keys are glTF mesh indices (\"0\", \"3\"), not \"" + key + "\"");
-        if (!scale.is_number() || !(scale.get<double>() > 0.0) || scale.get<double>() > kMaxLightmapScale)
-            throw SpecError(field + "." + key, "a scale is a number > 0 and <= 64, not " + scale.dump());
+        if (!scale.is_number() || !(scale.get<double>() >= 0.0) || scale.get<double>() > kMaxLightmapScale)
+            throw SpecError(field + "." + key, "a scale is a number from 0 (no lightmap) to 64, not " + scale.dump());
         out[key] = scale;
     }
     return out;

@@ -61,7 +61,7 @@ struct SpecLimits {
 inline constexpr size_t kMaxMeshList = 65536;
 // A mesh's lightmap scale (its charts' texel density over the atlas's): a
 // glTF extras lightfarm_lightmap_scale or the spec's atlas.mesh_scale, in
-// (0, kMaxLightmapScale].
+// [0, kMaxLightmapScale]; 0: no lightmap (it still casts and bounces light).
 inline constexpr double kMaxLightmapScale = 64.0;
 
 enum class SettingType {
@@ -122,8 +122,8 @@ struct AtlasSettings {
     // pages"); 0 until parsed.
     int max_pages = 0;
     bool glass_texels = false;  // glass charts at the scene's density, not kUnlitChartScale's
-    // Per glTF mesh, its charts' texel density over the atlas's, over the
-    // file's own extras (lightfarm_lightmap_scale).
+    // Per glTF mesh, its charts' texel density over the atlas's (0: no
+    // lightmap), over the file's own extras (lightfarm_lightmap_scale).
     std::map<int, double> mesh_scale;
 };
 

@@ -253,6 +253,60 @@ TEST(Atlas, AMeshsLightmapScaleMultipliesItsChartsDensityAlone) {
     EXPECT_EQ(report.mesh_scaled_charts, scaled);
 }
 
+// A mesh at lightmap scale 0 has no lightmap of its own: each of its
+// charts lies in one texel (the chart's mean, what a gather's last point
+// reads there), counted apart from the scaled ones, and the other charts
+// keep the asked density. Each kind of mesh: flat (the wall), a box's six
+// charts, a curved sphere's many.
+TEST(Atlas, AMeshWithoutALightmapHasOneTexelPerChart) {
+    for (const size_t excluded : {size_t(1), size_t(2), size_t(3)}) {
+        SCOPED_TRACE("instance " + std::to_string(excluded));
+        Scene s = mixed_scene();
+        s.instances.at(excluded).lightmap_scale = 0.0f;
+        EXPECT_FALSE(s.instances[excluded].has_lightmap());
+        const AtlasReport report = generate_lightmap_uvs(s, {.texel_density = 20.0f});
+        EXPECT_FLOAT_EQ(report.texel_density, 20.0f);
+        std::vector<double> world(report.charts, 0.0), uv(report.charts, 0.0);
+        std::vector<int> unmapped(report.charts, -1);  // 1: only the excluded mesh's triangles, 0: none of them
+        std::vector<glm::dvec2> low(report.charts, glm::dvec2(1e30)), high(report.charts, glm::dvec2(-1e30));
+        for (size_t i = 0; i < s.instances.size(); ++i) {
+            const PrimitiveInstance& inst = s.instances[i];
+            for (uint32_t t = inst.first_triangle; t < inst.first_triangle + inst.triangle_count; ++t) {
+                const uint32_t c = report.triangle_chart[t];
+                ASSERT_NE(unmapped[c], int(i != excluded)) << "a chart spans the excluded mesh and another";
+                unmapped[c] = int(i == excluded);
+                world[c] += s.triangle_area(t);
+                uv[c] += uv_pixel_area(s, t, report.width, report.height);
+                for (int k = 0; k < 3; ++k) {
+                    const glm::dvec2 p = glm::dvec2(s.uv1[s.triangles[t][k]]) * glm::dvec2(report.width, report.height);
+                    low[c] = glm::min(low[c], p);
+                    high[c] = glm::max(high[c], p);
+                }
+            }
+        }
+        size_t one_texel = 0;
+        for (size_t c = 0; c < report.charts; ++c) {
+            if (unmapped[c] == 1) {
+                EXPECT_EQ(glm::floor(low[c]), glm::floor(high[c] - 1e-6)) << "chart " << c << " spans texels";
+                ++one_texel;
+            } else if (world[c] * 400.0 >= 1.0) {  // charts under one texel take the minimum size
+                EXPECT_NEAR(std::sqrt(uv[c] / world[c]), 20.0, 0.02) << "chart " << c;
+            }
+        }
+        EXPECT_GT(one_texel, 0u);
+        EXPECT_EQ(report.unmapped_charts, one_texel);
+        // No seam is stitched to those texels (the box's creases, the sphere's smooth seams).
+        std::set<std::pair<int, int>> unmapped_texels;
+        for (size_t c = 0; c < report.charts; ++c)
+            if (unmapped[c] == 1) unmapped_texels.insert({int(low[c].x), int(low[c].y)});
+        for (const SeamEdge& seam : find_seams(s))
+            for (const glm::vec2 uv : {seam.a0, seam.a1, seam.b0, seam.b1})
+                EXPECT_FALSE(unmapped_texels.count({int(uv.x * report.width), int(uv.y * report.height)}))
+                    << "a seam on a mesh without a lightmap";
+        EXPECT_EQ(report.mesh_scaled_charts, 0u) << "no lightmap is not a scaled lightmap";
+    }
+}
+
 // Separate triangles (obtuse, standing on their longest edge, all facing
 // the same way): one chart each, each filling half its rectangle.
 Scene triangles_scene(int count) {

@@ -956,5 +956,85 @@ TEST(CliBake, AmbientOcclusionBakesWithoutALightIntoTheLitScene) {
     fs::remove_all(both);
 }
 
+// A mesh left out of the lightmap (lightmap scale 0: --mesh-scale, the
+// job's atlas.mesh_scale, or the file's extras) gets no lightmap in any
+// glb: its primitives no generated TEXCOORD_1 and their materials no
+// lightmap, occlusion or baked look (copies where a material is shared with
+// lightmapped primitives, as monkey.glb's default one is), while every other
+// primitive keeps them. Each kind of atlas: generated on one page and on
+// pages (monkey.glb's mesh 0, the monkey), and a file's own TEXCOORD_1 (the
+// Cornell box's mesh 1, which keeps its own UVs and gets no "not applied"
+// warning). Every glb passes the Khronos validator.
+TEST(CliOutputs, AMeshWithoutALightmapHasNoneInAnyGlb) {
+    const fs::path out = fresh_dir("without-lightmap");
+    struct Case {
+        std::string name, scene, flags;
+        int mesh;
+        bool own_uvs;
+    };
+    const std::vector<Case> cases = {
+        {"one-page", "monkey.glb", " --res 128", 0, false},
+        {"pages", "monkey.glb", " --texel-density 70 --max-res 256", 0, false},
+        {"own-uvs", "cornell_box.gltf", " --res 64", 1, true},
+    };
+    std::vector<fs::path> glbs;
+    for (const Case& c : cases) {
+        SCOPED_TRACE(c.name);
+        const fs::path dir = out / c.name;
+        const CliRun bake = run_lightfarm("bake " + test::shared_scene(c.scene) + " --lightmap --ao --passes 1" +
+                                          " --ao-passes 1 --mesh-scale " + std::to_string(c.mesh) + "=0" + c.flags +
+                                          " --out " + dir.string());
+        ASSERT_EQ(bake.exit_code, 0) << bake.err;
+        const nlohmann::json manifest = nlohmann::json::parse(read_file(dir / "manifest.json"));
+        EXPECT_EQ(manifest.value("warnings", nlohmann::json::array()).dump().find("not applied"), std::string::npos)
+            << manifest["warnings"];
+        const nlohmann::json& atlas = manifest["lightmap"]["settings"]["atlas"];
+        if (c.own_uvs) {
+            EXPECT_EQ(atlas["unmapped_charts"], 0) << "the file's own UVs are kept";
+        } else {
+            EXPECT_GT(atlas["unmapped_charts"].get<int>(), 0);
+        }
+        if (c.name == "pages") {
+            EXPECT_GT(atlas["pages"].get<int>(), 1);
+        }
+        for (const char* file : {"scene.lit.glb", "scene.unlit.glb", "scene.lightmapped.glb"}) {
+            if (!fs::exists(dir / file)) continue;  // a file's own UVs: no scene.lightmapped.glb
+            SCOPED_TRACE(file);
+            glbs.push_back(dir / file);
+            const nlohmann::json glb = glb_json(dir / file);
+            const bool maps = std::string(file) != "scene.lightmapped.glb";
+            size_t with = 0, without = 0;
+            for (const nlohmann::json& node : glb["nodes"]) {
+                if (!node.contains("mesh")) continue;
+                // mesh_per_node keeps the first node's mesh index: the monkey's and the box's are their own.
+                const bool left_out = node["mesh"] == c.mesh;
+                for (const nlohmann::json& primitive : glb["meshes"][node["mesh"].get<size_t>()]["primitives"]) {
+                    const nlohmann::json material = primitive.contains("material")  // none in scene.lightmapped.glb
+                                                        ? glb["materials"][primitive["material"].get<size_t>()]
+                                                        : nlohmann::json::object();
+                    const nlohmann::json extensions = material.value("extensions", nlohmann::json::object());
+                    const bool lightmapped = extensions.contains("MOZ_lightmap") ||
+                                             extensions.contains("KHR_materials_unlit") ||
+                                             material.contains("occlusionTexture");
+                    if (left_out) {
+                        EXPECT_EQ(primitive["attributes"].contains("TEXCOORD_1"), c.own_uvs) << primitive.dump();
+                        EXPECT_FALSE(lightmapped) << material.dump();
+                        ++without;
+                    } else {
+                        EXPECT_TRUE(primitive["attributes"].contains("TEXCOORD_1")) << primitive.dump();
+                        EXPECT_EQ(lightmapped, maps) << material.dump();
+                        ++with;
+                    }
+                }
+            }
+            EXPECT_GT(with, 0u);
+            EXPECT_GT(without, 0u);
+        }
+    }
+    std::string report;
+    EXPECT_TRUE(khronos_valid(glbs, report)) << report;
+    fs::remove_all(out);
+}
+
 }  // namespace
 }  // namespace lf

@@ -651,7 +651,7 @@ TEST(JobSpec, AtlasMeshScaleMapsMeshesToScales) {
                                                    {json{{"x", 1}}, "atlas.mesh_scale"},
                                                    {json{{"-1", 1}}, "atlas.mesh_scale"},
                                                    {json{{"03", 1}}, "atlas.mesh_scale"},
-                                                   {json{{"3", 0}}, "atlas.mesh_scale.3"},
+                                                   {json{{"3", -0.5}}, "atlas.mesh_scale.3"},
                                                    {json{{"3", 64.5}}, "atlas.mesh_scale.3"},
                                                    {json{{"3", "2"}}, "atlas.mesh_scale.3"}}) {
         j["atlas"] = {{"mesh_scale", value}};
@@ -659,12 +659,18 @@ TEST(JobSpec, AtlasMeshScaleMapsMeshesToScales) {
     }
     j["atlas"] = {{"mesh_scale", {{"3", 64}}}};
     EXPECT_EQ(field_of(j), "") << "64 is the largest scale, as for the file's extras";
+    j["atlas"] = {{"mesh_scale", {{"3", 0}}}};
+    EXPECT_EQ(field_of(j), "") << "0: no lightmap, as for the file's extras";
 
     const BakeSettings flags = parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=2,5=0.25"}}));
     EXPECT_EQ(flags.atlas.mesh_scale, (std::map<int, double>{{3, 2.0}, {5, 0.25}}));
     for (const char* bad : {"3", "3=", "=2", "3=2,", "3=x", "a=2"})
         EXPECT_THROW(bake_json_from_flags({{"--mesh-scale", bad}}), SpecError) << bad;
-    EXPECT_THROW(parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=0"}})), SpecError);
+    EXPECT_THROW(parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=-1"}})), SpecError);
+    EXPECT_THROW(parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=65"}})), SpecError);
+    EXPECT_EQ(parse_bake_settings(bake_json_from_flags({{"--mesh-scale", "3=0"}})).atlas.mesh_scale,
+              (std::map<int, double>{{3, 0.0}}))
+        << "0: no lightmap";
 }
 
 // The server checks a spec's mesh indices against the scene it names.
@@ -1143,7 +1149,7 @@ json schema_of(const Setting& s) {
         range = {
             {"type", "object"},
             {"propertyNames", {{"pattern", "^(0|[1-9][0-9]{0,8})$"}}},
-            {"additionalProperties", {{"type", "number"}, {"exclusiveMinimum", 0}, {"maximum", kMaxLightmapScale}}},
+            {"additionalProperties", {{"type", "number"}, {"minimum", 0}, {"maximum", kMaxLightmapScale}}},
             {"maxProperties", kMaxMeshList}};
         break;
     case SettingType::MeshList:

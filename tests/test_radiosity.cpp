@@ -1049,6 +1049,68 @@ TEST(RadiosityMap, ASunInTheEnvironmentMapIsFoundByEveryPass) {
 // sample's tangential part is tan(theta) cos(phi) / 2 under cosine sampling
 // (variance about 0.6 with the cosine held at 0.05 or more), so 1024 passes
 // leave about 1.2% at this tilt.
+// A mesh without a lightmap (lightmap scale 0) still casts and bounces
+// light: rays that land on it gather there (map_may_say), where its one
+// texel per chart would say only the chart's mean. A sun straight down
+// (2 W/m²) lights a grey floor (2x2 m, albedo 0.8) but for the half that a
+// black roof (at 1.5 m) shades; a black wall standing on the floor's edge,
+// lit by nothing else, reads the floor's bounce: E/pi = 0.8 x 2/pi x the
+// form factor to the lit half (Lambert's, exact), each half of the wall
+// (its lit and shaded side) summed over its ~300 texels' samples. With the
+// floor and the roof left out of the lightmap, each half is within 3% of
+// that (-1.2% and -0.1% at 64 passes; ~1% noise). The lightmapped scene is
+// held to 5% (-0.3% and -2.8%: its floor's texels blur the roof's shadow
+// edge, which a gather at the hit sees sharp). Fault: the same atlas with
+// the flag ignored reads the floor's one texel, flat: -38% and +133%.
+TEST(RadiosityMap, AMeshWithoutALightmapStillCastsAndBounces) {
+    auto scene = [](float floor_and_roof_scale) {
+        Scene s;
+        const uint32_t grey = test::add_material(s, glm::vec3(0.8f)), black = test::add_material(s, glm::vec3(0.0f));
+        test::add_quad(s, {0, 0, 1}, {2, 0, 0}, {0, 0, -2}, grey);           // floor, facing up
+        test::add_quad(s, {0, 1.5f, 0}, {2.5f, 0, 0}, {0, 0, 1.5f}, black);  // roof over z > 0, facing down
+        test::add_quad(s, {0, 0, -1}, {0, 1, 0}, {0, 0, 2}, black);          // wall at x = 0, facing +x
+        s.instances[0].lightmap_scale = s.instances[1].lightmap_scale = floor_and_roof_scale;
+        PunctualLight sun;
+        sun.type = PunctualLight::Type::Directional;
+        sun.direction = glm::vec3(0, -1, 0);
+        sun.intensity = glm::vec3(2.0f);
+        s.lights.push_back(sun);
+        AtlasOptions options;
+        options.resolution = 64;
+        generate_lightmap_uvs(s, options);
+        return s;
+    };
+    // Baked over expected on the wall's half under the sun (z < 0) and under the roof.
+    auto wall_halves = [](const Scene& s) {
+        const std::array<glm::vec3, 4> lit_floor = {glm::vec3(0, 0, -1), glm::vec3(2, 0, -1), glm::vec3(2, 0, 0),
+                                                    glm::vec3(0, 0, 0)};
+        const double floor_radiance = 0.8 * 2.0 / M_PI;
+        const BakeResult r = bake(s, 64, 64);
+        glm::dvec2 baked(0.0), expected(0.0);
+        for (size_t i = 0; i < r.texels.covered_count(); ++i) {
+            const glm::vec3 p = r.texels.samples[r.texels.first_sample[i]].position;
+            if (std::abs(p.x) > 0.01f || p.y < 0.05f || p.y > 1.01f) continue;  // the wall's, off its foot
+            const int half = p.z < 0.0f ? 0 : 1;
+            double closed_form = 0.0;
+            for (uint32_t k = r.texels.first_sample[i]; k < r.texels.first_sample[i + 1]; ++k)
+                closed_form += floor_radiance * polygon_to_point_form_factor(r.texels.samples[k].position,
+                                                                             glm::vec3(1, 0, 0), lit_floor.data(), 4);
+            baked[half] += r.image.at("R")[r.texels.texels[i]];
+            expected[half] += closed_form / r.texels.sample_count(i);
+        }
+        EXPECT_GT(expected.x, 1.5 * expected.y) << "the lit half of the floor lights its half of the wall most";
+        return baked / expected;
+    };
+    const glm::dvec2 mapped = wall_halves(scene(1.0f));
+    for (int half = 0; half < 2; ++half) EXPECT_NEAR(mapped[half], 1.0, 0.05) << "half " << half;
+    Scene unmapped = scene(0.0f);
+    const glm::dvec2 left_out = wall_halves(unmapped);
+    for (int half = 0; half < 2; ++half) EXPECT_NEAR(left_out[half], 1.0, 0.03) << "half " << half;
+    unmapped.instances[0].lightmap_scale = unmapped.instances[1].lightmap_scale = 1.0f;  // the fault
+    const glm::dvec2 fault = wall_halves(unmapped);
+    EXPECT_GT(std::max(std::abs(fault.x - 1.0), std::abs(fault.y - 1.0)), 0.2) << fault.x << " " << fault.y;
+}
+
 TEST(RadiosityMap, DirectionalLightmapFollowsTiltedNormalsUnderTheSky) {
     const int res = 32;
     Scene s;

@@ -778,7 +778,8 @@ TEST(GeneratedScenes, PointsAndLinesAreSkippedWithAWarning) {
 }
 
 // A mesh's lightmap scale comes from its node's extras, else its mesh's,
-// else 1; a value outside (0, 64] is refused naming the node or the mesh.
+// else 1 (0: no lightmap); a value outside [0, 64] is refused naming the
+// node or the mesh.
 TEST(GeneratedScenes, TheLightmapScaleIsReadFromTheNodeElseTheMesh) {
     TempDir dir;
     const auto scale_with = [&](const nlohmann::json& node_extras, const nlohmann::json& mesh_extras) {
@@ -795,15 +796,25 @@ TEST(GeneratedScenes, TheLightmapScaleIsReadFromTheNodeElseTheMesh) {
     EXPECT_FLOAT_EQ(scale_of(scale_with({{"lightfarm_lightmap_scale", 2}}, {{"lightfarm_lightmap_scale", 0.25}})), 2.0f)
         << "the node's wins";
     EXPECT_FLOAT_EQ(scale_of(scale_with({{"other", 2}}, none)), 1.0f) << "other extras are not a scale";
+    EXPECT_FLOAT_EQ(scale_of(scale_with({{"lightfarm_lightmap_scale", 0}}, none)), 0.0f) << "no lightmap";
+    const Scene left_out = load_written(scale_with(none, {{"lightfarm_lightmap_scale", 0}}), dir);
+    EXPECT_FALSE(left_out.instances.at(0).has_lightmap());
+    // inspect says it, as it says any scale but 1.
+    EXPECT_EQ(protocol::to_json(summarize(left_out))["lightmap_scales"], json({{"0", 0.0}}));
+    EXPECT_TRUE(contains(format_summary(left_out), "mesh 0 no lightmap (casts and bounces light)"))
+        << format_summary(left_out);
+    EXPECT_TRUE(contains(format_summary(load_written(scale_with({{"lightfarm_lightmap_scale", 3}}, none), dir)),
+                         "lightmap scale: mesh 0 x3;"));
+    EXPECT_TRUE(protocol::to_json(summarize(load_written(scale_with(none, none), dir)))["lightmap_scales"].empty());
     for (const nlohmann::json& bad :
-         {nlohmann::json(0), nlohmann::json(-1), nlohmann::json(65), nlohmann::json("big")}) {
+         {nlohmann::json(-0.001), nlohmann::json(-1), nlohmann::json(64.5), nlohmann::json("big")}) {
         EXPECT_TRUE(
             contains(load_error(scale_with({{"lightfarm_lightmap_scale", bad}}, none).write(dir.path(), "n.gltf")),
-                     "node 0: extras.lightfarm_lightmap_scale must be a number above 0 and at most 64"))
+                     "node 0: extras.lightfarm_lightmap_scale must be a number from 0 to 64"))
             << bad;
         EXPECT_TRUE(
             contains(load_error(scale_with(none, {{"lightfarm_lightmap_scale", bad}}).write(dir.path(), "m.gltf")),
-                     "mesh 0: extras.lightfarm_lightmap_scale must be a number above 0 and at most 64"))
+                     "mesh 0: extras.lightfarm_lightmap_scale must be a number from 0 to 64"))
             << bad;
     }
 }

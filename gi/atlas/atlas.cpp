@@ -1399,32 +1399,35 @@ Packing pack_atlas_for_scene(const ChartLayout& layout, const AtlasOptions& opti
     return square ? *square : pack_atlas(layout, chosen);
 }
 
-// Each triangle's PrimitiveInstance::lightmap_scale.
-std::vector<float> triangle_lightmap_scales(const Scene& scene) {
-    std::vector<float> scale(scene.triangles.size(), 1.0f);
-    for (const PrimitiveInstance& inst : scene.instances)
-        std::fill_n(scale.begin() + inst.first_triangle, inst.triangle_count, inst.lightmap_scale);
+// Each chart's mesh lightmap scale: the largest where a chart spans meshes
+// (0 only where each of its meshes has no lightmap).
+std::vector<double> chart_mesh_scales(const Scene& scene, const ChartLayout& layout) {
+    const std::vector<float> mesh_scale = scene.triangle_lightmap_scales();
+    std::vector<double> scale(layout.charts.size(), 0.0);
+    for (size_t c = 0; c < layout.charts.size(); ++c)
+        for (uint32_t t : layout.charts[c].triangles) scale[c] = std::max(scale[c], double(mesh_scale[t]));
     return scale;
 }
 
-// Lays each chart out at its scale: its mesh's lightmap scale (the largest
-// where a chart spans meshes), times kUnlitChartScale where flagged in
-// `unlit` (fewer texels for one black value); counts them in the report.
-// Returns the area of the lit charts.
-double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, ChartLayout& layout, AtlasReport& report) {
-    const std::vector<float> mesh_scale = triangle_lightmap_scales(scene);
+// Lays each chart out at its scale: its mesh's lightmap scale (`mesh_scale`,
+// chart_mesh_scales), times kUnlitChartScale where flagged in `unlit`
+// (fewer texels for one black value), one texel where its mesh has no
+// lightmap; counts them in the report. Returns the area of the lit charts
+// (neither unlit nor without a lightmap).
+double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, const std::vector<double>& mesh_scale,
+                    ChartLayout& layout, AtlasReport& report) {
     double lit = 0.0, dark = 0.0;
     for (size_t c = 0; c < layout.charts.size(); ++c) {
-        double area = 0.0, scale = 0.0;
-        for (uint32_t t : layout.charts[c].triangles) {
-            area += scene.triangle_area(t);
-            scale = std::max(scale, double(mesh_scale[t]));
-        }
-        report.mesh_scaled_charts += scale != 1.0;
-        const bool dark_chart = !unlit.empty() && unlit[c];
-        (dark_chart ? dark : lit) += area;
+        double area = 0.0, scale = mesh_scale[c];
+        for (uint32_t t : layout.charts[c].triangles) area += scene.triangle_area(t);
+        const bool unmapped = scale == 0.0;
+        const bool dark_chart = !unmapped && !unlit.empty() && unlit[c];
+        if (!unmapped) (dark_chart ? dark : lit) += area;
+        report.mesh_scaled_charts += scale != 1.0 && !unmapped;
         report.unlit_charts += dark_chart;
+        report.unmapped_charts += unmapped;
         if (dark_chart) scale *= kUnlitChartScale;
+        if (unmapped) scale = kUnmappedChartScale;
         if (scale == 1.0) continue;
         layout.shapes[c].size *= scale;
         Tri2* corners = layout.corners_of(c);
@@ -1578,8 +1581,13 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
 
     std::vector<uint8_t> unlit;
     if (options.find_unlit_charts) unlit = options.find_unlit_charts(report.triangle_chart, layout.charts.size());
-    const double lit_area = scale_charts(scene, unlit, layout, report);
-    const double border = chart_border_length(scene, shared, report.triangle_chart, unlit);
+    // The border that counts is the lit charts': neither unlit nor without a lightmap.
+    std::vector<uint8_t> not_lit = unlit;
+    not_lit.resize(layout.charts.size(), 0);
+    const std::vector<double> mesh_scale = chart_mesh_scales(scene, layout);
+    for (size_t c = 0; c < not_lit.size(); ++c) not_lit[c] |= mesh_scale[c] == 0.0;
+    const double lit_area = scale_charts(scene, unlit, mesh_scale, layout, report);
+    const double border = chart_border_length(scene, shared, report.triangle_chart, not_lit);
     const Packing packing = pack_atlas_for_scene(layout, options, border, lit_area, report.density_from_scene);
     write_corner_uvs(scene, report.triangle_chart, chart_corner_uvs(layout, packing));
 

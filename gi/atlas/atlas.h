@@ -70,6 +70,10 @@ struct AtlasOptions {
 
 // A chart no light reaches holds one value (black): 1/8 of the density, 1/64 of the texels.
 constexpr double kUnlitChartScale = 0.125;
+// A chart of a mesh without a lightmap (PrimitiveInstance::lightmap_scale 0)
+// gets one texel (chart_rect rounds up): its mean, what a gather's last
+// point reads where it lands on that mesh.
+constexpr double kUnmappedChartScale = 1e-9;
 
 struct AtlasReport {
     int width = 0;
@@ -87,6 +91,7 @@ struct AtlasReport {
     bool density_from_scene = false;   // chosen for max_border_fraction
     size_t unlit_charts = 0;           // packed at kUnlitChartScale (AtlasOptions::find_unlit_charts)
     size_t mesh_scaled_charts = 0;     // packed at their mesh's PrimitiveInstance::lightmap_scale (not 1)
+    size_t unmapped_charts = 0;        // of meshes without a lightmap (lightmap_scale 0): one texel each
     double unlit_area_fraction = 0.0;  // their share of the surface
 };
 

@@ -406,7 +406,9 @@ int add_png_texture(tinygltf::Model& model, const std::string& png, const std::s
     return int(model.textures.size() - 1);
 }
 
-// A baked primitive, and the lightmap page its triangles lie on.
+// A baked primitive, and the lightmap page its triangles lie on
+// (kNoLightmap: its mesh has none, PrimitiveInstance::has_lightmap).
+constexpr int kNoLightmap = -1;
 struct BakedPrimitive {
     tinygltf::Primitive* primitive;
     int page = 0;
@@ -414,7 +416,8 @@ struct BakedPrimitive {
 
 // The materials of each page's primitives, a default one given to those
 // without. A material used on several pages is copied for each page after
-// its first, as each page's materials take that page's maps.
+// its first, as each page's materials take that page's maps; one used also
+// by a primitive without a lightmap, likewise, which keeps it as it was.
 std::vector<std::set<int>> materials_by_page(tinygltf::Model& model, const std::vector<BakedPrimitive>& baked,
                                              int pages) {
     int default_material = -1;
@@ -432,12 +435,14 @@ std::vector<std::set<int>> materials_by_page(tinygltf::Model& model, const std::
             auto [copy, added] = copies.try_emplace({material, b.page}, int(model.materials.size()));
             if (added) {
                 tinygltf::Material m = model.materials[size_t(material)];
-                m.name += " (lightmap page " + std::to_string(b.page) + ")";
+                m.name += b.page == kNoLightmap ? " (no lightmap)"
+                          : pages == 1          ? " (lightmapped)"
+                                                : " (lightmap page " + std::to_string(b.page) + ")";
                 model.materials.push_back(std::move(m));
             }
             material = copy->second;
         }
-        materials[size_t(b.page)].insert(material);
+        if (b.page != kNoLightmap) materials[size_t(b.page)].insert(material);
     }
     return materials;
 }
@@ -561,10 +566,12 @@ std::map<int, int> mesh_per_node(tinygltf::Model& model, const Scene& scene, con
 // lies in the files that hold every page stacked, lightmap.exr
 // (lightfarm_lightmap_stacked_v: [offset, scale], v there = offset + scale
 // x TEXCOORD_1's v); with one page, nothing changes. Returns the (mesh,
-// primitive index, page) of each piece.
+// primitive index, page) of each piece; a primitive without a lightmap
+// stays whole, on kNoLightmap.
 std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst,
                                               int mesh) {
     std::vector<std::array<int, 3>> pieces;
+    if (!inst.has_lightmap()) return {{mesh, inst.primitive, kNoLightmap}};
     if (scene.lightmap_pages.count == 1) return {{mesh, inst.primitive, 0}};
     std::set<int> pages;
     for (uint32_t i = 0; i < inst.triangle_count; ++i) pages.insert(triangle_page(scene, inst.first_triangle + i));
@@ -636,11 +643,13 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
     write_atomically(model, out_glb);
 }
 
-// TEXCOORD_1 = the scene's lightmap UVs, per instance, each on its page.
+// TEXCOORD_1 = the scene's lightmap UVs, per instance, each on its page;
+// none for an instance without a lightmap.
 std::vector<std::vector<VertexAttribute>> lightmap_uvs(const Scene& scene) {
     std::vector<std::vector<VertexAttribute>> uv1(scene.instances.size());
     for (size_t i = 0; i < scene.instances.size(); ++i) {
         const PrimitiveInstance& inst = scene.instances[i];
+        if (!inst.has_lightmap()) continue;
         // A vertex's page is its triangles' (a chart's vertex may lie on a page's edge).
         std::vector<int> page(inst.vertex_count, 0);
         for (uint32_t t = inst.first_triangle; t < inst.first_triangle + inst.triangle_count; ++t)

@@ -31,7 +31,9 @@ struct SeamEdge {
 // scene's diagonal, either orientation, any meshes) but whose UV1 endpoints
 // differ (by more than 1e-6 in UV). An edge shared by more than two triangles
 // yields one seam per pair of sides that differ. Edges that meet a T-junction
-// (one long edge against two short ones) are not matched.
+// (one long edge against two short ones) are not matched, nor edges of a
+// mesh without a lightmap (PrimitiveInstance::has_lightmap: its one texel
+// per chart is no side to stitch a lightmapped neighbour to).
 std::vector<SeamEdge> find_seams(const Scene& scene);
 
 // Bilinear lookup in a width x height image (row-major from the top) at glTF

@@ -157,9 +157,11 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                                            : ""));
     }
     check_bake_memory(name, p.atlas.width, p.atlas.height, settings.atlas.subsamples);
-    // A mesh's lightmap scale shapes a generated atlas only: the file's own TEXCOORD_1 is kept as it is.
-    const auto scaled = std::find_if(p.scene.instances.begin(), p.scene.instances.end(),
-                                     [](const PrimitiveInstance& i) { return i.lightmap_scale != 1.0f; });
+    // A mesh's lightmap scale shapes a generated atlas only: the file's own
+    // TEXCOORD_1 is kept as it is (a scale of 0, no lightmap, holds for both).
+    const auto scaled =
+        std::find_if(p.scene.instances.begin(), p.scene.instances.end(),
+                     [](const PrimitiveInstance& i) { return i.lightmap_scale != 1.0f && i.has_lightmap(); });
     if (!p.atlas.generated && scaled != p.scene.instances.end())
         p.warnings.push_back("node " + std::to_string(scaled->node) +
                              "'s lightmap scale (lightfarm_lightmap_scale, atlas.mesh_scale) is not applied: the scene "

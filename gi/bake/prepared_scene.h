@@ -92,6 +92,7 @@ inline nlohmann::json atlas_json(const AtlasReport& atlas) {
             {"charts", atlas.charts},
             {"unlit_charts", atlas.unlit_charts},
             {"mesh_scaled_charts", atlas.mesh_scaled_charts},
+            {"unmapped_charts", atlas.unmapped_charts},
             {"unlit_area_fraction", atlas.unlit_area_fraction},
             {"utilisation", atlas.utilisation}};
 }

@@ -289,11 +289,11 @@ float GeometryBuilder::lightmap_scale(const PlacedNode& placed) const {
     if (!extras.IsObject() || !extras.Has(kKey)) return 1.0f;
     const tinygltf::Value& v = extras.Get(kKey);
     const double scale = v.IsNumber() ? v.GetNumberAsDouble() : std::nan("");
-    if (!(scale > 0.0 && scale <= protocol::kMaxLightmapScale))
+    if (!(scale >= 0.0 && scale <= protocol::kMaxLightmapScale))
         errors_.fail(on_node ? "node" : "mesh", on_node ? placed.node : placed.item,
                      std::string("extras.") + kKey +
-                         " must be a number above 0 and at most 64 (the charts' texel "
-                         "density over the atlas's)");
+                         " must be a number from 0 to 64 (the charts' texel density over the atlas's; 0: no "
+                         "lightmap)");
     return float(scale);
 }
 

@@ -42,6 +42,13 @@ size_t Scene::emissive_triangle_count() const {
                                 [&](uint32_t m) { return materials[m].is_emissive(); }));
 }
 
+std::vector<float> Scene::triangle_lightmap_scales() const {
+    std::vector<float> scale(triangles.size(), 1.0f);
+    for (const PrimitiveInstance& inst : instances)
+        std::fill_n(scale.begin() + inst.first_triangle, inst.triangle_count, inst.lightmap_scale);
+    return scale;
+}
+
 float Scene::triangle_area(size_t t) const {
     const glm::uvec3& tri = triangles[t];
     glm::vec3 e1 = positions[tri.y] - positions[tri.x];

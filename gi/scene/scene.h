@@ -103,7 +103,11 @@ struct PrimitiveInstance {
     // Its charts' texel density over the atlas's: a node's (else its mesh's)
     // extras {"lightfarm_lightmap_scale": S}, 0 < S <= 64 (a hero prop gets
     // more texels, a distant wall fewer). Generated atlases only.
+    // 0: no lightmap of its own, in an atlas of any kind: it still casts
+    // and bounces light (rays that land on it gather there), and the files
+    // give it no lightmap (a prop lit at run time, by probes).
     float lightmap_scale = 1.0f;
+    bool has_lightmap() const { return lightmap_scale > 0.0f; }
 };
 
 // The lightmap's pages. A generated atlas whose charts do not fit one page
@@ -171,6 +175,8 @@ struct Scene {
     size_t triangle_count() const { return triangles.size(); }
     bool all_have_lightmap_uvs() const;
     size_t emissive_triangle_count() const;
+    // Each triangle's PrimitiveInstance::lightmap_scale (0: no lightmap).
+    std::vector<float> triangle_lightmap_scales() const;
     // Area of triangle t (world space).
     float triangle_area(size_t t) const;
     glm::vec3 geometric_normal(size_t t) const;  // unit; zero for a degenerate triangle

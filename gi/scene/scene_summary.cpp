@@ -11,9 +11,11 @@ namespace lf {
 protocol::SceneSummary summarize(const Scene& scene) {
     std::set<int> meshes;
     size_t with_uv1 = 0;
+    nlohmann::json scales = nlohmann::json::object();  // glTF mesh -> its lightmap scale, where not 1
     for (const PrimitiveInstance& inst : scene.instances) {
         meshes.insert(inst.mesh);
         with_uv1 += inst.has_uv1 ? 1 : 0;
+        if (inst.lightmap_scale != 1.0f) scales[std::to_string(inst.mesh)] = inst.lightmap_scale;
     }
     size_t point = 0, spot = 0, directional = 0;
     for (const PunctualLight& light : scene.lights) {
@@ -50,6 +52,8 @@ protocol::SceneSummary summarize(const Scene& scene) {
         {"punctual_lights", {{"point", point}, {"spot", spot}, {"directional", directional}}},
         {"textures", scene.textures.size()},
         {"lightmap_uvs", {{"all_primitives", scene.all_have_lightmap_uvs()}, {"primitives_with_texcoord_1", with_uv1}}},
+        // The file's extras lightfarm_lightmap_scale (0: no lightmap), by glTF mesh.
+        {"lightmap_scales", scales},
         {"bounds", bounds},
         {"surface_area", area},
         {"warnings", scene.warnings},
@@ -75,6 +79,17 @@ std::string format_summary(const Scene& scene) {
     out << "lightmap UVs: TEXCOORD_1 on " << uvs["primitives_with_texcoord_1"] << " of " << s["primitive_instances"]
         << " primitive instances" << (uvs["all_primitives"].get<bool>() ? " (all: kept)" : " (atlas will be generated)")
         << "\n";
+    if (!s["lightmap_scales"].empty()) {
+        out << "lightmap scale:";
+        for (const auto& [mesh, scale] : s["lightmap_scales"].items()) {
+            const double v = scale.get<double>();
+            std::snprintf(line, sizeof line,
+                          v == 0.0 ? " mesh %s no lightmap (casts and bounces light);" : " mesh %s x%g;", mesh.c_str(),
+                          v);
+            out << line;
+        }
+        out << "\n";
+    }
     if (!scene.bounds.empty()) {
         const Bounds& b = scene.bounds;
         const glm::vec3 e = b.extent();

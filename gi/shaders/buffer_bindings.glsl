@@ -53,6 +53,9 @@
 // The scene's surfaces and lights (SceneShading: lightmap_lookup.glsl,
 // direct_light.glsl) and their textures (SurfaceTextures: surface_textures.glsl).
 #define LF_BINDING_SURFACE_TRIANGLES 6
+// A surface triangle's flag bits (its second vec4's z, lightmap_lookup.glsl).
+#define LF_TRIANGLE_DOUBLE_SIDED 1u
+#define LF_TRIANGLE_WITHOUT_LIGHTMAP 2u  // its mesh has no lightmap of its own (lightmap scale 0)
 #define LF_BINDING_EMITTERS 7
 #define LF_BINDING_PUNCTUAL_LIGHTS 8
 #define LF_BINDING_SURFACE_TEXCOORDS 17

@@ -39,17 +39,17 @@ layout(std430, binding = LF_BINDING_TEXEL_ALBEDO) readonly buffer TexelAlbedo { 
 // The atlas's size, from the program's parameter block (LF_ATLAS_PARAMS).
 uvec2 lf_atlas_size() { return uvec2(atlas_width, atlas_height); }
 
-const uint TRIANGLE_DOUBLE_SIDED = 1u;
-
 vec2 hit_lightmap_uv(Hit hit) {
     vec4 a = surface_triangles[SURFACE_VEC4S * hit.triangle];
     vec4 b = surface_triangles[SURFACE_VEC4S * hit.triangle + 1u];
     return (1.0 - hit.bary.x - hit.bary.y) * a.xy + hit.bary.x * a.zw + hit.bary.y * b.xy;
 }
 
-bool hit_is_double_sided(Hit hit) {
-    return (floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].z) & TRIANGLE_DOUBLE_SIDED) != 0u;
-}
+uint hit_triangle_flags(Hit hit) { return floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].z); }
+bool hit_is_double_sided(Hit hit) { return (hit_triangle_flags(hit) & LF_TRIANGLE_DOUBLE_SIDED) != 0u; }
+// A mesh left out of the lightmap (lightmap scale 0) keeps one texel per
+// chart, which holds its chart's mean: a ray that lands on it gathers there.
+bool hit_has_lightmap(Hit hit) { return (hit_triangle_flags(hit) & LF_TRIANGLE_WITHOUT_LIGHTMAP) == 0u; }
 
 // Area density of emitter sampling at the hit's triangle (0 if it emits nothing).
 float hit_emitter_area_pdf(Hit hit) { return surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].w; }

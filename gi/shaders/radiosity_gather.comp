@@ -91,10 +91,14 @@ bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out 
 //    texel there averages it with its open side (photon mapping's final
 //    gather traces its short rays on, in corners, for the same reason:
 //    Jensen 1996, "Global Illumination using Photon Maps");
+//  * on a mesh left out of the lightmap (lightmap scale 0): its one texel
+//    per chart holds the chart's mean, read only at the last point;
 //  * next to geometry that cuts through the texels, or where no texel holds
 //    a value (reflected_lookup).
 #define LF_GATHER_DEPTH 4u
-bool map_may_say(Hit hit, float near) { return hit.front && hit.t > near; }  // the rest is reflected_lookup's
+bool map_may_say(Hit hit, float near) {  // the rest is reflected_lookup's
+    return hit.front && hit.t > near && hit_has_lightmap(hit);
+}
 vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout uint rays) {
     vec3 radiance = vec3(0.0), throughput = vec3(1.0);
     for (uint depth = 1u;; ++depth) {
