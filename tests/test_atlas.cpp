@@ -305,6 +305,18 @@ TEST(Atlas, AMeshWithoutALightmapHasOneTexelPerChart) {
                     << "a seam on a mesh without a lightmap";
         EXPECT_EQ(report.mesh_scaled_charts, 0u) << "no lightmap is not a scaled lightmap";
     }
+    // Two meshes that meet flat along an edge make one chart, but not where
+    // one of them has no lightmap: its texels would be read by no one.
+    Scene flat;
+    const uint32_t white = test::add_material(flat, glm::vec3(0.8f));
+    test::add_quad(flat, {0, 0, 0}, {1, 0, 0}, {0, 0, 1}, white);
+    test::add_quad(flat, {1, 0, 0}, {1, 0, 0}, {0, 0, 1}, white);
+    Scene joined = flat;
+    EXPECT_EQ(generate_lightmap_uvs(joined, {.texel_density = 20.0f}).charts, 1u);
+    flat.instances[1].lightmap_scale = 0.0f;
+    const AtlasReport apart = generate_lightmap_uvs(flat, {.texel_density = 20.0f});
+    EXPECT_EQ(apart.charts, 2u);
+    EXPECT_EQ(apart.unmapped_charts, 1u);
 }
 
 // Separate triangles (obtuse, standing on their longest edge, all facing

@@ -1146,11 +1146,10 @@ json schema_of(const Setting& s) {
     case SettingType::Choice: range = {{"type", "string"}, {"enum", s.choices}}; break;
     case SettingType::Flag: range = {{"type", "boolean"}}; break;
     case SettingType::MeshScales:
-        range = {
-            {"type", "object"},
-            {"propertyNames", {{"pattern", "^(0|[1-9][0-9]{0,8})$"}}},
-            {"additionalProperties", {{"type", "number"}, {"minimum", 0}, {"maximum", kMaxLightmapScale}}},
-            {"maxProperties", kMaxMeshList}};
+        range = {{"type", "object"},
+                 {"propertyNames", {{"pattern", "^(0|[1-9][0-9]{0,8})$"}}},
+                 {"additionalProperties", {{"type", "number"}, {"minimum", 0}, {"maximum", kMaxLightmapScale}}},
+                 {"maxProperties", kMaxMeshList}};
         break;
     case SettingType::MeshList:
         range = {{"type", "array"},

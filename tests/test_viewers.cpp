@@ -46,6 +46,7 @@ bool run_blender(const fs::path& glb, const fs::path& png, int size, std::string
                                 "/tests/blender/render_glb.py -- " + glb.string() + " " + png.string() + " " +
                                 std::to_string(size) + " 2>&1";
     FILE* pipe = popen(command.c_str(), "r");
+    if (!pipe) return false;
     char buffer[4096];
     for (size_t n; (n = fread(buffer, 1, sizeof buffer, pipe)) > 0;) out.append(buffer, n);
     return pclose(pipe) == 0 && fs::exists(png);

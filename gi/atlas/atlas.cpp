@@ -251,11 +251,14 @@ Tri2 project_triangle(const Scene& scene, const PlaneBasis& plane, uint32_t t) {
 // edges. A neighbour joins when its normal is within the angle limit of the
 // seed's and its projection onto the seed's plane overlaps no triangle already
 // in the chart, so every chart is a flat, non-overlapping map of its triangles.
+// A chart is of meshes with a lightmap or of meshes without (lightmap scale
+// 0) alone: the latter's charts get one texel.
 std::vector<Chart> segment_charts(const Scene& scene, const TriangleAdjacency& adjacency, float max_angle_degrees,
                                   std::vector<uint32_t>& triangle_chart) {
     const size_t n = scene.triangles.size();
     std::vector<float> area(n);
     std::vector<glm::vec3> normal(n);
+    const std::vector<float> lightmap_scale = scene.triangle_lightmap_scales();
     for (size_t t = 0; t < n; ++t) {
         area[t] = scene.triangle_area(t);
         normal[t] = scene.geometric_normal(t);
@@ -288,6 +291,7 @@ std::vector<Chart> segment_charts(const Scene& scene, const TriangleAdjacency& a
             frontier.push_back(t);
         };
         auto accepts = [&](uint32_t t) {
+            if ((lightmap_scale[t] == 0.0f) != (lightmap_scale[seed] == 0.0f)) return false;
             if (area[t] <= 0.0f) return true;  // degenerate: adds no area, goes with its neighbour
             if (glm::dot(normal[t], seed_normal) < min_cos) return false;
             return !grid.overlaps_any(project_triangle(scene, chart.plane, t));
@@ -1400,7 +1404,7 @@ Packing pack_atlas_for_scene(const ChartLayout& layout, const AtlasOptions& opti
 }
 
 // Each chart's mesh lightmap scale: the largest where a chart spans meshes
-// (0 only where each of its meshes has no lightmap).
+// (0 where its meshes have no lightmap: segment_charts keeps those apart).
 std::vector<double> chart_mesh_scales(const Scene& scene, const ChartLayout& layout) {
     const std::vector<float> mesh_scale = scene.triangle_lightmap_scales();
     std::vector<double> scale(layout.charts.size(), 0.0);

@@ -567,11 +567,19 @@ std::map<int, int> mesh_per_node(tinygltf::Model& model, const Scene& scene, con
 // (lightfarm_lightmap_stacked_v: [offset, scale], v there = offset + scale
 // x TEXCOORD_1's v); with one page, nothing changes. Returns the (mesh,
 // primitive index, page) of each piece; a primitive without a lightmap
-// stays whole, on kNoLightmap.
+// stays whole, on kNoLightmap, and says so in its extras
+// (lightfarm_no_lightmap: a file's own TEXCOORD_1 may still be there).
 std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst,
                                               int mesh) {
     std::vector<std::array<int, 3>> pieces;
-    if (!inst.has_lightmap()) return {{mesh, inst.primitive, kNoLightmap}};
+    if (!inst.has_lightmap()) {
+        tinygltf::Primitive& primitive = model.meshes[size_t(mesh)].primitives[size_t(inst.primitive)];
+        tinygltf::Value::Object extras =
+            primitive.extras.IsObject() ? primitive.extras.Get<tinygltf::Value::Object>() : tinygltf::Value::Object();
+        extras["lightfarm_no_lightmap"] = tinygltf::Value(true);
+        primitive.extras = tinygltf::Value(extras);
+        return {{mesh, inst.primitive, kNoLightmap}};
+    }
     if (scene.lightmap_pages.count == 1) return {{mesh, inst.primitive, 0}};
     std::set<int> pages;
     for (uint32_t i = 0; i < inst.triangle_count; ++i) pages.insert(triangle_page(scene, inst.first_triangle + i));

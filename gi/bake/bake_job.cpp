@@ -122,6 +122,11 @@ AtlasOptions atlas_options(const protocol::BakeSettings& s) {
 void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                    const std::function<const Tracer&()>& geometry) {
     const std::string name = p.file.filename().string();
+    if (std::none_of(p.scene.instances.begin(), p.scene.instances.end(),
+                     [](const PrimitiveInstance& i) { return i.has_lightmap(); }))
+        throw BakeInputError(name +
+                             ": every mesh has lightmap scale 0 (lightfarm_lightmap_scale, atlas.mesh_scale): "
+                             "nothing is left to lightmap; leave a mesh in, or bake --sh or --probes alone");
     AtlasOptions options = atlas_options(settings);
     // Charts no light reaches get few texels, but an atlas output that needs
     // no light (per-texel SH transfer, lit later by any environment; ambient

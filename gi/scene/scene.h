@@ -101,8 +101,8 @@ struct PrimitiveInstance {
     bool has_uv1 = false;   // the glTF primitive had TEXCOORD_1
     bool mirrored = false;  // the node transform has negative determinant
     // Its charts' texel density over the atlas's: a node's (else its mesh's)
-    // extras {"lightfarm_lightmap_scale": S}, 0 < S <= 64 (a hero prop gets
-    // more texels, a distant wall fewer). Generated atlases only.
+    // extras {"lightfarm_lightmap_scale": S}, 0 <= S <= 64 (a hero prop gets
+    // more texels, a distant wall fewer), for generated atlases; and
     // 0: no lightmap of its own, in an atlas of any kind: it still casts
     // and bounces light (rays that land on it gather there), and the files
     // give it no lightmap (a prop lit at run time, by probes).

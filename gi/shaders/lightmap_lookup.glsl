@@ -48,7 +48,7 @@ vec2 hit_lightmap_uv(Hit hit) {
 uint hit_triangle_flags(Hit hit) { return floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].z); }
 bool hit_is_double_sided(Hit hit) { return (hit_triangle_flags(hit) & LF_TRIANGLE_DOUBLE_SIDED) != 0u; }
 // A mesh left out of the lightmap (lightmap scale 0) keeps one texel per
-// chart, which holds its chart's mean: a ray that lands on it gathers there.
+// chart, which holds its samples' mean: a ray that lands on it gathers there.
 bool hit_has_lightmap(Hit hit) { return (hit_triangle_flags(hit) & LF_TRIANGLE_WITHOUT_LIGHTMAP) == 0u; }
 
 // Area density of emitter sampling at the hit's triangle (0 if it emits nothing).
@@ -135,8 +135,10 @@ bool reflected_lookup(vec2 uv, bool indirect_only, out vec3 radiance) {
 
 // Bilinear lookup of the texels' albedo at the hit (the weights of
 // reflected_lookup, taps without a value left out); the triangle's own
-// albedo where no tap has one (a chart smaller than a texel).
+// albedo where no tap has one (a chart smaller than a texel) and on a mesh
+// without a lightmap (whose one texel per chart holds its samples' mean).
 vec3 hit_texel_albedo(Hit hit) {
+    if (!hit_has_lightmap(hit)) return hit_albedo(hit);
     uint a[4];
     float w[4];
     bilinear_taps(hit_lightmap_uv(hit), a, w);

@@ -92,7 +92,7 @@ bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out 
 //    gather traces its short rays on, in corners, for the same reason:
 //    Jensen 1996, "Global Illumination using Photon Maps");
 //  * on a mesh left out of the lightmap (lightmap scale 0): its one texel
-//    per chart holds the chart's mean, read only at the last point;
+//    per chart holds its samples' mean, read only at the last point;
 //  * next to geometry that cuts through the texels, or where no texel holds
 //    a value (reflected_lookup).
 #define LF_GATHER_DEPTH 4u

@@ -89,8 +89,8 @@ if (THREE) {
       if (!node.isMesh) return;
       const original = originals.get(node);
       if (node.material !== original) node.material.dispose();  // the last pass's or mode's copy
-      // A mesh left out of the lightmap (lightmap scale 0) has no TEXCOORD_1: its own material, unlit here.
-      if (!node.geometry.getAttribute("uv1") || (state.mode === "error" && !errorMap)) node.material = original;
+      // A mesh left out of the lightmap (lightmap scale 0; its primitive's extras say so): its own material.
+      if (node.geometry.userData.lightfarm_no_lightmap || (state.mode === "error" && !errorMap)) node.material = original;
       else if (state.mode === "lit") node.material = lightmapOn(original.clone(), node);
       else if (state.mode === "lightmap") node.material = Object.assign(lightmapOn(white.clone(), node), { side: original.side });
       else node.material = new THREE.MeshBasicMaterial({ map: onPage(errorMap, node.geometry), side: original.side });
