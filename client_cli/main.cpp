@@ -49,7 +49,7 @@ commands:
   sh-shade TRANSFER ENV --out shaded.glb [--scene SCENE] [--sh-window W]
                                      vertex colours = SH transfer x environment
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
-  compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr] [--layer direct|indirect|raw]
+  compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr] [--layer direct|indirect|raw] [--block N]
   compare TRANSFER.bin REFERENCE.bin error against a reference (JSON)
   probe-eval PROBES.json POINTS.json irradiance/pi at points from baked probes, four estimators (JSON)
   probebench SCENE [--at X,Y,Z] [--toward X,Y,Z] [--res-list 32,64,128,256] [--m-list 1,2,4,8]
@@ -150,12 +150,16 @@ int devices(int argc, char** argv) {
 
 // The error of a bake against a reference, as JSON (gi/io/output_comparison.h).
 int compare(int argc, char** argv) {
-    Args args(argc, argv, 2, {"--mask", "--layer"}, {});
+    Args args(argc, argv, 2, {"--mask", "--layer", "--block"}, {});
     if (args.positional().size() != 2)
         throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
     lf::OutputComparisonOptions options;
     if (args.has("--mask")) options.mask = args.get("--mask");
     if (args.has("--layer")) options.layer = args.get("--layer");
+    const double block = args.number("--block", 1.0);
+    if (!(block >= 1.0 && block <= 4096.0 && block == std::floor(block)))
+        throw UsageError("--block takes a whole number of texels from 1 to 4096, not " + args.get("--block"));
+    options.block = int(block);
     std::cout << lf::compare_outputs(args.positional()[0], args.positional()[1], options).dump() << "\n";
     return 0;
 }

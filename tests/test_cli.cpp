@@ -729,6 +729,55 @@ TEST(ReferenceError, EachSurfaceTexelCountsOnceNotItsDilatedCopies) {
     EXPECT_NEAR(e.bias, 4.0, 1e-12);
 }
 
+// compare --block: the means of squares of texels compared, each counted
+// once per texel it holds. Noise that averages out within each square is
+// gone from the error; an error that is constant over a square is all there;
+// the bias is the same at every size; squares cut by the image's edge or
+// holding texels outside the surface compare what they hold.
+TEST(ReferenceError, BlocksKeepTheLowFrequencyErrorAndDropNoiseThatAveragesOut) {
+    const int w = 6, h = 4;  // 2x2 blocks tile it; 4x4 blocks are cut by its right edge
+    FloatImage reference, noisy, shifted;
+    for (FloatImage* im : {&reference, &noisy, &shifted}) im->width = w, im->height = h;
+    for (const char* c : {"R", "G", "B"}) {
+        std::vector<float>&r = reference.channel(c), &n = noisy.channel(c), &s = shifted.channel(c);
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x) {
+                const size_t i = size_t(y * w + x);
+                r[i] = 1.0f;
+                n[i] = (x + y) % 2 ? 1.25f : 0.75f;  // a checkerboard: each 2x2 square's mean is 1
+                s[i] = x < 2 ? 1.5f : 1.0f;          // the two left columns half as bright again
+            }
+    }
+    for (int block : {1, 2, 4, 8}) {
+        const ReferenceError e = compare_to_reference(noisy, reference, nullptr, block);
+        EXPECT_EQ(e.texels, size_t(w * h)) << block;
+        EXPECT_NEAR(e.bias, 0.0, 1e-12) << block;
+        // 1x1: every texel 0.25 off; 2x2 and 4x4 squares (cut to 4x2 on the
+        // right) hold as many 1.25s as 0.75s; 8x8 holds the whole image.
+        EXPECT_NEAR(e.relative_rmse, block == 1 ? 0.25 : 0.0, 1e-7) << block;
+    }
+    // The left two columns are 0.5 off: a third of the texels.
+    EXPECT_NEAR(compare_to_reference(shifted, reference, nullptr, 1).relative_rmse, 0.5 * std::sqrt(1.0 / 3.0), 1e-7);
+    EXPECT_NEAR(compare_to_reference(shifted, reference, nullptr, 2).relative_rmse, 0.5 * std::sqrt(1.0 / 3.0), 1e-7);
+    // 4x4: the left square (x 0-3) is 0.25 off in its mean, the right one (x 4-5) exact.
+    EXPECT_NEAR(compare_to_reference(shifted, reference, nullptr, 4).relative_rmse, 0.25 * std::sqrt(16.0 / 24.0),
+                1e-7);
+    for (int block : {1, 2, 4})
+        EXPECT_NEAR(compare_to_reference(shifted, reference, nullptr, block).bias, 0.5 / 3.0, 1e-7) << block;
+
+    // Only the surface counts: with the checkerboard's 0.75s off the surface,
+    // every 2x2 square holds two 1.25s.
+    noisy.channel(kCoveredChannel).resize(size_t(w * h));
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) noisy.channel(kCoveredChannel)[size_t(y * w + x)] = (x + y) % 2 ? 1.0f : 0.0f;
+    const ReferenceError covered = compare_to_reference(noisy, reference, nullptr, 2);
+    EXPECT_EQ(covered.texels, size_t(w * h / 2));
+    EXPECT_NEAR(covered.relative_rmse, 0.25, 1e-7);
+    EXPECT_NEAR(covered.bias, 0.25, 1e-7);
+
+    EXPECT_THROW(compare_to_reference(noisy, reference, nullptr, 0), std::runtime_error);
+}
+
 // `lightfarm compare`'s numbers without the CLI (gi/io/output_comparison.h):
 // a lightmap against itself and against one 10% brighter, a layer of each,
 // the bake's header figures, a missing layer named with its file, and SH
@@ -776,6 +825,15 @@ TEST(OutputComparison, ComparesTwoLightmapFilesAsTheCliPrintsThem) {
         EXPECT_NEAR(e["relative_rmse"].get<double>(), 0.1 * rms / mean, 1e-6) << layer.value_or("RGB");
         EXPECT_EQ(e["pass"], 12.0) << layer.value_or("RGB");
     }
+
+    // 2x2 blocks: the two squares' means (texels 0,1,4,5 and 2,3,6,7) are 10% off.
+    OutputComparisonOptions blocks;
+    blocks.block = 2;
+    const nlohmann::json b = compare_lightmaps(brighter, reference, blocks);
+    const double left = 0.25 + 0.125 * 2.5, right = 0.25 + 0.125 * 4.5;
+    EXPECT_EQ(b["block"], 2);
+    EXPECT_NEAR(b["bias"].get<double>(), 0.1, 1e-6);
+    EXPECT_NEAR(b["relative_rmse"].get<double>(), 0.1 * std::sqrt((left * left + right * right) / 2.0) / mean, 1e-6);
 
     OutputComparisonOptions indirect;
     indirect.layer = "indirect";

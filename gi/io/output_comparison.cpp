@@ -44,12 +44,9 @@ nlohmann::json compare_lightmaps(const std::string& bake_path, const std::string
     }
     FloatImage mask;
     if (options.mask) mask = ends_with(*options.mask, ".pfm") ? read_pfm(*options.mask) : read_exr(*options.mask);
-    const ReferenceError e = compare_to_reference(bake, reference, options.mask ? &mask : nullptr);
-    nlohmann::json out = {{"relative_rmse", e.relative_rmse},
-                          {"rmse", e.rmse},
-                          {"bias", e.bias},
-                          {"reference_mean", e.reference_mean},
-                          {"texels", e.texels}};
+    const ReferenceError e = compare_to_reference(bake, reference, options.mask ? &mask : nullptr, options.block);
+    nlohmann::json out = {{"relative_rmse", e.relative_rmse},   {"rmse", e.rmse},     {"bias", e.bias},
+                          {"reference_mean", e.reference_mean}, {"texels", e.texels}, {"block", options.block}};
     // The bake's own record of how it was made, under its name without "lightfarm.".
     for (const char* key : {"lightfarm.pass", "lightfarm.rays", "lightfarm.seconds", "lightfarm.errorEstimate",
                             "lightfarm.denoiseSeconds"}) {

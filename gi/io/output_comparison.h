@@ -18,9 +18,12 @@ struct OutputComparisonOptions {
     // "direct", "indirect", "raw": that layer (its prefix.R/G/B channels) of
     // both lightmaps instead of their RGB.
     std::optional<std::string> layer;
+    // Side of the squares of texels whose means are compared (1: texel by
+    // texel); see compare_to_reference.
+    int block = 1;
 };
 
-// Lightmaps: relative_rmse, rmse, bias, reference_mean, texels, and the
+// Lightmaps: relative_rmse, rmse, bias, reference_mean, texels, block, and the
 // bake's pass, rays, seconds, errorEstimate and denoiseSeconds where its
 // header has them. Throws std::runtime_error naming the file and the
 // channel when a --layer channel is missing.

@@ -29,7 +29,7 @@ FloatImage downsample(const FloatImage& image, int factor, bool is_mask) {
 }
 
 ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& full_reference,
-                                    const FloatImage* full_mask) {
+                                    const FloatImage* full_mask, int block) {
     const int factor = bake.width > 0 ? full_reference.width / bake.width : 0;
     FloatImage reduced_reference, reduced_mask;
     const FloatImage* reference_ptr = &full_reference;
@@ -52,20 +52,41 @@ ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& fu
     const char* names[3] = {"R", "G", "B"};
     const std::vector<float>* mask_channel = mask ? &mask->channels.begin()->second : nullptr;
     if (!mask_channel && bake.channels.count(kCoveredChannel)) mask_channel = &bake.channels.at(kCoveredChannel);
+    if (block < 1) throw std::runtime_error("the block side must be at least 1 texel");
+    // Per block: its compared texels' count and their sums in each channel.
+    struct BlockSums {
+        size_t texels = 0;
+        double bake[3] = {0.0, 0.0, 0.0}, reference[3] = {0.0, 0.0, 0.0};
+    };
+    const int blocks_x = (bake.width + block - 1) / block, blocks_y = (bake.height + block - 1) / block;
+    std::vector<BlockSums> blocks(size_t(blocks_x) * size_t(blocks_y));
+    for (int y = 0; y < bake.height; ++y)
+        for (int x = 0; x < bake.width; ++x) {
+            const size_t i = size_t(y) * size_t(bake.width) + size_t(x);
+            if (mask_channel) {
+                if (!((*mask_channel)[i] > 0.5f)) continue;
+            } else if (reference.at("R")[i] == 0.0f && reference.at("G")[i] == 0.0f && reference.at("B")[i] == 0.0f) {
+                continue;
+            }
+            BlockSums& b = blocks[size_t(y / block) * size_t(blocks_x) + size_t(x / block)];
+            ++b.texels;
+            for (int c = 0; c < 3; ++c) {
+                b.bake[c] += bake.at(names[c])[i];
+                b.reference[c] += reference.at(names[c])[i];
+            }
+        }
+    // Each block's mean error counted once per texel it holds: with 1x1
+    // blocks, the texels' RMSE; the bias is the same at every block size.
     double sum_sq = 0.0, sum_bake = 0.0, sum_ref = 0.0;
     size_t texels = 0;
-    for (size_t i = 0; i < size_t(bake.width) * size_t(bake.height); ++i) {
-        if (mask_channel) {
-            if (!((*mask_channel)[i] > 0.5f)) continue;
-        } else if (reference.at("R")[i] == 0.0f && reference.at("G")[i] == 0.0f && reference.at("B")[i] == 0.0f) {
-            continue;
-        }
-        ++texels;
-        for (const char* c : names) {
-            const double b = bake.at(c)[i], r = reference.at(c)[i];
-            sum_sq += (b - r) * (b - r);
-            sum_bake += b;
-            sum_ref += r;
+    for (const BlockSums& b : blocks) {
+        if (b.texels == 0) continue;
+        texels += b.texels;
+        for (int c = 0; c < 3; ++c) {
+            const double difference = (b.bake[c] - b.reference[c]) / double(b.texels);
+            sum_sq += double(b.texels) * difference * difference;
+            sum_bake += b.bake[c];
+            sum_ref += b.reference[c];
         }
     }
     ReferenceError e;

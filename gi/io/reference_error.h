@@ -34,6 +34,12 @@ constexpr const char* kCoveredChannel = "covered";
 // Box-filters `image` by an integer factor; a channel "Y" or the first
 // channel of a mask image keeps 1 only where every source texel was > 0.5.
 FloatImage downsample(const FloatImage& image, int factor, bool is_mask);
-ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& reference, const FloatImage* mask);
+// `block` > 1: the means of block x block squares of texels (each over the
+// texels compared in it) are compared instead of the texels, each counted
+// once per texel it holds: the low-frequency part of the error (blotches a
+// filter leaves or makes), with the reference's own noise averaged over the
+// block. The bias is the same at every block size.
+ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& reference, const FloatImage* mask,
+                                    int block = 1);
 
 }  // namespace lf
