@@ -14,7 +14,8 @@ SCENE=$(realpath "$1")
 OUT=$(realpath -m "$2")
 shift 2
 mkdir -p "$OUT"
-"$BUILD/client_cli/lightfarm" bake "$SCENE" --out "$OUT" "$@" > /dev/null
+# A folder that holds a finished bake is looked at as it is.
+[ -f "$OUT/manifest.json" ] || "$BUILD/client_cli/lightfarm" bake "$SCENE" --out "$OUT" "$@" > /dev/null
 
 data=$(mktemp -d)
 trap 'kill "$server" 2> /dev/null; wait "$server" 2> /dev/null; rm -rf "$data"' EXIT

@@ -6,6 +6,7 @@
 
 #include <glm/glm.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <stdexcept>
 #include <unordered_map>
@@ -14,7 +15,8 @@ namespace lf {
 
 namespace {
 
-constexpr uint32_t kNoTexel = 0xffffffffu;  // as lightmap_denoise.comp's NO_TEXEL
+constexpr uint32_t kNoTexel = 0xffffffffu;                     // as lightmap_denoise.comp's NO_TEXEL
+const glm::vec3 kLuminanceWeights(0.2126f, 0.7152f, 0.0722f);  // as its luminance()
 
 // Each covered texel's chart: its first sample's triangle's UV island.
 std::vector<uint32_t> chart_of_texels(const Scene& scene, const TexelSamples& texels) {
@@ -79,6 +81,48 @@ LightmapDenoiser::LightmapDenoiser(const Scene& atlas_scene, const TexelSamples&
       program_("lightmap_denoise.comp"),
       guide_(guide_of(texels, texel_chart_)) {}
 
+std::vector<glm::vec4> LightmapDenoiser::filter(const std::vector<glm::vec4>& colour, int steps,
+                                                bool luminance_weights) const {
+    GpuBuffer ping(colour), pong(colour.size() * sizeof(glm::vec4));
+    guide_.bind(LF_BINDING_DENOISE_GUIDE);
+    for (int s = 0; s < steps; ++s) {
+        program_.use(
+            DenoiseParams{uint32_t(texels_.width), uint32_t(texels_.height), 1 << s, luminance_weights ? 1u : 0u});
+        ping.bind(LF_BINDING_DENOISE_IN);
+        pong.bind(LF_BINDING_DENOISE_OUT);
+        program_.dispatch_1d(colour.size());
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+        std::swap(ping, pong);
+    }
+    return ping.read<glm::vec4>();  // waits for the GPU
+}
+
+// What the edge-aware filter took from a texel is its noise and, where its
+// weights could not tell light from noise, some of its light: a lamp pool's
+// peak flattened, a chart's brighter noisy part darkened more than the rest
+// (which conserve_chart_light then brightens). Measured as the low-frequency
+// error (compare --block) against converged references, the filtered map was
+// worse than the raw one at every scale of 4 texels and up on the Cornell
+// box, monkey and the staircase (docs/BENCHMARKS.md, "Denoising"). So the
+// removed part, raw - filtered, is low-passed by kRestoreSteps steps of the
+// same filter without its luminance weights (linear in the colour, still
+// within charts and across no crease), and added back where it is more than
+// the noise a low-pass of the raw noise would leave: positive-part Wiener
+// shrinkage, keep = max(0, 1 - var / l^2), with var the low-pass's own
+// variance (the filter carries it, sum of k^2 sigma^2) and l its luminance.
+void LightmapDenoiser::restore_low_frequencies(std::vector<glm::vec4>& filtered,
+                                               const std::vector<glm::vec4>& raw) const {
+    std::vector<glm::vec4> removed(raw.size());
+    for (size_t p = 0; p < raw.size(); ++p) removed[p] = glm::vec4(glm::vec3(raw[p] - filtered[p]), raw[p].w);
+    const std::vector<glm::vec4> low = filter(removed, kRestoreSteps, false);
+    for (uint32_t p : texels_.texels) {
+        const float l = glm::dot(glm::vec3(low[p]), kLuminanceWeights);
+        const float keep = l * l > 0.0f ? std::max(0.0f, 1.0f - low[p].w / (l * l)) : 0.0f;
+        filtered[p] =
+            glm::vec4(glm::max(glm::vec3(filtered[p]) + keep * glm::vec3(low[p]), glm::vec3(0.0f)), filtered[p].w);
+    }
+}
+
 void LightmapDenoiser::denoise(FloatImage& image) const {
     if (image.width != texels_.width || image.height != texels_.height)
         throw std::invalid_argument("denoise: a " + std::to_string(image.width) + "x" + std::to_string(image.height) +
@@ -90,17 +134,8 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
     std::vector<glm::vec4> colour(pixels);
     for (size_t p = 0; p < pixels; ++p) colour[p] = glm::vec4(r[p], g[p], b[p], error[p] * error[p]);
 
-    GpuBuffer ping(colour), pong(pixels * sizeof(glm::vec4));
-    guide_.bind(LF_BINDING_DENOISE_GUIDE);
-    for (int s = 0; s < kSteps; ++s) {
-        program_.use(DenoiseParams{uint32_t(image.width), uint32_t(image.height), 1 << s});
-        ping.bind(LF_BINDING_DENOISE_IN);
-        pong.bind(LF_BINDING_DENOISE_OUT);
-        program_.dispatch_1d(pixels);
-        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-        std::swap(ping, pong);
-    }
-    std::vector<glm::vec4> filtered = ping.read<glm::vec4>();  // waits for the GPU
+    std::vector<glm::vec4> filtered = filter(colour, kSteps, true);
+    restore_low_frequencies(filtered, colour);
     conserve_chart_light(filtered, image, texels_, texel_chart_);
 
     for (const char* c : {"R", "G", "B"}) image.channel(std::string("raw.") + c) = image.at(c);

@@ -11,11 +11,16 @@
 #include "io/image_files.h"
 #include "scene/scene.h"
 
+#include <glm/glm.hpp>
+
+#include <vector>
+
 namespace lf {
 
 class LightmapDenoiser {
 public:
-    static constexpr int kSteps = 5;  // step sizes 1, 2, 4, 8, 16
+    static constexpr int kSteps = 5;         // step sizes 1, 2, 4, 8, 16
+    static constexpr int kRestoreSteps = 2;  // the low-frequency restore's low-pass: steps 1, 2 (13x13 texels)
 
     // The guide (position, chart, normal, world size of every covered texel)
     // goes to the GPU once. Needs a current GL context.
@@ -23,7 +28,9 @@ public:
 
     // Filters `image`'s RGB (the combined lightmap), guided by its "error"
     // channel (the standard error of each texel's estimate), and keeps the
-    // unfiltered RGB as layer "raw." (raw.R, raw.G, raw.B). Each chart keeps
+    // unfiltered RGB as layer "raw." (raw.R, raw.G, raw.B). The low
+    // frequencies of what the filter took are put back where they are more
+    // than noise (restore_low_frequencies). Each chart keeps
     // its raw light: its filtered texels are scaled, channel by channel, to
     // the raw texels' sum (conserve_chart_light). The direct and
     // indirect layers stay as baked. Dilated texels copy their filtered
@@ -32,6 +39,13 @@ public:
     void denoise(FloatImage& image) const;
 
 private:
+    // `steps` à-trous steps of lightmap_denoise.comp over `colour` (rgb,
+    // variance per atlas texel).
+    std::vector<glm::vec4> filter(const std::vector<glm::vec4>& colour, int steps, bool luminance_weights) const;
+    // Adds back to `filtered` the low frequencies of what the filter took
+    // from `raw` where they are more than noise (Wiener shrinkage).
+    void restore_low_frequencies(std::vector<glm::vec4>& filtered, const std::vector<glm::vec4>& raw) const;
+
     const TexelSamples& texels_;
     std::vector<uint32_t> texel_chart_;  // per covered texel: its chart (the guide's)
     ComputeProgram program_;

@@ -76,7 +76,9 @@ Texel texel_at(uint i) {
     t.normal = guide[2u * i + 1u].xyz;
     t.size = max(guide[2u * i + 1u].w, 1e-6);
     t.luminance = luminance(colour_in[i].rgb);
-    t.sigma = t.chart == NO_TEXEL ? 0.0 : sqrt(filtered_variance(ivec2(i % width, i / width), t.chart));
+    t.sigma = t.chart == NO_TEXEL || luminance_weights == 0u
+                  ? 0.0
+                  : sqrt(filtered_variance(ivec2(i % width, i / width), t.chart));
     return t;
 }
 
@@ -92,7 +94,8 @@ float tap_weight(ivec2 p, const Texel centre, int dx, int dy, out uint j) {
     if (dx == 0 && dy == 0) return w;  // the centre weighs in whole (even with a degenerate normal)
     w *= pow(max(0.0, dot(centre.normal, guide[2u * j + 1u].xyz)), 64.0);
     w *= exp(-abs(dot(centre.normal, guide[2u * j].xyz - centre.position)) / centre.size);
-    w *= exp(-abs(luminance(colour_in[j].rgb) - centre.luminance) / (4.0 * centre.sigma + 1e-6));
+    if (luminance_weights != 0u)
+        w *= exp(-abs(luminance(colour_in[j].rgb) - centre.luminance) / (4.0 * centre.sigma + 1e-6));
     return w;
 }
 
@@ -131,6 +134,7 @@ void main() {
         sum += k * c.rgb;
         variance += k * k * c.w;
     }
-    // Irradiance is never negative; a fit's extrapolation to a border could be.
-    colour_out[i] = vec4(max(sum, vec3(0.0)), variance);
+    // Irradiance is never negative; a fit's extrapolation to a border could
+    // be. The low-pass filters a difference of two maps, which may be.
+    colour_out[i] = vec4(luminance_weights != 0u ? max(sum, vec3(0.0)) : sum, variance);
 }
