@@ -258,7 +258,7 @@ std::vector<Chart> segment_charts(const Scene& scene, const TriangleAdjacency& a
     const size_t n = scene.triangles.size();
     std::vector<float> area(n);
     std::vector<glm::vec3> normal(n);
-    const std::vector<float> lightmap_scale = scene.triangle_lightmap_scales();
+    const std::vector<uint8_t> without_lightmap = scene.triangles_without_lightmap();
     for (size_t t = 0; t < n; ++t) {
         area[t] = scene.triangle_area(t);
         normal[t] = scene.geometric_normal(t);
@@ -291,7 +291,7 @@ std::vector<Chart> segment_charts(const Scene& scene, const TriangleAdjacency& a
             frontier.push_back(t);
         };
         auto accepts = [&](uint32_t t) {
-            if ((lightmap_scale[t] == 0.0f) != (lightmap_scale[seed] == 0.0f)) return false;
+            if (without_lightmap[t] != without_lightmap[seed]) return false;
             if (area[t] <= 0.0f) return true;  // degenerate: adds no area, goes with its neighbour
             if (glm::dot(normal[t], seed_normal) < min_cos) return false;
             return !grid.overlaps_any(project_triangle(scene, chart.plane, t));
@@ -1416,10 +1416,16 @@ std::vector<double> chart_mesh_scales(const Scene& scene, const ChartLayout& lay
 // Lays each chart out at its scale: its mesh's lightmap scale (`mesh_scale`,
 // chart_mesh_scales), times kUnlitChartScale where flagged in `unlit`
 // (fewer texels for one black value), one texel where its mesh has no
-// lightmap; counts them in the report. Returns the area of the lit charts
-// (neither unlit nor without a lightmap).
-double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, const std::vector<double>& mesh_scale,
-                    ChartLayout& layout, AtlasReport& report) {
+// lightmap; counts them in the report. Returns the lit charts (neither
+// unlit nor without a lightmap): their area, and which they are not.
+struct LitCharts {
+    double area = 0.0;
+    std::vector<uint8_t> not_lit;  // per chart: 1 where unlit or without a lightmap
+};
+LitCharts scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, const std::vector<double>& mesh_scale,
+                       ChartLayout& layout, AtlasReport& report) {
+    LitCharts lit_charts;
+    lit_charts.not_lit.assign(layout.charts.size(), 0);
     double lit = 0.0, dark = 0.0;
     for (size_t c = 0; c < layout.charts.size(); ++c) {
         double area = 0.0, scale = mesh_scale[c];
@@ -1427,6 +1433,7 @@ double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, const
         const bool unmapped = scale == 0.0;
         const bool dark_chart = !unmapped && !unlit.empty() && unlit[c];
         if (!unmapped) (dark_chart ? dark : lit) += area;
+        lit_charts.not_lit[c] = dark_chart || unmapped;
         report.mesh_scaled_charts += scale != 1.0 && !unmapped;
         report.unlit_charts += dark_chart;
         report.unmapped_charts += unmapped;
@@ -1439,7 +1446,8 @@ double scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, const
             for (glm::dvec2& corner : corners[i]) corner *= scale;
     }
     report.unlit_area_fraction = lit + dark > 0.0 ? dark / (lit + dark) : 0.0;
-    return lit;
+    lit_charts.area = lit;
+    return lit_charts;
 }
 
 // Every triangle's corner UVs: its chart's corners turned as packed, scaled
@@ -1586,13 +1594,9 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     std::vector<uint8_t> unlit;
     if (options.find_unlit_charts) unlit = options.find_unlit_charts(report.triangle_chart, layout.charts.size());
     // The border that counts is the lit charts': neither unlit nor without a lightmap.
-    std::vector<uint8_t> not_lit = unlit;
-    not_lit.resize(layout.charts.size(), 0);
-    const std::vector<double> mesh_scale = chart_mesh_scales(scene, layout);
-    for (size_t c = 0; c < not_lit.size(); ++c) not_lit[c] |= mesh_scale[c] == 0.0;
-    const double lit_area = scale_charts(scene, unlit, mesh_scale, layout, report);
-    const double border = chart_border_length(scene, shared, report.triangle_chart, not_lit);
-    const Packing packing = pack_atlas_for_scene(layout, options, border, lit_area, report.density_from_scene);
+    const LitCharts lit = scale_charts(scene, unlit, chart_mesh_scales(scene, layout), layout, report);
+    const double border = chart_border_length(scene, shared, report.triangle_chart, lit.not_lit);
+    const Packing packing = pack_atlas_for_scene(layout, options, border, lit.area, report.density_from_scene);
     write_corner_uvs(scene, report.triangle_chart, chart_corner_uvs(layout, packing));
 
     scene.lightmap_pages = packing.layout();
@@ -1600,7 +1604,7 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
     report.height = scene.lightmap_pages.total_rows();
     report.pages = scene.lightmap_pages;
     report.texel_density = float(packing.density);
-    report.border_fraction = border_fraction(border, lit_area, packing.density);
+    report.border_fraction = border_fraction(border, lit.area, packing.density);
     report.charts = layout.charts.size();
     report.utilisation = utilisation(scene, report.width, report.height);
     return report;

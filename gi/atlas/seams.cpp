@@ -50,10 +50,10 @@ glm::vec2 seam_point(glm::vec2 p0, glm::vec2 p1, int k, int samples) {
 std::vector<SeamEdge> find_seams(const Scene& scene) {
     const auto weld = atlas_detail::weld_positions(scene.positions, atlas_detail::weld_tolerance(scene));
     const atlas_detail::SharedEdges shared = atlas_detail::find_shared_edges(scene.triangles, weld);
-    const std::vector<float> lightmap_scale = scene.triangle_lightmap_scales();
+    const std::vector<uint8_t> without_lightmap = scene.triangles_without_lightmap();
     std::vector<SeamEdge> seams;
     auto compare = [&](atlas_detail::EdgeRef a, atlas_detail::EdgeRef b) {
-        if (lightmap_scale[a.triangle] == 0.0f || lightmap_scale[b.triangle] == 0.0f) return;
+        if (without_lightmap[a.triangle] || without_lightmap[b.triangle]) return;
         const glm::uvec3& ta = scene.triangles[a.triangle];
         const glm::uvec3& tb = scene.triangles[b.triangle];
         const uint32_t a0 = ta[int(a.edge)], a1 = ta[int((a.edge + 1) % 3)];

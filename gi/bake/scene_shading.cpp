@@ -31,12 +31,12 @@ SceneShading::SceneShading(const Scene& scene, const Environment* environment) :
 
     constexpr size_t kSurfaceVec4s = 4;  // see SurfaceTriangles in lightmap_lookup.glsl
     std::vector<glm::vec4> surfaces(kSurfaceVec4s * std::max<size_t>(scene.triangles.size(), 1), glm::vec4(0.0f));
-    const std::vector<float> lightmap_scale = scene.triangle_lightmap_scales();
+    const std::vector<uint8_t> without_lightmap = scene.triangles_without_lightmap();
     for (size_t t = 0; t < scene.triangles.size(); ++t) {
         const glm::uvec3 tri = scene.triangles[t];
         const uint32_t flags =
             (scene.materials[scene.triangle_material[t]].double_sided ? LF_TRIANGLE_DOUBLE_SIDED : 0u) |
-            (lightmap_scale[t] == 0.0f ? LF_TRIANGLE_WITHOUT_LIGHTMAP : 0u);
+            (without_lightmap[t] ? LF_TRIANGLE_WITHOUT_LIGHTMAP : 0u);
         surfaces[kSurfaceVec4s * t] = glm::vec4(scene.uv1[tri.x], scene.uv1[tri.y]);
         surfaces[kSurfaceVec4s * t + 1] = glm::vec4(scene.uv1[tri.z], uint_bits(flags), 0.0f);
         surfaces[kSurfaceVec4s * t + 3] = glm::vec4(scene.mean_albedo(t), 0.0f);

@@ -49,6 +49,13 @@ std::vector<float> Scene::triangle_lightmap_scales() const {
     return scale;
 }
 
+std::vector<uint8_t> Scene::triangles_without_lightmap() const {
+    std::vector<uint8_t> without(triangles.size(), 0);
+    for (const PrimitiveInstance& inst : instances)
+        std::fill_n(without.begin() + inst.first_triangle, inst.triangle_count, inst.has_lightmap() ? 0 : 1);
+    return without;
+}
+
 float Scene::triangle_area(size_t t) const {
     const glm::uvec3& tri = triangles[t];
     glm::vec3 e1 = positions[tri.y] - positions[tri.x];

@@ -177,6 +177,9 @@ struct Scene {
     size_t emissive_triangle_count() const;
     // Each triangle's PrimitiveInstance::lightmap_scale (0: no lightmap).
     std::vector<float> triangle_lightmap_scales() const;
+    // 1 for each triangle of a mesh without a lightmap (lightmap_scale 0):
+    // it casts and bounces light but gets no texels of its own.
+    std::vector<uint8_t> triangles_without_lightmap() const;
     // Area of triangle t (world space).
     float triangle_area(size_t t) const;
     glm::vec3 geometric_normal(size_t t) const;  // unit; zero for a degenerate triangle
