@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <stdexcept>
 #include <unordered_map>
 
@@ -117,7 +118,12 @@ void LightmapDenoiser::restore_low_frequencies(std::vector<glm::vec4>& filtered,
     const std::vector<glm::vec4> low = filter(removed, kRestoreSteps, false);
     for (uint32_t p : texels_.texels) {
         const float l = glm::dot(glm::vec3(low[p]), kLuminanceWeights);
-        const float keep = l * l > 0.0f ? std::max(0.0f, 1.0f - low[p].w / (l * l)) : 0.0f;
+        float keep = l * l > 0.0f ? std::max(0.0f, 1.0f - low[p].w / (l * l)) : 0.0f;
+        // Never more than twice the texel's own standard error: the low-pass
+        // reads its neighbours, and a texel the bake is sure of (a contact
+        // shadow's 0 with an error of 0, beside lit texels) is to stay as it is.
+        const float limit = 2.0f * std::sqrt(std::max(raw[p].w, 0.0f));
+        if (keep * std::abs(l) > limit) keep = limit / std::abs(l);
         filtered[p] =
             glm::vec4(glm::max(glm::vec3(filtered[p]) + keep * glm::vec3(low[p]), glm::vec3(0.0f)), filtered[p].w);
     }
