@@ -778,6 +778,41 @@ TEST(ReferenceError, BlocksKeepTheLowFrequencyErrorAndDropNoiseThatAveragesOut) 
     EXPECT_THROW(compare_to_reference(noisy, reference, nullptr, 0), std::runtime_error);
 }
 
+// Where the error sits (issue #35's strips and lines of wrong texels): the
+// texels off by a factor of two past the noise both files say they have
+// there, and the share of the squared error the worst 2% carry. 100 texels
+// at 1 (error 0.05 in each file: a margin of 3 x 0.1 + 0.1 of the mean):
+// one at 2.5 (twice too bright), one at 0.3 (under half), one at 1.9 (not
+// twice), and one at 2.5 whose files say it is noisy (error 0.5 each:
+// noise explains it). Without error channels only the tenth of the mean
+// is the margin, and the noisy one counts too.
+TEST(ReferenceError, OutliersAreTexelsOffByAFactorOfTwoPastTheirNoise) {
+    FloatImage bake, reference;
+    for (FloatImage* im : {&bake, &reference}) {
+        im->width = 100, im->height = 1;
+        for (const char* c : {"R", "G", "B"}) im->channel(c).assign(100, 1.0f);
+        im->channel("error").assign(100, 0.05f);
+    }
+    const float values[4] = {2.5f, 0.3f, 1.9f, 2.5f};
+    for (int k = 0; k < 4; ++k)
+        for (const char* c : {"R", "G", "B"}) bake.channel(c)[size_t(10 * k)] = values[k];
+    bake.channel("error")[30] = reference.channel("error")[30] = 0.5f;
+    const ReferenceError e = compare_to_reference(bake, reference, nullptr);
+    EXPECT_EQ(e.twice_too_bright, 1u);
+    EXPECT_EQ(e.half_too_dark, 1u);
+    const double total = 2.25 + 0.49 + 0.81 + 2.25;
+    EXPECT_NEAR(e.outlier_share, (2.25 + 0.49) / total, 1e-6);
+    EXPECT_NEAR(e.worst_2_percent_share, (2.25 + 2.25) / total, 1e-6);  // 2 texels of 100
+    // The same at any block size: it is texel by texel.
+    EXPECT_EQ(compare_to_reference(bake, reference, nullptr, 4).twice_too_bright, 1u);
+
+    bake.channels.erase("error");
+    reference.channels.erase("error");
+    const ReferenceError bare = compare_to_reference(bake, reference, nullptr);
+    EXPECT_EQ(bare.twice_too_bright, 2u);
+    EXPECT_EQ(bare.half_too_dark, 1u);
+}
+
 // `lightfarm compare`'s numbers without the CLI (gi/io/output_comparison.h):
 // a lightmap against itself and against one 10% brighter, a layer of each,
 // the bake's header figures, a missing layer named with its file, and SH

@@ -45,8 +45,16 @@ nlohmann::json compare_lightmaps(const std::string& bake_path, const std::string
     FloatImage mask;
     if (options.mask) mask = ends_with(*options.mask, ".pfm") ? read_pfm(*options.mask) : read_exr(*options.mask);
     const ReferenceError e = compare_to_reference(bake, reference, options.mask ? &mask : nullptr, options.block);
-    nlohmann::json out = {{"relative_rmse", e.relative_rmse},   {"rmse", e.rmse},     {"bias", e.bias},
-                          {"reference_mean", e.reference_mean}, {"texels", e.texels}, {"block", options.block}};
+    nlohmann::json out = {{"relative_rmse", e.relative_rmse},
+                          {"rmse", e.rmse},
+                          {"bias", e.bias},
+                          {"reference_mean", e.reference_mean},
+                          {"texels", e.texels},
+                          {"block", options.block},
+                          {"worst_2_percent_share", e.worst_2_percent_share},
+                          {"twice_too_bright", e.twice_too_bright},
+                          {"half_too_dark", e.half_too_dark},
+                          {"outlier_share", e.outlier_share}};
     // The bake's own record of how it was made, under its name without "lightfarm.".
     for (const char* key : {"lightfarm.pass", "lightfarm.rays", "lightfarm.seconds", "lightfarm.errorEstimate",
                             "lightfarm.denoiseSeconds"}) {

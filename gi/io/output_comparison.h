@@ -23,8 +23,9 @@ struct OutputComparisonOptions {
     int block = 1;
 };
 
-// Lightmaps: relative_rmse, rmse, bias, reference_mean, texels, block, and the
-// bake's pass, rays, seconds, errorEstimate and denoiseSeconds where its
+// Lightmaps: relative_rmse, rmse, bias, reference_mean, texels, block,
+// worst_2_percent_share, twice_too_bright, half_too_dark, outlier_share
+// (ReferenceError), and the bake's pass, rays, seconds, errorEstimate and denoiseSeconds where its
 // header has them. Throws std::runtime_error naming the file and the
 // channel when a --layer channel is missing.
 nlohmann::json compare_lightmaps(const std::string& bake_path, const std::string& reference_path,

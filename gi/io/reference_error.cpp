@@ -1,5 +1,6 @@
 #include "io/reference_error.h"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -27,6 +28,52 @@ FloatImage downsample(const FloatImage& image, int factor, bool is_mask) {
     }
     return out;
 }
+
+namespace {
+
+// One compared texel: its squared error over the three channels, the two
+// channel means, and the noise both files say they have there.
+struct TexelError {
+    double squared = 0.0, bake = 0.0, reference = 0.0, noise = 0.0;
+};
+
+TexelError texel_error(const FloatImage& bake, const FloatImage& reference, size_t i) {
+    TexelError t;
+    for (const char* c : {"R", "G", "B"}) {
+        const double b = bake.at(c)[i], r = reference.at(c)[i];
+        t.squared += (b - r) * (b - r);
+        t.bake += b / 3.0;
+        t.reference += r / 3.0;
+    }
+    for (const FloatImage* image : {&bake, &reference})
+        if (image->channels.count("error")) t.noise += image->at("error")[i];
+    return t;
+}
+
+// ReferenceError's worst_2_percent_share, twice_too_bright, half_too_dark
+// and outlier_share.
+void find_outliers(std::vector<TexelError>& texels, double reference_mean, ReferenceError& e) {
+    double total = 0.0, outliers = 0.0;
+    for (const TexelError& t : texels) {
+        total += t.squared;
+        const double margin = 3.0 * t.noise + 0.1 * reference_mean;
+        const bool bright = t.bake > 2.0 * t.reference && t.bake - t.reference > margin;
+        const bool dark = t.reference > 2.0 * t.bake && t.reference - t.bake > margin;
+        e.twice_too_bright += bright;
+        e.half_too_dark += dark;
+        if (bright || dark) outliers += t.squared;
+    }
+    if (total <= 0.0) return;
+    const size_t worst = std::max<size_t>(1, texels.size() / 50);
+    std::nth_element(texels.begin(), texels.begin() + long(worst - 1), texels.end(),
+                     [](const TexelError& a, const TexelError& b) { return a.squared > b.squared; });
+    double worst_sum = 0.0;
+    for (size_t k = 0; k < worst; ++k) worst_sum += texels[k].squared;
+    e.worst_2_percent_share = worst_sum / total;
+    e.outlier_share = outliers / total;
+}
+
+}  // namespace
 
 ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& full_reference,
                                     const FloatImage* full_mask, int block) {
@@ -59,6 +106,7 @@ ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& fu
         double bake[3] = {0.0, 0.0, 0.0}, reference[3] = {0.0, 0.0, 0.0};
     };
     const int blocks_x = (bake.width + block - 1) / block, blocks_y = (bake.height + block - 1) / block;
+    std::vector<TexelError> texel_errors;
     std::vector<BlockSums> blocks(size_t(blocks_x) * size_t(blocks_y));
     for (int y = 0; y < bake.height; ++y)
         for (int x = 0; x < bake.width; ++x) {
@@ -70,6 +118,7 @@ ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& fu
             }
             BlockSums& b = blocks[size_t(y / block) * size_t(blocks_x) + size_t(x / block)];
             ++b.texels;
+            texel_errors.push_back(texel_error(bake, reference, i));
             for (int c = 0; c < 3; ++c) {
                 b.bake[c] += bake.at(names[c])[i];
                 b.reference[c] += reference.at(names[c])[i];
@@ -92,6 +141,7 @@ ReferenceError compare_to_reference(const FloatImage& bake, const FloatImage& fu
     ReferenceError e;
     e.texels = texels;
     if (texels == 0) return e;
+    find_outliers(texel_errors, sum_ref / (3.0 * double(texels)), e);
     const double n = 3.0 * double(texels);
     e.rmse = std::sqrt(sum_sq / n);
     e.reference_mean = sum_ref / n;
