@@ -921,6 +921,19 @@ TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {
     const CliRun missing = run_lightfarm("compare" + files + " --layer L1x");
     EXPECT_NE(missing.exit_code, 0);
     EXPECT_NE(missing.err.find("no channel L1x.R"), std::string::npos) << missing.err;
+    // --block: the same numbers as compare_to_reference's at that size; a
+    // block that is not a whole number of texels from 1 to 4096 is refused.
+    const CliRun blocks = run_lightfarm("compare" + files + " --block 8");
+    ASSERT_EQ(blocks.exit_code, 0) << blocks.err;
+    const nlohmann::json eight = nlohmann::json::parse(blocks.out);
+    EXPECT_EQ(eight["block"], 8);
+    EXPECT_NEAR(eight["relative_rmse"].get<double>(), compare_to_reference(ia, ib, nullptr, 8).relative_rmse, 1e-9);
+    EXPECT_LT(eight["relative_rmse"].get<double>(), whole) << "two seeds' noise averages over 8x8 squares";
+    for (const char* bad : {"0", "2.5", "5000", "many"}) {
+        const CliRun r = run_lightfarm("compare" + files + " --block " + bad);
+        EXPECT_EQ(r.exit_code, 2) << bad;
+        EXPECT_NE(r.err.find("--block"), std::string::npos) << bad << ": " << r.err;
+    }
     for (const fs::path& d : {a, b}) fs::remove_all(d);
 }
 
