@@ -254,10 +254,9 @@ TEST(Atlas, AMeshsLightmapScaleMultipliesItsChartsDensityAlone) {
 }
 
 // A mesh at lightmap scale 0 has no lightmap of its own: each of its
-// charts lies in one texel (the chart's mean, what a gather's last point
-// reads there), counted apart from the scaled ones, and the other charts
-// keep the asked density. Each kind of mesh: flat (the wall), a box's six
-// charts, a curved sphere's many.
+// charts lies in one texel (the chart's mean), counted apart from the
+// scaled ones, and the other charts keep the asked density. Each kind of
+// mesh: flat (the wall), a box's six charts, a curved sphere's many.
 TEST(Atlas, AMeshWithoutALightmapHasOneTexelPerChart) {
     for (const size_t excluded : {size_t(1), size_t(2), size_t(3)}) {
         SCOPED_TRACE("instance " + std::to_string(excluded));

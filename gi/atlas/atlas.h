@@ -71,8 +71,8 @@ struct AtlasOptions {
 // A chart no light reaches holds one value (black): 1/8 of the density, 1/64 of the texels.
 constexpr double kUnlitChartScale = 0.125;
 // A chart of a mesh without a lightmap (PrimitiveInstance::lightmap_scale 0)
-// gets one texel (chart_rect rounds up): its samples' mean, what a gather's
-// last point reads where it lands on that mesh.
+// gets one texel (chart_rect rounds up), which holds its samples' mean; no
+// gather reads it (a ray that lands on such a mesh gathers on from there).
 constexpr double kUnmappedChartScale = 1e-9;
 
 struct AtlasReport {

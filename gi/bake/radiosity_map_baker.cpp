@@ -301,6 +301,11 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
         // 1 | 2 | 3-4 | 5-8 …), always a cell's end.
         const bool end_epoch = restarts_epochs(settings_.scheme) && std::has_single_bit(unsigned(pass + passes));
         bind_buffers();
+        // The first pass reads a black map (the thesis's B^0 = 0), published:
+        // where no texel held a value the gather would follow every path
+        // to its end (radiosity_gather.comp's gather_at_hit), a pass of path
+        // tracing that also hid the thesis scheme's bias.
+        if (pass == 0) publish();
         dispatch_passes(pass, passes, end_epoch, done);
         pass += passes;
         if (pass == cell_end) publish();

@@ -48,7 +48,8 @@ vec2 hit_lightmap_uv(Hit hit) {
 uint hit_triangle_flags(Hit hit) { return floatBitsToUint(surface_triangles[SURFACE_VEC4S * hit.triangle + 1u].z); }
 bool hit_is_double_sided(Hit hit) { return (hit_triangle_flags(hit) & LF_TRIANGLE_DOUBLE_SIDED) != 0u; }
 // A mesh left out of the lightmap (lightmap scale 0) keeps one texel per
-// chart, which holds its samples' mean: a ray that lands on it gathers there.
+// chart, which holds its samples' mean and is not read: a ray that lands on
+// it gathers there.
 bool hit_has_lightmap(Hit hit) { return (hit_triangle_flags(hit) & LF_TRIANGLE_WITHOUT_LIGHTMAP) == 0u; }
 
 // Area density of emitter sampling at the hit's triangle (0 if it emits nothing).

@@ -56,10 +56,7 @@ bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out 
     vec2 uv = hit_lightmap_uv(hit);
 #ifdef LF_FINAL_GATHER
     vec3 beyond;
-    if (!reflected_lookup(uv, true, beyond)) {
-        reflected_lookup(uv, false, radiance);  // the whole value, for gather_at_hit's last point
-        return false;
-    }
+    if (!reflected_lookup(uv, true, beyond)) return false;
     vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
     rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
     radiance = hit_texel_albedo(hit) * (e * (1.0 / PI) + sky_light(y, ny, rng, rays)) + beyond;
@@ -73,11 +70,15 @@ bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out 
 // say, gathered where the ray landed instead: its direct light (emitter
 // sampling alone, no MIS: the cosine ray below does not count emission) and
 // one cosine ray, which reads the map, or the sky, where it lands; where the
-// map cannot say there either, the same is done there (up to
-// LF_GATHER_DEPTH points in a row, then the map is read as it is; but
-// LF_GATHER_DEPTH unbaked sides in a row are the inside of something closed,
-// grey_white_room's panelling boxes with a side authored facing in, and
-// the wrong side read there lit them: +2% on that room).
+// map cannot say there either, the same is done there, and so on: a path,
+// ended by Russian roulette after LF_GATHER_ROULETTE_AFTER points (as
+// path_radiance's), never by reading the map where it cannot say. Reading
+// it there after four points (as this did) made a box's back 2 mm from a
+// wall 37% too bright: the texel read deep in the gap averages its dark
+// inside with the open wall beside the box (RadiosityMap.
+// ABoxAMillimetreFromAWallIsAsDarkBehindAsThePathTracerSays); and the
+// inside of something closed (grey_white_room's panelling boxes with a
+// side authored facing in) reads nothing and stays dark.
 // The map cannot say
 //  * on the back of a double-sided surface: a texel holds one side's light,
 //    the side its chart was baked for (gi/bake/double_sided.h), and where a
@@ -91,38 +92,42 @@ bool map_radiance(Hit hit, vec3 y, vec3 ny, inout Rng rng, inout uint rays, out 
 //    texel there averages it with its open side (photon mapping's final
 //    gather traces its short rays on, in corners, for the same reason:
 //    Jensen 1996, "Global Illumination using Photon Maps");
-//  * on a mesh left out of the lightmap (lightmap scale 0): its one texel
-//    per chart holds its samples' mean, read only at the last point;
+//  * on a mesh left out of the lightmap (lightmap scale 0);
 //  * next to geometry that cuts through the texels, or where no texel holds
 //    a value (reflected_lookup).
-#define LF_GATHER_DEPTH 4u
+#define LF_GATHER_ROULETTE_AFTER 4u
+#define LF_GATHER_MAX_POINTS 64u
 bool map_may_say(Hit hit, float near) {  // the rest is reflected_lookup's
     return hit.front && hit.t > near && hit_has_lightmap(hit);
 }
 vec3 gather_at_hit(Hit hit, vec3 y, vec3 ny, float near, inout Rng rng, inout uint rays) {
     vec3 radiance = vec3(0.0), throughput = vec3(1.0);
-    for (uint depth = 1u;; ++depth) {
+    for (uint point = 1u; point <= LF_GATHER_MAX_POINTS; ++point) {
         throughput *= hit_texel_albedo(hit);
+        float keep = max(throughput.r, max(throughput.g, throughput.b));
+        if (keep <= 0.0) break;
         vec3 e = sample_emitters(y, ny, y, rng_next2(rng), rng_next2(rng), 1.0, false) + punctual_irradiance(y, ny, y, far);
         radiance += throughput * e * (1.0 / PI);
+        rays += (emitter_count > 0u ? 1u : 0u) + punctual_count;
+        if (point > LF_GATHER_ROULETTE_AFTER) {
+            if (rng_next(rng) >= keep) break;
+            throughput /= keep;
+        }
         vec3 dir = sample_cosine_hemisphere(ny, rng_next2(rng));
         Hit next = trace_closest(y, dir, far);
         throughput *= next.tint;  // through the see-through surfaces it passed
-        rays += 1u + (emitter_count > 0u ? 1u : 0u) + punctual_count;
+        rays += 1u;
         if (next.triangle == LF_NO_HIT) return radiance + throughput * lf_background(dir);  // no map sample here (sky_light)
-        if (!next.front && !hit_is_double_sided(next)) return radiance;  // inside a one-sided surface: dark
+        if (!next.front && !hit_is_double_sided(next)) break;  // inside a one-sided surface: dark
         vec3 n_next = normalize(next.front ? next.normal : -next.normal);
         vec3 y_next = offset_ray_origin(y + next.t * dir, n_next);
-        bool last = depth == LF_GATHER_DEPTH;
-        if (last && !next.front) return radiance;  // inside something closed: dark
-        if (last || map_may_say(next, near)) {
-            vec3 beyond;
-            if (map_radiance(next, y_next, n_next, rng, rays, beyond) || last) return radiance + throughput * beyond;
-        }
+        vec3 beyond;
+        if (map_may_say(next, near) && map_radiance(next, y_next, n_next, rng, rays, beyond)) return radiance + throughput * beyond;
         hit = next;  // the map cannot say here either: gather there too
         y = y_next;
         ny = n_next;
     }
+    return radiance;
 }
 
 // Direct light at texel i's point x (shading normal n, rays from origin) in
