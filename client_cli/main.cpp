@@ -51,6 +51,8 @@ commands:
   devices [--json]                   the EGL devices (GPUs, llvmpipe) a bake can use
   compare BAKE.exr REFERENCE.exr [--mask MASK.pfm|.exr] [--layer direct|indirect|raw] [--block N]
   compare TRANSFER.bin REFERENCE.bin error against a reference (JSON)
+  compare BAKE_DIR REFERENCE_DIR [--layer L]
+                                     two bakes of one scene, any atlases, at points of its surface
   probe-eval PROBES.json POINTS.json irradiance/pi at points from baked probes, four estimators (JSON)
   probebench SCENE [--at X,Y,Z] [--toward X,Y,Z] [--res-list 32,64,128,256] [--m-list 1,2,4,8]
        [--passes N] [--points N] [--seconds S] [--device auto|gpu|cpu]
@@ -152,7 +154,7 @@ int devices(int argc, char** argv) {
 int compare(int argc, char** argv) {
     Args args(argc, argv, 2, {"--mask", "--layer", "--block"}, {});
     if (args.positional().size() != 2)
-        throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps or .bin SH transfer)");
+        throw UsageError("compare takes BAKE and REFERENCE (.exr lightmaps, .bin SH transfer or bake folders)");
     lf::OutputComparisonOptions options;
     if (args.has("--mask")) options.mask = args.get("--mask");
     if (args.has("--layer")) options.layer = args.get("--layer");

@@ -7,6 +7,9 @@
 #include "io/image_files.h"
 #include "io/output_comparison.h"
 #include "io/reference_error.h"
+#include "io/surface_comparison.h"
+#include "scene/gltf_loader.h"
+#include "scene_builders.h"
 #include "sh/transfer_file.h"
 #include "bake_settings.h"
 #include "worker_protocol.h"
@@ -817,6 +820,81 @@ TEST(ReferenceError, OutliersAreTexelsOffByAFactorOfTwoPastTheirNoise) {
 // a lightmap against itself and against one 10% brighter, a layer of each,
 // the bake's header figures, a missing layer named with its file, and SH
 // transfer files by their extension.
+// Two bakes of one quad (2 x 1 m) with different atlases: another size,
+// another place, and mirrored in the reference's. Each lightmap holds f =
+// 1 + 2a + b/2 at its texel centres ((a, b): the quad's own coordinates),
+// covered a texel and a half beyond the chart, so that a bilinear lookup
+// of this linear f is exact: at the same points of the surface both read
+// the same. A second quad that only the reference lightmaps holds no
+// points (the bake's texel under its zero UVs holds 100). Other triangles,
+// a moved vertex, or no covered channel are errors that say which.
+TEST(SurfaceComparison, ReadsBothAtlasesAtTheSamePointsOfTheSurface) {
+    auto scene_with = [](glm::vec4 rect, bool second_quad_mapped) {
+        Scene s;
+        const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+        test::add_quad(s, {0, 0, 0}, {2, 0, 0}, {0, 1, 0}, m, rect);
+        test::add_quad(s, {0, 2, 0}, {1, 0, 0}, {0, 1, 0}, m,
+                       second_quad_mapped ? glm::vec4(0.9f, 0.9f, 0.95f, 0.95f) : glm::vec4(0.0f));
+        return s;
+    };
+    auto lightmap = [](glm::vec4 rect, int width, int height, float scale) {
+        FloatImage im;
+        im.width = width;
+        im.height = height;
+        for (const char* c : {"R", "G", "B", kCoveredChannel}) im.channel(c);
+        for (int y = 0; y < height; ++y)
+            for (int x = 0; x < width; ++x) {
+                const double a = ((x + 0.5) / width - rect.x) / (rect.z - rect.x);
+                const double b = ((y + 0.5) / height - rect.y) / (rect.w - rect.y);
+                const double margin_a = 1.5 / (width * std::abs(rect.z - rect.x));
+                const double margin_b = 1.5 / (height * std::abs(rect.w - rect.y));
+                if (a < -margin_a || a > 1.0 + margin_a || b < -margin_b || b > 1.0 + margin_b) continue;
+                const size_t i = size_t(y) * width + x;
+                for (const char* c : {"R", "G", "B"}) im.channel(c)[i] = scale * float(1.0 + 2.0 * a + 0.5 * b);
+                im.channel(kCoveredChannel)[i] = 1.0f;
+            }
+        return im;
+    };
+    const glm::vec4 bake_rect(0.1f, 0.2f, 0.9f, 0.6f), reference_rect(0.75f, 0.2f, 0.25f, 0.8f);  // mirrored
+    const Scene bake_scene = scene_with(bake_rect, false), reference_scene = scene_with(reference_rect, true);
+    FloatImage bake = lightmap(bake_rect, 16, 8, 1.0f);
+    for (const char* c : {"R", "G", "B", kCoveredChannel}) bake.channel(c)[0] = 100.0f;  // under the unmapped quad
+    const FloatImage reference = lightmap(reference_rect, 32, 32, 1.0f);
+    SurfacePointOptions options;
+    options.points = 20000;
+
+    const SurfaceComparison same = compare_at_surface_points(bake_scene, bake, reference_scene, reference, options);
+    EXPECT_EQ(same.points, options.points) << "every point on the quad both lightmap";
+    EXPECT_NEAR(same.reference_mean, 2.25, 0.02);  // f's mean over the quad
+    EXPECT_LT(same.relative_rmse, 1e-5);
+    EXPECT_LT(std::abs(same.bias), 1e-6);
+
+    // 10% brighter everywhere: bias 0.1, and an RMSE of 0.1 x f's RMS over
+    // its mean: sqrt(2.25^2 + (4 + 1/4) / 12) / 2.25 = 1.0344.
+    const FloatImage brighter = lightmap(bake_rect, 16, 8, 1.1f);
+    const SurfaceComparison e = compare_at_surface_points(bake_scene, brighter, reference_scene, reference, options);
+    EXPECT_NEAR(e.bias, 0.1, 1e-5);
+    EXPECT_NEAR(e.relative_rmse, 0.1 * 1.0344, 2e-3);
+
+    auto error_of = [&](const Scene& b, const FloatImage& image) {
+        try {
+            compare_at_surface_points(b, image, reference_scene, reference, options);
+        } catch (const std::runtime_error& error) {
+            return std::string(error.what());
+        }
+        return std::string("no error");
+    };
+    Scene more = bake_scene;
+    test::add_quad(more, {0, 5, 0}, {1, 0, 0}, {0, 1, 0}, 0);
+    EXPECT_NE(error_of(more, bake).find("not bakes of one scene"), std::string::npos) << error_of(more, bake);
+    Scene moved = bake_scene;
+    moved.positions[moved.triangles[0].x] += glm::vec3(0.0f, 0.0f, 0.5f);
+    EXPECT_NE(error_of(moved, bake).find("triangle 0 lies elsewhere"), std::string::npos) << error_of(moved, bake);
+    FloatImage uncovered = bake;
+    uncovered.channels.erase(kCoveredChannel);
+    EXPECT_NE(error_of(bake_scene, uncovered).find("no channel covered"), std::string::npos);
+}
+
 TEST(OutputComparison, ComparesTwoLightmapFilesAsTheCliPrintsThem) {
     const fs::path dir = fresh_dir("output-comparison");
     fs::create_directories(dir);
@@ -890,6 +968,56 @@ TEST(OutputComparison, ComparesTwoLightmapFilesAsTheCliPrintsThem) {
     EXPECT_EQ(sh["vertices"], 2u);
     EXPECT_EQ(sh["coefficients"], 4);
     fs::remove_all(dir);
+}
+
+// Two bake folders of one scene with different atlases (monkey.glb's
+// generated atlas at 64² and at 128²) compare at points of the surface
+// (compare_bake_folders): the numbers of compare_at_surface_points on the
+// folders' files, each atlas's texels, the bake's header; a folder against
+// itself is exact; --block is refused (exit 2), another scene's folder and
+// a folder without its scene.lightmapped.glb are errors that say so.
+TEST(CliCompare, TwoBakeFoldersWithDifferentAtlasesCompareAtSurfacePoints) {
+    const fs::path coarse = fresh_dir("surface-64"), fine = fresh_dir("surface-128"), other = fresh_dir("surface-box");
+    for (const auto& [dir, res] : {std::pair{coarse, "64"}, std::pair{fine, "128"}})
+        ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + dir.string() + " --res " +
+                                res + " --passes 16")
+                      .exit_code,
+                  0);
+    const CliRun r = run_lightfarm("compare " + coarse.string() + " " + fine.string());
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const nlohmann::json e = nlohmann::json::parse(r.out);
+    const SurfaceComparison direct =
+        compare_at_surface_points(load_scene(coarse / "scene.lightmapped.glb"), read_exr(coarse / "lightmap.exr"),
+                                  load_scene(fine / "scene.lightmapped.glb"), read_exr(fine / "lightmap.exr"));
+    EXPECT_EQ(e["points"], direct.points);
+    EXPECT_EQ(e["points"], SurfacePointOptions{}.points);
+    EXPECT_DOUBLE_EQ(e["relative_rmse"].get<double>(), direct.relative_rmse);
+    EXPECT_DOUBLE_EQ(e["bias"].get<double>(), direct.bias);
+    EXPECT_GT(direct.relative_rmse, 0.0);
+    EXPECT_LT(std::abs(direct.bias), 0.1) << "one scene, one light: the two atlases agree on the whole";
+    EXPECT_LT(4 * e["bake_texels"].get<size_t>(), 2 * e["reference_texels"].get<size_t>())
+        << "a quarter of the texels, about";
+    EXPECT_EQ(e["pass"], 16.0);
+
+    const nlohmann::json itself =
+        nlohmann::json::parse(run_lightfarm("compare " + fine.string() + " " + fine.string()).out);
+    EXPECT_EQ(itself["relative_rmse"], 0.0);
+    EXPECT_EQ(itself["bias"], 0.0);
+
+    const CliRun block = run_lightfarm("compare " + coarse.string() + " " + fine.string() + " --block 8");
+    EXPECT_EQ(block.exit_code, 2);
+    EXPECT_NE(block.err.find("points of the surface"), std::string::npos) << block.err;
+    ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + other.string() +
+                            " --res 64 --passes 4")
+                  .exit_code,
+              0);
+    const CliRun not_one_scene = run_lightfarm("compare " + other.string() + " " + fine.string());
+    EXPECT_NE(not_one_scene.exit_code, 0);
+    EXPECT_NE(not_one_scene.err.find("not bakes of one scene"), std::string::npos) << not_one_scene.err;
+    fs::remove(other / "scene.lightmapped.glb");
+    const CliRun no_scene = run_lightfarm("compare " + other.string() + " " + fine.string());
+    EXPECT_NE(no_scene.exit_code, 0);
+    EXPECT_NE(no_scene.err.find("scene.lightmapped.glb"), std::string::npos) << no_scene.err;
 }
 
 TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {

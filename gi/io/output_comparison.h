@@ -36,8 +36,18 @@ nlohmann::json compare_lightmaps(const std::string& bake_path, const std::string
 // or vertex counts differ.
 nlohmann::json compare_sh_transfers(const std::string& bake_path, const std::string& reference_path);
 
-// By the bake's name: a .bin is an SH transfer file (the options do not
-// apply to it and are ignored), anything else a lightmap.
+// Two bake folders (each with lightmap.exr and scene.lightmapped.glb), at
+// points of the scene's surfaces (compare_at_surface_points): bakes with
+// different atlases. relative_rmse, rmse, bias, reference_mean, points,
+// each one's covered texels (bake_texels, reference_texels), and the bake's
+// header as compare_lightmaps's. `options.layer` applies; a mask or a block
+// are texels of one atlas and are refused (std::invalid_argument).
+nlohmann::json compare_bake_folders(const std::string& bake_folder, const std::string& reference_folder,
+                                    const OutputComparisonOptions& options);
+
+// By the bake's name: a folder is a bake folder (compare_bake_folders), a
+// .bin an SH transfer file (the options do not apply to it and are
+// ignored), anything else a lightmap.
 nlohmann::json compare_outputs(const std::string& bake_path, const std::string& reference_path,
                                const OutputComparisonOptions& options);
 
