@@ -145,6 +145,10 @@ std::vector<Setting> build_catalog() {
         typed("atlas", "glass_texels", T::Flag, false,
               "glass (KHR_materials_transmission) gets texels at the scene's density; off: 1/8 of it, as charts no "
               "light reaches (light passes glass, which reflects little)"),
+        typed("atlas", "light_density", T::Flag, false,
+              "charts get texels where their direct light changes (a first look at it, pairs of points a texel apart): "
+              "more at shadow edges and lamp pools, fewer where it is even, 0.5 to 2 times the scene's density, as "
+              "many texels in all"),
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
         typed("", "env", T::Environment, nullptr,
@@ -498,6 +502,7 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     if (!atlas_given.contains("max_pages"))  // the default within this server's limit, as max_res's
         b.atlas.max_pages = int(std::clamp(limits.cap("pages"), 1.0, double(b.atlas.max_pages)));
     b.atlas.glass_texels = atlas["glass_texels"].get<bool>();
+    b.atlas.light_density = atlas["light_density"].get<bool>();
     for (const auto& [mesh, scale] : atlas["mesh_scale"].items()) b.atlas.mesh_scale[std::stoi(mesh)] = scale;
     if (!b.atlas.max_res && limits.cap("res") < kAutoMaxAtlasRes)
         b.atlas.max_res = int(std::max(256.0, limits.cap("res")));  // the smallest max_res: the default atlas
@@ -514,10 +519,10 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
 json to_json(const BakeSettings& b) {
     auto or_auto = [](const auto& v) { return v ? json(*v) : json("auto"); };
     json j = {{"outputs", json::object()}, {"seed", b.seed}};
-    j["atlas"] = {{"res", or_auto(b.atlas.res)},         {"texel_density", or_auto(b.atlas.texel_density)},
-                  {"subsamples", b.atlas.subsamples},    {"max_res", or_auto(b.atlas.max_res)},
-                  {"max_pages", b.atlas.max_pages},      {"mesh_scale", json::object()},
-                  {"glass_texels", b.atlas.glass_texels}};
+    j["atlas"] = {{"res", or_auto(b.atlas.res)},          {"texel_density", or_auto(b.atlas.texel_density)},
+                  {"subsamples", b.atlas.subsamples},     {"max_res", or_auto(b.atlas.max_res)},
+                  {"max_pages", b.atlas.max_pages},       {"mesh_scale", json::object()},
+                  {"glass_texels", b.atlas.glass_texels}, {"light_density", b.atlas.light_density}};
     for (const auto& [mesh, scale] : b.atlas.mesh_scale) j["atlas"]["mesh_scale"][std::to_string(mesh)] = scale;
     if (b.env.sky) j["env"] = *b.env.sky;
     else if (!b.env.map_file.empty()) j["env"] = b.env.map_file;

@@ -121,7 +121,8 @@ struct AtlasSettings {
     // atlas, they go on up to this many pages of max_res² (README, "Atlas
     // pages"); 0 until parsed.
     int max_pages = 0;
-    bool glass_texels = false;  // glass charts at the scene's density, not kUnlitChartScale's
+    bool glass_texels = false;   // glass charts at the scene's density, not kUnlitChartScale's
+    bool light_density = false;  // charts' density from a first look at their light (gi/bake/light_density.h)
     // Per glTF mesh, its charts' texel density over the atlas's (0: no
     // lightmap), over the file's own extras (lightfarm_lightmap_scale).
     std::map<int, double> mesh_scale;

@@ -56,6 +56,16 @@ inline void add_mesh(Scene& s, const std::vector<glm::vec3>& positions, const st
     s.instances.push_back(inst);
 }
 
+// Appends a directional light (a sun) shining along `direction` (made unit)
+// with `irradiance` W/m² on a plane facing it.
+inline void add_sun(Scene& s, glm::vec3 direction, float irradiance) {
+    PunctualLight sun;
+    sun.type = PunctualLight::Type::Directional;
+    sun.direction = glm::normalize(direction);
+    sun.intensity = glm::vec3(irradiance);
+    s.lights.push_back(sun);
+}
+
 // An axis-aligned quad: corner + two edge vectors; front faces along cross(u, v).
 inline void add_quad(Scene& s, glm::vec3 corner, glm::vec3 u, glm::vec3 v, uint32_t material,
                      glm::vec4 uv_rect = glm::vec4(0, 0, 1, 1)) {

@@ -180,6 +180,32 @@ TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
     fs::remove_all(out);
 }
 
+// --light-density through the CLI: the manifest says how many charts took
+// a density from their light and the rays the first look cost; without it
+// no chart does and no ray is traced for it. (What the scales are is
+// LightDensity.AShadowsEdgeGetsTexelsThatAnEvenlyLitFloorGivesUp's.)
+TEST(CliBake, LightDensityIsAskedAndSaid) {
+    for (const bool asked : {false, true}) {
+        const fs::path out = fresh_dir(asked ? "light-density" : "uniform-density");
+        const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
+                                       " --res 128 --passes 1" + (asked ? " --light-density" : ""));
+        ASSERT_EQ(r.exit_code, 0) << r.err;
+        std::ifstream in(out / "manifest.json");
+        const nlohmann::json manifest = nlohmann::json::parse(in);
+        EXPECT_EQ(manifest["settings"]["atlas"]["light_density"], asked);
+        const int scaled = manifest["lightmap"]["settings"]["atlas"]["light_scaled_charts"];
+        const uint64_t rays = manifest["prepared"]["light_density_rays"];
+        if (asked) {
+            EXPECT_GT(scaled, 100) << "monkey.glb's point light: most charts are not at the scene's density";
+            EXPECT_GT(rays, 0u);
+        } else {
+            EXPECT_EQ(scaled, 0);
+            EXPECT_EQ(rays, 0u);
+        }
+        fs::remove_all(out);
+    }
+}
+
 // --max-res bounds an atlas the engine sizes: a texel density that would
 // need a larger atlas goes on pages of max_res² (README, "Atlas pages"), and
 // shrinks to fit where it needs more pages than max_pages, or where its

@@ -9,6 +9,7 @@
 #include "atlas/seams.h"
 #include "atlas/texel_samples.h"
 #include "bake/double_sided.h"
+#include "bake/light_density.h"
 #include "bake/lightmap_denoiser.h"
 #include "bake/radiosity_map_baker.h"
 #include "trace/surface_textures.h"
@@ -523,6 +524,83 @@ TEST(RadiosityMap, PathTracerReflectsTexturesWhereThePathsLand) {
     EXPECT_NEAR(baked_reflected, reflected, 0.03 * reflected);
 }
 
+// Texels where the light changes (atlas.light_density): two floors under a
+// sun straight down, one half shaded by a roof over it (a shadow's edge
+// across it), the other evenly lit, and the roof, lit by nothing directly.
+// The shaded floor gets more than the scene's density, the even floor and
+// the roof less, as many texels in all (area x scale^2 summed); at least
+// four times the even floor's texels per m² once packed, and the texel
+// count within 10% of the uniform atlas's. A chart left to its own scale
+// (an unlit one) is not measured and keeps 1.
+TEST(LightDensity, AShadowsEdgeGetsTexelsThatAnEvenlyLitFloorGivesUp) {
+    gpu();
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+    test::add_quad(s, {-3, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);  // floor A, facing up: x in [-3, -1]
+    test::add_quad(s, {1, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);   // floor B, facing up: x in [1, 3]
+    test::add_quad(s, {-3, 1, -1}, {1, 0, 0}, {0, 0, 2}, m);  // roof over A's x < -2, facing down
+    test::add_sun(s, glm::vec3(0.0f, -1.0f, 0.0f), 1.0f);
+    const Tracer tracer(s);
+    const int res = 128;
+    auto texels_per_m2 = [&](const Scene& scene, float x_lo, float x_hi) {
+        double texels = 0.0, area = 0.0;
+        for (size_t t = 0; t < scene.triangles.size(); ++t) {
+            const glm::uvec3 v = scene.triangles[t];
+            const float x = (scene.positions[v.x].x + scene.positions[v.y].x + scene.positions[v.z].x) / 3.0f;
+            if (x < x_lo || x > x_hi || scene.positions[v.x].y != 0.0f) continue;
+            const glm::vec2 a = scene.uv1[v.x], b = scene.uv1[v.y], c = scene.uv1[v.z];
+            texels += 0.5 * std::abs((b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y)) * res * res;
+            area += scene.triangle_area(t);
+        }
+        return texels / area;
+    };
+    auto atlas = [&](bool light_density, LightScales* measured) {
+        Scene scene = s;
+        AtlasOptions options;
+        options.resolution = res;
+        if (light_density)
+            options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count,
+                                       const std::vector<uint8_t>& few, double texel) {
+                *measured = light_driven_chart_scales(scene, tracer, chart, count, few, texel, nullptr);
+                return measured->scale;
+            };
+        const AtlasReport report = generate_lightmap_uvs(scene, options);
+        const TexelSamples texels = rasterize_texel_samples(scene, res, res, 1);
+        return std::make_tuple(report, scene, texels.covered_count());
+    };
+    LightScales scales;
+    const auto [uniform_report, uniform, uniform_texels] = atlas(false, nullptr);
+    const auto [report, lit, texels] = atlas(true, &scales);
+    // The charts: A, B and the roof, by their first triangle (one chart each).
+    const uint32_t a = report.triangle_chart[0], b = report.triangle_chart[2], roof = report.triangle_chart[4];
+    std::printf("  scales: shaded floor %.3f, even floor %.3f, roof %.3f (k %.3g, %.3g, %.3g); %zu rays\n",
+                scales.scale[a], scales.scale[b], scales.scale[roof], scales.k[a], scales.k[b], scales.k[roof],
+                size_t(scales.rays));
+    EXPECT_GT(scales.scale[a], 1.0);
+    EXPECT_LT(scales.scale[b], 1.0);
+    EXPECT_LT(scales.scale[roof], 1.0);
+    EXPECT_GT(scales.k[a], 100.0 * scales.k[b]) << "only pairs across the edge differ";
+    EXPECT_NEAR(4.0 * (scales.scale[a] * scales.scale[a] + scales.scale[b] * scales.scale[b]) +
+                    2.0 * scales.scale[roof] * scales.scale[roof],
+                10.0, 1e-6)
+        << "as many texels: area x scale^2 summed is the area";
+    EXPECT_EQ(report.light_scaled_charts, 3u);
+    const double shaded = texels_per_m2(lit, -3.5f, -0.5f), even = texels_per_m2(lit, 0.5f, 3.5f);
+    std::printf("  texels per m²: shaded floor %.0f, even floor %.0f; covered texels %zu (uniform: %zu)\n", shaded,
+                even, texels, uniform_texels);
+    EXPECT_GT(shaded, 4.0 * even);
+    EXPECT_NEAR(double(texels), double(uniform_texels), 0.1 * double(uniform_texels));
+    EXPECT_NEAR(texels_per_m2(uniform, -3.5f, -0.5f), texels_per_m2(uniform, 0.5f, 3.5f),
+                0.05 * texels_per_m2(uniform, 0.5f, 3.5f));
+
+    std::vector<uint8_t> leave(report.charts, 0);
+    leave[roof] = 1;
+    const LightScales left =
+        light_driven_chart_scales(lit, tracer, report.triangle_chart, report.charts, leave, 0.05, nullptr);
+    EXPECT_EQ(left.scale[roof], 1.0);
+    EXPECT_EQ(left.k[roof], 0.0);
+}
+
 // A lit room (six walls facing in, a point light inside) wrapped in a shell
 // 0.1 m outside it whose six walls face out, to the void, as a closed
 // interior's outer walls do: no light can reach the shell. Its charts are
@@ -564,11 +642,7 @@ TEST(UnlitCharts, AClosedRoomsOuterWallsGetFewTexels) {
     EXPECT_EQ(sky.unlit_charts, 0u);
     EXPECT_NEAR(sky_ratio, 1.0, 0.1);
     Scene outside_light = s;
-    PunctualLight sun;
-    sun.type = PunctualLight::Type::Directional;
-    sun.direction = glm::vec3(0.0f, -1.0f, 0.0f);
-    sun.intensity = glm::vec3(1.0f);
-    outside_light.lights.push_back(sun);
+    test::add_sun(outside_light, glm::vec3(0.0f, -1.0f, 0.0f), 1.0f);
     const Tracer tracer2(outside_light);
     AtlasOptions options;
     options.resolution = 128;
@@ -1197,11 +1271,7 @@ TEST(RadiosityMap, AMeshWithoutALightmapStillCastsAndBounces) {
         test::add_quad(s, {0, 1.5f, 0}, {2.5f, 0, 0}, {0, 0, 1.5f}, black);  // roof over z > 0, facing down
         test::add_quad(s, {0, 0, -1}, {0, 1, 0}, {0, 0, 2}, black);          // wall at x = 0, facing +x
         s.instances[0].lightmap_scale = s.instances[1].lightmap_scale = floor_and_roof_scale;
-        PunctualLight sun;
-        sun.type = PunctualLight::Type::Directional;
-        sun.direction = glm::vec3(0, -1, 0);
-        sun.intensity = glm::vec3(2.0f);
-        s.lights.push_back(sun);
+        test::add_sun(s, glm::vec3(0, -1, 0), 2.0f);
         AtlasOptions options;
         options.resolution = 64;
         generate_lightmap_uvs(s, options);
@@ -1303,11 +1373,7 @@ TEST(RadiosityMap, SealedBoxWithLightOutsideStaysExactlyBlack) {
     for (Material& m : s.materials) m.emission = glm::vec3(0.0f);
     const uint32_t light = test::add_material(s, glm::vec3(0.5f), glm::vec3(10.0f), true);
     test::add_quad(s, {-0.5f, 2.0f, -0.5f}, {1, 0, 0}, {0, 0, 1}, light, grid_cell(6, 3, res));
-    PunctualLight sun;
-    sun.type = PunctualLight::Type::Directional;
-    sun.direction = glm::normalize(glm::vec3(0.3f, -1.0f, 0.2f));
-    sun.intensity = glm::vec3(5.0f);
-    s.lights.push_back(sun);
+    test::add_sun(s, glm::vec3(0.3f, -1.0f, 0.2f), 5.0f);
     const BakeResult r = bake(s, res, 64);
     const auto& R = r.image.at("R");
     float inside_max = 0.0f;

@@ -177,11 +177,7 @@ TEST(SeeThrough, ADirectionalLightPassesExactlyTheTransmittance) {
     for (const Sheet& sheet : sheets()) {
         SCOPED_TRACE(sheet.name);
         Plates p = plates(sheet.material, glm::vec3(0.0f));
-        PunctualLight sun;
-        sun.type = PunctualLight::Type::Directional;
-        sun.direction = glm::vec3(0, -1, 0);
-        sun.intensity = glm::vec3(2.0f);
-        p.scene.lights.push_back(sun);
+        test::add_sun(p.scene, glm::vec3(0, -1, 0), 2.0f);
         const FloorTexels f = floor_texels(bake(p.scene, kRes, 4), [](glm::vec3) { return 2.0 / M_PI; });
         ASSERT_GT(f.baked.size(), 500u);
         for (const glm::vec3& texel : f.baked)

@@ -1415,7 +1415,8 @@ std::vector<double> chart_mesh_scales(const Scene& scene, const ChartLayout& lay
 
 // Lays each chart out at its scale: its mesh's lightmap scale (`mesh_scale`,
 // chart_mesh_scales), times kUnlitChartScale where flagged in `unlit`
-// (fewer texels for one black value), one texel where its mesh has no
+// (fewer texels for one black value) or else its light's (`light_scale`,
+// where given: AtlasOptions::light_scales), one texel where its mesh has no
 // lightmap; counts them in the report. Returns the lit charts (neither
 // unlit nor without a lightmap): their area, and which they are not.
 struct LitCharts {
@@ -1423,7 +1424,7 @@ struct LitCharts {
     std::vector<uint8_t> not_lit;  // per chart: 1 where unlit or without a lightmap
 };
 LitCharts scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, const std::vector<double>& mesh_scale,
-                       ChartLayout& layout, AtlasReport& report) {
+                       const std::vector<double>& light_scale, ChartLayout& layout, AtlasReport& report) {
     LitCharts lit_charts;
     lit_charts.not_lit.assign(layout.charts.size(), 0);
     double lit = 0.0, dark = 0.0;
@@ -1438,6 +1439,10 @@ LitCharts scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, co
         report.unlit_charts += dark_chart;
         report.unmapped_charts += unmapped;
         if (dark_chart) scale *= kUnlitChartScale;
+        if (!light_scale.empty() && !dark_chart && !unmapped) {
+            scale *= light_scale[c];
+            report.light_scaled_charts += light_scale[c] != 1.0;
+        }
         if (unmapped) scale = kUnmappedChartScale;
         if (scale == 1.0) continue;
         layout.shapes[c].size *= scale;
@@ -1448,6 +1453,20 @@ LitCharts scale_charts(const Scene& scene, const std::vector<uint8_t>& unlit, co
     report.unlit_area_fraction = lit + dark > 0.0 ? dark / (lit + dark) : 0.0;
     lit_charts.area = lit;
     return lit_charts;
+}
+
+// About the world size of a texel at the density the scene gets without
+// light scales, before it is packed: 1 / texel_density where asked, else
+// the side of an equal share of the surface in half of the asked (or
+// default) square atlas. Only the pairs' distance of a first look at the
+// light depends on it, and their scales only through its ratio to the
+// light's own scales (AtlasOptions::light_scales).
+double first_look_texel(const Scene& scene, const AtlasOptions& options) {
+    if (options.texel_density > 0.0f) return 1.0 / double(options.texel_density);
+    double area = 0.0;
+    for (size_t t = 0; t < scene.triangles.size(); ++t) area += scene.triangle_area(t);
+    const double side = options.resolution > 0 ? options.resolution : kDefaultAtlasResolution;
+    return std::sqrt(area / (0.5 * side * side));
 }
 
 // Every triangle's corner UVs: its chart's corners turned as packed, scaled
@@ -1593,8 +1612,12 @@ AtlasReport generate_lightmap_uvs(Scene& scene, const AtlasOptions& options) {
 
     std::vector<uint8_t> unlit;
     if (options.find_unlit_charts) unlit = options.find_unlit_charts(report.triangle_chart, layout.charts.size());
+    std::vector<double> light;
+    if (options.light_scales)
+        light =
+            options.light_scales(report.triangle_chart, layout.charts.size(), unlit, first_look_texel(scene, options));
     // The border that counts is the lit charts': neither unlit nor without a lightmap.
-    const LitCharts lit = scale_charts(scene, unlit, chart_mesh_scales(scene, layout), layout, report);
+    const LitCharts lit = scale_charts(scene, unlit, chart_mesh_scales(scene, layout), light, layout, report);
     const double border = chart_border_length(scene, shared, report.triangle_chart, lit.not_lit);
     const Packing packing = pack_atlas_for_scene(layout, options, border, lit.area, report.density_from_scene);
     write_corner_uvs(scene, report.triangle_chart, chart_corner_uvs(layout, packing));

@@ -66,6 +66,14 @@ struct AtlasOptions {
     // kUnlitChartScale of their size, and left out of the border fraction.
     std::function<std::vector<uint8_t>(const std::vector<uint32_t>& triangle_chart, size_t chart_count)>
         find_unlit_charts = nullptr;
+    // Generated atlases (atlas.light_density): called after find_unlit_charts
+    // with the charts it flagged and `texel`, about the world size of a
+    // texel at the density the scene gets otherwise; returns each chart's
+    // density over the scene's (gi/bake/light_density.h; 1 for the flagged
+    // ones), whose sum of area x scale^2 is the charts' area: as many texels.
+    std::function<std::vector<double>(const std::vector<uint32_t>& triangle_chart, size_t chart_count,
+                                      const std::vector<uint8_t>& flagged, double texel)>
+        light_scales = nullptr;
 };
 
 // A chart no light reaches holds one value (black): 1/8 of the density, 1/64 of the texels.
@@ -93,6 +101,7 @@ struct AtlasReport {
     size_t mesh_scaled_charts = 0;     // packed at their mesh's PrimitiveInstance::lightmap_scale (not 1)
     size_t unmapped_charts = 0;        // of meshes without a lightmap (lightmap_scale 0): one texel each
     double unlit_area_fraction = 0.0;  // their share of the surface
+    size_t light_scaled_charts = 0;    // packed at a density of their light's (AtlasOptions::light_scales), not 1
 };
 
 // Builds charts, packs them, splits vertices on chart borders and writes

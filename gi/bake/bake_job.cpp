@@ -3,6 +3,7 @@
 #include "atlas/atlas.h"
 #include "bake/double_sided.h"
 #include "bake/method_state.h"
+#include "bake/light_density.h"
 #include "bake/unlit_charts.h"
 #include "atlas/lightmapped_gltf.h"
 #include "bake/output_methods.h"
@@ -148,6 +149,15 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
         }
         return few;
     };
+    // Texels where the light changes, when asked (gi/bake/light_density.h).
+    if (settings.atlas.light_density)
+        options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count, const std::vector<uint8_t>& few,
+                                   double texel) {
+            const LightScales scales = light_driven_chart_scales(p.scene, geometry(), chart, count, few, texel,
+                                                                 p.environment ? &*p.environment : nullptr);
+            p.light_density_rays = scales.rays;
+            return scales.scale;
+        };
     p.atlas_scene = p.scene;
     try {
         p.atlas = p.timed("atlas", [&] { return prepare_lightmap_atlas(*p.atlas_scene, options); });
@@ -652,7 +662,8 @@ nlohmann::json manifest_of_preparation(const BakeJob& job, const PreparedScene& 
           {"double_sided_rays", prepared.turned.rays},
           {"unlit_charts", prepared.atlas.unlit_charts},
           {"glass_charts", prepared.glass_charts},
-          {"unlit_chart_rays", prepared.unlit_chart_rays}}},
+          {"unlit_chart_rays", prepared.unlit_chart_rays},
+          {"light_density_rays", prepared.light_density_rays}}},
     };
     for (const auto& [stage, seconds] : prepared.stage_seconds) manifest["prepared"]["stages"][stage] = seconds;
     if (!prepared.warnings.empty()) manifest["warnings"] = prepared.warnings;

@@ -31,9 +31,10 @@ struct PreparedScene {
     // triangles, their order and positions are the scene's): per-texel methods.
     std::optional<Scene> atlas_scene;
     AtlasReport atlas;
-    TurnedCharts turned;            // double-sided charts baked for their back, which faces the scene
-    size_t glass_charts = 0;        // packed at kUnlitChartScale, among AtlasReport::unlit_charts (find_glass_charts)
-    uint64_t unlit_chart_rays = 0;  // traced to find the charts no light reaches (AtlasReport::unlit_charts)
+    TurnedCharts turned;              // double-sided charts baked for their back, which faces the scene
+    size_t glass_charts = 0;          // packed at kUnlitChartScale, among AtlasReport::unlit_charts (find_glass_charts)
+    uint64_t unlit_chart_rays = 0;    // traced to find the charts no light reaches (AtlasReport::unlit_charts)
+    uint64_t light_density_rays = 0;  // traced for a first look at the light (atlas.light_density)
     TexelSamples texels;
     std::unique_ptr<GpuContext> gpu;
     // One BVH for every method: triangle t is the same triangle at the same
@@ -94,6 +95,7 @@ inline nlohmann::json atlas_json(const AtlasReport& atlas) {
             {"mesh_scaled_charts", atlas.mesh_scaled_charts},
             {"unmapped_charts", atlas.unmapped_charts},
             {"unlit_area_fraction", atlas.unlit_area_fraction},
+            {"light_scaled_charts", atlas.light_scaled_charts},
             {"utilisation", atlas.utilisation}};
 }
 

@@ -1,0 +1,277 @@
+#include "bake/light_density.h"
+
+#include "bake/chart_rays.h"
+#include "trace/ray_reference.h"
+
+#include <glm/gtc/constants.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <random>
+
+namespace lf {
+
+namespace {
+
+// Pairs per chart: one per kTexelsPerPair texels it would get, at least
+// kMinPairs and at most kMaxPairs. An edge of the light across a chart is
+// found by the pairs that straddle it, about 2/pi x its length x a texel /
+// the chart's area of them: a few, on a chart with one shadow edge.
+constexpr double kTexelsPerPair = 8.0;
+constexpr int kMinPairs = 8, kMaxPairs = 4096;
+constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
+constexpr int kEmitterSamples = 2;     // emitter points per pair, shared by its two points
+constexpr int kSkySamples = 4;         // sky directions per pair, shared by its two points
+constexpr size_t kRaysPerBatch = size_t(1) << 20;
+
+float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
+
+// The emissive triangles, chosen in proportion to their power (as the GPU's
+// direct light chooses them: gi/bake/scene_shading.cpp).
+struct Emitters {
+    std::vector<uint32_t> triangle;
+    std::vector<double> cdf;
+    double total = 0.0;
+
+    explicit Emitters(const Scene& scene) {
+        for (size_t t = 0; t < scene.triangles.size(); ++t) {
+            const Material& m = scene.materials[scene.triangle_material[t]];
+            if (!m.is_emissive() || scene.triangle_area(t) <= 0.0f) continue;
+            const double p = double(scene.triangle_area(t)) * channel_mean(scene.mean_emission(t));
+            if (!(p > 0.0)) continue;
+            total += p;
+            triangle.push_back(uint32_t(t));
+            cdf.push_back(total);
+        }
+    }
+};
+
+// One light sample that both points of a pair use: a punctual light, a point
+// on an emitter (with its normal, radiance and area density), or a sky
+// direction in the point's own cosine frame (u1, u2).
+struct LightSample {
+    enum Kind { Punctual, Emitter, Sky } kind;
+    size_t light = 0;
+    glm::vec3 position{0.0f}, normal{0.0f}, radiance{0.0f};
+    float pdf = 0.0f;
+    float u1 = 0.0f, u2 = 0.0f;
+};
+
+// A shadow ray and the irradiance it brings where unblocked.
+struct LitRay {
+    Ray ray;
+    size_t pair;
+    int point;  // side x 3 + (0: p, 1: p + offset, 2: p - offset)
+    float irradiance;
+};
+
+// Where q = p + offset leaves the triangle, the nearest point of it (its
+// barycentrics clamped and renormalized): the pair stays on the chart.
+glm::vec3 onto_triangle(const Scene& scene, uint32_t t, glm::vec3 q) {
+    const glm::uvec3 v = scene.triangles[t];
+    const glm::vec3 a = scene.positions[v.x], e1 = scene.positions[v.y] - a, e2 = scene.positions[v.z] - a;
+    const float d11 = glm::dot(e1, e1), d12 = glm::dot(e1, e2), d22 = glm::dot(e2, e2);
+    const float det = d11 * d22 - d12 * d12;
+    if (!(det > 0.0f)) return a;
+    const glm::vec3 w = q - a;
+    const float w1 = glm::dot(w, e1), w2 = glm::dot(w, e2);
+    float b1 = std::max(0.0f, (d22 * w1 - d12 * w2) / det), b2 = std::max(0.0f, (d11 * w2 - d12 * w1) / det);
+    if (b1 + b2 > 1.0f) {
+        const float s = b1 + b2;
+        b1 /= s, b2 /= s;
+    }
+    return a + b1 * e1 + b2 * e2;
+}
+
+// The rays from point x (normal n, one side of its surface) that the
+// samples ask for, each with the irradiance it brings if nothing blocks it.
+void rays_for(const Scene& scene, const std::vector<LightSample>& samples, const Environment* sky, glm::vec3 x,
+              glm::vec3 n, size_t pair, int point, float far, std::vector<LitRay>& out) {
+    const glm::vec3 origin = offset_ray_origin(x, n);
+    for (const LightSample& s : samples) {
+        glm::vec3 to;
+        float distance = far, irradiance = 0.0f;
+        if (s.kind == LightSample::Sky) {
+            to = cosine_direction(n, s.u1, s.u2);
+            irradiance = glm::pi<float>() * channel_mean(sky->radiance(to)) / float(kSkySamples);
+        } else if (s.kind == LightSample::Emitter) {
+            to = s.position - origin;
+            distance = glm::length(to);
+            if (!(distance > 0.0f)) continue;
+            to /= distance;
+            const float cos_x = glm::dot(n, to), cos_y = std::abs(glm::dot(s.normal, to));
+            if (cos_x <= 0.0f) continue;
+            irradiance = channel_mean(s.radiance) * cos_x * cos_y / (distance * distance * s.pdf * kEmitterSamples);
+            distance *= 0.999f;
+        } else {
+            const PunctualLight& light = scene.lights[s.light];
+            const bool directional = light.type == PunctualLight::Type::Directional;
+            to = directional ? -glm::normalize(light.direction) : light.position - origin;
+            distance = directional ? far : glm::length(to);
+            if (!(distance > 0.0f)) continue;
+            to = glm::normalize(to);
+            const float cos_x = glm::dot(n, to);
+            if (cos_x <= 0.0f) continue;
+            float cone = 1.0f;  // a spot's falloff, linear between its cones (a first look)
+            if (light.type == PunctualLight::Type::Spot) {
+                const float c = glm::dot(-to, glm::normalize(light.direction)), inner = std::cos(light.inner_cone),
+                            outer = std::cos(light.outer_cone);
+                cone = std::clamp((c - outer) / std::max(inner - outer, 1e-4f), 0.0f, 1.0f);
+            }
+            irradiance = channel_mean(light.intensity) * cone * cos_x / (directional ? 1.0f : distance * distance);
+            distance = directional ? far : 0.999f * distance;
+        }
+        if (irradiance > 0.0f) out.push_back({{origin, distance, to, 1u}, pair, point, irradiance});
+    }
+}
+
+// The samples one pair shares.
+std::vector<LightSample> pair_samples(const Scene& scene, const Emitters& emitters, const Environment* sky,
+                                      std::mt19937& rng) {
+    std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
+    std::vector<LightSample> samples;
+    for (size_t l = 0; l < std::min(scene.lights.size(), kLightsPerPoint); ++l) {
+        LightSample s{LightSample::Punctual};
+        s.light = scene.lights.size() <= kLightsPerPoint
+                      ? l
+                      : size_t(uniform(rng) * float(scene.lights.size())) % scene.lights.size();
+        samples.push_back(s);
+    }
+    for (int e = 0; e < kEmitterSamples && emitters.total > 0.0; ++e) {
+        const double at = (1.0 - double(uniform(rng))) * emitters.total;
+        const size_t k = size_t(std::lower_bound(emitters.cdf.begin(), emitters.cdf.end(), at) - emitters.cdf.begin());
+        const uint32_t t = emitters.triangle[std::min(k, emitters.triangle.size() - 1)];
+        const glm::uvec3 v = scene.triangles[t];
+        float b1 = uniform(rng), b2 = uniform(rng);
+        if (b1 + b2 > 1.0f) b1 = 1.0f - b1, b2 = 1.0f - b2;
+        LightSample s{LightSample::Emitter};
+        s.position = (1.0f - b1 - b2) * scene.positions[v.x] + b1 * scene.positions[v.y] + b2 * scene.positions[v.z];
+        s.normal = scene.geometric_normal(t);
+        s.radiance = scene.mean_emission(t);
+        const double power = double(scene.triangle_area(t)) * channel_mean(s.radiance);
+        s.pdf = float(power / emitters.total / double(scene.triangle_area(t)));
+        samples.push_back(s);
+    }
+    for (int d = 0; d < kSkySamples && sky; ++d) {
+        LightSample s{LightSample::Sky};
+        s.u1 = uniform(rng), s.u2 = uniform(rng);
+        samples.push_back(s);
+    }
+    return samples;
+}
+
+// The factor f for which the sum of area x clamp(f x r)^2 is the area's sum (bisection in log f).
+std::vector<double> normalized_scales(const std::vector<double>& r, const std::vector<double>& area) {
+    auto texels_at = [&](double f) {
+        double sum = 0.0;
+        for (size_t c = 0; c < r.size(); ++c) {
+            const double s = std::clamp(f * r[c], kMinLightScale, kMaxLightScale);
+            sum += area[c] * s * s;
+        }
+        return sum;
+    };
+    if (r.empty() || *std::max_element(r.begin(), r.end()) <= 0.0) return std::vector<double>(r.size(), 1.0);
+    double total = 0.0;
+    for (double a : area) total += a;
+    double lo = -60.0, hi = 60.0;
+    for (int i = 0; i < 200; ++i) {
+        const double mid = 0.5 * (lo + hi);
+        (texels_at(std::exp(mid)) < total ? lo : hi) = mid;
+    }
+    const double f = std::exp(0.5 * (lo + hi));
+    std::vector<double> s(r.size());
+    for (size_t c = 0; c < r.size(); ++c) s[c] = std::clamp(f * r[c], kMinLightScale, kMaxLightScale);
+    return s;
+}
+
+}  // namespace
+
+LightScales light_driven_chart_scales(const Scene& scene, const Tracer& tracer, const std::vector<uint32_t>& chart,
+                                      size_t chart_count, const std::vector<uint8_t>& leave, double texel,
+                                      const Environment* sky) {
+    LightScales out;
+    out.scale.assign(chart_count, 1.0);
+    out.k.assign(chart_count, 0.0);
+    const auto triangles_of = triangles_by_chart(scene, chart, chart_count, [](size_t) { return true; });
+    const Emitters emitters(scene);
+    const float far = 2.0f * glm::length(scene.bounds.hi - scene.bounds.lo) + 1.0f;
+    std::mt19937 rng(20261129u);
+    std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
+
+    // Per triplet: its chart, and per side the irradiance at p, p + offset, p - offset.
+    std::vector<uint32_t> pair_chart;
+    std::vector<std::array<float, 6>> irradiance;
+    std::vector<LitRay> batch;
+    auto trace_batch = [&] {
+        std::vector<Ray> rays(batch.size());
+        for (size_t i = 0; i < batch.size(); ++i) rays[i] = batch[i].ray;
+        const std::vector<RayHit> hits = tracer.trace(rays);
+        for (size_t i = 0; i < batch.size(); ++i)
+            if (hits[i].triangle == kNoHit) irradiance[batch[i].pair][batch[i].point] += batch[i].irradiance;
+        out.rays += batch.size();
+        batch.clear();
+    };
+    for (uint32_t c = 0; c < chart_count; ++c) {
+        if ((!leave.empty() && leave[c]) || triangles_of[c].empty()) continue;
+        double chart_area = 0.0;
+        for (uint32_t t : triangles_of[c]) chart_area += scene.triangle_area(t);
+        const int pair_count =
+            int(std::clamp(chart_area / (texel * texel) / kTexelsPerPair, double(kMinPairs), double(kMaxPairs)));
+        for (const ChartPoint& p : random_chart_points(scene, triangles_of[c], pair_count, rng)) {
+            const glm::uvec3 v = scene.triangles[p.triangle];
+            const glm::vec3 t = glm::normalize(scene.positions[v.y] - scene.positions[v.x]),
+                            b = glm::cross(p.normal, t);
+            const float phi = 2.0f * glm::pi<float>() * uniform(rng);
+            const glm::vec3 offset = float(texel) * (std::cos(phi) * t + std::sin(phi) * b);
+            const glm::vec3 points[3] = {p.position, onto_triangle(scene, p.triangle, p.position + offset),
+                                         onto_triangle(scene, p.triangle, p.position - offset)};
+            const std::vector<LightSample> samples = pair_samples(scene, emitters, sky, rng);
+            const size_t pair = pair_chart.size();
+            pair_chart.push_back(c);
+            irradiance.push_back({});
+            const bool double_sided = scene.materials[scene.triangle_material[p.triangle]].double_sided;
+            for (int side = 0; side < (double_sided ? 2 : 1); ++side)
+                for (int k = 0; k < 3; ++k)
+                    rays_for(scene, samples, sky, points[k], side ? -p.normal : p.normal, pair, 3 * side + k, far,
+                             batch);
+        }
+        if (batch.size() >= kRaysPerBatch) trace_batch();
+    }
+    if (!batch.empty()) trace_batch();
+
+    // k per chart (the larger of its two sides'), and the scene's mean E for the floor.
+    std::vector<glm::dvec2> sums(chart_count, glm::dvec2(0.0));  // (front, back) squared second differences
+    std::vector<int> pairs(chart_count, 0);
+    double mean = 0.0;
+    for (size_t i = 0; i < pair_chart.size(); ++i) {
+        const std::array<float, 6>& e = irradiance[i];
+        auto second_difference = [&](int side) {
+            const double d = 0.5 * (double(e[3 * side + 1]) + e[3 * side + 2]) - e[3 * side];
+            return d * d;
+        };
+        sums[pair_chart[i]] += glm::dvec2(second_difference(0), second_difference(1));
+        ++pairs[pair_chart[i]];
+        mean += std::max(e[0], e[3]);
+    }
+    if (pair_chart.empty()) return out;
+    mean /= double(pair_chart.size());
+    // The floor: light changing by 1% of the scene's mean a texel apart.
+    const double floor = 1e-4 * mean * mean;
+    std::vector<uint32_t> measured;
+    std::vector<double> r, area;
+    for (uint32_t c = 0; c < chart_count; ++c) {
+        if (pairs[c] == 0) continue;
+        out.k[c] = std::max(sums[c].x, sums[c].y) / pairs[c];
+        double a = 0.0;
+        for (uint32_t t : triangles_of[c]) a += scene.triangle_area(t);
+        measured.push_back(c);
+        r.push_back(std::cbrt(out.k[c] + floor));
+        area.push_back(a);
+    }
+    const std::vector<double> s = normalized_scales(r, area);
+    for (size_t i = 0; i < measured.size(); ++i) out.scale[measured[i]] = s[i];
+    return out;
+}
+
+}  // namespace lf
