@@ -206,6 +206,21 @@ TEST(CliBake, LightDensityIsAskedAndSaid) {
     }
 }
 
+// A scene with its own TEXCOORD_1 (the Cornell box) keeps its UVs: the
+// asked --light-density is not applied, and the bake says so.
+TEST(CliBake, LightDensityOnAFilesOwnUvsIsSaidNotApplied) {
+    const fs::path out = fresh_dir("light-density-own-uvs");
+    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+                                   " --res 64 --passes 1 --light-density");
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.err.find("light_density is not applied"), std::string::npos) << r.err;
+    std::ifstream in(out / "manifest.json");
+    const nlohmann::json manifest = nlohmann::json::parse(in);
+    EXPECT_EQ(manifest["lightmap"]["settings"]["atlas"]["light_scaled_charts"], 0);
+    EXPECT_EQ(manifest["prepared"]["light_density_rays"], 0);
+    fs::remove_all(out);
+}
+
 // --max-res bounds an atlas the engine sizes: a texel density that would
 // need a larger atlas goes on pages of max_res² (README, "Atlas pages"), and
 // shrinks to fit where it needs more pages than max_pages, or where its

@@ -182,6 +182,10 @@ void prepare_atlas(PreparedScene& p, const protocol::BakeSettings& settings,
                              "'s lightmap scale (lightfarm_lightmap_scale, atlas.mesh_scale) is not applied: the scene "
                              "has its own lightmap UVs "
                              "(TEXCOORD_1), which are baked as they are");
+    if (!p.atlas.generated && settings.atlas.light_density)
+        p.warnings.push_back(
+            "light_density is not applied: the scene has its own lightmap UVs (TEXCOORD_1), "
+            "which are baked as they are");
     // A density asked for that the largest atlas cannot hold is baked lower: said, not silent.
     if (options.texel_density > 0.0f && p.atlas.texel_density < 0.99f * options.texel_density)
         p.warnings.push_back(

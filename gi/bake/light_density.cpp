@@ -21,8 +21,8 @@ namespace {
 constexpr double kTexelsPerPair = 8.0;
 constexpr int kMinPairs = 8, kMaxPairs = 4096;
 constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
-constexpr int kEmitterSamples = 2;     // emitter points per pair, shared by its two points
-constexpr int kSkySamples = 4;         // sky directions per pair, shared by its two points
+constexpr int kEmitterSamples = 2;     // emitter points per triplet, shared by its three points
+constexpr int kSkySamples = 4;         // sky directions per triplet, shared by its three points
 constexpr size_t kRaysPerBatch = size_t(1) << 20;
 
 float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
@@ -47,7 +47,7 @@ struct Emitters {
     }
 };
 
-// One light sample that both points of a pair use: a punctual light, a point
+// One light sample that the three points of a triplet use: a punctual light, a point
 // on an emitter (with its normal, radiance and area density), or a sky
 // direction in the point's own cosine frame (u1, u2).
 struct LightSample {
@@ -126,7 +126,7 @@ void rays_for(const Scene& scene, const std::vector<LightSample>& samples, const
     }
 }
 
-// The samples one pair shares.
+// The samples one triplet shares.
 std::vector<LightSample> pair_samples(const Scene& scene, const Emitters& emitters, const Environment* sky,
                                       std::mt19937& rng) {
     std::uniform_real_distribution<float> uniform(0.0f, 1.0f);

@@ -4,13 +4,16 @@
 // charts it lights evenly fewer, at the same texel count in all
 // (atlas.light_density; AtlasOptions::light_scales).
 //
-// From pairs of points a texel apart on each chart (p, and q at `texel`
-// from it in a random direction along its triangle; one pair per 8 texels
-// the chart would get, 8 to 4,096), both lit by the same
-// light samples (punctual lights exactly, emitter points, sky directions,
-// each with its shadow ray), the chart's k = mean of (E(p) - E(q))^2, E
-// the direct irradiance's luminance: the squared error a lookup between
-// texels of that size makes there. Across an edge of the light, that error
+// From triplets of points on each chart (p, and p +- `texel` in a random
+// direction along its triangle; one per 8 texels the chart would get, 8
+// to 4,096), all lit by the same light samples (punctual lights exactly,
+// emitter points, sky directions, each with its shadow ray), the chart's
+// k = mean of (E(p) - (E(p + texel) + E(p - texel)) / 2)^2, E the direct
+// irradiance's channel mean: the error of a lookup that interpolates
+// between texels a texel either side of p. It is zero on a smooth
+// gradient (first differences rewarded lamp pools and measured worse than
+// uniform: docs/BENCHMARKS.md, "Texels where the light changes") and the
+// light's jump at a shadow's edge. Across such an edge, that error
 // covers the share of the chart within a texel of the edge, which is
 // proportional to the texel's size h; the sum over charts of area x k x h /
 // texel at a fixed texel count (sum of area / h^2) is least where the
