@@ -42,14 +42,17 @@ inline fs::path shared_scene(const std::string& name) {
 }
 
 // The shim's settings, as environment variables of the processes this test
-// starts while a FaultShim lives (posix_spawn and popen pass environ on).
+// starts while a FaultShim lives (posix_spawn and popen pass environ on), or
+// only of the processes given environment() (Export::kExplicitly): shims of
+// that kind can live side by side, each with the processes of its own run.
 class FaultShim {
 public:
+    enum class Export { kThisProcess, kExplicitly };
     // `site` empty: a dry run, which logs every call's site. Otherwise the
     // `nth` call of `site` after each arm() fails with `error`.
     FaultShim(const fs::path& root, const fs::path& dir, const std::string& site = "", const std::string& error = "",
-              int nth = 1)
-        : log_(dir / "writes.log"), armed_(dir / "armed") {
+              int nth = 1, Export to = Export::kThisProcess)
+        : log_(dir / "writes.log"), armed_(dir / "armed"), export_(to) {
         fs::create_directories(dir);
         set("LD_PRELOAD", LIGHTFARM_FAULT_SHIM);
         set("LF_FAULT_ROOT", fs::weakly_canonical(root).string());
@@ -62,7 +65,8 @@ public:
         }
     }
     ~FaultShim() {
-        for (const auto& [name, value] : environment_) unsetenv(name.c_str());
+        if (export_ == Export::kThisProcess)
+            for (const auto& [name, value] : environment_) unsetenv(name.c_str());
     }
     // Only the calls of these processes count (by name; the shim's default
     // is "lightfarmd lightfarm"), which may run as another user: the log
@@ -77,7 +81,7 @@ public:
         }
         fs::permissions(log_.parent_path(), fs::perms::all);
     }
-    // The settings as "NAME=VALUE", for a process started by other means (env(1)).
+    // The settings as "NAME=VALUE", for a process started by other means (env(1), spawn_lightfarmd).
     std::vector<std::string> environment() const {
         std::vector<std::string> all;
         for (const auto& [name, value] : environment_) all.push_back(name + "=" + value);
@@ -124,10 +128,11 @@ public:
 
 private:
     void set(const std::string& name, const std::string& value) {
-        setenv(name.c_str(), value.c_str(), 1);
+        if (export_ == Export::kThisProcess) setenv(name.c_str(), value.c_str(), 1);
         environment_[name] = value;
     }
     fs::path log_, armed_;
+    Export export_;
     std::map<std::string, std::string> environment_;
 };
 

@@ -185,22 +185,40 @@ int FakeEngine::runs() const {
     return text.empty() ? 0 : std::stoi(text);
 }
 
-Lightfarmd::Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vector<std::string> extra)
-    : data_(std::move(data)), tokens_(std::move(tokens)), engine_(std::move(engine)), extra_(std::move(extra)) {}
+Lightfarmd::Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vector<std::string> extra,
+                       std::vector<std::string> environment)
+    : data_(std::move(data)),
+      tokens_(std::move(tokens)),
+      engine_(std::move(engine)),
+      extra_(std::move(extra)),
+      environment_(std::move(environment)) {}
 
 Lightfarmd::~Lightfarmd() { stop(); }
 
-pid_t spawn_lightfarmd(std::vector<std::string> args, const fs::path& log) {
+pid_t spawn_lightfarmd(std::vector<std::string> args, const fs::path& log,
+                       const std::vector<std::string>& environment) {
     args.insert(args.begin(), LIGHTFARMD);
     std::vector<char*> argv;
     for (std::string& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
+    // environ, less each name `environment` sets, then `environment`.
+    std::vector<std::string> settings;
+    for (char** e = environ; *e; ++e) {
+        const std::string setting = *e, name = setting.substr(0, setting.find('=') + 1);
+        bool overridden = false;
+        for (const std::string& s : environment) overridden |= s.rfind(name, 0) == 0;
+        if (!overridden) settings.push_back(setting);
+    }
+    settings.insert(settings.end(), environment.begin(), environment.end());
+    std::vector<char*> envp;
+    for (std::string& s : settings) envp.push_back(s.data());
+    envp.push_back(nullptr);
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     posix_spawn_file_actions_adddup2(&actions, 1, 2);
     pid_t pid = -1;
-    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ);
+    const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data());
     posix_spawn_file_actions_destroy(&actions);
     if (rc != 0) throw std::runtime_error(std::string("cannot start ") + LIGHTFARMD + ": " + std::strerror(rc));
     return pid;
@@ -257,7 +275,7 @@ void Lightfarmd::start() {
                                      "--tokens", tokens_.string(), "--engine", engine_.string()};
     args.insert(args.end(), extra_.begin(), extra_.end());
     const fs::path log = data_.parent_path() / ("lightfarmd-" + std::to_string(++starts_) + ".log");
-    pid_ = spawn_lightfarmd(args, log);
+    pid_ = spawn_lightfarmd(args, log, environment_);
     // The URL file, then /healthz.
     wait_until_ready(pid_, log, [&] {
         const std::string text = read_text(data_ / "lightfarmd.url");

@@ -65,7 +65,9 @@ struct FakeEngine {
 // (polled for up to 15 s; throws with the log when the process exits first
 // or never gets there); stopped with SIGTERM, then SIGKILL after 5 s; or
 // killed at once, as a crash. The pid is -1 once it is gone.
-pid_t spawn_lightfarmd(std::vector<std::string> args, const fs::path& log);
+// `environment`: "NAME=VALUE" settings over this process's own.
+pid_t spawn_lightfarmd(std::vector<std::string> args, const fs::path& log,
+                       const std::vector<std::string>& environment = {});
 void wait_until_ready(pid_t& pid, const fs::path& log, const std::function<bool()>& ready);
 void stop_process(pid_t& pid);
 void kill_process(pid_t& pid);
@@ -75,7 +77,9 @@ bool answers_health(int port);
 // lightfarmd on 127.0.0.1 with a free port, its log in DATA/../lightfarmd-N.log.
 class Lightfarmd {
 public:
-    Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vector<std::string> extra = {});
+    // `extra`: more arguments; `environment`: "NAME=VALUE" settings over this process's own.
+    Lightfarmd(fs::path data, fs::path tokens, fs::path engine, std::vector<std::string> extra = {},
+               std::vector<std::string> environment = {});
     ~Lightfarmd();  // stop()
     void start();   // waits (bounded) until it answers /healthz
     void stop();    // SIGTERM, then SIGKILL after a few seconds
@@ -91,7 +95,7 @@ public:
 
 private:
     fs::path data_, tokens_, engine_;
-    std::vector<std::string> extra_;
+    std::vector<std::string> extra_, environment_;
     pid_t pid_ = -1;
     int starts_ = 0;
 };

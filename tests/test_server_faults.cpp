@@ -10,6 +10,8 @@
 #include "fault_harness.h"
 #include "postgres_server.h"
 
+#include <atomic>
+#include <mutex>
 #include <thread>
 
 namespace lf::test {
@@ -40,7 +42,7 @@ public:
           armed_(std::move(armed)),
           recover_(std::move(recover)),
           engine_(dir / "engine"),
-          server_(dir / "data", dir / "tokens", engine_.script, lightfarmd_args(store)) {
+          server_(dir / "data", dir / "tokens", engine_.script, lightfarmd_args(store), shim.environment()) {
         write_text(dir / "tokens", kToken + "\n");
     }
     // Runs every phase; returns what each armed phase's fault did, in the table's words.
@@ -227,12 +229,36 @@ std::string phase_table(const std::string& who, const PhaseEffects& effects,
     return table;
 }
 
+// One run of the server's scenario under a fault: the site, which of its
+// calls fails, with what error, armed in which phases.
+struct FaultRun {
+    std::string site;
+    int nth;
+    std::string error;
+    std::set<std::string> armed;
+};
+
+// Calls run(i) for every i < n on `threads` threads: the scenario's runs
+// mostly wait on lightfarmd and its fake engine, so four side by side take
+// about a quarter of the time (CI's 20 minutes), each with its own
+// lightfarmd, directory and shim (FaultShim::Export::kExplicitly).
+void side_by_side(size_t n, int threads, const std::function<void(size_t)>& run) {
+    std::atomic<size_t> next{0};
+    std::vector<std::thread> pool;
+    for (int t = 0; t < threads; ++t)
+        pool.emplace_back([&] {
+            for (size_t i = next++; i < n; i = next++) run(i);
+        });
+    for (std::thread& thread : pool) thread.join();
+}
+
 TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
+    constexpr auto kExplicitly = FaultShim::Export::kExplicitly;
     TempDir tmp;
     std::map<std::string, std::map<std::string, int>> sites;
     {
         const fs::path dir = tmp.path / "dry";
-        const FaultShim dry(dir / "data", dir);
+        const FaultShim dry(dir / "data", dir, "", "", 1, kExplicitly);
         ServerScenario(dir, dry, {}).run();
         ASSERT_FALSE(::testing::Test::HasFailure()) << "the scenario fails without a fault";
         sites = calls_by_site(dry.calls());
@@ -250,8 +276,7 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
     // Each call of each site fails in turn (the first, middle and last of a
     // phase's calls where it makes more than three), in one run for each
     // call number and error; a run fails that call in every phase with it.
-    PhaseEffects effects;
-    int runs = 0;
+    std::vector<FaultRun> runs;
     for (const auto& [site, calls] : sites) {
         std::map<int, std::set<std::string>> phases_by_call;
         for (const auto& [phase, n] : calls)
@@ -259,20 +284,23 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
                 for (int nth : calls_to_fail(n)) phases_by_call[nth].insert(phase);
         EXPECT_FALSE(phases_by_call.empty())
             << site << " is called only where no fault is tried: " << calls.begin()->first;
-        for (const auto& [nth, armed] : phases_by_call) {
-            for (const std::string& error : kErrors) {
-                const fs::path dir = tmp.path / std::to_string(++runs);
-                const FaultShim shim(dir / "data", dir, site, error, nth);
-                SCOPED_TRACE(site + ", call " + std::to_string(nth) + ", " + error);
-                for (const auto& [phase, effect] : ServerScenario(dir, shim, armed).run()) {
-                    EXPECT_NE(effect, "not reached")
-                        << site << " call " << nth << " in " << phase << " under " << error;
-                    effects[site][phase][error][nth] = effect;
-                }
-            }
-        }
+        for (const auto& [nth, armed] : phases_by_call)
+            for (const std::string& error : kErrors) runs.push_back({site, nth, error, armed});
     }
-    std::cerr << runs << " runs of the scenario\n";
+    PhaseEffects effects;
+    std::mutex effects_mutex;
+    side_by_side(runs.size(), 4, [&](size_t i) {
+        const auto& [site, nth, error, armed] = runs[i];
+        const fs::path dir = tmp.path / std::to_string(i + 1);
+        const FaultShim shim(dir / "data", dir, site, error, nth, kExplicitly);
+        SCOPED_TRACE(site + ", call " + std::to_string(nth) + ", " + error);
+        for (const auto& [phase, effect] : ServerScenario(dir, shim, armed).run()) {
+            EXPECT_NE(effect, "not reached") << site << " call " << nth << " in " << phase << " under " << error;
+            const std::lock_guard<std::mutex> lock(effects_mutex);
+            effects[site][phase][error][nth] = effect;
+        }
+    });
+    std::cerr << runs.size() << " runs of the scenario, four side by side\n";
     expect_doc_table("server write-fault", phase_table("lightfarmd", effects, sites));
 }
 
@@ -299,7 +327,7 @@ public:
                                            int nth, const std::set<std::string>& armed,
                                            std::map<std::string, int>* calls = nullptr) {
         const fs::path dir = postgres_.shared_dir() / "faults" / name;
-        FaultShim shim(postgres_.data_dir(), dir, site, error, nth);
+        FaultShim shim(postgres_.data_dir(), dir, site, error, nth, FaultShim::Export::kExplicitly);
         shim.count_only("postgres");
         postgres_.stop();
         postgres_.start(shim.environment());
