@@ -1,15 +1,18 @@
 // Rays from random points of a lightmap chart, for what the bake decides per
 // chart from the geometry alone, before its texels exist: which side a
 // double-sided chart is baked for (double_sided.h), whether any light can
-// reach a chart at all (unlit_charts.h). Traced in one batch by
-// Tracer::trace; deterministic for a given scene.
+// reach a chart at all (unlit_charts.h), how fast its direct light changes
+// (light_density.h). Traced in batches by Tracer::trace; deterministic for a
+// given scene.
 #pragma once
 
 #include "scene/scene.h"
+#include "trace/tracer.h"
 
 #include <glm/glm.hpp>
 
 #include <cstdint>
+#include <functional>
 #include <random>
 #include <vector>
 
@@ -38,5 +41,38 @@ std::vector<ChartPoint> random_chart_points(const Scene& scene, const std::vecto
 
 // A cosine-distributed direction about unit n from two uniforms in [0, 1).
 glm::vec3 cosine_direction(const glm::vec3& n, float u1, float u2);
+
+// Rays with what each is for (an Item with a member `ray`), traced a batch
+// of about a million at a time (the memory of a scene's worth of rays stays
+// bounded), each hit folded into the caller's result with its item.
+template <class Item>
+class RayBatch {
+public:
+    using Fold = std::function<void(const Item&, const RayHit&)>;
+    RayBatch(const Tracer& tracer, Fold fold) : tracer_(tracer), fold_(std::move(fold)) {}
+
+    std::vector<Item>& items() { return items_; }  // append here
+    // Traces what is there once a batch is full (call between charts).
+    void trace_if_full() {
+        if (items_.size() >= kRaysPerBatch) trace();
+    }
+    // Traces what is there (call once at the end).
+    void trace() {
+        std::vector<Ray> rays(items_.size());
+        for (size_t i = 0; i < items_.size(); ++i) rays[i] = items_[i].ray;
+        const std::vector<RayHit> hits = tracer_.trace(rays);
+        for (size_t i = 0; i < items_.size(); ++i) fold_(items_[i], hits[i]);
+        traced_ += items_.size();
+        items_.clear();
+    }
+    size_t traced() const { return traced_; }
+
+private:
+    static constexpr size_t kRaysPerBatch = size_t(1) << 20;
+    const Tracer& tracer_;
+    Fold fold_;
+    std::vector<Item> items_;
+    size_t traced_ = 0;
+};
 
 }  // namespace lf

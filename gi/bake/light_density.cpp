@@ -23,7 +23,6 @@ constexpr int kMinPairs = 8, kMaxPairs = 4096;
 constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
 constexpr int kEmitterSamples = 2;     // emitter points per triplet, shared by its three points
 constexpr int kSkySamples = 4;         // sky directions per triplet, shared by its three points
-constexpr size_t kRaysPerBatch = size_t(1) << 20;
 
 float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
@@ -202,16 +201,9 @@ LightScales light_driven_chart_scales(const Scene& scene, const Tracer& tracer, 
     // Per triplet: its chart, and per side the irradiance at p, p + offset, p - offset.
     std::vector<uint32_t> pair_chart;
     std::vector<std::array<float, 6>> irradiance;
-    std::vector<LitRay> batch;
-    auto trace_batch = [&] {
-        std::vector<Ray> rays(batch.size());
-        for (size_t i = 0; i < batch.size(); ++i) rays[i] = batch[i].ray;
-        const std::vector<RayHit> hits = tracer.trace(rays);
-        for (size_t i = 0; i < batch.size(); ++i)
-            if (hits[i].triangle == kNoHit) irradiance[batch[i].pair][batch[i].point] += batch[i].irradiance;
-        out.rays += batch.size();
-        batch.clear();
-    };
+    RayBatch<LitRay> batch(tracer, [&](const LitRay& r, const RayHit& hit) {
+        if (hit.triangle == kNoHit) irradiance[r.pair][r.point] += r.irradiance;
+    });
     for (uint32_t c = 0; c < chart_count; ++c) {
         if ((!leave.empty() && leave[c]) || triangles_of[c].empty()) continue;
         double chart_area = 0.0;
@@ -234,11 +226,12 @@ LightScales light_driven_chart_scales(const Scene& scene, const Tracer& tracer, 
             for (int side = 0; side < (double_sided ? 2 : 1); ++side)
                 for (int k = 0; k < 3; ++k)
                     rays_for(scene, samples, sky, points[k], side ? -p.normal : p.normal, pair, 3 * side + k, far,
-                             batch);
+                             batch.items());
         }
-        if (batch.size() >= kRaysPerBatch) trace_batch();
+        batch.trace_if_full();
     }
-    if (!batch.empty()) trace_batch();
+    batch.trace();
+    out.rays = batch.traced();
 
     // k per chart (the larger of its two sides'), and the scene's mean E for the floor.
     std::vector<glm::dvec2> sums(chart_count, glm::dvec2(0.0));  // (front, back) squared second differences

@@ -13,7 +13,6 @@ namespace {
 constexpr int kPointsPerChart = 4;     // random points on the chart, area-weighted
 constexpr int kRaysPerPoint = 4;       // cosine rays from each point, on each side it is seen from
 constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
-constexpr size_t kRaysPerBatch = size_t(1) << 20;
 
 // One ray and what it says about its chart when traced.
 struct ChartRay {
@@ -75,24 +74,18 @@ UnlitCharts find_unlit_charts(const Scene& scene, const Tracer& tracer, const st
     const auto triangles_of = triangles_by_chart(scene, chart, chart_count, [](size_t) { return true; });
     std::vector<uint8_t> lit(chart_count, 0);
     std::mt19937 rng(20261124u);
-    std::vector<ChartRay> batch;
-    auto trace_batch = [&] {
-        std::vector<Ray> rays(batch.size());
-        for (size_t i = 0; i < batch.size(); ++i) rays[i] = batch[i].ray;
-        const std::vector<RayHit> hits = tracer.trace(rays);
-        for (size_t i = 0; i < batch.size(); ++i)
-            if (brings_light(scene, batch[i], hits[i])) lit[batch[i].chart] = 1;
-        out.rays += batch.size();
-        batch.clear();
-    };
+    RayBatch<ChartRay> batch(tracer, [&](const ChartRay& r, const RayHit& hit) {
+        if (brings_light(scene, r, hit)) lit[r.chart] = 1;
+    });
     for (uint32_t c = 0; c < chart_count; ++c) {
         for (const ChartPoint& p : random_chart_points(scene, triangles_of[c], kPointsPerChart, rng)) {
             const std::vector<ChartRay> rays = rays_from_point(scene, p, c, rng);
-            batch.insert(batch.end(), rays.begin(), rays.end());
+            batch.items().insert(batch.items().end(), rays.begin(), rays.end());
         }
-        if (batch.size() >= kRaysPerBatch) trace_batch();
+        batch.trace_if_full();
     }
-    if (!batch.empty()) trace_batch();
+    batch.trace();
+    out.rays = batch.traced();
     // A chart without area has no points: it counts as lit (it gets its one texel anyway).
     for (uint32_t c = 0; c < chart_count; ++c) out.unlit[c] = !lit[c] && !triangles_of[c].empty();
     return out;
