@@ -22,6 +22,7 @@
 #include "trace/tracer.h"
 #include "shaders/buffer_bindings.glsl"
 
+#include <glm/gtc/matrix_transform.hpp>
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -1906,23 +1907,39 @@ TEST(RadiosityMap, PathTracerAgreesWithCyclesOnTheCornellBox) {
 // map after four points read a wall texel deep in the gap, which averages
 // the gap's dark with the lit wall beside the box: at 2 mm the back came out
 // 40-42% too bright and the wall behind it 5-9% (seeds 1-2). With Russian
-// roulette instead, both lie within 3.3% of the path tracer (seeds 1-3);
-// at 2 cm (about half a texel, where the map is read across the gap) within
-// 2.3%. Each side is a few hundred texels' mean.
+// roulette instead, both lie within 3.3% of the path tracer (seeds 1-3).
+// The family: 2 mm and 2 cm (about half a texel, where the map is read
+// across the gap), the scene axis-aligned and turned (35 degrees about y,
+// then 20 about x: the gap and the texels' grid at no axis, the same light
+// under a uniform sky), every surface double-sided and every one one-sided
+// (front faces out of the box and into the room): 2 mm turned and one-sided
+// within 0.6%, 2 cm turned +3.1% (seed 1). Each side is a few hundred
+// texels' mean.
 TEST(RadiosityMap, ABoxMillimetresFromAWallIsAsDarkBehindAsThePathTracerSays) {
     gpu();
     const int res = 128;
-    for (const float gap : {0.002f, 0.02f}) {
+    struct Case {
+        float gap;
+        bool turned, double_sided;
+    };
+    for (const Case& c : {Case{0.002f, false, true}, Case{0.02f, true, true}, Case{0.002f, true, false}}) {
+        const glm::mat3 turn = c.turned
+                                   ? glm::mat3(glm::rotate(glm::mat4(1.0f), glm::radians(20.0f), glm::vec3(1, 0, 0)) *
+                                               glm::rotate(glm::mat4(1.0f), glm::radians(35.0f), glm::vec3(0, 1, 0)))
+                                   : glm::mat3(1.0f);
         Scene s;
-        const uint32_t m = test::add_material(s, glm::vec3(0.8f), glm::vec3(0.0f), true);
-        const float zb = -0.5f + gap;                                          // the box's back
-        test::add_quad(s, {-1, 0, -1}, {0, 0, 2}, {2, 0, 0}, m);               // floor, facing up
-        test::add_quad(s, {-1, 0, -0.5f}, {2, 0, 0}, {0, 1, 0}, m);            // wall, facing +z
-        test::add_quad(s, {-0.3f, 0, zb}, {0, .4f, 0}, {.6f, 0, 0}, m);        // the box's back, facing the wall
-        test::add_quad(s, {-0.3f, 0, zb + .1f}, {.6f, 0, 0}, {0, .4f, 0}, m);  // front
-        test::add_quad(s, {-0.3f, .4f, zb}, {0, 0, .1f}, {.6f, 0, 0}, m);      // top
-        test::add_quad(s, {-0.3f, 0, zb}, {0, 0, .1f}, {0, .4f, 0}, m);        // left
-        test::add_quad(s, {.3f, 0, zb}, {0, .4f, 0}, {0, 0, .1f}, m);          // right
+        const uint32_t m = test::add_material(s, glm::vec3(0.8f), glm::vec3(0.0f), c.double_sided);
+        auto quad = [&](glm::vec3 corner, glm::vec3 u, glm::vec3 v) {
+            test::add_quad(s, turn * corner, turn * u, turn * v, m);
+        };
+        const float zb = -0.5f + c.gap;                        // the box's back
+        quad({-1, 0, -1}, {0, 0, 2}, {2, 0, 0});               // floor, facing up
+        quad({-1, 0, -0.5f}, {2, 0, 0}, {0, 1, 0});            // wall, facing +z
+        quad({-0.3f, 0, zb}, {0, .4f, 0}, {.6f, 0, 0});        // the box's back, facing the wall
+        quad({-0.3f, 0, zb + .1f}, {.6f, 0, 0}, {0, .4f, 0});  // front
+        quad({-0.3f, .4f, zb}, {0, 0, .1f}, {.6f, 0, 0});      // top
+        quad({-0.3f, 0, zb}, {0, 0, .1f}, {0, .4f, 0});        // left
+        quad({.3f, 0, zb}, {0, .4f, 0}, {0, 0, .1f});          // right
         AtlasOptions options;
         options.resolution = res;
         generate_lightmap_uvs(s, options);
@@ -1933,7 +1950,7 @@ TEST(RadiosityMap, ABoxMillimetresFromAWallIsAsDarkBehindAsThePathTracerSays) {
         auto gap_means = [&](const BakeResult& r) {
             glm::dvec2 sum(0.0), n(0.0);
             for (size_t i = 0; i < r.texels.covered_count(); ++i) {
-                const glm::vec3 q = r.texels.samples[r.texels.first_sample[i]].position;
+                const glm::vec3 q = glm::transpose(turn) * r.texels.samples[r.texels.first_sample[i]].position;
                 if (std::abs(q.x) > 0.3f || q.y > 0.4f) continue;
                 const int side = std::abs(q.z - zb) < 1e-4f ? 0 : std::abs(q.z + 0.5f) < 1e-4f ? 1 : -1;
                 if (side < 0) continue;
@@ -1950,11 +1967,13 @@ TEST(RadiosityMap, ABoxMillimetresFromAWallIsAsDarkBehindAsThePathTracerSays) {
         epochs.environment = &sky;
         const glm::dvec2 reference = gap_means(bake(s, res, 512, path_tracing));
         const glm::dvec2 map = gap_means(bake(s, res, 256, epochs));
-        std::printf("  gap %.3f m: the box's back: path tracer %.4f, epochs %.4f; the wall behind: %.4f, %.4f\n", gap,
-                    reference.x, map.x, reference.y, map.y);
+        const std::string name = std::to_string(std::lround(c.gap * 1000.0f)) + " mm" + (c.turned ? ", turned" : "") +
+                                 (c.double_sided ? ", double-sided" : ", one-sided");
+        std::printf("  gap %s: the box's back: path tracer %.4f, epochs %.4f; the wall behind: %.4f, %.4f\n",
+                    name.c_str(), reference.x, map.x, reference.y, map.y);
         ASSERT_LT(reference.x, 0.2) << "the gap is dark: the sky alone gives an open surface 1";
-        EXPECT_NEAR(map.x, reference.x, 0.08 * reference.x) << "gap " << gap;
-        EXPECT_NEAR(map.y, reference.y, 0.08 * reference.y) << "gap " << gap;
+        EXPECT_NEAR(map.x, reference.x, 0.08 * reference.x) << name;
+        EXPECT_NEAR(map.y, reference.y, 0.08 * reference.y) << name;
     }
 }
 }  // namespace
