@@ -602,6 +602,73 @@ TEST(LightDensity, AShadowsEdgeGetsTexelsThatAnEvenlyLitFloorGivesUp) {
     EXPECT_EQ(left.k[roof], 0.0);
 }
 
+// The indirect light's first look: two floors lit alike by a sun overhead,
+// one with a wall standing on it edge-on to the sun (no shadow: the direct
+// light is even on both). Near the wall's foot a point sees the wall where
+// the other floor sees open space, so its indirect light changes there
+// (openness, light_density.cpp's chart_k): that floor keeps more texels
+// than the open one, which is even in every light and gives them up.
+TEST(LightDensity, AWallsFootGetsTexelsThatAnOpenFloorGivesUp) {
+    gpu();
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f), glm::vec3(0.0f), true);
+    test::add_quad(s, {-3, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);    // floor A, facing up: x in [-3, -1]
+    test::add_quad(s, {1, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);     // floor B, facing up: x in [1, 3]
+    test::add_quad(s, {-3, 0, 0}, {2, 0, 0}, {0, 0.5f, 0}, m);  // a wall across A, in the sun's plane
+    test::add_sun(s, glm::vec3(0.0f, -1.0f, 0.0f), 1.0f);
+    const Tracer tracer(s);
+    Scene scene = s;
+    AtlasOptions options;
+    options.resolution = 128;
+    LightScales scales;
+    options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count, const std::vector<uint8_t>& few,
+                               double texel) {
+        scales = light_driven_chart_scales(scene, tracer, chart, count, few, texel, nullptr);
+        return scales.scale;
+    };
+    const AtlasReport report = generate_lightmap_uvs(scene, options);
+    const uint32_t a = report.triangle_chart[0], b = report.triangle_chart[2];
+    std::printf("  scales: floor with a wall %.3f, open floor %.3f (k %.3g, %.3g)\n", scales.scale[a], scales.scale[b],
+                scales.k[a], scales.k[b]);
+    EXPECT_GT(scales.k[a], 0.0);
+    EXPECT_EQ(scales.k[b], 0.0) << "an open floor under a sun: the same light everywhere";
+    EXPECT_GT(scales.scale[a], 1.5 * scales.scale[b]);
+}
+
+// The first look's shadow rays pass see-through surfaces as the bake's do:
+// a sun on two floors, half of one under a clear glass pane (transmission
+// 1: it passes all the light), half of the other under an opaque roof. Only
+// the roof's shadow has an edge; the glass casts none (before: every
+// surface stopped a shadow ray, and the glass's "shadow" drew texels).
+TEST(LightDensity, GlassCastsNoEdgeARoofDoes) {
+    gpu();
+    Scene s;
+    const uint32_t m = test::add_material(s, glm::vec3(0.5f));
+    const uint32_t glass = test::add_material(s, glm::vec3(1.0f));
+    s.materials[glass].transmission = 1.0f;
+    test::add_quad(s, {-3, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);      // floor A, facing up: x in [-3, -1]
+    test::add_quad(s, {1, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);       // floor B, facing up: x in [1, 3]
+    test::add_quad(s, {-3, 1, -1}, {1, 0, 0}, {0, 0, 2}, glass);  // glass over A's x < -2, facing down
+    test::add_quad(s, {1, 1, -1}, {1, 0, 0}, {0, 0, 2}, m);       // a roof over B's x < 2, facing down
+    test::add_sun(s, glm::vec3(0.0f, -1.0f, 0.0f), 1.0f);
+    const Tracer tracer(s);
+    Scene scene = s;
+    AtlasOptions options;
+    options.resolution = 128;
+    LightScales scales;
+    options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count, const std::vector<uint8_t>& few,
+                               double texel) {
+        scales = light_driven_chart_scales(scene, tracer, chart, count, few, texel, nullptr);
+        return scales.scale;
+    };
+    const AtlasReport report = generate_lightmap_uvs(scene, options);
+    const uint32_t a = report.triangle_chart[0], b = report.triangle_chart[2];
+    std::printf("  scales: floor under glass %.3f, floor under a roof %.3f (k %.3g, %.3g)\n", scales.scale[a],
+                scales.scale[b], scales.k[a], scales.k[b]);
+    EXPECT_LT(scales.k[a], 1e-3 * scales.k[b]);
+    EXPECT_GT(scales.scale[b], 2.0 * scales.scale[a]);
+}
+
 // A lit room (six walls facing in, a point light inside) wrapped in a shell
 // 0.1 m outside it whose six walls face out, to the void, as a closed
 // interior's outer walls do: no light can reach the shell. Its charts are

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <functional>
 #include <random>
+#include <type_traits>
 #include <vector>
 
 namespace lf {
@@ -44,11 +45,13 @@ glm::vec3 cosine_direction(const glm::vec3& n, float u1, float u2);
 
 // Rays with what each is for (an Item with a member `ray`), traced a batch
 // of about a million at a time (the memory of a scene's worth of rays stays
-// bounded), each hit folded into the caller's result with its item.
-template <class Item>
+// bounded), each answer folded into the caller's result with its item. The
+// answer: a RayHit of the geometry (Tracer::trace), or with Result =
+// glm::vec3 the light's share that passes (Tracer::transmittance).
+template <class Item, class Result = RayHit>
 class RayBatch {
 public:
-    using Fold = std::function<void(const Item&, const RayHit&)>;
+    using Fold = std::function<void(const Item&, const Result&)>;
     RayBatch(const Tracer& tracer, Fold fold) : tracer_(tracer), fold_(std::move(fold)) {}
 
     std::vector<Item>& items() { return items_; }  // append here
@@ -60,8 +63,10 @@ public:
     void trace() {
         std::vector<Ray> rays(items_.size());
         for (size_t i = 0; i < items_.size(); ++i) rays[i] = items_[i].ray;
-        const std::vector<RayHit> hits = tracer_.trace(rays);
-        for (size_t i = 0; i < items_.size(); ++i) fold_(items_[i], hits[i]);
+        std::vector<Result> answers;
+        if constexpr (std::is_same_v<Result, RayHit>) answers = tracer_.trace(rays);
+        else answers = tracer_.transmittance(rays);
+        for (size_t i = 0; i < items_.size(); ++i) fold_(items_[i], answers[i]);
         traced_ += items_.size();
         items_.clear();
     }

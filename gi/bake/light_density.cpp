@@ -23,6 +23,12 @@ constexpr int kMinPairs = 8, kMaxPairs = 4096;
 constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
 constexpr int kEmitterSamples = 2;     // emitter points per triplet, shared by its three points
 constexpr int kSkySamples = 4;         // sky directions per triplet, shared by its three points
+// The indirect light's share of the first look: how open each point is,
+// from kAmbientSamples cosine directions per triplet (shared by its three
+// points), a surface met within kAmbientReach texels closing a direction
+// by 1 - t / reach (no jump where a surface comes into reach).
+constexpr int kAmbientSamples = 4;
+constexpr float kAmbientReach = 16.0f;
 
 float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
@@ -47,21 +53,28 @@ struct Emitters {
 };
 
 // One light sample that the three points of a triplet use: a punctual light, a point
-// on an emitter (with its normal, radiance and area density), or a sky
-// direction in the point's own cosine frame (u1, u2).
+// on an emitter (with its normal, radiance and area density), or a sky or
+// ambient direction in the point's own cosine frame (u1, u2).
 struct LightSample {
-    enum Kind { Punctual, Emitter, Sky } kind;
+    enum Kind { Punctual, Emitter, Sky, Ambient } kind;
     size_t light = 0;
     glm::vec3 position{0.0f}, normal{0.0f}, radiance{0.0f};
     float pdf = 0.0f;
     float u1 = 0.0f, u2 = 0.0f;
 };
 
-// A shadow ray and the irradiance it brings where unblocked.
+// The irradiance at a triplet's points: [0, 6) direct, per side x 3 + (0: p,
+// 1: p + offset, 2: p - offset); [6, 12) the same points' openness.
+using TripletLight = std::array<float, 12>;
+constexpr int kOpenness = 6;
+
+// A shadow ray and the irradiance it brings times the share that passes (a
+// direct light's: cut-outs and glass let it through), or an ambient ray and
+// the openness it brings, in part where it meets a surface within its reach.
 struct LitRay {
     Ray ray;
     size_t pair;
-    int point;  // side x 3 + (0: p, 1: p + offset, 2: p - offset)
+    int point;  // into TripletLight
     float irradiance;
 };
 
@@ -84,9 +97,11 @@ glm::vec3 onto_triangle(const Scene& scene, uint32_t t, glm::vec3 q) {
 }
 
 // The rays from point x (normal n, one side of its surface) that the
-// samples ask for, each with the irradiance it brings if nothing blocks it.
+// samples ask for, each with the irradiance it brings if nothing blocks it:
+// shadow rays to `shadow`, ambient rays to `ambient`.
 void rays_for(const Scene& scene, const std::vector<LightSample>& samples, const Environment* sky, glm::vec3 x,
-              glm::vec3 n, size_t pair, int point, float far, std::vector<LitRay>& out) {
+              glm::vec3 n, size_t pair, int point, float far, float reach, std::vector<LitRay>& shadow,
+              std::vector<LitRay>& ambient) {
     const glm::vec3 origin = offset_ray_origin(x, n);
     for (const LightSample& s : samples) {
         glm::vec3 to;
@@ -94,6 +109,12 @@ void rays_for(const Scene& scene, const std::vector<LightSample>& samples, const
         if (s.kind == LightSample::Sky) {
             to = cosine_direction(n, s.u1, s.u2);
             irradiance = glm::pi<float>() * channel_mean(sky->radiance(to)) / float(kSkySamples);
+        } else if (s.kind == LightSample::Ambient) {
+            ambient.push_back({{origin, reach, cosine_direction(n, s.u1, s.u2), 0u},
+                               pair,
+                               kOpenness + point,
+                               1.0f / float(kAmbientSamples)});
+            continue;
         } else if (s.kind == LightSample::Emitter) {
             to = s.position - origin;
             distance = glm::length(to);
@@ -121,7 +142,7 @@ void rays_for(const Scene& scene, const std::vector<LightSample>& samples, const
             irradiance = channel_mean(light.intensity) * cone * cos_x / (directional ? 1.0f : distance * distance);
             distance = directional ? far : 0.999f * distance;
         }
-        if (irradiance > 0.0f) out.push_back({{origin, distance, to, 1u}, pair, point, irradiance});
+        if (irradiance > 0.0f) shadow.push_back({{origin, distance, to, 1u}, pair, point, irradiance});
     }
 }
 
@@ -157,7 +178,54 @@ std::vector<LightSample> pair_samples(const Scene& scene, const Emitters& emitte
         s.u1 = uniform(rng), s.u2 = uniform(rng);
         samples.push_back(s);
     }
+    for (int d = 0; d < kAmbientSamples; ++d) {
+        LightSample s{LightSample::Ambient};
+        s.u1 = uniform(rng), s.u2 = uniform(rng);
+        samples.push_back(s);
+    }
     return samples;
+}
+
+// The scene's mean albedo (channel mean), by area.
+double mean_albedo(const Scene& scene) {
+    double sum = 0.0, area = 0.0;
+    for (size_t t = 0; t < scene.triangles.size(); ++t) {
+        sum += double(scene.triangle_area(t)) * channel_mean(scene.mean_albedo(t));
+        area += scene.triangle_area(t);
+    }
+    return area > 0.0 ? sum / area : 0.0;
+}
+
+// k per chart id (the larger of its two sides'; 0 where no triplet): the
+// mean squared second difference of the light at its triplets, direct plus
+// indirect. The indirect light is not known before the bake; its first
+// look is each point's openness A times the light an open point would get
+// over a closed one. With the scene's mean direct irradiance E and mean
+// albedo rho, the indirect irradiance in a closed room is about
+// E rho / (1 - rho) where open, and a direction closed by a nearby surface
+// brings back rho of that: the difference is E rho per unit of openness.
+// `mean`: E.
+std::vector<double> chart_k(const Scene& scene, const std::vector<uint32_t>& pair_chart,
+                            const std::vector<TripletLight>& light, double mean, size_t chart_count) {
+    const double open_to_closed = mean * std::min(mean_albedo(scene), 0.95);
+    std::vector<glm::dvec2> sums(chart_count, glm::dvec2(0.0));  // (front, back) squared second differences
+    std::vector<int> pairs(chart_count, 0);
+    for (size_t i = 0; i < pair_chart.size(); ++i) {
+        const TripletLight& e = light[i];
+        auto second_difference = [&](int side) {
+            auto at = [&](int point) {
+                return double(e[3 * side + point]) + open_to_closed * e[kOpenness + 3 * side + point];
+            };
+            const double d = 0.5 * (at(1) + at(2)) - at(0);
+            return d * d;
+        };
+        sums[pair_chart[i]] += glm::dvec2(second_difference(0), second_difference(1));
+        ++pairs[pair_chart[i]];
+    }
+    std::vector<double> k(chart_count, 0.0);
+    for (size_t c = 0; c < chart_count; ++c)
+        if (pairs[c] > 0) k[c] = std::max(sums[c].x, sums[c].y) / pairs[c];
+    return k;
 }
 
 // The factor f for which the sum of area x clamp(f x r)^2 is the area's sum (bisection in log f).
@@ -195,14 +263,18 @@ LightScales light_driven_chart_scales(const Scene& scene, const Tracer& tracer, 
     const auto triangles_of = triangles_by_chart(scene, chart, chart_count, [](size_t) { return true; });
     const Emitters emitters(scene);
     const float far = 2.0f * glm::length(scene.bounds.hi - scene.bounds.lo) + 1.0f;
+    const float reach = kAmbientReach * float(texel);
     std::mt19937 rng(20261129u);
     std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
 
-    // Per triplet: its chart, and per side the irradiance at p, p + offset, p - offset.
+    // Per triplet: its chart, and its points' light.
     std::vector<uint32_t> pair_chart;
-    std::vector<std::array<float, 6>> irradiance;
-    RayBatch<LitRay> batch(tracer, [&](const LitRay& r, const RayHit& hit) {
-        if (hit.triangle == kNoHit) irradiance[r.pair][r.point] += r.irradiance;
+    std::vector<TripletLight> irradiance;
+    RayBatch<LitRay, glm::vec3> shadows(tracer, [&](const LitRay& r, const glm::vec3& passes) {
+        irradiance[r.pair][r.point] += r.irradiance * channel_mean(passes);
+    });
+    RayBatch<LitRay> ambient(tracer, [&](const LitRay& r, const RayHit& hit) {
+        irradiance[r.pair][r.point] += r.irradiance * (hit.triangle == kNoHit ? 1.0f : hit.t / reach);
     });
     for (uint32_t c = 0; c < chart_count; ++c) {
         if ((!leave.empty() && leave[c]) || triangles_of[c].empty()) continue;
@@ -226,36 +298,28 @@ LightScales light_driven_chart_scales(const Scene& scene, const Tracer& tracer, 
             for (int side = 0; side < (double_sided ? 2 : 1); ++side)
                 for (int k = 0; k < 3; ++k)
                     rays_for(scene, samples, sky, points[k], side ? -p.normal : p.normal, pair, 3 * side + k, far,
-                             batch.items());
+                             reach, shadows.items(), ambient.items());
         }
-        batch.trace_if_full();
+        shadows.trace_if_full();
+        ambient.trace_if_full();
     }
-    batch.trace();
-    out.rays = batch.traced();
+    shadows.trace();
+    ambient.trace();
+    out.rays = shadows.traced() + ambient.traced();
 
-    // k per chart (the larger of its two sides'), and the scene's mean E for the floor.
-    std::vector<glm::dvec2> sums(chart_count, glm::dvec2(0.0));  // (front, back) squared second differences
-    std::vector<int> pairs(chart_count, 0);
-    double mean = 0.0;
-    for (size_t i = 0; i < pair_chart.size(); ++i) {
-        const std::array<float, 6>& e = irradiance[i];
-        auto second_difference = [&](int side) {
-            const double d = 0.5 * (double(e[3 * side + 1]) + e[3 * side + 2]) - e[3 * side];
-            return d * d;
-        };
-        sums[pair_chart[i]] += glm::dvec2(second_difference(0), second_difference(1));
-        ++pairs[pair_chart[i]];
-        mean += std::max(e[0], e[3]);
-    }
     if (pair_chart.empty()) return out;
-    mean /= double(pair_chart.size());
+    double mean = 0.0;  // direct irradiance, over the triplets
+    for (const TripletLight& e : irradiance) mean += std::max(e[0], e[3]);
+    mean /= double(irradiance.size());
+    out.k = chart_k(scene, pair_chart, irradiance, mean, chart_count);
     // The floor: light changing by 1% of the scene's mean a texel apart.
     const double floor = 1e-4 * mean * mean;
+    std::vector<uint8_t> has_pairs(chart_count, 0);
+    for (uint32_t c : pair_chart) has_pairs[c] = 1;
     std::vector<uint32_t> measured;
     std::vector<double> r, area;
     for (uint32_t c = 0; c < chart_count; ++c) {
-        if (pairs[c] == 0) continue;
-        out.k[c] = std::max(sums[c].x, sums[c].y) / pairs[c];
+        if (!has_pairs[c]) continue;
         double a = 0.0;
         for (uint32_t t : triangles_of[c]) a += scene.triangle_area(t);
         measured.push_back(c);

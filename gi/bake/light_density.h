@@ -8,9 +8,15 @@
 // direction along its triangle; one per 8 texels the chart would get, 8
 // to 4,096), all lit by the same light samples (punctual lights exactly,
 // emitter points, sky directions, each with its shadow ray), the chart's
-// k = mean of (E(p) - (E(p + texel) + E(p - texel)) / 2)^2, E the direct
+// k = mean of (E(p) - (E(p + texel) + E(p - texel)) / 2)^2, E the
 // irradiance's channel mean: the error of a lookup that interpolates
-// between texels a texel either side of p. It is zero on a smooth
+// between texels a texel either side of p. E is the direct light plus a
+// first look at the indirect: each point's openness (the same cosine
+// directions from the three points, a surface within 16 texels closing
+// one in part) times the scene's mean direct irradiance times its mean
+// albedo, what an open point gets over a closed one (light_density.cpp's
+// chart_k), so a wall's foot or a contact keeps texels where the direct
+// light alone is even. It is zero on a smooth
 // gradient (first differences rewarded lamp pools and measured worse than
 // uniform: docs/BENCHMARKS.md, "Texels where the light changes") and the
 // light's jump at a shadow's edge. Across such an edge, that error
@@ -18,8 +24,8 @@
 // proportional to the texel's size h; the sum over charts of area x k x h /
 // texel at a fixed texel count (sum of area / h^2) is least where the
 // density 1/h goes as k^(1/3) (a Lagrange multiplier). So each chart's
-// scale is k^(1/3), with a floor for the evenly lit ones (their indirect
-// light still changes a little), clamped to [kMinLightScale,
+// scale is k^(1/3), with a floor for the evenly lit ones (light changing by
+// 1% of the scene's mean a texel apart), clamped to [kMinLightScale,
 // kMaxLightScale], and normalized so that the sum of area x scale^2 over
 // the charts scaled is their area: as many texels as without it.
 #pragma once

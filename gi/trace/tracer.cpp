@@ -42,20 +42,31 @@ ComputeProgram Tracer::program(const std::string& name, ShaderDefines defines) c
     return ComputeProgram(name, defines);
 }
 
-std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
-    static_assert(sizeof(Ray) == 32 && sizeof(RayHit) == 16);
-    if (rays.empty()) return {};
+GpuBuffer Tracer::trace_rays(const std::vector<Ray>& rays, uint32_t mode) const {
+    static_assert(sizeof(Ray) == 32 && sizeof(RayHit) == sizeof(glm::vec4));
     if (!trace_program_) trace_program_ = std::make_unique<ComputeProgram>(program("trace_rays.comp"));
     GpuBuffer ray_buffer(rays);
-    GpuBuffer hit_buffer(rays.size() * sizeof(RayHit));
+    GpuBuffer hit_buffer(rays.size() * sizeof(glm::vec4));
     bind();
     ray_buffer.bind(LF_BINDING_RAYS);
     hit_buffer.bind(LF_BINDING_HITS);
     TracerParams params{};
     params.ray_count = uint32_t(rays.size());
+    params.mode = mode;
     trace_program_->use(params);
     trace_program_->dispatch_1d(rays.size());
-    return hit_buffer.read<RayHit>();
+    return hit_buffer;
+}
+
+std::vector<RayHit> Tracer::trace(const std::vector<Ray>& rays) const {
+    if (rays.empty()) return {};
+    return trace_rays(rays, 0).read<RayHit>();
+}
+
+std::vector<glm::vec3> Tracer::transmittance(const std::vector<Ray>& rays) const {
+    if (rays.empty()) return {};
+    const std::vector<glm::vec4> out = trace_rays(rays, 1).read<glm::vec4>();
+    return std::vector<glm::vec3>(out.begin(), out.end());
 }
 
 }  // namespace lf

@@ -50,6 +50,10 @@ public:
     // the see-through surfaces' materials (shaders/buffer_bindings.glsl).
     void bind() const;
     std::vector<RayHit> trace(const std::vector<Ray>& rays) const;
+    // The share of light that passes along each ray (0 < t < t_max), per
+    // channel: 0 past an opaque surface, see-through ones passing their
+    // transmittance (cut-outs, blends, glass). `any_hit` is not read.
+    std::vector<glm::vec3> transmittance(const std::vector<Ray>& rays) const;
     // Takes the winding of `scene`'s triangles: the scene this tracer was
     // built from with some triangles turned round (the same triangles in the
     // same order at the same positions; its vertices may be split). The tree
@@ -69,6 +73,9 @@ public:
     bool has_see_through() const { return has_see_through_; }
 
 private:
+    // trace_rays.comp in `mode` over `rays` (not empty): its output, 16 bytes per ray.
+    GpuBuffer trace_rays(const std::vector<Ray>& rays, uint32_t mode) const;
+
     BvhStats stats_;
     bool has_see_through_ = false;
     GpuBuffer nodes_;
