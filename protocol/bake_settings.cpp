@@ -146,9 +146,10 @@ std::vector<Setting> build_catalog() {
               "glass (KHR_materials_transmission) gets texels at the scene's density; off: 1/8 of it, as charts no "
               "light reaches (light passes glass, which reflects little)"),
         typed("atlas", "light_density", T::Flag, false,
-              "charts get texels where their direct light changes (a first look at it, pairs of points a texel apart): "
-              "more at shadow edges and lamp pools, fewer where it is even, 0.5 to 2 times the scene's density, as "
-              "many texels in all"),
+              "charts get texels where their light changes (a first look at it, triplets of points a texel apart: "
+              "direct light through glass and cut-outs, and how open each point is): more at shadow edges, lamp "
+              "pools and a wall's foot, fewer where it is even, 0.5 to 2 times the scene's density, as many texels "
+              "in all"),
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
         typed("", "env", T::Environment, nullptr,
