@@ -602,6 +602,23 @@ TEST(LightDensity, AShadowsEdgeGetsTexelsThatAnEvenlyLitFloorGivesUp) {
     EXPECT_EQ(left.k[roof], 0.0);
 }
 
+// `s`'s atlas at 128² with the light's own density (no sky), and the first
+// look's scales.
+std::pair<AtlasReport, LightScales> light_driven_atlas(const Scene& s) {
+    const Tracer tracer(s);
+    Scene scene = s;
+    AtlasOptions options;
+    options.resolution = 128;
+    LightScales scales;
+    options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count, const std::vector<uint8_t>& few,
+                               double texel) {
+        scales = light_driven_chart_scales(scene, tracer, chart, count, few, texel, nullptr);
+        return scales.scale;
+    };
+    const AtlasReport report = generate_lightmap_uvs(scene, options);
+    return {report, scales};
+}
+
 // The indirect light's first look: two floors lit alike by a sun overhead,
 // one with a wall standing on it edge-on to the sun (no shadow: the direct
 // light is even on both). Near the wall's foot a point sees the wall where
@@ -616,17 +633,7 @@ TEST(LightDensity, AWallsFootGetsTexelsThatAnOpenFloorGivesUp) {
     test::add_quad(s, {1, 0, 1}, {2, 0, 0}, {0, 0, -2}, m);     // floor B, facing up: x in [1, 3]
     test::add_quad(s, {-3, 0, 0}, {2, 0, 0}, {0, 0.5f, 0}, m);  // a wall across A, in the sun's plane
     test::add_sun(s, glm::vec3(0.0f, -1.0f, 0.0f), 1.0f);
-    const Tracer tracer(s);
-    Scene scene = s;
-    AtlasOptions options;
-    options.resolution = 128;
-    LightScales scales;
-    options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count, const std::vector<uint8_t>& few,
-                               double texel) {
-        scales = light_driven_chart_scales(scene, tracer, chart, count, few, texel, nullptr);
-        return scales.scale;
-    };
-    const AtlasReport report = generate_lightmap_uvs(scene, options);
+    const auto [report, scales] = light_driven_atlas(s);
     const uint32_t a = report.triangle_chart[0], b = report.triangle_chart[2];
     std::printf("  scales: floor with a wall %.3f, open floor %.3f (k %.3g, %.3g)\n", scales.scale[a], scales.scale[b],
                 scales.k[a], scales.k[b]);
@@ -651,17 +658,7 @@ TEST(LightDensity, GlassCastsNoEdgeARoofDoes) {
     test::add_quad(s, {-3, 1, -1}, {1, 0, 0}, {0, 0, 2}, glass);  // glass over A's x < -2, facing down
     test::add_quad(s, {1, 1, -1}, {1, 0, 0}, {0, 0, 2}, m);       // a roof over B's x < 2, facing down
     test::add_sun(s, glm::vec3(0.0f, -1.0f, 0.0f), 1.0f);
-    const Tracer tracer(s);
-    Scene scene = s;
-    AtlasOptions options;
-    options.resolution = 128;
-    LightScales scales;
-    options.light_scales = [&](const std::vector<uint32_t>& chart, size_t count, const std::vector<uint8_t>& few,
-                               double texel) {
-        scales = light_driven_chart_scales(scene, tracer, chart, count, few, texel, nullptr);
-        return scales.scale;
-    };
-    const AtlasReport report = generate_lightmap_uvs(scene, options);
+    const auto [report, scales] = light_driven_atlas(s);
     const uint32_t a = report.triangle_chart[0], b = report.triangle_chart[2];
     std::printf("  scales: floor under glass %.3f, floor under a roof %.3f (k %.3g, %.3g)\n", scales.scale[a],
                 scales.scale[b], scales.k[a], scales.k[b]);
