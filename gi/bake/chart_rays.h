@@ -1,9 +1,10 @@
 // Rays from random points of a lightmap chart, for what the bake decides per
 // chart from the geometry alone, before its texels exist: which side a
 // double-sided chart is baked for (double_sided.h), whether any light can
-// reach a chart at all (unlit_charts.h), how fast its direct light changes
-// (light_density.h). Traced in batches by Tracer::trace; deterministic for a
-// given scene.
+// reach a chart at all (unlit_charts.h), how fast its light changes
+// (light_density.h). Traced by Tracer::trace (hits of the geometry) or
+// Tracer::transmittance (the light's share that passes), in one batch or a
+// RayBatch's; deterministic for a given scene.
 #pragma once
 
 #include "scene/scene.h"
