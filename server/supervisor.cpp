@@ -176,28 +176,29 @@ void Supervisor::keep_leases() {
 // A claim whose commit was cut off (the database crashed as it committed:
 // a PANIC on a WAL it could not sync) failed here but may be stored all the
 // same: the job then runs on this node in the store, no slot runs it, and
-// no other node takes it over while this one renews its heartbeat. Seen so
-// at two renewals in a row (a slot registers the job it claims at once, so
-// one renewal apart nothing is in between), it goes back to the queue with
-// its attempt refunded: no worker ran. Found by the PostgreSQL fault harness.
+// no other node takes it over while this one renews its heartbeat. It goes
+// back to the queue with its attempt refunded: no worker ran. Found by the
+// PostgreSQL fault harness. Under claim_mutex_ no slot is between its claim
+// and its RunningHere, and the slots' jobs are read before the store's: a
+// job running here in the store and in none of them is one no slot holds
+// (a slot whose attempt ends meanwhile is in the list, and its job is no
+// longer running in the store when it leaves it).
 void Supervisor::requeue_unrun_claims() {
-    std::set<std::string> unrun;
-    const std::vector<JobRecord> running = store_.running_jobs();
+    const std::lock_guard claims(claim_mutex_);
+    std::set<std::string> in_slots;
     {
         std::lock_guard lock(cancel_mutex_);
-        for (const JobRecord& job : running)
-            if (job.node == store_.node().name && !running_here_.count(job.status.id)) unrun.insert(job.status.id);
+        in_slots = running_here_;
     }
-    for (const JobRecord& job : running) {
+    for (const JobRecord& job : store_.running_jobs()) {
         const std::string& id = job.status.id;
-        if (!unrun.count(id) || !unrun_seen_.count(id)) continue;
+        if (job.node != store_.node().name || in_slots.count(id)) continue;
         const std::string cause = "lightfarmd lost the answer to its claim; no worker ran";
-        if (store_.requeue(id, protocol::job_event(protocol::JobRetrying{job.status.attempts, cause, true}), true))
+        if (store_.requeue(id, protocol::job_event(protocol::JobRetrying{job.status.attempts, cause, true}), true)) {
             log_line("job " + id + ": " + cause + ", queued again");
-        unrun.erase(id);
-        changes_.notify();
+            changes_.notify();
+        }
     }
-    unrun_seen_ = std::move(unrun);
 }
 
 void Supervisor::lease_loop() {
@@ -304,25 +305,40 @@ void Supervisor::compact_events() {
 
 void Supervisor::worker_loop(const std::string& device) {
     std::chrono::milliseconds fault_backoff(0);
+    bool claim_failed = false;
     while (!stopping_) {
         const uint64_t seen = changes_.generation();
         const int64_t now = std::chrono::duration_cast<std::chrono::seconds>(Clock::now().time_since_epoch()).count();
         if (int64_t last = last_compaction_; now - last >= 3600 && last_compaction_.compare_exchange_strong(last, now))
             compact_events();
+        // A claim that failed may be stored all the same (its answer was
+        // lost): once the store answers again, such a job is queued again.
+        if (claim_failed) {
+            try {
+                requeue_unrun_claims();
+                claim_failed = false;
+            } catch (const StoreError& e) {
+                store_trouble(std::string("cannot look for a claim whose answer was lost: ") + e.what());
+            }
+        }
         std::optional<JobRecord> job;
+        std::unique_lock claiming(claim_mutex_);
         try {
             job = store_.claim_next();
         } catch (const StoreError& e) {
             store_trouble(std::string("cannot take a job from the queue: ") + e.what());
+            claim_failed = true;
         } catch (const std::exception& e) {
             log_line(std::string("cannot read the queue: ") + e.what());
         }
         if (!job) {
+            claiming.unlock();
             changes_.wait(seen, std::chrono::seconds(1));
             continue;
         }
-        changes_.notify();
         const RunningHere running_here(*this, job->status.id);
+        claiming.unlock();
+        changes_.notify();
         bool machine_fault = false;
         try {
             machine_fault = run_attempt(*job, device);

@@ -179,6 +179,9 @@ private:
     // jobs of lost nodes.
     void lease_loop();
     void keep_leases();
+    // Jobs running on this node in the store that no slot runs (a claim
+    // whose answer was lost): queued again, their attempt refunded. Called
+    // at every renewal and by a slot whose claim failed.
     void requeue_unrun_claims();
     // A job this node claimed, known to the lease loop (running_here_) from
     // its claim until its attempt's end is stored.
@@ -203,11 +206,11 @@ private:
     std::atomic<bool> stopping_{false};
     std::mutex lifecycle_mutex_;  // start() and stop()
     std::vector<std::thread> threads_;
+    std::mutex claim_mutex_;  // a slot's claim and its RunningHere, as one step (requeue_unrun_claims)
     std::mutex cancel_mutex_;
     std::set<std::string> cancelled_;     // running here, to be killed
     std::set<std::string> running_here_;  // jobs whose lease this node renews
     std::set<std::string> lost_;          // running here but no longer ours in the store: to be killed
-    std::set<std::string> unrun_seen_;    // running here in the store, by no slot, at the last renewal
     nlohmann::json node_info_;            // what the heartbeat says of this node
     std::mutex trouble_mutex_;
     Clock::time_point last_trouble_log_{};
