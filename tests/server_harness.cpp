@@ -231,7 +231,9 @@ void wait_until_ready(pid_t& pid, const fs::path& log, const std::function<bool(
         int status = 0;
         if (waitpid(pid, &status, WNOHANG) == pid) {
             pid = -1;
-            throw std::runtime_error("lightfarmd exited at start:\n" + read_text(log));
+            const std::string how = WIFSIGNALED(status) ? std::string("killed by ") + strsignal(WTERMSIG(status))
+                                                        : "exit " + std::to_string(WEXITSTATUS(status));
+            throw std::runtime_error("lightfarmd exited at start (" + how + "):\n" + read_text(log));
         }
     }
     throw std::runtime_error("lightfarmd did not come up in 15 s:\n" + read_text(log));

@@ -242,7 +242,8 @@ struct FaultRun {
 // Calls run(i) for every i < n on `threads` threads: the scenario's runs
 // mostly wait on lightfarmd and its fake engine, so four side by side take
 // about a quarter of the time (CI's 20 minutes), each with its own
-// lightfarmd, directory and shim (FaultShim::Export::kExplicitly).
+// lightfarmd, directory and shim (FaultShim::Export::kExplicitly). `run`
+// throws nothing: an exception would end the test process.
 void side_by_side(size_t n, int threads, const std::function<void(size_t)>& run) {
     std::atomic<size_t> next{0};
     std::vector<std::thread> pool;
@@ -295,7 +296,13 @@ TEST(ServerFaults, EveryCallOfTheServerAndItsStore) {
         const fs::path dir = tmp.path / std::to_string(i + 1);
         const FaultShim shim(dir / "data", dir, site, error, nth, kExplicitly);
         SCOPED_TRACE(site + ", call " + std::to_string(nth) + ", " + error);
-        for (const auto& [phase, effect] : ServerScenario(dir, shim, armed).run()) {
+        std::map<std::string, std::string> found;
+        try {
+            found = ServerScenario(dir, shim, armed).run();
+        } catch (const std::exception& e) {  // lightfarmd would not start
+            ADD_FAILURE() << "run " << i + 1 << ": " << e.what();
+        }
+        for (const auto& [phase, effect] : found) {
             EXPECT_NE(effect, "not reached") << site << " call " << nth << " in " << phase << " under " << error;
             const std::lock_guard<std::mutex> lock(effects_mutex);
             effects[site][phase][error][nth] = effect;
