@@ -1,11 +1,12 @@
 #include "bake_settings.h"
 
+#include "spec_text.h"
+
 #include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <iterator>
 #include <limits>
-#include <sstream>
 
 namespace lf::protocol {
 
@@ -157,21 +158,6 @@ std::vector<Setting> build_catalog() {
     };
 }
 
-// Shortest text for a number: 8192, not 8192.000000.
-std::string number_text(double v) {
-    std::ostringstream s;
-    s.precision(15);
-    s << v;
-    return s.str();
-}
-
-std::string type_name(const json& j) {
-    if (j.is_number_integer() || j.is_number_unsigned()) return "an integer";
-    if (j.is_number()) return "a number";
-    const std::string name = j.type_name();
-    return (name == "array" || name == "object" ? "an " : "a ") + name;
-}
-
 std::string joined(const std::vector<std::string>& items, const std::string& sep) {
     std::string out;
     for (const std::string& s : items) out += (out.empty() ? "" : sep) + s;
@@ -179,7 +165,7 @@ std::string joined(const std::vector<std::string>& items, const std::string& sep
 }
 
 json check_range(const Setting& s, const json& v, const SpecLimits& limits, const std::string& field) {
-    if (!v.is_number()) throw SpecError(field, "must be a number, not " + type_name(v));
+    if (!v.is_number()) throw SpecError(field, "must be a number, not " + json_type_name(v));
     const double x = v.get<double>();
     if (!std::isfinite(x)) throw SpecError(field, "must be finite");
     const bool is_int = v.is_number_integer() || v.is_number_unsigned();
@@ -217,13 +203,14 @@ json check_environment(const json& v, const SpecLimits& limits, const std::strin
                             "an environment map file cannot be given to the service; give a uniform sky [R, G, B]");
         return file;
     }
-    throw SpecError(field, "must be [R, G, B] or an environment map file, not " + type_name(v));
+    throw SpecError(field, "must be [R, G, B] or an environment map file, not " + json_type_name(v));
 }
 
 // Points as [{"position": [x, y, z]}, …], each coordinate a finite float.
 json check_positions(const json& v, const std::string& field) {
     constexpr size_t kMaxPoints = 4096;
-    if (!v.is_array()) throw SpecError(field, "must be an array of {\"position\": [x, y, z]}, not " + type_name(v));
+    if (!v.is_array())
+        throw SpecError(field, "must be an array of {\"position\": [x, y, z]}, not " + json_type_name(v));
     if (v.size() > kMaxPoints) throw SpecError(field, std::to_string(v.size()) + " points exceed the maximum 4096");
     for (size_t k = 0; k < v.size(); ++k) {
         const std::string point = "point " + std::to_string(k);
@@ -241,7 +228,7 @@ json check_positions(const json& v, const std::string& field) {
 // {"MESH": SCALE, ...}: mesh indices as decimal keys, scales in [0, 64].
 json check_mesh_scales(const json& v, const std::string& field) {
     if (!v.is_object())
-        throw SpecError(field, "must be an object of glTF mesh index to scale ({\"3\": 2}), not " + type_name(v));
+        throw SpecError(field, "must be an object of glTF mesh index to scale ({\"3\": 2}), not " + json_type_name(v));
     if (v.size() > kMaxMeshList)
         throw SpecError(field, std::to_string(v.size()) + " meshes exceed the maximum " + std::to_string(kMaxMeshList));
     json out = json::object();
@@ -272,10 +259,10 @@ json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
                 if (v.get<std::string>() == c) return v;
         throw SpecError(field, "must be one of " + joined(s.choices, ", ") + ", not " + v.dump());
     case SettingType::Flag:
-        if (!v.is_boolean()) throw SpecError(field, "must be true or false, not " + type_name(v));
+        if (!v.is_boolean()) throw SpecError(field, "must be true or false, not " + json_type_name(v));
         return v;
     case SettingType::MeshList: {
-        if (!v.is_array()) throw SpecError(field, "must be an array of glTF mesh indices, not " + type_name(v));
+        if (!v.is_array()) throw SpecError(field, "must be an array of glTF mesh indices, not " + json_type_name(v));
         if (v.size() > kMaxMeshList)
             throw SpecError(
                 field, std::to_string(v.size()) + " mesh indices exceed the maximum " + std::to_string(kMaxMeshList));
@@ -296,7 +283,7 @@ json check_setting(const Setting& s, const json& v, const SpecLimits& limits) {
 }
 
 void require_object(const json& j, const std::string& field) {
-    if (!j.is_object()) throw SpecError(field, "must be an object, not " + type_name(j));
+    if (!j.is_object()) throw SpecError(field, "must be an object, not " + json_type_name(j));
 }
 
 // Every key of group `group` in `j` must be a setting of that group.

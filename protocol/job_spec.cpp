@@ -1,28 +1,15 @@
 #include "job_spec.h"
 
+#include "spec_text.h"
+
 #include <algorithm>
 #include <cmath>
-#include <sstream>
 
 namespace lf::protocol {
 
 using nlohmann::json;
 
 namespace {
-
-std::string type_name(const json& j) {
-    if (j.is_number_integer() || j.is_number_unsigned()) return "an integer";
-    const std::string name = j.type_name();
-    return (name == "array" || name == "object" ? "an " : "a ") + name;
-}
-
-// Shortest text for a number: 10, not 10.0.
-std::string number_text(double v) {
-    std::ostringstream s;
-    s.precision(15);
-    s << v;
-    return s.str();
-}
 
 // The shortest deadline an attempt may have: a worker takes longer than
 // this to start, so a shorter one could only fail (three times).
@@ -33,7 +20,7 @@ double check_limit(const json& v, bool integer, const SpecLimits& limits, const 
     const std::string field = "limits." + key;
     if (!v.is_number() || (integer && !(v.is_number_integer() || v.is_number_unsigned())))
         throw SpecError(field,
-                        std::string("must be ") + (integer ? "an integer" : "a number") + ", not " + type_name(v));
+                        std::string("must be ") + (integer ? "an integer" : "a number") + ", not " + json_type_name(v));
     const double x = v.get<double>();
     if (!(integer ? x >= 1.0 : x >= kMinMaxSeconds))
         throw SpecError(field, std::string("must be at least 1") +
@@ -47,7 +34,7 @@ double check_limit(const json& v, bool integer, const SpecLimits& limits, const 
 }  // namespace
 
 JobSpec parse_job_spec(const json& j, const SpecLimits& limits) {
-    if (!j.is_object()) throw SpecError("", "a job spec must be a JSON object, not " + type_name(j));
+    if (!j.is_object()) throw SpecError("", "a job spec must be a JSON object, not " + json_type_name(j));
     for (auto it = j.begin(); it != j.end(); ++it) {
         static const char* const known[] = {"scene", "outputs", "atlas", "seed", "env", "limits"};
         bool found = false;
@@ -56,7 +43,7 @@ JobSpec parse_job_spec(const json& j, const SpecLimits& limits) {
     }
     JobSpec spec;
     if (!j.contains("scene")) throw SpecError("scene", "is required");
-    if (!j["scene"].is_string()) throw SpecError("scene", "must be a string, not " + type_name(j["scene"]));
+    if (!j["scene"].is_string()) throw SpecError("scene", "must be a string, not " + json_type_name(j["scene"]));
     spec.scene = j["scene"].get<std::string>();
     if (spec.scene.empty()) throw SpecError("scene", "must not be empty");
 
@@ -64,7 +51,7 @@ JobSpec parse_job_spec(const json& j, const SpecLimits& limits) {
 
     if (j.contains("limits")) {
         const json& l = j["limits"];
-        if (!l.is_object()) throw SpecError("limits", "must be an object, not " + type_name(l));
+        if (!l.is_object()) throw SpecError("limits", "must be an object, not " + json_type_name(l));
         for (auto it = l.begin(); it != l.end(); ++it)
             if (it.key() != "max_seconds" && it.key() != "max_attempts")
                 throw SpecError("limits." + it.key(), "unknown field (known: max_seconds, max_attempts)");

@@ -3,6 +3,7 @@
 #include "atlas/mesh_topology.h"
 #include "atlas/texel_samples.h"
 #include "util/parallel.h"
+#include "util/math.h"
 
 #include <glm/gtc/constants.hpp>
 
@@ -111,8 +112,6 @@ struct PlaneBasis {
         return {glm::dot(d, tangent), glm::dot(d, bitangent)};
     }
 };
-
-double cross2(glm::dvec2 a, glm::dvec2 b) { return a.x * b.y - a.y * b.x; }
 
 double signed_area2(const Tri2& t) { return cross2(t[1] - t[0], t[2] - t[0]); }
 

@@ -1,5 +1,7 @@
 #include "atlas/lightmapped_gltf.h"
 #include "io/write_error.h"
+#include "scene/glb.h"
+#include "scene/gltf_reread.h"
 
 #include "util/parallel.h"
 #include "display_tone.h"
@@ -27,10 +29,6 @@ namespace {
     throw std::runtime_error(file.filename().string() + ": " + what);
 }
 
-// tinygltf's default path expansion runs wordexp (shell expansion) on URIs;
-// paths are taken verbatim instead.
-std::string verbatim_path(const std::string& path, void*) { return path; }
-
 // Keeps each image's encoded bytes (PNG/JPEG as in the file) so they can be
 // embedded unchanged; nothing is decoded.
 bool keep_image_bytes(tinygltf::Image*, const int index, std::string*, std::string*, int, int,
@@ -46,22 +44,6 @@ struct LoadedModel {
     tinygltf::Model model;
     std::vector<std::vector<unsigned char>> image_bytes;
 };
-
-void load_model(const std::filesystem::path& source, LoadedModel& loaded) {
-    tinygltf::TinyGLTF gltf;
-    tinygltf::FsCallbacks fs{&tinygltf::FileExists, &verbatim_path, &tinygltf::ReadWholeFile, &tinygltf::WriteWholeFile,
-                             nullptr};
-    gltf.SetFsCallbacks(fs);
-    gltf.SetImageLoader(&keep_image_bytes, &loaded.image_bytes);
-
-    char magic[4] = {};
-    std::ifstream(source, std::ios::binary).read(magic, 4);
-    std::string err, warn;
-    const bool ok = std::memcmp(magic, "glTF", 4) == 0
-                        ? gltf.LoadBinaryFromFile(&loaded.model, &err, &warn, source.string())
-                        : gltf.LoadASCIIFromFile(&loaded.model, &err, &warn, source.string());
-    if (!ok) fail(source, "cannot re-read for writing: " + err);
-}
 
 size_t align_up(size_t n, size_t alignment) { return (n + alignment - 1) / alignment * alignment; }
 
@@ -311,20 +293,12 @@ void add_vertex_attributes(tinygltf::Model& model, tinygltf::Primitive& primitiv
     fill_texcoord_gaps(primitive);
 }
 
-uint32_t read_u32(const std::string& s, size_t at) {
-    uint32_t v = 0;
-    std::memcpy(&v, s.data() + at, 4);
-    return v;
-}
-
-void write_u32(std::string& s, size_t at, uint32_t v) { std::memcpy(&s[at], &v, 4); }
-
 // tinygltf writes a perspective camera's "zfar" even when it is 0 (its
 // "infinite projection"), which the glTF schema forbids (zfar > 0 or absent):
 // the GLB's JSON chunk is rewritten without it. `glb` is a whole GLB file.
 void drop_zero_zfar(std::string& glb, const std::filesystem::path& out) {
-    if (glb.size() < 20 || read_u32(glb, 16) != 0x4E4F534Au) fail(out, "tinygltf wrote no JSON chunk");
-    const uint32_t json_length = read_u32(glb, 12);
+    if (glb.size() < 20 || glb::read_u32(glb.data(), 16) != glb::kChunkJson) fail(out, "tinygltf wrote no JSON chunk");
+    const uint32_t json_length = glb::read_u32(glb.data(), 12);
     nlohmann::json doc = nlohmann::json::parse(glb.substr(20, json_length));
     bool changed = false;
     if (doc.contains("cameras"))
@@ -338,8 +312,8 @@ void drop_zero_zfar(std::string& glb, const std::filesystem::path& out) {
     json.resize((json.size() + 3) / 4 * 4, ' ');  // chunks are 4-byte aligned, JSON padded with spaces
     const std::string rest = glb.substr(20 + json_length);
     std::string rebuilt = glb.substr(0, 20) + json + rest;
-    write_u32(rebuilt, 8, uint32_t(rebuilt.size()));
-    write_u32(rebuilt, 12, uint32_t(json.size()));
+    glb::write_u32(rebuilt.data(), 8, uint32_t(rebuilt.size()));
+    glb::write_u32(rebuilt.data(), 12, uint32_t(json.size()));
     glb = std::move(rebuilt);
 }
 
@@ -616,7 +590,7 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
         fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
                               std::to_string(scene.instances.size()));
     LoadedModel loaded;
-    load_model(source_gltf, loaded);
+    loaded.model = reread_gltf(source_gltf, &keep_image_bytes, &loaded.image_bytes);
     tinygltf::Model& model = loaded.model;
     merge_buffers(model);
     embed_images(loaded);

@@ -1,6 +1,7 @@
 #include "atlas/texel_samples.h"
 
 #include "util/parallel.h"
+#include "util/math.h"
 
 #include <algorithm>
 #include <array>
@@ -11,8 +12,6 @@
 
 namespace lf {
 namespace {
-
-double cross2(glm::dvec2 a, glm::dvec2 b) { return a.x * b.y - a.y * b.x; }
 
 // How deep (in texels) a triangle must reach into a texel to touch it. UVs
 // are floats: at 8192² one float step is ~2e-4 texel, and a chart edge that

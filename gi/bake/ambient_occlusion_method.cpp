@@ -4,12 +4,12 @@
 #include "atlas/texel_samples.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <memory>
 
 #include "shaders/ambient_occlusion_params.glsl"
 #include "shaders/buffer_bindings.glsl"
+#include "util/stopwatch.h"
 
 namespace lf {
 
@@ -71,7 +71,7 @@ nlohmann::json AmbientOcclusionMethod::description() const {
 uint64_t AmbientOcclusionMethod::rays_per_pass() const { return point_count_; }
 
 std::vector<PassStats> AmbientOcclusionMethod::run_passes(int count) {
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     const AmbientOcclusionParams params{point_count_, uint32_t(stats_.pass), uint32_t(count), settings_.seed,
                                         settings_.distance};
     program_.use(params);
@@ -88,7 +88,7 @@ std::vector<PassStats> AmbientOcclusionMethod::run_passes(int count) {
     std::vector<float> unoccluded;
     if (estimate) unoccluded = unoccluded_.read<float>();
     else glFinish();
-    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const double seconds = clock.seconds();
     std::vector<PassStats> out;
     for (int k = 0; k < count; ++k) {
         stats_.pass += 1;

@@ -15,9 +15,9 @@
 #include "io/write_error.h"
 #include "scene/gltf_loader.h"
 #include "util/hash.h"
+#include "util/stopwatch.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -32,14 +32,6 @@
 namespace lf {
 
 namespace fs = std::filesystem;
-using Clock = std::chrono::steady_clock;
-
-namespace {
-
-double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
-
-}  // namespace
-
 uint64_t available_memory(const fs::path& meminfo_file, const fs::path& cgroup_dir) {
     uint64_t available = 0;
     std::ifstream meminfo(meminfo_file);
@@ -269,12 +261,12 @@ std::unique_ptr<PreparedScene> prepare(const BakeJob& job, decltype(PreparedScen
 }  // namespace
 
 nlohmann::json plan_bake_atlas(const BakeJob& job) {
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     if (!job.settings.uses_atlas()) throw BakeInputError("nothing to plan: no requested output uses the atlas");
     const std::unique_ptr<PreparedScene> p = prepare(job, nullptr, PrepareUntil::Atlas);
     nlohmann::json plan = {{"scene", job.scene.filename().string()}, {"atlas", atlas_json(p->atlas)}};
     plan["warnings"] = p->warnings;
-    plan["seconds"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    plan["seconds"] = clock.seconds();
     return plan;
 }
 
@@ -445,7 +437,7 @@ SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state
 PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs::path& out, const BakeEventSink& emit,
                      std::vector<std::string>& files, const ResumePoint& from) {
     const std::string output = method.output();
-    const auto start = Clock::now();
+    const Stopwatch clock;
     SnapshotSchedule schedule;
     SnapshotWriter writer;
     auto snapshots = std::make_shared<std::vector<std::string>>(from.snapshots);  // the writer thread's
@@ -468,12 +460,12 @@ PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs
         // Asked to stop (a cancelled job): one last snapshot of this pass,
         // whatever the schedule says, written and announced before the stop.
         const bool stop = stop_requested();
-        if (stop ? taken != stats.pass : schedule.due(stats.pass, seconds_since(start), writer.idle())) {
-            const auto read_start = Clock::now();
+        if (stop ? taken != stats.pass : schedule.due(stats.pass, clock.seconds(), writer.idle())) {
+            const Stopwatch read_clock;
             SnapshotWrite write = method.snapshot(out, stats);
             auto state = std::make_shared<MethodState>(method.state());
             state->key = key;
-            read_seconds = seconds_since(read_start);
+            read_seconds = read_clock.seconds();
             writer.submit(output, stats.pass, with_state(std::move(write), state, snapshots, state_path(out, output)));
             taken = stats.pass;
         }
@@ -609,7 +601,7 @@ constexpr double kSamplePointsPerSubsample = 1.6;
 // the sizes known by then.
 std::function<void(const PreparedScene&, const std::string&)> prepare_events(const BakeJob& job,
                                                                              const BakeEventSink& emit,
-                                                                             Clock::time_point start) {
+                                                                             Stopwatch clock) {
     auto estimate = std::make_shared<PreparationEstimate>(preparation_size(job));
     return [=, &job](const PreparedScene& p, const std::string& stage) {
         if (p.scene.triangle_count() > 0 && !estimate->knows_triangles()) {  // once, after loading
@@ -626,7 +618,7 @@ std::function<void(const PreparedScene&, const std::string&)> prepare_events(con
             estimate->set_sample_points(uint64_t(double(p.atlas.width) * p.atlas.height * p.atlas.utilisation *
                                                  kSamplePointsPerSubsample * sub * sub));
         }
-        const double elapsed = seconds_since(start);
+        const double elapsed = clock.seconds();
         emit(protocol::PrepareEvent{stage, elapsed, estimate->seconds_left(stage, elapsed)});
     };
 }
@@ -675,12 +667,12 @@ nlohmann::json manifest_of_preparation(const BakeJob& job, const PreparedScene& 
 }
 
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
-    const auto start = Clock::now();
+    const Stopwatch clock;
     make_directories(job.out);
-    const std::unique_ptr<PreparedScene> prepared = prepare(job, prepare_events(job, emit, start));
+    const std::unique_ptr<PreparedScene> prepared = prepare(job, prepare_events(job, emit, clock));
     std::vector<std::unique_ptr<ProgressiveMethod>> methods =
         prepared->timed("methods", [&] { return methods_that_fit(*prepared, job); });
-    prepared->prepare_seconds = seconds_since(start);
+    prepared->prepare_seconds = clock.seconds();
 
     protocol::StartEvent started = start_event(*prepared, methods);
     // Each output from where an interrupted run of this job left it; a

@@ -33,4 +33,13 @@ glm::vec3 cosine_direction(const glm::vec3& n, float u1, float u2) {
     return glm::normalize(r * std::cos(phi) * t + r * std::sin(phi) * b + std::sqrt(std::max(0.0f, 1.0f - u1)) * n);
 }
 
+std::vector<size_t> punctual_lights_to_try(const Scene& scene, std::mt19937& rng) {
+    const size_t n = scene.lights.size();
+    std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
+    std::vector<size_t> lights;
+    for (size_t l = 0; l < std::min(n, kLightsPerPoint); ++l)
+        lights.push_back(n <= kLightsPerPoint ? l : size_t(uniform(rng) * float(n)) % n);
+    return lights;
+}
+
 }  // namespace lf

@@ -37,12 +37,21 @@ std::vector<std::vector<uint32_t>> triangles_by_chart(const Scene& scene, const 
     return out;
 }
 
+// How many random points a decision from the geometry alone (a chart's side,
+// whether it can be lit) takes on each chart.
+inline constexpr int kPointsPerChart = 4;
+
 // `count` points on `triangles` (of one chart), area-weighted.
 std::vector<ChartPoint> random_chart_points(const Scene& scene, const std::vector<uint32_t>& triangles, int count,
                                             std::mt19937& rng);
 
 // A cosine-distributed direction about unit n from two uniforms in [0, 1).
 glm::vec3 cosine_direction(const glm::vec3& n, float u1, float u2);
+
+// The punctual lights a point tries, as indices into scene.lights: all of
+// them, or kLightsPerPoint drawn at random where the scene has more.
+inline constexpr size_t kLightsPerPoint = 8;
+std::vector<size_t> punctual_lights_to_try(const Scene& scene, std::mt19937& rng);
 
 // Rays with what each is for (an Item with a member `ray`), traced a batch
 // of about a million at a time (the memory of a scene's worth of rays stays

@@ -15,8 +15,7 @@ namespace {
 
 // 16 rays a side: a closed room's wall scores 16 of 16 inside and 0 outside,
 // far beyond the margin; the staircase's 9,121 charts cost 0.3 M rays.
-constexpr int kPointsPerChart = 4;  // random points on the chart, area-weighted
-constexpr int kRaysPerSide = 4;     // cosine rays from each point, on each side
+constexpr int kRaysPerSide = 4;  // cosine rays from each point, on each side
 // A chart turns only when its back hits geometry this much more often than
 // its front: a wall of a closed room scores about 1 inside and 0 outside; a
 // free-standing panel about the same on both sides, and keeps its front.

@@ -2,6 +2,7 @@
 
 #include "bake/chart_rays.h"
 #include "trace/ray_reference.h"
+#include "util/math.h"
 
 #include <glm/gtc/constants.hpp>
 
@@ -20,17 +21,14 @@ namespace {
 // the chart's area of them: a few, on a chart with one shadow edge.
 constexpr double kTexelsPerPair = 8.0;
 constexpr int kMinPairs = 8, kMaxPairs = 4096;
-constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
-constexpr int kEmitterSamples = 2;     // emitter points per triplet, shared by its three points
-constexpr int kSkySamples = 4;         // sky directions per triplet, shared by its three points
+constexpr int kEmitterSamples = 2;  // emitter points per triplet, shared by its three points
+constexpr int kSkySamples = 4;      // sky directions per triplet, shared by its three points
 // The indirect light's share of the first look: how open each point is,
 // from kAmbientSamples cosine directions per triplet (shared by its three
 // points), a surface met within kAmbientReach texels closing a direction
 // by 1 - t / reach (no jump where a surface comes into reach).
 constexpr int kAmbientSamples = 4;
 constexpr float kAmbientReach = 16.0f;
-
-float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
 
 // The emissive triangles, chosen in proportion to their power (as the GPU's
 // direct light chooses them: gi/bake/scene_shading.cpp).
@@ -151,11 +149,9 @@ std::vector<LightSample> pair_samples(const Scene& scene, const Emitters& emitte
                                       std::mt19937& rng) {
     std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
     std::vector<LightSample> samples;
-    for (size_t l = 0; l < std::min(scene.lights.size(), kLightsPerPoint); ++l) {
+    for (const size_t light : punctual_lights_to_try(scene, rng)) {
         LightSample s{LightSample::Punctual};
-        s.light = scene.lights.size() <= kLightsPerPoint
-                      ? l
-                      : size_t(uniform(rng) * float(scene.lights.size())) % scene.lights.size();
+        s.light = light;
         samples.push_back(s);
     }
     for (int e = 0; e < kEmitterSamples && emitters.total > 0.0; ++e) {

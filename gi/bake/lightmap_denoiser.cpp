@@ -3,11 +3,11 @@
 #include "atlas/atlas.h"
 #include "shaders/buffer_bindings.glsl"
 #include "shaders/denoise_params.glsl"
+#include "util/stopwatch.h"
 
 #include <glm/glm.hpp>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <unordered_map>
@@ -134,7 +134,7 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
         throw std::invalid_argument("denoise: a " + std::to_string(image.width) + "x" + std::to_string(image.height) +
                                     " image for a " + std::to_string(texels_.width) + "x" +
                                     std::to_string(texels_.height) + " atlas");
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     const size_t pixels = size_t(image.width) * size_t(image.height);
     const auto &r = image.at("R"), &g = image.at("G"), &b = image.at("B"), &error = image.at("error");
     std::vector<glm::vec4> colour(pixels);
@@ -150,8 +150,7 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
         for (int c = 0; c < 3; ++c) (*out[c])[texels_.texels[i]] = filtered[texels_.texels[i]][c];
     for (const auto& [to, from] : texels_.dilation)
         for (int c = 0; c < 3; ++c) (*out[c])[to] = (*out[c])[from];
-    image.number_attributes["lightfarm.denoiseSeconds"] =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    image.number_attributes["lightfarm.denoiseSeconds"] = clock.seconds();
 }
 
 }  // namespace lf

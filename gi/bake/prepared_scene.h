@@ -10,10 +10,10 @@
 #include "scene/scene.h"
 #include "sh/environment.h"
 #include "trace/tracer.h"
+#include "util/stopwatch.h"
 
 #include <nlohmann/json.hpp>
 
-#include <chrono>
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -60,17 +60,15 @@ struct PreparedScene {
     template <class F>
     auto timed(const std::string& name, F&& stage) {
         if (on_stage && stage_depth_ == 0) on_stage(*this, name);
-        const auto start = std::chrono::steady_clock::now();
         struct Record {
             PreparedScene* p;
             const std::string& name;
-            std::chrono::steady_clock::time_point start;
+            Stopwatch clock;
             ~Record() {
                 --p->stage_depth_;
-                p->stage_seconds.emplace_back(
-                    name, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+                p->stage_seconds.emplace_back(name, clock.seconds());
             }
-        } record{this, name, start};
+        } record{this, name, {}};
         ++stage_depth_;
         return stage();
     }

@@ -7,8 +7,8 @@
 #include "probes/probe_set.h"
 #include "shaders/buffer_bindings.glsl"
 #include "shaders/check_params.glsl"
+#include "util/stopwatch.h"
 
-#include <chrono>
 #include <cmath>
 #include <functional>
 #include <random>
@@ -18,10 +18,6 @@
 namespace lf {
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
 // Captures probes at `points` for `passes` passes, not downsampled (M = R).
 ProbeSet capture(const PreparedScene& prepared, const std::vector<glm::vec3>& points, int r, int passes, uint32_t seed,
@@ -107,13 +103,13 @@ double normalised_error(int estimator, const PreparedProbe& p, const std::vector
 // Repeats `batch` (which evaluates `items` points) until min_seconds have
 // passed; points per second.
 double throughput(size_t items, double min_seconds, const std::function<void()>& batch) {
-    const auto start = Clock::now();
+    const Stopwatch clock;
     size_t done = 0;
     do {
         batch();
         done += items;
-    } while (seconds_since(start) < min_seconds);
-    return double(done) / seconds_since(start);
+    } while (clock.seconds() < min_seconds);
+    return double(done) / clock.seconds();
 }
 
 // The GLSL include (probe_eval.glsl's lf_probe_polygon_to_point) over

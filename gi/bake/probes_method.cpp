@@ -3,9 +3,9 @@
 #include "bake/bake_job.h"
 #include "probes/probe_eval.h"
 #include "shaders/buffer_bindings.glsl"
+#include "util/stopwatch.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <memory>
 
@@ -139,7 +139,7 @@ nlohmann::json ProbesMethod::description() const {
 uint64_t ProbesMethod::rays_per_pass() const { return capture_texels(positions_.size(), settings_.res); }
 
 PassStats ProbesMethod::step() {
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     const uint64_t texels = capture_texels(positions_.size(), settings_.res);
     prepared_.tracer->bind();
     shading_.bind();
@@ -168,7 +168,7 @@ PassStats ProbesMethod::step() {
     ++stats_.pass;
     stats_.rays += rays_.read<uint32_t>()[0];  // this pass's rays (a 32-bit counter, reset every pass)
     rays_.clear_zero();
-    stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    stats_.seconds += clock.seconds();
     if (stats_.pass >= 2 && level > 0.0)
         stats_.error_estimate = std::sqrt(variance / double(texels)) / (level / double(texels));
     return stats_;

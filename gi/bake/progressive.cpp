@@ -1,9 +1,9 @@
 #include "bake/progressive.h"
 
 #include "bake/bake_job.h"
+#include "util/stopwatch.h"
 
 #include <atomic>
-#include <chrono>
 
 namespace lf {
 
@@ -36,9 +36,9 @@ PassStats run_progressive(ProgressiveMethod& method, const std::function<void(co
         int limit = stop.max_passes - stats.pass;
         if (wanted_pass) limit = std::min(limit, wanted_pass() - stats.pass);
         const int count = batcher.next(limit);
-        const auto start = std::chrono::steady_clock::now();
+        const Stopwatch clock;
         const std::vector<PassStats> passes = method.run_passes(count);
-        batcher.record(count, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+        batcher.record(count, clock.seconds());
         stats = passes.back();
         if (on_batch) on_batch(passes);
     }

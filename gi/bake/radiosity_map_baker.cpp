@@ -3,21 +3,16 @@
 #include "gpu/context.h"
 #include "io/reference_error.h"
 #include "shaders/buffer_bindings.glsl"
+#include "util/math.h"
+#include "util/stopwatch.h"
 
 #include <algorithm>
 #include <bit>
-#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
 
 namespace lf {
-
-namespace {
-
-float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
-
-}  // namespace
 
 const char* to_string(LightSampling sampling) {
     switch (sampling) {
@@ -290,7 +285,7 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
     if (count < 1 || count > max_batch_)
         throw std::invalid_argument("a batch of " + std::to_string(count) + " passes (1 to " +
                                     std::to_string(max_batch_) + " here)");
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     const double seconds_before = stats_.seconds;
     std::vector<int> dispatch_of_pass;  // which dispatch ran each pass of the batch
     dispatch_ends_.mark(0);
@@ -316,7 +311,7 @@ std::vector<PassStats> RadiosityMapBaker::run_passes(int count) {
     // The batch's one wait: its passes' partial sums, read back together.
     std::vector<glm::vec4> partials(size_t(count) * partials_slot_bytes_ / sizeof(glm::vec4));
     error_partials_.download(partials.data(), partials.size() * sizeof(glm::vec4));
-    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const double wall = clock.seconds();
 
     std::vector<PassStats> passes;
     for (int k = 0; k < count; ++k) {

@@ -1,15 +1,10 @@
 #include "bake/scene_shading.h"
 #include "shaders/buffer_bindings.glsl"
+#include "util/math.h"
 
 #include <cmath>
 
 namespace lf {
-
-namespace {
-
-float channel_mean(glm::vec3 c) { return (c.r + c.g + c.b) / 3.0f; }
-
-}  // namespace
 
 SceneShading::SceneShading(const Scene& scene, const Environment* environment) : environment_(environment) {
     // Emissive triangles, chosen in proportion to their power (area x radiance).

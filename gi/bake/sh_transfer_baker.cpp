@@ -2,11 +2,11 @@
 
 #include "gpu/context.h"
 #include "shaders/buffer_bindings.glsl"
+#include "util/stopwatch.h"
 
 #include <glm/gtc/type_ptr.hpp>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
@@ -170,7 +170,7 @@ void ShTransferBaker::build_occluders(const Scene& scene) {
 }
 
 PassStats ShTransferBaker::step() {
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     tracer_->bind();
     vertices_.bind(LF_BINDING_SH_VERTICES);
     accum_.bind(LF_BINDING_SH_ACCUMULATORS);
@@ -215,7 +215,7 @@ PassStats ShTransferBaker::step() {
         level += p.y;
     }
     stats_.rays += uint64_t(receiver_count_) * uint64_t(settings_.samples_per_pass);
-    stats_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    stats_.seconds += clock.seconds();
     stats_.error_estimate = level > 0.0 ? std::sqrt(variance / level) : 0.0;
     return stats_;
 }

@@ -1,6 +1,5 @@
 #include "bake/snapshot_writer.h"
-
-#include <chrono>
+#include "util/stopwatch.h"
 
 namespace lf {
 
@@ -51,7 +50,7 @@ void SnapshotWriter::run() {
         tasks_.pop_front();
         busy_ = true;
         lock.unlock();
-        const auto start = std::chrono::steady_clock::now();
+        const Stopwatch clock;
         Written done{task.output, task.pass, {}, 0.0};
         std::exception_ptr failure;
         try {
@@ -59,7 +58,7 @@ void SnapshotWriter::run() {
         } catch (...) {
             failure = std::current_exception();
         }
-        done.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        done.seconds = clock.seconds();
         lock.lock();
         busy_ = false;
         if (failure) {

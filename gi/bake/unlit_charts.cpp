@@ -10,9 +10,7 @@ namespace lf {
 
 namespace {
 
-constexpr int kPointsPerChart = 4;     // random points on the chart, area-weighted
-constexpr int kRaysPerPoint = 4;       // cosine rays from each point, on each side it is seen from
-constexpr size_t kLightsPerPoint = 8;  // punctual lights tried from each point (all, up to this many)
+constexpr int kRaysPerPoint = 4;  // cosine rays from each point, on each side it is seen from
 
 // One ray and what it says about its chart when traced.
 struct ChartRay {
@@ -31,11 +29,8 @@ std::vector<ChartRay> rays_from_point(const Scene& scene, const ChartPoint& p, u
         const glm::vec3 n = side * p.normal, origin = offset_ray_origin(p.position, n);
         for (int r = 0; r < kRaysPerPoint; ++r)
             rays.push_back({{origin, far, cosine_direction(n, uniform(rng), uniform(rng)), 0u}, chart, false});
-        for (size_t l = 0; l < std::min(scene.lights.size(), kLightsPerPoint); ++l) {
-            const PunctualLight& light =
-                scene.lights[scene.lights.size() <= kLightsPerPoint
-                                 ? l
-                                 : size_t(uniform(rng) * float(scene.lights.size())) % scene.lights.size()];
+        for (const size_t l : punctual_lights_to_try(scene, rng)) {
+            const PunctualLight& light = scene.lights[l];
             const bool directional = light.type == PunctualLight::Type::Directional;
             const glm::vec3 to = directional ? -glm::normalize(light.direction) : light.position - origin;
             const float distance = directional ? far : glm::length(to);

@@ -1,6 +1,7 @@
 #include "probes/probe_eval.h"
 
 #include "sh/sh_basis.h"
+#include "util/math.h"
 
 #include <algorithm>
 #include <cmath>
@@ -12,8 +13,6 @@ namespace lf {
 namespace {
 
 using glm::dvec3;
-
-constexpr double kPi = 3.14159265358979323846;
 
 // Lambert's sum over the edges of a polygon given by its corners relative to x.
 double lambert_sum(const dvec3* r, int count, dvec3 n) {

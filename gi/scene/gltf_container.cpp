@@ -2,6 +2,7 @@
 // JSON-level checks (gltf_document.cpp).
 #include "scene/gltf_document.h"
 #include "scene/gltf_document_checks.h"
+#include "scene/glb.h"
 
 #include <nlohmann/json.hpp>
 
@@ -14,17 +15,8 @@ namespace lf::gltf {
 
 namespace {
 
-constexpr uint32_t kGlbMagic = 0x46546C67;   // "glTF"
-constexpr uint32_t kChunkJson = 0x4E4F534A;  // "JSON"
-constexpr uint32_t kChunkBin = 0x004E4942;   // "BIN\0"
 // Deeper JSON than any glTF needs; tinygltf converts "extras" recursively.
 constexpr int kMaxJsonDepth = 64;
-
-uint32_t read_u32(const std::vector<unsigned char>& bytes, size_t offset) {
-    uint32_t v = 0;
-    std::memcpy(&v, bytes.data() + offset, 4);  // GLB is little-endian, as is every machine we run on
-    return v;
-}
 
 bool has_glb_extension(const fs::path& file) {
     std::string ext = file.extension().string();
@@ -44,11 +36,11 @@ BinChunk split_glb(Document& doc, const Errors& errors) {
     const std::vector<unsigned char>& b = doc.bytes;
     const uint64_t size = b.size();
     if (size < 12) errors.fail("GLB header", "file is only " + std::to_string(size) + " bytes");
-    if (read_u32(b, 0) != kGlbMagic) errors.fail("GLB header", "magic is not \"glTF\"");
-    const uint32_t version = read_u32(b, 4);
+    if (glb::read_u32(b.data(), 0) != glb::kMagic) errors.fail("GLB header", "magic is not \"glTF\"");
+    const uint32_t version = glb::read_u32(b.data(), 4);
     if (version != 2)
         errors.fail("GLB header", "version " + std::to_string(version) + " is not supported (2 required)");
-    const uint32_t length = read_u32(b, 8);
+    const uint32_t length = glb::read_u32(b.data(), 8);
     if (length != size) {
         errors.fail("GLB header", "length says " + std::to_string(length) + " bytes, the file has " +
                                       std::to_string(size) + (length > size ? " (truncated)" : ""));
@@ -56,8 +48,8 @@ BinChunk split_glb(Document& doc, const Errors& errors) {
     if (size > std::numeric_limits<uint32_t>::max()) errors.fail("GLB header", "file is 4 GiB or larger");
 
     if (size < 20) errors.fail("GLB chunk 0", "header is truncated");
-    const uint64_t json_length = read_u32(b, 12);
-    if (read_u32(b, 16) != kChunkJson) errors.fail("GLB chunk 0", "is not the JSON chunk");
+    const uint64_t json_length = glb::read_u32(b.data(), 12);
+    if (glb::read_u32(b.data(), 16) != glb::kChunkJson) errors.fail("GLB chunk 0", "is not the JSON chunk");
     if (json_length == 0 || 20 + json_length > size) {
         errors.fail("GLB chunk 0", "length " + std::to_string(json_length) + " exceeds the " +
                                        std::to_string(size - 20) + " bytes after its header");
@@ -70,8 +62,9 @@ BinChunk split_glb(Document& doc, const Errors& errors) {
     const uint64_t rest = size - bin_header;
     if (rest == 0) return bin;
     if (rest < 12) errors.fail("GLB chunk 1", "truncated (" + std::to_string(rest) + " bytes)");
-    const uint64_t bin_length = read_u32(b, size_t(bin_header));
-    if (read_u32(b, size_t(bin_header) + 4) != kChunkBin) errors.fail("GLB chunk 1", "is not the BIN chunk");
+    const uint64_t bin_length = glb::read_u32(b.data(), size_t(bin_header));
+    if (glb::read_u32(b.data(), size_t(bin_header) + 4) != glb::kChunkBin)
+        errors.fail("GLB chunk 1", "is not the BIN chunk");
     if (bin_length < 4 || bin_length % 4 != 0)
         errors.fail("GLB chunk 1", "length " + std::to_string(bin_length) + " is not a positive multiple of 4");
     if (bin_length > rest - 8) {
@@ -117,7 +110,7 @@ Document read_document(const fs::path& file, const LoadLimits& limits, const Err
     files.charge(doc.bytes);
     if (doc.bytes.empty()) errors.fail("file is empty (0 bytes), not a glTF or GLB file");
 
-    const bool glb_magic = doc.bytes.size() >= 4 && read_u32(doc.bytes, 0) == kGlbMagic;
+    const bool glb_magic = doc.bytes.size() >= 4 && glb::read_u32(doc.bytes.data(), 0) == glb::kMagic;
     doc.binary = glb_magic || has_glb_extension(file);
     BinChunk bin;
     if (doc.binary) {

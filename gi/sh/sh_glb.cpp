@@ -2,6 +2,7 @@
 
 #include "atlas/lightmapped_gltf.h"
 #include "scene/gltf_loader.h"
+#include "scene/gltf_reread.h"
 #include "sh/shading.h"
 #include "sh/transfer_file.h"
 
@@ -10,7 +11,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <fstream>
 #include <map>
 #include <stdexcept>
 #include <tuple>
@@ -43,26 +43,9 @@ void write_sh_glb(const fs::path& source_gltf, const Scene& scene, const std::ve
 
 namespace {
 
-// Paths verbatim, images left encoded: only the attributes are read here.
-std::string verbatim_path(const std::string& path, void*) { return path; }
+// Images left encoded: only the attributes are read here.
 bool skip_image(tinygltf::Image*, const int, std::string*, std::string*, int, int, const unsigned char*, int, void*) {
     return true;
-}
-
-tinygltf::Model load_gltf(const fs::path& file) {
-    tinygltf::TinyGLTF gltf;
-    tinygltf::FsCallbacks callbacks{&tinygltf::FileExists, &verbatim_path, &tinygltf::ReadWholeFile,
-                                    &tinygltf::WriteWholeFile, nullptr};
-    gltf.SetFsCallbacks(callbacks);
-    gltf.SetImageLoader(&skip_image, nullptr);
-    tinygltf::Model model;
-    std::string err, warn;
-    char magic[4] = {};
-    std::ifstream(file, std::ios::binary).read(magic, 4);
-    const bool ok = std::memcmp(magic, "glTF", 4) == 0 ? gltf.LoadBinaryFromFile(&model, &err, &warn, file.string())
-                                                       : gltf.LoadASCIIFromFile(&model, &err, &warn, file.string());
-    if (!ok) throw std::runtime_error(file.string() + ": cannot read: " + err);
-    return model;
 }
 
 // A float VEC4 accessor's elements.
@@ -87,7 +70,7 @@ std::vector<glm::vec4> read_vec4(const tinygltf::Model& model, int index, const 
 }  // namespace
 
 std::vector<ShCoefficients> read_sh_glb_transfer(const fs::path& sh_glb, const Scene& scene, int* bands_out) {
-    const tinygltf::Model model = load_gltf(sh_glb);
+    const tinygltf::Model model = reread_gltf(sh_glb, &skip_image, nullptr);
     std::vector<ShCoefficients> per_vertex(scene.positions.size(), ShCoefficients{});
     int attributes = -1;
     for (const PrimitiveInstance& inst : scene.instances) {

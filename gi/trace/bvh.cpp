@@ -2,12 +2,12 @@
 
 #include "scene/gltf_loader.h"
 #include "util/parallel.h"
+#include "util/stopwatch.h"
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <cmath>
-#include <chrono>
 #include <future>
 #include <limits>
 #include <numeric>
@@ -316,7 +316,7 @@ Bounds BvhNode::child_box(int c) const {
 }
 
 Bvh build_bvh(const Scene& scene) {
-    const auto start = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     std::vector<BuildRef> refs;
     refs.reserve(scene.triangles.size());
     for (size_t t = 0; t < scene.triangles.size(); ++t) {
@@ -371,7 +371,7 @@ Bvh build_bvh(const Scene& scene) {
     bvh.stats.nodes = bvh.nodes.size();
     bvh.stats.bytes = bvh.nodes.size() * sizeof(BvhNode) + bvh.triangles.size() * sizeof(BvhTriangle);
     bvh.stats.sah_cost = refs.empty() ? 0.0 : sah_cost(bvh, root_box);
-    bvh.stats.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    bvh.stats.build_seconds = clock.seconds();
     return bvh;
 }
 

@@ -2,6 +2,7 @@
 
 #include "gpu/context.h"
 #include "shaders/buffer_bindings.glsl"
+#include "util/math.h"
 
 #include <glm/vec4.hpp>
 
@@ -14,8 +15,6 @@
 namespace lf {
 
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 // A map of one value everywhere lights as the uniform sky of that value,
 // which cosine rays sample as well as anything can.

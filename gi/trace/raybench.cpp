@@ -4,8 +4,8 @@
 #include "trace/tracer.h"
 #include "shaders/buffer_bindings.glsl"
 #include "shaders/tracer_params.glsl"
+#include "util/stopwatch.h"
 
-#include <chrono>
 #include <numeric>
 #include <random>
 
@@ -97,10 +97,10 @@ nlohmann::json run_raybench(const GpuContext& gpu, const Scene& scene, const Ray
         while (dispatches < options.max_dispatches && seconds < options.min_seconds) {
             params.pass = uint32_t(dispatches + 1);
             program.use(params);
-            const auto start = std::chrono::steady_clock::now();
+            const Stopwatch clock;
             program.dispatch_1d(n);
             glFinish();
-            seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+            seconds += clock.seconds();
             ++dispatches;
         }
         const std::vector<uint32_t> hits = counts.read<uint32_t>();

@@ -1,0 +1,18 @@
+// A second read, by tinygltf, of a scene file that load_scene has already
+// accepted (its URIs checked there, gltf_files.h): for the writers that
+// rebuild a glb from the source's own JSON (lightmapped_gltf.cpp, sh_glb.cpp).
+#pragma once
+
+#include <tiny_gltf.h>
+
+#include <filesystem>
+
+namespace lf {
+
+// Paths are taken verbatim (tinygltf's default expansion runs wordexp);
+// each image's encoded bytes go to `image_loader` with `user` (nothing is
+// decoded here). Throws std::runtime_error naming the file.
+tinygltf::Model reread_gltf(const std::filesystem::path& file, tinygltf::LoadImageDataFunction image_loader,
+                            void* user);
+
+}  // namespace lf
