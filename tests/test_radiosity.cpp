@@ -257,19 +257,25 @@ TEST(RadiosityMap, FinalGatherConvergesInTheFurnace) {
     EXPECT_EQ(off, 0u) << "texels more than 10% from 5.0";
 }
 
-// The mean indirect light over the covered texels, as a ratio to the path
-// tracer's (the unbiased baseline), on monkey.glb's generated 64² atlas:
-// charts small against texels, the case where reading the map is at its worst.
-double monkey_indirect_ratio(RadiosityScheme scheme, int passes) {
+// The mean indirect light over the covered texels of each scheme's bake
+// (`passes` passes), as a ratio to the path tracer's (the unbiased baseline,
+// 512 passes, baked once), on monkey.glb's generated 64² atlas: charts small
+// against texels, the case where reading the map is at its worst.
+std::vector<double> monkey_indirect_ratios(const std::vector<RadiosityScheme>& schemes, int passes) {
     Scene s = load_scene(test::shared_scene("monkey.glb"));
     AtlasOptions options;
     options.resolution = 64;
     prepare_lightmap_atlas(s, options);
-    RadiosityMapSettings reference, tested;
+    RadiosityMapSettings reference;
     reference.scheme = RadiosityScheme::PathTracing;
-    tested.scheme = scheme;
     const double truth = mean_covered(bake(s, 64, 512, reference), "indirect.G");
-    return mean_covered(bake(s, 64, passes, tested), "indirect.G") / truth;
+    std::vector<double> ratios;
+    for (const RadiosityScheme scheme : schemes) {
+        RadiosityMapSettings tested;
+        tested.scheme = scheme;
+        ratios.push_back(mean_covered(bake(s, 64, passes, tested), "indirect.G") / truth);
+    }
+    return ratios;
 }
 
 // A lookup next to a wall whose four texels' anchors were all hidden from
@@ -284,8 +290,9 @@ double monkey_indirect_ratio(RadiosityScheme scheme, int passes) {
 // (they were 0.06 and 0.08 with the plain lookup); the black lookup (14%
 // dark) fails them.
 TEST(RadiosityMap, SmallChartsAgreeWithThePathTracerOnAverage) {
-    const double epochs = monkey_indirect_ratio(RadiosityScheme::DoublingEpochs, 512);
-    const double final_gather = monkey_indirect_ratio(RadiosityScheme::FinalGather, 512);
+    const std::vector<double> ratios =
+        monkey_indirect_ratios({RadiosityScheme::DoublingEpochs, RadiosityScheme::FinalGather}, 512);
+    const double epochs = ratios[0], final_gather = ratios[1];
     std::printf("monkey.glb 64^2, indirect / path tracer's: epochs %.4f, final-gather %.4f\n", epochs, final_gather);
     EXPECT_NEAR(epochs, 1.0, 0.03);
     EXPECT_NEAR(final_gather, 1.0, 0.03);
@@ -1978,7 +1985,10 @@ TEST(RadiosityMap, PathTracerAgreesWithCyclesOnTheCornellBox) {
 // under a uniform sky), every surface double-sided and every one one-sided
 // (front faces out of the box and into the room): 2 mm turned and one-sided
 // within 0.6%, 2 cm turned +3.1% (seed 1). Each side is a few hundred
-// texels' mean.
+// texels' mean. The path tracer's reference takes 256 passes (it took 512,
+// three quarters of the test's time): its means at 256 lay within 1.2% of
+// those at 512 (seeds 1 and 2, every case and side), and two seeds differ
+// by up to 4% on the wall behind at either count (2026-11-29, llvmpipe).
 TEST(RadiosityMap, ABoxMillimetresFromAWallIsAsDarkBehindAsThePathTracerSays) {
     gpu();
     const int res = 128;
@@ -2029,7 +2039,7 @@ TEST(RadiosityMap, ABoxMillimetresFromAWallIsAsDarkBehindAsThePathTracerSays) {
         path_tracing.environment = &sky;
         RadiosityMapSettings epochs;
         epochs.environment = &sky;
-        const glm::dvec2 reference = gap_means(bake(s, res, 512, path_tracing));
+        const glm::dvec2 reference = gap_means(bake(s, res, 256, path_tracing));
         const glm::dvec2 map = gap_means(bake(s, res, 256, epochs));
         const std::string name = std::to_string(std::lround(c.gap * 1000.0f)) + " mm" + (c.turned ? ", turned" : "") +
                                  (c.double_sided ? ", double-sided" : ", one-sided");
