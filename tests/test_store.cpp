@@ -731,6 +731,45 @@ TEST(SupervisorOnAFullDisk, NoJobIsTakenWhileTheClaimCannotBeStored) {
     rig.supervisor->stop();
 }
 
+// A store whose first claim is stored and then answered with an error, as
+// a commit cut off after it reached the disk (the PostgreSQL fault harness's
+// "requeued at no cost" rows).
+class ClaimAnswerLost : public SqliteJobStore {
+public:
+    using SqliteJobStore::SqliteJobStore;
+    std::optional<JobRecord> claim_next() override {
+        std::optional<JobRecord> job = SqliteJobStore::claim_next();
+        if (job && !lost_.exchange(true)) throw StoreError("the claim's answer was lost (a test)");
+        return job;
+    }
+
+private:
+    std::atomic<bool> lost_{false};
+};
+
+// The slot whose claim failed queues the job again itself as soon as the
+// store answers (Supervisor::worker_loop, requeue_unrun_claims), not the
+// lease thread at its next renewal: on a lease of an hour (renewals 20
+// minutes apart) the job still runs at once, on one worker run, its lost
+// claim refunded and said in a "retrying" event.
+TEST(SupervisorOnAFullDisk, AClaimWhoseAnswerWasLostIsQueuedAgainByItsSlotAtOnce) {
+    SupervisorRig rig;
+    rig.store = std::make_unique<ClaimAnswerLost>((rig.tmp.path / "data" / "jobs.sqlite").string(),
+                                                  server::NodeIdentity{"node-1", 3600});
+    rig.store->insert_job(queued_job("j1"), {});
+    rig.start();
+    const JobRecord done = rig.wait_for("j1", [](const JobRecord& j) { return protocol::is_final(j.status.state); });
+    EXPECT_EQ(done.status.state, JobState::Succeeded);
+    EXPECT_EQ(rig.engine.runs(), 1);
+    EXPECT_EQ(done.status.attempts, 1) << "the lost claim is refunded: no worker ran";
+    const std::vector<server::JobEvent> events = rig.store->events_after("j1", 0);
+    const bool said = std::any_of(events.begin(), events.end(), [](const server::JobEvent& e) {
+        return e.type == "retrying" && e.data.dump().find("lost the answer to its claim") != std::string::npos;
+    });
+    EXPECT_TRUE(said) << "no retrying event says the claim's answer was lost";
+    rig.supervisor->stop();
+}
+
 // ------------------------------------------------------ the HTTP routes (in process)
 
 // A full disk answers POST /v1/jobs with 503 (Retry-After), never 201 for a
