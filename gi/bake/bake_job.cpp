@@ -32,6 +32,7 @@
 namespace lf {
 
 namespace fs = std::filesystem;
+
 uint64_t available_memory(const fs::path& meminfo_file, const fs::path& cgroup_dir) {
     uint64_t available = 0;
     std::ifstream meminfo(meminfo_file);
