@@ -1,4 +1,5 @@
 #include "bake/snapshot_writer.h"
+
 #include "util/stopwatch.h"
 
 namespace lf {
