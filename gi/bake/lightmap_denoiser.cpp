@@ -74,18 +74,75 @@ void conserve_chart_light(std::vector<glm::vec4>& filtered, const FloatImage& ra
     }
 }
 
+// Per atlas texel: its chart (kNoTexel where none), as the guide has it.
+std::vector<uint32_t> atlas_chart_of(const TexelSamples& texels, const std::vector<uint32_t>& chart) {
+    std::vector<uint32_t> atlas_chart(size_t(texels.width) * size_t(texels.height), kNoTexel);
+    for (size_t i = 0; i < texels.covered_count(); ++i) atlas_chart[texels.texels[i]] = chart[i];
+    return atlas_chart;
+}
+
 }  // namespace
+
+// A texel whose every sample found no light (raw 0, error 0: under other
+// geometry, in a contact shadow) beside lit texels: is its 0 sure, or did
+// its few paths miss light its neighbours found? Its neighbourhood (the
+// 3x3 texels of its chart, itself included) says how often a sample there
+// finds light: pooled, their mean luminance M and second moment E[X^2] =
+// mean of (per-sample variance + mean^2), where a texel's per-sample
+// variance is its error^2 times the bake's passes (at least its sample
+// count: an overestimate, which makes the test stricter). A sample X >= 0
+// of that neighbourhood is 0 with probability at most 1 - M^2 / E[X^2]
+// (Cantelli's inequality at X <= 0), so n samples all 0 are that to the
+// n-th power; under 1e-3 the 0 is sure and the edge-aware steps keep it.
+// Early in a bake (few samples, noisy light) the bound is loose, and a
+// shadow's 0 is smoothed as any texel (LightmapDenoiser tests). Without
+// this the filter gave 87 such texels of grey_white_room 0.01-0.03 where
+// the path tracer has under 0.0005 (docs/BENCHMARKS.md, "Denoising").
+std::vector<uint32_t> LightmapDenoiser::sure_darks(const FloatImage& image) const {
+    constexpr double kChance = 1e-3;
+    const auto &r = image.at("R"), &g = image.at("G"), &b = image.at("B"), &error = image.at("error"),
+               &samples = image.at("samples");
+    const double passes = image.number_attributes.at("lightfarm.pass");
+    auto luminance = [&](size_t a) { return glm::dot(glm::vec3(r[a], g[a], b[a]), kLuminanceWeights); };
+    std::vector<uint32_t> keep(atlas_chart_.size(), 0u);
+    const int width = texels_.width, height = texels_.height;
+    for (uint32_t a : texels_.texels) {
+        const double n = samples[a];
+        if (luminance(a) != 0.0f || error[a] != 0.0f || n < 2.0) continue;
+        const int x = int(a % uint32_t(width)), y = int(a / uint32_t(width));
+        double mean = 0.0, second_moment = 0.0, count = 0.0;
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) {
+                const int qx = x + dx, qy = y + dy;
+                if (qx < 0 || qy < 0 || qx >= width || qy >= height) continue;
+                const size_t q = size_t(qy) * size_t(width) + size_t(qx);
+                if (atlas_chart_[q] != atlas_chart_[a]) continue;
+                const double m = luminance(q), variance = double(error[q]) * error[q] * std::max(passes, 1.0);
+                mean += m;
+                second_moment += variance + m * m;
+                count += 1.0;
+            }
+        if (mean <= 0.0) continue;  // dark all round: the filter's own weights keep it
+        mean /= count;
+        second_moment /= count;
+        const double all_dark = n * std::log(std::max(1.0 - mean * mean / second_moment, 1e-300));
+        if (all_dark < std::log(kChance)) keep[a] = 1u;
+    }
+    return keep;
+}
 
 LightmapDenoiser::LightmapDenoiser(const Scene& atlas_scene, const TexelSamples& texels)
     : texels_(texels),
       texel_chart_(chart_of_texels(atlas_scene, texels)),
+      atlas_chart_(atlas_chart_of(texels, texel_chart_)),
       program_("lightmap_denoise.comp"),
       guide_(guide_of(texels, texel_chart_)) {}
 
-std::vector<glm::vec4> LightmapDenoiser::filter(const std::vector<glm::vec4>& colour, int steps,
-                                                bool luminance_weights) const {
-    GpuBuffer ping(colour), pong(colour.size() * sizeof(glm::vec4));
+std::vector<glm::vec4> LightmapDenoiser::filter(const std::vector<glm::vec4>& colour, int steps, bool luminance_weights,
+                                                const std::vector<uint32_t>& keep) const {
+    GpuBuffer ping(colour), pong(colour.size() * sizeof(glm::vec4)), kept(keep);
     guide_.bind(LF_BINDING_DENOISE_GUIDE);
+    kept.bind(LF_BINDING_DENOISE_KEEP);
     for (int s = 0; s < steps; ++s) {
         program_.use(
             DenoiseParams{uint32_t(texels_.width), uint32_t(texels_.height), 1 << s, luminance_weights ? 1u : 0u});
@@ -115,7 +172,7 @@ void LightmapDenoiser::restore_low_frequencies(std::vector<glm::vec4>& filtered,
                                                const std::vector<glm::vec4>& raw) const {
     std::vector<glm::vec4> removed(raw.size());
     for (size_t p = 0; p < raw.size(); ++p) removed[p] = glm::vec4(glm::vec3(raw[p] - filtered[p]), raw[p].w);
-    const std::vector<glm::vec4> low = filter(removed, kRestoreSteps, false);
+    const std::vector<glm::vec4> low = filter(removed, kRestoreSteps, false, std::vector<uint32_t>(raw.size(), 0u));
     for (uint32_t p : texels_.texels) {
         const float l = glm::dot(glm::vec3(low[p]), kLuminanceWeights);
         float keep = l * l > 0.0f ? std::max(0.0f, 1.0f - low[p].w / (l * l)) : 0.0f;
@@ -140,7 +197,7 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
     std::vector<glm::vec4> colour(pixels);
     for (size_t p = 0; p < pixels; ++p) colour[p] = glm::vec4(r[p], g[p], b[p], error[p] * error[p]);
 
-    std::vector<glm::vec4> filtered = filter(colour, kSteps, true);
+    std::vector<glm::vec4> filtered = filter(colour, kSteps, true, sure_darks(image));
     restore_low_frequencies(filtered, colour);
     conserve_chart_light(filtered, image, texels_, texel_chart_);
 

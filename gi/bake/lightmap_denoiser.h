@@ -27,7 +27,8 @@ public:
     LightmapDenoiser(const Scene& atlas_scene, const TexelSamples& texels);
 
     // Filters `image`'s RGB (the combined lightmap), guided by its "error"
-    // channel (the standard error of each texel's estimate), and keeps the
+    // channel (the standard error of each texel's estimate), its "samples"
+    // channel and its lightfarm.pass attribute (sure_darks), and keeps the
     // unfiltered RGB as layer "raw." (raw.R, raw.G, raw.B). The low
     // frequencies of what the filter took are put back where they are more
     // than noise (restore_low_frequencies). Each chart keeps
@@ -40,14 +41,20 @@ public:
 
 private:
     // `steps` à-trous steps of lightmap_denoise.comp over `colour` (rgb,
-    // variance per atlas texel).
-    std::vector<glm::vec4> filter(const std::vector<glm::vec4>& colour, int steps, bool luminance_weights) const;
+    // variance per atlas texel); with luminance weights, the texels `keep`
+    // marks (1 per atlas texel) stay as they are.
+    std::vector<glm::vec4> filter(const std::vector<glm::vec4>& colour, int steps, bool luminance_weights,
+                                  const std::vector<uint32_t>& keep) const;
+    // Per atlas texel, 1 where the bake is sure of a 0 that its lit
+    // neighbours would otherwise lend light to.
+    std::vector<uint32_t> sure_darks(const FloatImage& image) const;
     // Adds back to `filtered` the low frequencies of what the filter took
     // from `raw` where they are more than noise (Wiener shrinkage).
     void restore_low_frequencies(std::vector<glm::vec4>& filtered, const std::vector<glm::vec4>& raw) const;
 
     const TexelSamples& texels_;
     std::vector<uint32_t> texel_chart_;  // per covered texel: its chart (the guide's)
+    std::vector<uint32_t> atlas_chart_;  // per atlas texel: its chart, kNoTexel where none
     ComputeProgram program_;
     GpuBuffer guide_;
 };

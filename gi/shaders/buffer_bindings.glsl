@@ -93,6 +93,7 @@
 #define LF_BINDING_DENOISE_GUIDE 0
 #define LF_BINDING_DENOISE_IN 1
 #define LF_BINDING_DENOISE_OUT 2
+#define LF_BINDING_DENOISE_KEEP 3  // per texel: 1 where the bake is sure of its value (LightmapDenoiser)
 
 // Checks that run GLSL on inputs from C++ (probe_eval_check.comp,
 // surface_texture_check.comp, dispatch_check.comp): cases in, results out.

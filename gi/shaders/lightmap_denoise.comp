@@ -30,6 +30,9 @@ layout(std430, binding = LF_BINDING_DENOISE_GUIDE) readonly buffer Guide { vec4 
 // Per atlas texel: (rgb, variance of the luminance estimate).
 layout(std430, binding = LF_BINDING_DENOISE_IN) readonly buffer ColourIn { vec4 colour_in[]; };
 layout(std430, binding = LF_BINDING_DENOISE_OUT) writeonly buffer ColourOut { vec4 colour_out[]; };
+// Per atlas texel: 1 where the edge-aware steps are to keep the texel as it
+// is (a 0 the bake is sure of: LightmapDenoiser's sure_darks), else 0.
+layout(std430, binding = LF_BINDING_DENOISE_KEEP) readonly buffer Keep { uint keep[]; };
 
 const uint NO_TEXEL = 0xffffffffu;
 const float KERNEL[3] = float[](3.0 / 8.0, 1.0 / 4.0, 1.0 / 16.0);
@@ -103,7 +106,7 @@ void main() {
     uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     if (i >= width * height) return;
     Texel centre = texel_at(i);
-    if (centre.chart == NO_TEXEL) {
+    if (centre.chart == NO_TEXEL || (luminance_weights != 0u && keep[i] != 0u)) {
         colour_out[i] = colour_in[i];
         return;
     }
