@@ -27,6 +27,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -305,6 +306,58 @@ TEST(SeeThrough, TheSkyThroughAWindowIsTheOpeningTimesItsTransmittance) {
     }
 }
 
+// Two sheets in a row, 0.25 m apart (a double-glazed window, leaves in
+// front of glass): light passes both, k1 x k2 per channel. The tracer walks
+// the see-through surfaces one after the other along the ray (trace.glsl's
+// lf_walk_see_through), each by its own choice, so this is the case a walk
+// that stopped at the first surface, met one twice or skipped the second
+// would fail. Under the directional light exactly (the shadow ray's
+// expectation), under the emitter within the noise as above.
+TEST(SeeThrough, TwoSheetsInARowPassTheProductOfTheirTransmittances) {
+    const std::vector<Sheet> all = sheets();
+    auto named = [&](const char* prefix) {
+        for (const Sheet& sheet : all)
+            if (sheet.name.rfind(prefix, 0) == 0) return sheet;
+        throw std::logic_error(std::string("no sheet ") + prefix);
+    };
+    const std::pair<const char*, const char*> rows[] = {
+        {"tinted glass", "blended (BLEND"},
+        {"cut out (MASK", "partial glass"},
+        {"absorbing glass", "blended red glass"},
+        {"tinted glass", "kept (MASK"},
+    };
+    RadiosityMapSettings settings;
+    settings.light_samples = 4;
+    for (const auto& [first_name, second_name] : rows) {
+        const Sheet first = named(first_name), second = named(second_name);
+        SCOPED_TRACE(first.name + " over " + second.name);
+        const glm::vec3 passes = first.passes * second.passes;
+        auto two_sheets = [&](glm::vec3 emission) {
+            Plates p = plates(second.material, emission);  // at y = 0.5
+            p.scene.materials.push_back(first.material);
+            test::add_quad(p.scene, {-1.5f, 0.75f, -1.5f}, {3, 0, 0}, {0, 0, 3}, uint32_t(p.scene.materials.size() - 1),
+                           grid_cell(3, 2, kRes));
+            return p;
+        };
+        Plates sun = two_sheets(glm::vec3(0.0f));
+        test::add_sun(sun.scene, glm::vec3(0, -1, 0), 2.0f);
+        const FloorTexels exact = floor_texels(bake(sun.scene, kRes, 4), [](glm::vec3) { return 2.0 / M_PI; });
+        ASSERT_GT(exact.baked.size(), 500u);
+        for (const glm::vec3& texel : exact.baked)
+            for (int c = 0; c < 3; ++c) ASSERT_NEAR(texel[c], passes[c] * 2.0 / M_PI, 1e-5) << "channel " << c;
+        const FloorTexels drawn =
+            floor_texels(bake(two_sheets(glm::vec3(1.0f)).scene, kRes, 64, settings), emitter_form_factor);
+        const glm::dvec3 ratio = floor_ratio(drawn);
+        for (int c = 0; c < 3; ++c) {
+            if (passes[c] == 0.0f) {
+                EXPECT_EQ(ratio[c], 0.0) << "channel " << c;
+            } else {
+                EXPECT_NEAR(ratio[c] / passes[c], 1.0, 0.02) << "channel " << c;
+            }
+        }
+    }
+}
+
 // A sheet with nothing see-through about it is opaque to every query, and
 // marking none costs the traversal nothing: an opaque sheet's floor is black.
 TEST(SeeThrough, AnOpaqueSheetStopsEverything) {
@@ -314,8 +367,8 @@ TEST(SeeThrough, AnOpaqueSheetStopsEverything) {
     EXPECT_EQ(floor_ratio(f), glm::dvec3(0.0));
 }
 
-// The traversal carries the material code only for a scene that needs it
-// (Tracer::program: it costs llvmpipe 4x): every kind of sheet turns it on,
+// The tracer carries the see-through code only for a scene that needs it
+// (Tracer::program): every kind of sheet turns it on,
 // an opaque one leaves it out, and the same sheet among opaque surfaces of
 // many materials still turns it on.
 TEST(SeeThrough, TheTracerCarriesTheMaterialCodeExactlyWhereASurfaceIsSeeThrough) {

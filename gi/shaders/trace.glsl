@@ -76,8 +76,8 @@ RayShear ray_shear(vec3 dir) {
 
 // Watertight: a ray through a shared edge or vertex hits at least one of the
 // triangles that share it (edge functions are evaluated identically for both).
-// On a hit with 0 < t < t_max, returns true and sets t and (b1, b2).
-bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float t_max,
+// On a hit with t_min < t < t_max, returns true and sets t and (b1, b2).
+bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float t_min, float t_max,
                         out float t, out vec2 bary) {
     vec3 A = v0 - org, B = v1 - org, C = v2 - org;
     float Ax = A[sh.k.x] - sh.s.x * A[sh.k.z];
@@ -97,7 +97,7 @@ bool intersect_triangle(vec3 org, RayShear sh, vec3 v0, vec3 v1, vec3 v2, float 
     float T = U * Az + V * Bz + W * Cz;
     float inv_det = 1.0 / det;
     t = T * inv_det;
-    if (!(t > 0.0 && t < t_max)) return false;
+    if (!(t > t_min && t < t_max)) return false;
     bary = vec2(V, W) * inv_det;
     return true;
 }
@@ -118,7 +118,8 @@ vec4 lf_plane_steps(uint word) { return vec4((uvec4(word) >> uvec4(0u, 8u, 16u, 
 // Traversal", covers only errors proportional to t, and these terms may
 // cancel; one axis's entry is compared with another's exit, so both ends
 // need it). Unused child slots are the caller's to skip.
-vec4 intersect_boxes(vec3 org, vec3 inv_dir, uvec4 corner_steps, uvec4 planes_xy, uvec2 planes_z, float t_max) {
+vec4 intersect_boxes(vec3 org, vec3 inv_dir, uvec4 corner_steps, uvec4 planes_xy, uvec2 planes_z, float t_min,
+                     float t_max) {
     vec3 t_corner = (uintBitsToFloat(corner_steps.xyz) - org) * inv_dir;
     uvec3 exponents = (uvec3(corner_steps.w) >> uvec3(0u, 8u, 16u)) & 0xffu;
     vec3 t_step = uintBitsToFloat(exponents << 23u) * inv_dir;  // 2^(e - 127) / dir
@@ -126,7 +127,7 @@ vec4 intersect_boxes(vec3 org, vec3 inv_dir, uvec4 corner_steps, uvec4 planes_xy
     vec4 ty0 = lf_plane_steps(planes_xy.z) * t_step.y + t_corner.y, ty1 = lf_plane_steps(planes_xy.w) * t_step.y + t_corner.y;
     vec4 tz0 = lf_plane_steps(planes_z.x) * t_step.z + t_corner.z, tz1 = lf_plane_steps(planes_z.y) * t_step.z + t_corner.z;
     vec3 slack = 4e-7 * (abs(t_corner) + 255.0 * abs(t_step));  // > 6 ulps of each axis's terms
-    vec4 t_enter = max(max(min(tx0, tx1) - slack.x, min(ty0, ty1) - slack.y), max(min(tz0, tz1) - slack.z, vec4(0.0)));
+    vec4 t_enter = max(max(min(tx0, tx1) - slack.x, min(ty0, ty1) - slack.y), max(min(tz0, tz1) - slack.z, vec4(t_min)));
     vec4 t_exit = min(min(max(tx0, tx1) + slack.x, max(ty0, ty1) + slack.y), min(max(tz0, tz1) + slack.z, vec4(t_max)));
     t_exit *= 1.0000004;
     return mix(vec4(LF_INFINITY), t_enter, lessThanEqual(t_enter, t_exit));
@@ -152,11 +153,10 @@ void lf_order(inout vec4 t, inout uvec4 node, int a, int b) {
 }
 
 // What a traversal looks for (see the queries at the top).
-const uint LF_QUERY_CLOSEST = 0u;        // the first surface that stops the ray
-const uint LF_QUERY_ANY = 1u;            // any surface that stops it
-const uint LF_QUERY_TRANSMITTANCE = 2u;  // the expected share of light through everything to t_max
-const uint LF_QUERY_PASSED_TINT = 3u;    // the tint of the choices LF_QUERY_CLOSEST made before t_max
-const uint LF_QUERY_GEOMETRY = 4u;       // flag: every triangle stops the ray
+const uint LF_QUERY_CLOSEST = 0u;       // the closest triangle
+const uint LF_QUERY_ANY = 1u;           // any triangle
+const uint LF_QUERY_GEOMETRY = 2u;      // flag: every triangle counts, see-through or not (texel placement)
+const uint LF_QUERY_SEE_THROUGH = 4u;   // flag: the see-through triangles only (lf_walk_see_through)
 
 // A hash of the ray, for its see-through choices.
 uint lf_ray_hash(vec3 org, vec3 dir) {
@@ -190,47 +190,21 @@ bool lf_passes(uint triangle, vec2 bary, uint choice, out vec3 tint) {
     return u < 1.0 - coverage + coverage * odds;
 }
 
-// What a see-through triangle met at (t, b) does to the ray under `query`
-// (LF_QUERY_GEOMETRY cleared): true when the ray goes on past it, `tint`
-// times what passes (the expectation under LF_QUERY_TRANSMITTANCE, the
-// draw's tint under LF_QUERY_PASSED_TINT) and `passed` set when a draw
-// passed; false when it stops the ray there. `counted`: the last two surface
-// points a whole-ray query counted (a ray through an edge meets its two
-// triangles in one leaf, nearly always one after the other; a list would
-// cost every traversal its registers, 4x on llvmpipe).
-bool lf_goes_past(uint triangle, float t, vec2 b, vec3 org, vec3 dir, uint query, inout vec3 tint, inout bool passed,
-                  inout uvec2 counted) {
-    uint key = lf_surface_key(triangle, t);
-    if (query == LF_QUERY_TRANSMITTANCE || query == LF_QUERY_PASSED_TINT) {
-        if (key == counted.x || key == counted.y) return true;  // met already
-        counted = uvec2(key, counted.x);
-    }
-    if (query == LF_QUERY_TRANSMITTANCE) {
-        float coverage;
-        vec3 transmitted;
-        surface_see_through(triangle, b, coverage, transmitted);
-        tint *= vec3(1.0 - coverage) + coverage * transmitted;
-        return tint != vec3(0.0);
-    }
-    vec3 drawn;
-    if (!lf_passes(triangle, b, key ^ lf_ray_hash(org, dir), drawn)) return false;
-    passed = true;
-    if (query == LF_QUERY_PASSED_TINT) tint *= drawn;
-    return true;
-}
-
-// The traversal, shared by every query. Returns the closest hit found below
-// t_max that the query stops at; under LF_QUERY_TRANSMITTANCE and
-// LF_QUERY_PASSED_TINT, tint holds the product and t stays t_max (all of the
-// ray is visited). passed: whether a see-through surface was passed.
-Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
+// The traversal, shared by every query: the closest triangle (or with
+// LF_QUERY_ANY the first found) with t_min < t < t_max. It never evaluates a
+// material: a see-through triangle (marked by the Tracer) is passed over,
+// its distance kept in see_through_t (the nearest such, +infinity if none;
+// the caller then walks them, lf_walk_see_through), and under
+// LF_QUERY_SEE_THROUGH it is the other way round. Material code in the
+// leaf loop cost every ray its registers, see-through or not: the real
+// interiors traced at 0.4-0.5x the rays/s on llvmpipe with it there
+// (docs/BENCHMARKS.md, "No material code in the traversal").
+Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out float see_through_t) {
     Hit hit = Hit(t_max, LF_NO_HIT, vec2(0.0), false, vec3(0.0), vec3(1.0));
-    passed = false;
+    see_through_t = LF_INFINITY;
     bool materials = (query & LF_QUERY_GEOMETRY) == 0u;
-    query &= ~LF_QUERY_GEOMETRY;
-    bool any_hit = query == LF_QUERY_ANY;
-    bool whole_ray = query == LF_QUERY_TRANSMITTANCE || query == LF_QUERY_PASSED_TINT;
-    uvec2 counted = uvec2(0u);  // lf_goes_past's
+    bool walking = (query & LF_QUERY_SEE_THROUGH) != 0u;
+    bool any_hit = (query & LF_QUERY_ANY) != 0u;
     RayShear sh = ray_shear(dir);
     vec3 inv_dir = safe_inverse(dir);
     uint stack[LF_BVH_STACK_SIZE];
@@ -243,7 +217,7 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
         uvec4 child = lf_bvh_nodes[base + 3u];
         uvec4 count = (planes_z_counts.zzww >> uvec4(0u, 16u, 0u, 16u)) & 0xffffu;
         vec4 t_enter = intersect_boxes(org, inv_dir, lf_bvh_nodes[base], lf_bvh_nodes[base + 1u],
-                                       planes_z_counts.xy, hit.t);
+                                       planes_z_counts.xy, t_min, hit.t);
         t_enter = mix(t_enter, vec4(LF_INFINITY), equal(child | count, uvec4(0u)));  // unused slots
         // Leaves are tested right away; only interior children are traversed.
         for (int c = 0; c < 4; ++c) {
@@ -252,29 +226,28 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
             for (uint i = child[c]; i < child[c] + count[c]; ++i) {
                 float t; vec2 b;
                 vec4 w0 = lf_bvh_tris[3u * i], w1 = lf_bvh_tris[3u * i + 1u];
-                vec3 v0 = w0.xyz, v1 = w1.xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
-                if (!intersect_triangle(org, sh, v0, v1, v2, hit.t, t, b)) continue;
-                uint triangle = floatBitsToUint(w0.w);
 #if LF_SEE_THROUGH
-                bool see_through = materials && floatBitsToUint(w1.w) != 0u;  // marked by the Tracer
-                if (see_through && lf_goes_past(triangle, t, b, org, dir, query, hit.tint, passed, counted)) continue;
+                bool see_through = materials && floatBitsToUint(w1.w) != 0u;
+                if (walking && !see_through) continue;
 #endif
-                if (query == LF_QUERY_PASSED_TINT) continue;  // LF_QUERY_CLOSEST stopped nowhere before t_max
-                vec3 ng = cross(v1 - v0, v2 - v0);
-                if (query == LF_QUERY_TRANSMITTANCE) {
-                    hit.tint = vec3(0.0);
-                    hit.triangle = triangle;
-                    return hit;
+                vec3 v0 = w0.xyz, v1 = w1.xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
+                if (!intersect_triangle(org, sh, v0, v1, v2, t_min, hit.t, t, b)) continue;
+#if LF_SEE_THROUGH
+                if (see_through && !walking) {
+                    see_through_t = min(see_through_t, t);
+                    continue;
                 }
-                hit = Hit(t, triangle, b, dot(ng, dir) < 0.0, ng, vec3(1.0));
+#endif
+                vec3 ng = cross(v1 - v0, v2 - v0);
+                hit = Hit(t, floatBitsToUint(w0.w), b, dot(ng, dir) < 0.0, ng, vec3(1.0));
                 if (any_hit) return hit;
             }
         }
         // Interior children that start before the closest hit so far, nearest
         // first (a sorting network): the nearest is visited next, the others
-        // wait on the stack. The other queries take every hit, in any order.
+        // wait on the stack. LF_QUERY_ANY takes any hit, in any order.
         t_enter = mix(t_enter, vec4(LF_INFINITY), greaterThan(t_enter, vec4(hit.t)));
-        if (!any_hit && !whole_ray) {
+        if (!any_hit) {
             lf_order(t_enter, child, 0, 1);
             lf_order(t_enter, child, 2, 3);
             lf_order(t_enter, child, 0, 2);
@@ -299,36 +272,90 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_max, uint query, out bool passed) {
     return hit;
 }
 
+#if LF_SEE_THROUGH
+// The see-through surfaces along org + t dir before t_max, nearest first,
+// each met once (lf_surface_key), one traversal each (LF_QUERY_SEE_THROUGH,
+// past the last one met): with `expected`, tint is multiplied by each one's
+// transmittance (the expectation: shadow rays) and the walk ends where it
+// reaches 0; without, each surface's choice decides (lf_passes): passed,
+// tint times its draw's tint; stopped, that surface is returned, tint in
+// its Hit.tint. Returns LF_NO_HIT where nothing stopped the ray.
+Hit lf_walk_see_through(vec3 org, vec3 dir, float t_max, bool expected, inout vec3 tint) {
+    uint ray = lf_ray_hash(org, dir);
+    uvec2 counted = uvec2(0u);  // the last two surface points met
+    float t_min = 0.0, unused;
+    while (true) {
+        Hit s = lf_traverse(org, dir, t_min, t_max, LF_QUERY_CLOSEST | LF_QUERY_SEE_THROUGH, unused);
+        if (s.triangle == LF_NO_HIT) return s;
+        t_min = s.t;
+        uint key = lf_surface_key(s.triangle, s.t);
+        if (key == counted.x || key == counted.y) continue;  // the same surface point, another triangle
+        counted = uvec2(key, counted.x);
+        vec3 drawn;
+        if (expected) {
+            float coverage;
+            vec3 transmitted;
+            surface_see_through(s.triangle, s.bary, coverage, transmitted);
+            tint *= vec3(1.0 - coverage) + coverage * transmitted;
+            if (tint == vec3(0.0)) return s;
+        } else if (lf_passes(s.triangle, s.bary, key ^ ray, drawn)) {
+            tint *= drawn;
+        } else {
+            s.tint = tint;
+            return s;
+        }
+    }
+    return Hit(t_max, LF_NO_HIT, vec2(0.0), false, vec3(0.0), tint);  // not reached
+}
+#endif
+
 // Closest hit along org + t dir, 0 < t < t_max, that stops the ray (dir
 // need not be unit length; t is in units of |dir|), with the tint of the
 // light through the see-through surfaces passed on the way.
 Hit trace_closest(vec3 org, vec3 dir, float t_max) {
-    bool passed, unused;
-    Hit hit = lf_traverse(org, dir, t_max, LF_QUERY_CLOSEST, passed);
-    if (passed) hit.tint = lf_traverse(org, dir, hit.t, LF_QUERY_PASSED_TINT, unused).tint;
+    float see_through_t;
+    Hit hit = lf_traverse(org, dir, 0.0, t_max, LF_QUERY_CLOSEST, see_through_t);
+#if LF_SEE_THROUGH
+    if (see_through_t < hit.t) {
+        vec3 tint = vec3(1.0);
+        Hit stopped = lf_walk_see_through(org, dir, hit.t, false, tint);
+        if (stopped.triangle != LF_NO_HIT) return stopped;
+        hit.tint = tint;
+    }
+#endif
     return hit;
 }
 
 // True if something along org + t dir, 0 < t < t_max, stops the ray.
 bool trace_occluded(vec3 org, vec3 dir, float t_max) {
-    bool passed;
-    return lf_traverse(org, dir, t_max, LF_QUERY_ANY, passed).triangle != LF_NO_HIT;
+    float see_through_t;
+    if (lf_traverse(org, dir, 0.0, t_max, LF_QUERY_ANY, see_through_t).triangle != LF_NO_HIT) return true;
+#if LF_SEE_THROUGH
+    vec3 tint = vec3(1.0);
+    if (see_through_t < t_max) return lf_walk_see_through(org, dir, t_max, false, tint).triangle != LF_NO_HIT;
+#endif
+    return false;
 }
 
 // The expected share of light that passes along org + t dir, 0 < t < t_max, per channel.
 vec3 trace_transmittance(vec3 org, vec3 dir, float t_max) {
-    bool passed;
-    return lf_traverse(org, dir, t_max, LF_QUERY_TRANSMITTANCE, passed).tint;
+    float see_through_t;
+    if (lf_traverse(org, dir, 0.0, t_max, LF_QUERY_ANY, see_through_t).triangle != LF_NO_HIT) return vec3(0.0);
+    vec3 tint = vec3(1.0);
+#if LF_SEE_THROUGH
+    if (see_through_t < t_max) lf_walk_see_through(org, dir, t_max, true, tint);
+#endif
+    return tint;
 }
 
 // The same as trace_closest and trace_occluded with every triangle stopping the ray.
 Hit trace_closest_geometry(vec3 org, vec3 dir, float t_max) {
-    bool passed;
-    return lf_traverse(org, dir, t_max, LF_QUERY_CLOSEST | LF_QUERY_GEOMETRY, passed);
+    float unused;
+    return lf_traverse(org, dir, 0.0, t_max, LF_QUERY_CLOSEST | LF_QUERY_GEOMETRY, unused);
 }
 bool trace_occluded_geometry(vec3 org, vec3 dir, float t_max) {
-    bool passed;
-    return lf_traverse(org, dir, t_max, LF_QUERY_ANY | LF_QUERY_GEOMETRY, passed).triangle != LF_NO_HIT;
+    float unused;
+    return lf_traverse(org, dir, 0.0, t_max, LF_QUERY_ANY | LF_QUERY_GEOMETRY, unused).triangle != LF_NO_HIT;
 }
 
 // Moves a ray origin on a surface off it along the geometric normal by an

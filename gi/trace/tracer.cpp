@@ -9,8 +9,8 @@ namespace lf {
 Tracer::Tracer(const Bvh& bvh, const Scene& scene)
     : stats_(bvh.stats), see_through_(scene, SurfaceTextures::Which::SeeThrough) {
     nodes_ = GpuBuffer(bvh.nodes);
-    // A see-through triangle is marked in its record (trace.glsl tests its
-    // material only there); the others cost the traversal nothing more.
+    // A see-through triangle is marked in its record: the traversal passes
+    // over it and trace.glsl's walk decides what it does to the light.
     std::vector<BvhTriangle> triangles = bvh.triangles;
     for (BvhTriangle& t : triangles) {
         const bool see_through = scene.materials[scene.triangle_material.at(t.scene_triangle)].is_see_through();

@@ -64,11 +64,12 @@ public:
     const BvhStats& bvh_stats() const { return stats_; }
     // A program that includes trace.glsl, built for this scene: `defines`
     // plus LF_SEE_THROUGH, 1 where a triangle is see-through and 0 where
-    // none is. The see-through code in the traversal's leaf loop costs
-    // llvmpipe 4x (1.06 M against 0.24 M Cornell rays/s once Mesa's shader
-    // cache serves the program; docs/BENCHMARKS.md), so a scene that has no
-    // use for it is traced without it. trace.glsl stops the compile of a
-    // program built any other way.
+    // none is: a scene with no use for the see-through code (the leaf
+    // loop's test of the mark, the walk of the surfaces after the
+    // traversal) is traced without it. While the material code sat in the
+    // leaf loop it cost llvmpipe 4x (docs/BENCHMARKS.md); now the walk costs
+    // ~1.3x on grey_white_room. trace.glsl stops the compile of a program
+    // built any other way.
     ComputeProgram program(const std::string& name, ShaderDefines defines = {}) const;
     bool has_see_through() const { return has_see_through_; }
 
