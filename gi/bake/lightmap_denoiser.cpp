@@ -83,50 +83,61 @@ std::vector<uint32_t> atlas_chart_of(const TexelSamples& texels, const std::vect
 
 }  // namespace
 
-// A texel whose every sample found no light (raw 0, error 0: under other
+namespace {
+
+// The low end of the share of n trials that succeeded, `share` measured:
+// Wilson's score interval at z standard deviations (unlike share - z
+// sigma, it stays above 0 and below a share of 1 measured on few trials).
+double share_at_least(double share, double n, double z) {
+    const double z2n = z * z / n;
+    return (share + z2n / 2.0 - z * std::sqrt(share * (1.0 - share) / n + z2n / (4.0 * n))) / (1.0 + z2n);
+}
+
+}  // namespace
+
+// A texel whose every sample found no light (its "lit" share 0: under other
 // geometry, in a contact shadow) beside lit texels: is its 0 sure, or did
-// its few paths miss light its neighbours found? Its neighbourhood (the
-// 3x3 texels of its chart, itself included) says how often a sample there
-// finds light: pooled, their mean luminance M and second moment E[X^2] =
-// mean of (per-sample variance + mean^2), where a texel's per-sample
-// variance is its error^2 times the bake's passes (at least its sample
-// count: an overestimate, which makes the test stricter). A sample X >= 0
-// of that neighbourhood is 0 with probability at most 1 - M^2 / E[X^2]
-// (Cantelli's inequality at X <= 0), so n samples all 0 are that to the
-// n-th power; under 1e-3 the 0 is sure and the edge-aware steps keep it.
-// Early in a bake (few samples, noisy light) the bound is loose, and a
-// shadow's 0 is smoothed as any texel (LightmapDenoiser tests). Without
-// this the filter gave 87 such texels of grey_white_room 0.01-0.03 where
-// the path tracer has under 0.0005 (docs/BENCHMARKS.md, "Denoising").
+// its few paths miss light its neighbours found? Each lit neighbour (the
+// 3x3 texels of its chart) says how often a sample there finds light: its
+// lit share q, taken at the low end of its uncertainty (three standard
+// deviations: among thousands of dark texels some have neighbours that
+// found light more often than it is found there by chance). Were the
+// texel like that neighbour, its n samples would all be dark with
+// probability (1 - q)^n. Under 1e-3 for every neighbour whose light is
+// sure (its value over twice its error: one whose few paths found a trace
+// of light is as dark as the texel, and lends it none), the 0 is sure
+// and the edge-aware steps keep it; where it is alike one of them (a
+// texel lit by a quarter of its paths among ones lit by all, early in a
+// bake) the filter smooths it as any texel (LightmapDenoiser tests).
+// Without this the filter gave texels of grey_white_room under other
+// geometry 0.01-0.03 where the path tracer has under 0.0005; a bound from
+// the neighbours' means and variances alone (Cantelli's) kept only a
+// quarter of them, their light being found by few, bright paths
+// (docs/BENCHMARKS.md, "Denoising").
 std::vector<uint32_t> LightmapDenoiser::sure_darks(const FloatImage& image) const {
-    constexpr double kChance = 1e-3;
-    const auto &r = image.at("R"), &g = image.at("G"), &b = image.at("B"), &error = image.at("error"),
-               &samples = image.at("samples");
-    const double passes = image.number_attributes.at("lightfarm.pass");
-    auto luminance = [&](size_t a) { return glm::dot(glm::vec3(r[a], g[a], b[a]), kLuminanceWeights); };
+    constexpr double kChance = 1e-3, kDeviations = 3.0;
+    const std::vector<float>&lit = image.at("lit"), &r = image.at("R"), &g = image.at("G"), &b = image.at("B"),
+          &error = image.at("error");
+    const double n = image.number_attributes.at("lightfarm.pass");  // a dark texel never converges: every pass
     std::vector<uint32_t> keep(atlas_chart_.size(), 0u);
+    if (n < 1.0) return keep;
     const int width = texels_.width, height = texels_.height;
     for (uint32_t a : texels_.texels) {
-        const double n = samples[a];
-        if (luminance(a) != 0.0f || error[a] != 0.0f || n < 2.0) continue;
+        if (lit[a] != 0.0f) continue;
         const int x = int(a % uint32_t(width)), y = int(a / uint32_t(width));
-        double mean = 0.0, second_moment = 0.0, count = 0.0;
-        for (int dy = -1; dy <= 1; ++dy)
-            for (int dx = -1; dx <= 1; ++dx) {
+        bool beside_light = false, sure = true;
+        for (int dy = -1; dy <= 1 && sure; ++dy)
+            for (int dx = -1; dx <= 1 && sure; ++dx) {
                 const int qx = x + dx, qy = y + dy;
                 if (qx < 0 || qy < 0 || qx >= width || qy >= height) continue;
-                const size_t q = size_t(qy) * size_t(width) + size_t(qx);
-                if (atlas_chart_[q] != atlas_chart_[a]) continue;
-                const double m = luminance(q), variance = double(error[q]) * error[q] * std::max(passes, 1.0);
-                mean += m;
-                second_moment += variance + m * m;
-                count += 1.0;
+                const size_t j = size_t(qy) * size_t(width) + size_t(qx);
+                const float light = glm::dot(glm::vec3(r[j], g[j], b[j]), kLuminanceWeights);
+                if (atlas_chart_[j] != atlas_chart_[a] || lit[j] <= 0.0f || light <= 2.0f * error[j]) continue;
+                beside_light = true;
+                const double q = std::min(share_at_least(lit[j], n, kDeviations), 1.0);
+                sure = q > 0.0 && n * std::log1p(-q) < std::log(kChance);
             }
-        if (mean <= 0.0) continue;  // dark all round: the filter's own weights keep it
-        mean /= count;
-        second_moment /= count;
-        const double all_dark = n * std::log(std::max(1.0 - mean * mean / second_moment, 1e-300));
-        if (all_dark < std::log(kChance)) keep[a] = 1u;
+        if (beside_light && sure) keep[a] = 1u;
     }
     return keep;
 }

@@ -27,7 +27,7 @@ public:
     LightmapDenoiser(const Scene& atlas_scene, const TexelSamples& texels);
 
     // Filters `image`'s RGB (the combined lightmap), guided by its "error"
-    // channel (the standard error of each texel's estimate), its "samples"
+    // channel (the standard error of each texel's estimate), its "lit"
     // channel and its lightfarm.pass attribute (sure_darks), and keeps the
     // unfiltered RGB as layer "raw." (raw.R, raw.G, raw.B). The low
     // frequencies of what the filter took are put back where they are more

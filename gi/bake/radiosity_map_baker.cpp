@@ -440,6 +440,7 @@ FloatImage RadiosityMapBaker::image(const Readback& readback) const {
                                        &image.channel("indirect.B")};
     std::vector<float>& samples = image.channel("samples");
     std::vector<float>& error = image.channel("error");
+    std::vector<float>& lit = image.channel("lit");
     // 1 on the surface's texels, 0 on the dilated ring that only copies them
     // (and everywhere else): what a comparison counts (gi/io/reference_error.h).
     std::vector<float>& covered = image.channel(kCoveredChannel);
@@ -469,6 +470,7 @@ FloatImage RadiosityMapBaker::image(const Readback& readback) const {
         }
         samples[a] = n;
         error[a] = std::sqrt(var);
+        lit[a] = d.w > 0.0f ? acc[LF_TEXEL_ACCUMULATORS * i + LF_ACC_ALBEDO].w / d.w : 0.0f;
         covered[a] = 1.0f;
     }
     if (!readback.directional.empty()) add_directional_layers(image, readback.directional);

@@ -166,6 +166,9 @@ void accumulate_pass(uint i, vec3 direct, vec3 indirect) {
     vec4 moments = accumulators[lf_accumulator(i, LF_ACC_MOMENTS)];
     vec4 acc_indirect = accumulators[lf_accumulator(i, LF_ACC_INDIRECT)];
     float d = channel_mean(direct), g = channel_mean(indirect);
+    // How often the texel finds light at all: what tells a 0 it is sure of
+    // from one its few paths missed (LightmapDenoiser::sure_darks).
+    if (d + g > 0.0) accumulators[lf_accumulator(i, LF_ACC_ALBEDO)].w += 1.0;
     accumulators[lf_accumulator(i, LF_ACC_DIRECT)] = vec4(acc_direct.rgb + direct, acc_direct.w + 1.0);
     accumulators[lf_accumulator(i, LF_ACC_MOMENTS)] = vec4(moments.x + d * d, moments.y + g * g, moments.zw);
     accumulators[lf_accumulator(i, LF_ACC_INDIRECT)] = vec4(acc_indirect.rgb + indirect, acc_indirect.w + 1.0);

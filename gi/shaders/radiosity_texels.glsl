@@ -31,7 +31,7 @@ layout(std430, binding = LF_BINDING_COVERED_TEXELS) readonly buffer CoveredTexel
 //   LF_ACC_MOMENTS:  second moments (of the channel mean): direct, current indirect; previous epoch's variance of the mean; active flag
 //   LF_ACC_INDIRECT: indirect, current epoch: sum (rgb), sample count
 //   LF_ACC_PREVIOUS: indirect, previous epoch: mean (rgb), sample count
-//   LF_ACC_ALBEDO:   albedo (rgb), 0
+//   LF_ACC_ALBEDO:   albedo (rgb), passes whose sample found any light (direct or indirect > 0)
 layout(std430, binding = LF_BINDING_TEXEL_ACCUMULATORS) buffer TexelAccumulators { vec4 accumulators[]; };
 // Where covered texel i's `field` (LF_ACC_…) is in `accumulators`.
 uint lf_accumulator(uint i, uint field) { return LF_TEXEL_ACCUMULATORS * i + field; }
