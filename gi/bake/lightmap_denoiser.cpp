@@ -81,10 +81,6 @@ std::vector<uint32_t> atlas_chart_of(const TexelSamples& texels, const std::vect
     return atlas_chart;
 }
 
-}  // namespace
-
-namespace {
-
 // The low end of the share of n trials that succeeded, `share` measured:
 // Wilson's score interval at z standard deviations (unlike share - z
 // sigma, it stays above 0 and below a share of 1 measured on few trials).
