@@ -146,10 +146,10 @@ LightmapDenoiser::LightmapDenoiser(const Scene& atlas_scene, const TexelSamples&
       guide_(guide_of(texels, texel_chart_)) {}
 
 std::vector<glm::vec4> LightmapDenoiser::filter(const std::vector<glm::vec4>& colour, int steps, bool luminance_weights,
-                                                const std::vector<uint32_t>& keep) const {
-    GpuBuffer ping(colour), pong(colour.size() * sizeof(glm::vec4)), kept(keep);
+                                                const GpuBuffer& keep) const {
+    GpuBuffer ping(colour), pong(colour.size() * sizeof(glm::vec4));
     guide_.bind(LF_BINDING_DENOISE_GUIDE);
-    kept.bind(LF_BINDING_DENOISE_KEEP);
+    keep.bind(LF_BINDING_DENOISE_KEEP);
     for (int s = 0; s < steps; ++s) {
         program_.use(
             DenoiseParams{uint32_t(texels_.width), uint32_t(texels_.height), 1 << s, luminance_weights ? 1u : 0u});
@@ -175,11 +175,11 @@ std::vector<glm::vec4> LightmapDenoiser::filter(const std::vector<glm::vec4>& co
 // the noise a low-pass of the raw noise would leave: positive-part Wiener
 // shrinkage, keep = max(0, 1 - var / l^2), with var the low-pass's own
 // variance (the filter carries it, sum of k^2 sigma^2) and l its luminance.
-void LightmapDenoiser::restore_low_frequencies(std::vector<glm::vec4>& filtered,
-                                               const std::vector<glm::vec4>& raw) const {
+void LightmapDenoiser::restore_low_frequencies(std::vector<glm::vec4>& filtered, const std::vector<glm::vec4>& raw,
+                                               const GpuBuffer& keep) const {
     std::vector<glm::vec4> removed(raw.size());
     for (size_t p = 0; p < raw.size(); ++p) removed[p] = glm::vec4(glm::vec3(raw[p] - filtered[p]), raw[p].w);
-    const std::vector<glm::vec4> low = filter(removed, kRestoreSteps, false, std::vector<uint32_t>(raw.size(), 0u));
+    const std::vector<glm::vec4> low = filter(removed, kRestoreSteps, false, keep);  // linear: keep is not read
     for (uint32_t p : texels_.texels) {
         const float l = glm::dot(glm::vec3(low[p]), kLuminanceWeights);
         float keep = l * l > 0.0f ? std::max(0.0f, 1.0f - low[p].w / (l * l)) : 0.0f;
@@ -204,8 +204,9 @@ void LightmapDenoiser::denoise(FloatImage& image) const {
     std::vector<glm::vec4> colour(pixels);
     for (size_t p = 0; p < pixels; ++p) colour[p] = glm::vec4(r[p], g[p], b[p], error[p] * error[p]);
 
-    std::vector<glm::vec4> filtered = filter(colour, kSteps, true, sure_darks(image));
-    restore_low_frequencies(filtered, colour);
+    const GpuBuffer keep(sure_darks(image));
+    std::vector<glm::vec4> filtered = filter(colour, kSteps, true, keep);
+    restore_low_frequencies(filtered, colour, keep);
     conserve_chart_light(filtered, image, texels_, texel_chart_);
 
     for (const char* c : {"R", "G", "B"}) image.channel(std::string("raw.") + c) = image.at(c);

@@ -42,15 +42,17 @@ public:
 private:
     // `steps` à-trous steps of lightmap_denoise.comp over `colour` (rgb,
     // variance per atlas texel); with luminance weights, the texels `keep`
-    // marks (1 per atlas texel) stay as they are.
+    // marks (a uint per atlas texel, 1: keep; sure_darks') stay as they are.
     std::vector<glm::vec4> filter(const std::vector<glm::vec4>& colour, int steps, bool luminance_weights,
-                                  const std::vector<uint32_t>& keep) const;
+                                  const GpuBuffer& keep) const;
     // Per atlas texel, 1 where the bake is sure of a 0 that its lit
     // neighbours would otherwise lend light to.
     std::vector<uint32_t> sure_darks(const FloatImage& image) const;
     // Adds back to `filtered` the low frequencies of what the filter took
-    // from `raw` where they are more than noise (Wiener shrinkage).
-    void restore_low_frequencies(std::vector<glm::vec4>& filtered, const std::vector<glm::vec4>& raw) const;
+    // from `raw` where they are more than noise (Wiener shrinkage); `keep`
+    // is filter's, bound for the low-pass, which does not read it.
+    void restore_low_frequencies(std::vector<glm::vec4>& filtered, const std::vector<glm::vec4>& raw,
+                                 const GpuBuffer& keep) const;
 
     const TexelSamples& texels_;
     std::vector<uint32_t> texel_chart_;  // per covered texel: its chart (the guide's)
