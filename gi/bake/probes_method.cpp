@@ -88,7 +88,8 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
     texels_ = GpuBuffer(size_t(texels) * 2 * sizeof(glm::vec4));
     texels_.clear_zero();
     rays_ = GpuBuffer(std::vector<uint32_t>{0u});
-    corner_distances_ = trace_corner_distances();
+    corner_distances_ = trace_grid_distances(false);
+    centre_distances_ = trace_grid_distances(true);
 }
 
 // What the capture and the corner rays share; each sets its count on top.
@@ -103,10 +104,12 @@ ProbesParams ProbesMethod::params() const {
     return p;
 }
 
-std::vector<float> ProbesMethod::trace_corner_distances() const {
-    const size_t side = size_t(settings_.m) + 1, count = positions_.size() * 6 * side * side;
+std::vector<float> ProbesMethod::trace_grid_distances(bool centres) const {
+    const size_t side = size_t(settings_.m) + (centres ? 0 : 1), count = positions_.size() * 6 * side * side;
     GpuBuffer corners(count * sizeof(float));
-    const ComputeProgram program = prepared_.tracer->program("probe_corners.comp");
+    const ComputeProgram program = centres
+                                       ? prepared_.tracer->program("probe_corners.comp", {{"LF_TEXEL_CENTRES", "1"}})
+                                       : prepared_.tracer->program("probe_corners.comp");
     prepared_.tracer->bind();
     positions_buffer_.bind(LF_BINDING_PROBE_POSITIONS);
     corners.bind(LF_BINDING_PROBE_CORNERS);
@@ -224,6 +227,9 @@ ProbeSet ProbesMethod::probe_set(const std::vector<glm::vec4>& acc) const {
             const size_t corners = size_t(6) * (m + 1) * (m + 1);
             p.corner_distance.assign(corner_distances_.begin() + std::ptrdiff_t(k * corners),
                                      corner_distances_.begin() + std::ptrdiff_t((k + 1) * corners));
+            const size_t centres = size_t(6) * m * m;
+            p.centre_distance.assign(centre_distances_.begin() + std::ptrdiff_t(k * centres),
+                                     centre_distances_.begin() + std::ptrdiff_t((k + 1) * centres));
         }
         set.probes.push_back(std::move(p));
     }

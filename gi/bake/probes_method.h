@@ -75,9 +75,10 @@ private:
     // The set from read-back accumulators (any thread: reads only what the
     // constructor set).
     ProbeSet probe_set(const std::vector<glm::vec4>& accumulators) const;
-    // Every probe's corner distances by one ray each (probe_corners.comp).
     ProbesParams params() const;
-    std::vector<float> trace_corner_distances() const;
+    // Every probe's corner distances (or with `centres`, its texels' centre
+    // distances) by one ray each (probe_corners.comp).
+    std::vector<float> trace_grid_distances(bool centres) const;
     uint64_t state_layout() const { return hash_vector(positions_, uint64_t(settings_.res)); }
     const PreparedScene& prepared_;
     ProbesSettings settings_;
@@ -90,6 +91,7 @@ private:
     ComputeProgram capture_;
     GpuBuffer positions_buffer_, texels_, rays_;
     std::vector<float> corner_distances_;  // per probe 6·(M+1)² (Probe::corner_distance)
+    std::vector<float> centre_distances_;  // per probe 6·M² (Probe::centre_distance)
     PassStats stats_;
 };
 

@@ -260,6 +260,39 @@ std::vector<float> probe_corner_distances(const Probe& probe, int m) {
     return corners;
 }
 
+namespace {
+
+// A texel's corners lie on one plane when each is within a hair of the
+// plane through the other three: kFlat of its distance from the probe (the
+// corner rays' float rounding is ~1e-6 of it; a room's edge across a texel
+// puts a corner 10⁻² to 10⁻¹ of it off).
+constexpr double kFlat = 1e-4;
+
+// The corners of a texel, and where traced the point its centre ray met,
+// on one plane (each within kFlat of its distance of the plane through the
+// others): the texel sees one flat surface. Four corners alone can be
+// coplanar across a straight edge (two on the floor, two on the wall); the
+// centre's point is then on the floor or the wall, off their plane.
+bool texel_is_flat(const std::array<glm::vec3, 4>& corners, glm::vec3 probe, const float* centre_distance,
+                   glm::vec3 centre_direction) {
+    dvec3 c[4];
+    for (int k = 0; k < 4; ++k) c[k] = dvec3(corners[k]) - dvec3(probe);
+    for (int k = 0; k < 4; ++k) {
+        const dvec3 a = c[(k + 1) % 4], b = c[(k + 2) % 4], d = c[(k + 3) % 4];
+        const dvec3 normal = glm::cross(b - a, d - a);
+        const double len = glm::length(normal);
+        if (!(len > 0.0)) return false;
+        if (std::abs(glm::dot(normal / len, c[k] - a)) > kFlat * glm::length(c[k])) return false;
+    }
+    if (!centre_distance) return true;  // a file without centres: the corners alone
+    if (!(*centre_distance < kMissDistance)) return false;
+    const dvec3 normal = glm::normalize(glm::cross(c[2] - c[0], c[3] - c[1]));
+    const dvec3 centre = dvec3(centre_direction) * double(*centre_distance);
+    return std::abs(glm::dot(normal, centre - c[0])) <= kFlat * double(*centre_distance);
+}
+
+}  // namespace
+
 PreparedProbe prepare_probe(const Probe& probe, int m) {
     const size_t texels = size_t(6) * m * m;
     if (m < 1 || probe.radiance.size() != texels || probe.distance.size() != texels)
@@ -303,6 +336,8 @@ PreparedProbe prepare_probe(const Probe& probe, int m) {
                 normal = len > 0.0f && std::isfinite(len) ? normal / len : -t.direction;
                 if (glm::dot(normal, -t.direction) < 0.0f) normal = -normal;
                 t.normal = normal;
+                const float* centre = probe.centre_distance.size() == texels ? &probe.centre_distance[k] : nullptr;
+                t.planar = t.corners_traced && texel_is_flat(t.corners, p.position, centre, t.direction);
                 // The surface seen through the texel: its area from the solid
                 // angle and distance, tilted by the polygon's normal (floored so
                 // that a grazing polygon does not make it unbounded).
@@ -345,6 +380,29 @@ size_t texel_towards(int m, dvec3 d) {
 
 }  // namespace
 
+namespace {
+
+// The distance from the probe along the unit direction u (in texel t's
+// cone) to t's polygon: to the plane of whichever of its two triangles
+// (split along corners 0-2) holds u; 0 where u runs along that plane.
+double polygon_depth(const PreparedProbe::Texel& t, dvec3 probe, dvec3 u) {
+    dvec3 c[4];
+    for (int k = 0; k < 4; ++k) c[k] = dvec3(t.corners[k]) - probe;
+    const dvec3 split = glm::cross(c[0], c[2]);
+    const dvec3 b = glm::dot(split, u) * glm::dot(split, c[1]) >= 0.0 ? c[1] : c[3];
+    const dvec3 normal = glm::cross(b - c[0], c[2] - c[0]);
+    const double along = glm::dot(normal, u);
+    return along == 0.0 ? 0.0 : glm::dot(normal, c[0]) / along;
+}
+
+// The longer diagonal of t's polygon: how far a chord across a room's edge
+// can lie from the walls it cuts across.
+double polygon_reach(const PreparedProbe::Texel& t) {
+    return std::max(glm::length(t.corners[2] - t.corners[0]), glm::length(t.corners[3] - t.corners[1]));
+}
+
+}  // namespace
+
 // The paper's polygons (its eq. 1 over each texel's quadrilateral) enclose
 // the probe like a room's walls: at a point inside them, their projections
 // tile the sphere of directions, and a uniformly bright room gives exactly
@@ -363,19 +421,88 @@ glm::vec3 probe_point_inside(const PreparedProbe& p, glm::vec3 x) {
     const double distance = glm::length(r);
     if (!(distance > 0.0)) return x;
     const PreparedProbe::Texel& t = p.texels[texel_towards(p.m, r)];
-    dvec3 c[4];
-    for (int k = 0; k < 4; ++k) c[k] = dvec3(t.corners[k]) - probe;
     if (!t.corners_traced) return x;  // a corner placed by a rule, not on a surface: the polygon may be anywhere
-    // The polygon as two triangles split along c0-c2; the one whose cone holds r.
-    const dvec3 split = glm::cross(c[0], c[2]);
-    const dvec3 b = glm::dot(split, r) * glm::dot(split, c[1]) >= 0.0 ? c[1] : c[3];
-    const dvec3 normal = glm::cross(b - c[0], c[2] - c[0]);
-    const double along = glm::dot(normal, r) / distance;
-    if (along == 0.0) return x;
-    const double wall = glm::dot(normal, c[0]) / along;  // distance from the probe to the polygon along r
-    const double reach = std::max(glm::length(c[2] - c[0]), glm::length(c[3] - c[1]));
-    if (!(wall > 0.0) || distance <= wall || distance - wall > reach) return x;
+    const double wall = polygon_depth(t, probe, r / distance);
+    if (!(wall > 0.0) || distance <= wall || distance - wall > polygon_reach(t)) return x;
     return glm::vec3(probe + r * (wall / distance * (1.0 - 1e-4)));
+}
+
+namespace {
+
+// How far beyond the surface a point may lie and still count as on it: the
+// corner rays' float rounding and a shading point's own (2·10⁻⁴ of the
+// distance, 50 µm at least), well under the thinnest wall a scene has
+// (1 mm at 4 m).
+double on_surface_tolerance(double distance) { return 2e-4 * distance + 5e-5; }
+
+// A plane (a point on it and its unit normal towards the probe).
+struct FacingPlane {
+    dvec3 point, normal;
+    double ahead(dvec3 y) const { return glm::dot(normal, y - point); }  // > 0 on the probe's side
+};
+
+// The planes of the flat texels around t, across its four edges and its
+// four corners (relative to the probe): the surfaces whose edge t sees,
+// where those texels see them.
+std::vector<FacingPlane> neighbour_planes(const PreparedProbe& p, const PreparedProbe::Texel& t) {
+    std::vector<FacingPlane> planes;
+    for (int k = 0; k < 8; ++k) {
+        const dvec3 a(t.corner_directions[k % 4]), b(t.corner_directions[(k + k / 4) % 4]);
+        const dvec3 mid = glm::normalize(a + b);                      // an edge's midpoint (k < 4), or a corner
+        const dvec3 across = mid + 0.5 * (mid - dvec3(t.direction));  // into the texel beyond it
+        const PreparedProbe::Texel& n = p.texels[texel_towards(p.m, across)];
+        if (&n == &t || !n.planar) continue;
+        planes.push_back({dvec3(n.corners[0]) - dvec3(p.position), dvec3(n.normal)});
+    }
+    return planes;
+}
+
+}  // namespace
+
+// Visibility from the probe's own distances, texel by texel (the texel
+// towards x):
+// - a flat texel (its four corners traced and coplanar) sees one plane,
+//   and that plane is its polygon: x is seen when it is no farther along
+//   the line than the polygon, up to on_surface_tolerance. Exact: a point
+//   1 mm behind a 1 mm wall is not seen.
+// - a texel across a room's inner edge or corner (its corners on two or
+//   three walls) is a chord short of the walls; the walls' planes are those
+//   of the flat texels beside it. When every corner lies on or in front of
+//   each such plane (an inner edge: the walls enclose the probe), x is seen
+//   when it is in front of every one of them (the room's own side of both
+//   walls, however far beyond the chord).
+// - otherwise (an outer edge, a depth jump, a corner whose ray escaped),
+//   only the polygon is known: x is seen up to the polygon's diagonal beyond
+//   it (probe_point_inside's reach), or beyond the farthest corner that met
+//   a surface; a texel that met nothing hides nothing.
+bool probe_sees(const PreparedProbe& p, glm::vec3 x) {
+    const dvec3 probe(p.position), r = dvec3(x) - probe;
+    const double distance = glm::length(r);
+    if (!(distance > 0.0)) return true;
+    const PreparedProbe::Texel& t = p.texels[texel_towards(p.m, r)];
+    const double tolerance = on_surface_tolerance(distance);
+    if (!t.corners_traced) {
+        if (t.distance >= kMissDistance) return true;
+        double farthest = t.distance;
+        for (int k = 0; k < 4; ++k) {
+            const double d = glm::length(dvec3(t.corners[k]) - probe);
+            if (d < 0.5 * kMissDistance) farthest = std::max(farthest, d);
+        }
+        return distance <= farthest + polygon_reach(t);
+    }
+    const double wall = polygon_depth(t, probe, r / distance);
+    if (t.planar) return !(wall > 0.0) || distance <= wall + tolerance;
+    const std::vector<FacingPlane> planes = neighbour_planes(p, t);
+    bool inner = !planes.empty();
+    for (const FacingPlane& plane : planes)
+        for (int k = 0; k < 4 && inner; ++k)
+            inner = plane.ahead(dvec3(t.corners[k]) - probe) >= -on_surface_tolerance(glm::length(plane.point));
+    if (inner) {
+        for (const FacingPlane& plane : planes)
+            if (plane.ahead(r) < -tolerance) return false;
+        return true;
+    }
+    return !(wall > 0.0) || distance <= wall + polygon_reach(t);
 }
 
 // The texel polygons, each split into two triangles along corners 0-2 (those
@@ -536,7 +663,8 @@ ProbeEvaluator::ProbeEvaluator(const ProbeSet& set, ProbeEvalOptions options) : 
     grid_ = true;
 }
 
-std::vector<std::pair<int, float>> ProbeEvaluator::weights(glm::vec3 x) const {
+template <class Usable>
+std::vector<std::pair<int, float>> ProbeEvaluator::blend(glm::vec3 x, const Usable& usable) const {
     std::vector<std::pair<int, float>> out;
     if (grid_) {
         int i0[3];
@@ -565,7 +693,7 @@ std::vector<std::pair<int, float>> ProbeEvaluator::weights(glm::vec3 x) const {
             }
             if (outside || w <= 0.0f) continue;
             const int k = lattice_[index];
-            if (!valid_[size_t(k)]) continue;
+            if (!valid_[size_t(k)] || !usable(k)) continue;
             out.push_back({k, w});
             total += w;
         }
@@ -573,11 +701,12 @@ std::vector<std::pair<int, float>> ProbeEvaluator::weights(glm::vec3 x) const {
             for (auto& [k, w] : out) w = float(w / total);
             return out;
         }
-        out.clear();  // every corner of the cell is invalid: fall back to the nearest valid probes
+        out.clear();  // no corner of the cell is usable: fall back to the nearest usable probes
     }
     std::vector<std::pair<float, int>> by_distance;
     for (size_t k = 0; k < prepared_.size(); ++k)
-        if (valid_[k]) by_distance.push_back({glm::length(prepared_[k].position - x), int(k)});
+        if (valid_[k] && usable(int(k))) by_distance.push_back({glm::length(prepared_[k].position - x), int(k)});
+    if (by_distance.empty()) return {};
     std::sort(by_distance.begin(), by_distance.end());
     if (by_distance.front().first < 1e-6f || by_distance.size() == 1) return {{by_distance.front().second, 1.0f}};
     const size_t count = std::min<size_t>(8, by_distance.size());
@@ -599,14 +728,25 @@ std::vector<std::pair<int, float>> ProbeEvaluator::weights(glm::vec3 x) const {
     return out;
 }
 
+std::vector<std::pair<int, float>> ProbeEvaluator::weights(glm::vec3 x) const {
+    return blend(x, [](int) { return true; });
+}
+
+std::vector<std::pair<int, float>> ProbeEvaluator::visible_weights(glm::vec3 x) const {
+    return blend(x, [&](int k) { return probe_sees(prepared_[size_t(k)], x); });
+}
+
 ProbeEvaluation ProbeEvaluator::evaluate(glm::vec3 x, glm::vec3 n) const {
     ProbeEvaluation e;
-    double ddgi_total = 0.0;
-    for (const auto& [k, w] : weights(x)) {
+    for (const auto& [k, w] : visible_weights(x)) {
         const PreparedProbe& p = prepared_[size_t(k)];
         e.sh9 += w * probe_sh9(p, n);
         e.point_to_point += w * probe_point_to_point(p, x, n);
         e.polygon_to_point += w * probe_polygon_to_point(p, x, n, options_.clip_to_horizon);
+    }
+    double ddgi_total = 0.0;
+    for (const auto& [k, w] : weights(x)) {
+        const PreparedProbe& p = prepared_[size_t(k)];
         const float dw = w * ddgi_probe_weight(p, x, n, options_);
         e.ddgi += dw * probe_convolved_irradiance(p, n);
         ddgi_total += dw;
@@ -619,7 +759,9 @@ ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const Pr
     return ProbeEvaluator(set, options).evaluate(x, n);
 }
 
-size_t probe_buffer_stride(int m) { return size_t(6) * m * m + (size_t(6) * (m + 1) * (m + 1) + 3) / 4 + 9; }
+size_t probe_buffer_stride(int m) {
+    return size_t(6) * m * m + (size_t(6) * (m + 1) * (m + 1) + 3) / 4 + (size_t(6) * m * m + 3) / 4 + 9;
+}
 
 std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
     const int m = set.m;
@@ -634,6 +776,10 @@ std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
         for (size_t c = 0; c < corners.size(); ++c) {
             const bool traced = c < p.corner_distance.size() && p.corner_distance[c] < kMissDistance;
             block[texels + c / 4][int(c % 4)] = traced ? corners[c] : -corners[c];
+        }
+        if (p.centre_distance.size() == texels) {
+            glm::vec4* centres = block + texels + (corners.size() + 3) / 4;
+            for (size_t t = 0; t < texels; ++t) centres[t / 4][int(t % 4)] = p.centre_distance[t];
         }
         glm::vec4* sh9 = block + stride - 9;
         for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], 0.0f);

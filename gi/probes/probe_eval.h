@@ -63,8 +63,11 @@
 // around x (weights of invalid corners dropped, the rest renormalized);
 // otherwise (explicit positions, moved probes) with Franke–Little inverse
 // distance weights ((R - d)/(R d))² over the 8 nearest valid probes, R the
-// distance to the 9th (continuous in x). DDGI multiplies its weights by its
-// backface and visibility factors; the other three use the plain weights.
+// distance to the 9th (continuous in x). sh9, point_to_point and
+// polygon_to_point blend only the probes that see x (probe_sees: a point
+// behind a wall takes no light from the probes on the wall's other side);
+// DDGI multiplies the plain weights by its backface and Chebyshev visibility
+// factors, as its paper does.
 #pragma once
 
 #include "probes/probe_set.h"
@@ -165,6 +168,9 @@ struct PreparedProbe {
         std::array<glm::vec3, 4> corners{};            // world space, wound as polygon_to_point_form_factor wants
         std::array<glm::vec3, 4> corner_directions{};  // unit
         bool corners_traced = true;  // every corner where its own ray met a surface (Probe::corner_distance)
+        // Its four corners traced and on one plane: the texel sees one flat
+        // surface, and that surface is the polygon (probe_sees is exact there).
+        bool planar = false;
     };
     glm::vec3 position{0.0f};
     int m = 0;
@@ -182,6 +188,11 @@ glm::vec3 probe_point_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n)
 // across a room's edge and the edge), the point just inside that polygon on
 // the line from the probe to x (probe_eval.cpp says why).
 glm::vec3 probe_point_inside(const PreparedProbe& p, glm::vec3 x);
+// Whether the probe sees x: x is no farther along the line from the probe
+// than the surface the probe's distances put there (probe_eval.cpp says how,
+// texel by texel). A point behind a wall, a partition or the floor is not
+// seen; a point on a surface the probe sees is.
+bool probe_sees(const PreparedProbe& p, glm::vec3 x);
 glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, bool clip_to_horizon = true);
 // The probe's cosine-convolved radiance at n, / π: the piecewise-constant
 // texel radiance integrated exactly against max(0, n·ω) (each texel's
@@ -201,10 +212,18 @@ public:
     ProbeEvaluation evaluate(glm::vec3 x, glm::vec3 n) const;
     // The plain blend weights at x: (index into the set's probes, weight), summing to 1.
     std::vector<std::pair<int, float>> weights(glm::vec3 x) const;
+    // The same blend over the probes that see x (probe_sees): the lattice
+    // cell's corners that see it, else the nearest probes that see it. Empty
+    // when no probe sees x: then nothing is known of its light, and sh9,
+    // point_to_point and polygon_to_point evaluate to 0 there.
+    std::vector<std::pair<int, float>> visible_weights(glm::vec3 x) const;
     bool is_grid() const { return grid_; }
     size_t valid_probes() const { return valid_count_; }
 
 private:
+    // The blend over the valid probes for which `usable` holds.
+    template <class Usable>
+    std::vector<std::pair<int, float>> blend(glm::vec3 x, const Usable& usable) const;
     ProbeEvalOptions options_;
     std::vector<PreparedProbe> prepared_;  // one per probe of the set (empty for invalid ones)
     std::vector<bool> valid_;
@@ -238,7 +257,9 @@ nlohmann::json evaluate_at_points(const ProbeSet& set, const std::vector<Shading
 // The SSBO gi/shaders/probe_eval.glsl reads: per probe, 6·M·M vec4 texels
 // (radiance RGB, distance) in ProbeSet::texel order, then the 6·(M+1)² corner
 // distances of probe_corner_distances packed four to a vec4 (negated where
-// the corner's own ray met no surface: Texel::corners_traced), then the 9 SH9
+// the corner's own ray met no surface: Texel::corners_traced), then the
+// 6·M·M centre distances (Probe::centre_distance, 0 where the set has none)
+// packed four to a vec4, then the 9 SH9
 // coefficients (RGB); probe k starts at vec4 k · probe_buffer_stride(M).
 // Invalid probes' blocks are zero.
 size_t probe_buffer_stride(int m);

@@ -4,6 +4,7 @@
 
 #include "io/image_files.h"
 
+#include <algorithm>
 #include <fstream>
 #include <stdexcept>
 
@@ -79,6 +80,7 @@ std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const
     std::vector<float>* rgb[3] = {&image.channel("R"), &image.channel("G"), &image.channel("B")};
     std::vector<float>& z = image.channel("Z");
     std::vector<float>& c = image.channel("C");
+    std::vector<float>& centre = image.channel("D");
     nlohmann::json probes = nlohmann::json::array();
     for (int k = 0; k < n; ++k) {
         const Probe& p = set.probes[size_t(k)];
@@ -91,6 +93,7 @@ std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const
                           {"sh9", sh9}});
         if (!p.valid || p.radiance.size() != size_t(6) * m * m) continue;
         const bool corners = p.corner_distance.size() == size_t(6) * cell * cell;
+        const bool centres = p.centre_distance.size() == size_t(6) * m * m;
         for (int face = 0; face < 6; ++face)
             for (int j = 0; j <= m; ++j)
                 for (int i = 0; i <= m; ++i) {
@@ -101,17 +104,19 @@ std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const
                     const size_t from = set.texel(face, i, j);
                     for (int ch = 0; ch < 3; ++ch) (*rgb[ch])[to] = p.radiance[from][ch];
                     z[to] = p.distance[from];
+                    centre[to] = centres ? p.centre_distance[from] : 0.0f;  // 0: not traced
                 }
     }
     image.number_attributes["lightfarm.probeM"] = m;
     image.string_attributes["lightfarm.layout"] =
         "cells of (M+1)x(M+1): faces +X,-X,+Y,-Y,+Z,-Z side by side, probe k in rows [k*(M+1), (k+1)*(M+1)); pixel "
-        "(i,j) < M of a cell: R,G,B radiance, Z distance (m) of texel (i,j); pixel (a,b) <= M: C distance (m) along "
-        "corner (a,b)";
+        "(i,j) < M of a cell: R,G,B radiance, Z distance (m) of texel (i,j), D distance (m) along its centre "
+        "direction; pixel (a,b) <= M: C "
+        "distance (m) along corner (a,b)";
     const std::string exr = stem + ".exr", json = stem + ".json";
     write_exr(dir / exr, image);
     const nlohmann::json doc = {{"format", "lightfarm.probes"},
-                                {"version", 2},
+                                {"version", 3},
                                 {"image", exr},
                                 {"m", m},
                                 {"capture_resolution", set.capture_resolution},
@@ -133,16 +138,17 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
     set.capture_resolution = doc.value("capture_resolution", 0);
     if (set.m < 1 || set.m > 256) throw std::runtime_error(name + ": m must be 1..256");
     const int version = doc.value("version", 1);
-    if (version != 1 && version != 2)
-        throw std::runtime_error(name + ": version " + std::to_string(version) + " is not 1 or 2");
+    if (version < 1 || version > 3)
+        throw std::runtime_error(name + ": version " + std::to_string(version) + " is not 1, 2 or 3");
     set.settings = doc.value("settings", nlohmann::json::object());
     const FloatImage image = read_exr(probes_json.parent_path() / doc.value("image", "probes.exr"));
     const auto& probes = doc.at("probes");
-    const int m = set.m, cell = version == 2 ? m + 1 : m;
+    const int m = set.m, cell = version >= 2 ? m + 1 : m;
     if (image.width != 6 * cell || image.height < cell * int(probes.size()))
         throw std::runtime_error(name + ": the image's size does not match m and the probe count");
     const std::vector<float>*rgb[3] = {&image.at("R"), &image.at("G"), &image.at("B")}, &z = image.at("Z");
-    const std::vector<float>* c = version == 2 ? &image.at("C") : nullptr;
+    const std::vector<float>* c = version >= 2 ? &image.at("C") : nullptr;
+    const std::vector<float>* centre = version >= 3 ? &image.at("D") : nullptr;
     for (size_t k = 0; k < probes.size(); ++k) {
         const nlohmann::json& j = probes[k];
         Probe p;
@@ -155,6 +161,7 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
         p.radiance.assign(size_t(6) * m * m, glm::vec3(0.0f));
         p.distance.assign(size_t(6) * m * m, 0.0f);
         if (c) p.corner_distance.assign(size_t(6) * cell * cell, 0.0f);
+        if (centre) p.centre_distance.assign(size_t(6) * m * m, 0.0f);
         for (int face = 0; face < 6; ++face)
             for (int jj = 0; jj < cell; ++jj)
                 for (int i = 0; i < cell; ++i) {
@@ -164,9 +171,13 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
                     const size_t to = set.texel(face, i, jj);
                     p.radiance[to] = glm::vec3((*rgb[0])[from], (*rgb[1])[from], (*rgb[2])[from]);
                     p.distance[to] = z[from];
+                    if (centre) p.centre_distance[to] = (*centre)[from];
                 }
-        // A probe written without its corners (invalid) reads as one.
+        // A probe written without its corners (invalid) reads as one; a
+        // centre of 0 was not traced (a set made without them).
         if (c && !p.valid) p.corner_distance.clear();
+        if (centre && (!p.valid || std::count(p.centre_distance.begin(), p.centre_distance.end(), 0.0f) > 0))
+            p.centre_distance.clear();
         set.probes.push_back(std::move(p));
     }
     return set;

@@ -17,9 +17,11 @@
 // from the probe's position to the surface seen through the texel, the mean
 // over the texel's rays; kMissDistance where rays escape the scene); pixel
 // (a, b) <= M holds corner (a, b)'s distance in channel C
-// (Probe::corner_distance). Invalid probes' rows are 0. Version 1 (read
+// (Probe::corner_distance); pixel (i, j) < M also holds, in channel D, the
+// distance along texel (i, j)'s centre direction (Probe::centre_distance).
+// Invalid probes' rows are 0. Version 2 (read only): no D. Version 1 (read
 // only): cells of M x M, no C.
-// probes.json: {"format": "lightfarm.probes", "version": 2, "image": "probes.exr",
+// probes.json: {"format": "lightfarm.probes", "version": 3, "image": "probes.exr",
 //   "m", "capture_resolution", "probes": [{"position": [x,y,z], "valid", "why",
 //   "backface_fraction", "sh9": [[r,g,b] x 9]}], "settings": {…}}.
 #pragma once
@@ -51,6 +53,12 @@ struct Probe {
     // kMissDistance where it escaped. Empty in files written before it
     // (evaluation then reads corners from the texels: cube_corner_distances).
     std::vector<float> corner_distance;
+    // 6·M·M, in texel order: the distance along each texel's centre
+    // direction to the surface its own ray met at capture (kMissDistance where
+    // it escaped). With the corners, it tells a texel that sees one flat
+    // surface from a chord across an edge (whose corners can lie on one plane
+    // too: two on the floor, two on the wall). Empty in files before version 3.
+    std::vector<float> centre_distance;
     std::array<glm::vec3, 9> sh9{};  // radiance at the reference point on SH bands 0..2 (index l(l+1)+m), unconvolved
 };
 

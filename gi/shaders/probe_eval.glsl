@@ -8,7 +8,8 @@
 // rows from the top (texel (f, i, j) at (f·M + j)·M + i), then the 6·(M+1)²
 // corner distances (corner (f, a, b) at (f·(M+1) + b)·(M+1) + a) packed four
 // to a vec4 (negative where the corner's own ray met no surface), then the
-// probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
+// 6·M·M texel centre distances packed four to a vec4 (0 where the set has
+// none), then the probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
 // k · lf_probe_stride(M), at binding LF_BINDING_PROBE_SET.
 #ifndef LF_PROBE_EVAL_GLSL
 #define LF_PROBE_EVAL_GLSL
@@ -20,8 +21,12 @@
 layout(std430, binding = LF_BINDING_PROBE_SET) readonly buffer LfProbeTexels { vec4 lf_probe_texels[]; };
 
 const float LF_TWO_PI = 6.283185307179586;
+// lf::kMissDistance: a texel or corner whose rays escaped the scene.
+const float LF_PROBE_MISS = 1e6;
 
-uint lf_probe_stride(int m) { return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + 9u; }
+uint lf_probe_stride(int m) {
+    return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + uint(6 * m * m + 3) / 4u + 9u;
+}
 
 // Irradiance / π at normal n from the probe's SH9 environment, convolved with
 // the clamped cosine (Ramamoorthi & Hanrahan's A_l / π: 1, 2/3, 1/4): the
@@ -109,6 +114,72 @@ vec2 lf_cube_face_uv(int face, vec3 p) {
     return (st + 1.0) * 0.5;
 }
 
+// The texel of the M x M cube grid that direction d (not 0) passes through: (face, i, j).
+ivec3 lf_probe_texel_towards(int m, vec3 d) {
+    vec3 a = abs(d);
+    int axis = a.x >= a.y && a.x >= a.z ? 0 : (a.y >= a.z ? 1 : 2);
+    int face = 2 * axis + (d[axis] < 0.0 ? 1 : 0);
+    vec2 uv = lf_cube_face_uv(face, d / a[axis]);
+    return ivec3(face, clamp(int(uv.x * float(m)), 0, m - 1), clamp(int(uv.y * float(m)), 0, m - 1));
+}
+
+// Texel (face, i, j)'s polygon corners relative to the probe, wound as
+// lf_probe_polygon_to_point's; false when a corner's own ray met no surface.
+bool lf_probe_texel_corners(uint base, int m, ivec3 texel, out vec3 c[4]) {
+    const ivec2 corner_of[4] = ivec2[4](ivec2(0, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, 0));
+    bool traced = true;
+    for (int k = 0; k < 4; ++k) {
+        ivec2 ab = texel.yz + corner_of[k];
+        float d = lf_probe_corner_signed(base, m, texel.x, ab.x, ab.y);
+        traced = traced && d > 0.0;
+        c[k] = abs(d) * lf_cube_direction(texel.x, vec2(ab) / float(m));
+    }
+    return traced;
+}
+
+// The distance from the probe along unit u (in the polygon's cone) to the
+// polygon c: the plane of whichever triangle (split along c0-c2) holds u; 0
+// where u runs along it (lf::polygon_depth).
+float lf_probe_polygon_depth(vec3 c[4], vec3 u) {
+    vec3 split = cross(c[0], c[2]);
+    vec3 b = dot(split, u) * dot(split, c[1]) >= 0.0 ? c[1] : c[3];
+    vec3 normal = cross(b - c[0], c[2] - c[0]);
+    float along = dot(normal, u);
+    return along == 0.0 ? 0.0 : dot(normal, c[0]) / along;
+}
+
+float lf_probe_polygon_reach(vec3 c[4]) { return max(length(c[2] - c[0]), length(c[3] - c[1])); }
+
+// The texel sees one flat surface: each corner within 10⁻⁴ of its distance
+// of the plane through the other three, and so is the point its centre ray
+// met where the set has centres (lf::texel_is_flat says why).
+bool lf_probe_texel_is_flat(uint base, int m, ivec3 texel, vec3 c[4]) {
+    for (int k = 0; k < 4; ++k) {
+        vec3 a = c[(k + 1) % 4], b = c[(k + 2) % 4], d = c[(k + 3) % 4];
+        vec3 normal = cross(b - a, d - a);
+        float len = length(normal);
+        if (!(len > 0.0)) return false;
+        if (abs(dot(normal / len, c[k] - a)) > 1e-4 * length(c[k])) return false;
+    }
+    uint t = uint((texel.x * m + texel.z) * m + texel.y);
+    float centre = lf_probe_texels[base + uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + t / 4u][t % 4u];
+    if (centre == 0.0) return true;  // a set without centres: the corners alone
+    if (!(centre < LF_PROBE_MISS)) return false;
+    vec3 normal = normalize(cross(c[2] - c[0], c[3] - c[1]));
+    vec3 point = centre * lf_cube_direction(texel.x, (vec2(texel.yz) + 0.5) / float(m));
+    return abs(dot(normal, point - c[0])) <= 1e-4 * centre;
+}
+
+// The polygon's unit normal towards the probe (cross of its diagonals, as lf::prepare_probe).
+vec3 lf_probe_polygon_normal(vec3 c[4], vec3 direction) {
+    vec3 normal = cross(c[2] - c[0], c[3] - c[1]);
+    float len = length(normal);
+    normal = len > 0.0 ? normal / len : -direction;
+    return dot(normal, -direction) < 0.0 ? -normal : normal;
+}
+
+float lf_probe_on_surface_tolerance(float distance) { return 2e-4 * distance + 5e-5; }
+
 // x, or where x lies beyond the polygon the probe sees towards it by at most
 // the polygon's longer diagonal (between a polygon that cuts across a room's
 // edge and the edge), the point just inside that polygon on the line from the
@@ -117,29 +188,63 @@ vec3 lf_probe_point_inside(uint base, int m, vec3 probe_position, vec3 x) {
     vec3 r = x - probe_position;
     float distance = length(r);
     if (!(distance > 0.0)) return x;
-    vec3 a = abs(r);
-    int axis = a.x >= a.y && a.x >= a.z ? 0 : (a.y >= a.z ? 1 : 2);
-    int face = 2 * axis + (r[axis] < 0.0 ? 1 : 0);
-    vec2 uv = lf_cube_face_uv(face, r / a[axis]);
-    int i = clamp(int(uv.x * float(m)), 0, m - 1), j = clamp(int(uv.y * float(m)), 0, m - 1);
-    const ivec2 corner_of[4] = ivec2[4](ivec2(0, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, 0));
     vec3 c[4];
-    for (int k = 0; k < 4; ++k) {
-        ivec2 ab = ivec2(i, j) + corner_of[k];
-        float d = lf_probe_corner_signed(base, m, face, ab.x, ab.y);
-        if (!(d > 0.0)) return x;  // a corner placed by a rule, not on a surface
-        c[k] = d * lf_cube_direction(face, vec2(ab) / float(m));
-    }
-    // The polygon as two triangles split along c0-c2; the one whose cone holds r.
-    vec3 split = cross(c[0], c[2]);
-    vec3 b = dot(split, r) * dot(split, c[1]) >= 0.0 ? c[1] : c[3];
-    vec3 normal = cross(b - c[0], c[2] - c[0]);
-    float along = dot(normal, r) / distance;
-    if (along == 0.0) return x;
-    float wall = dot(normal, c[0]) / along;
-    float reach = max(length(c[2] - c[0]), length(c[3] - c[1]));
-    if (!(wall > 0.0) || distance <= wall || distance - wall > reach) return x;
+    if (!lf_probe_texel_corners(base, m, lf_probe_texel_towards(m, r), c)) return x;  // a corner placed by a rule
+    float wall = lf_probe_polygon_depth(c, r / distance);
+    if (!(wall > 0.0) || distance <= wall || distance - wall > lf_probe_polygon_reach(c)) return x;
     return probe_position + r * (wall / distance * (1.0 - 1e-4));
+}
+
+// Whether the probe sees x, from its own distances texel by texel:
+// lf::probe_sees, which says how (a flat texel exactly; a texel across a
+// room's inner edge by the planes of the flat texels beside it; otherwise up
+// to the polygon's diagonal beyond it).
+bool lf_probe_sees(uint base, int m, vec3 probe_position, vec3 x) {
+    vec3 r = x - probe_position;
+    float distance = length(r);
+    if (!(distance > 0.0)) return true;
+    ivec3 texel = lf_probe_texel_towards(m, r);
+    float tolerance = lf_probe_on_surface_tolerance(distance);
+    vec3 c[4];
+    if (!lf_probe_texel_corners(base, m, texel, c)) {
+        float stored = lf_probe_texels[base + uint((texel.x * m + texel.z) * m + texel.y)].w;
+        if (stored >= LF_PROBE_MISS) return true;
+        float farthest = stored;
+        for (int k = 0; k < 4; ++k)
+            if (length(c[k]) < 0.5 * LF_PROBE_MISS) farthest = max(farthest, length(c[k]));
+        return distance <= farthest + lf_probe_polygon_reach(c);
+    }
+    float wall = lf_probe_polygon_depth(c, r / distance);
+    if (lf_probe_texel_is_flat(base, m, texel, c)) return !(wall > 0.0) || distance <= wall + tolerance;
+    // The flat texels across the four edges and the four corners: the planes
+    // of the walls whose edge this texel sees.
+    float inv_m = 1.0 / float(m);
+    vec3 centre = lf_cube_direction(texel.x, (vec2(texel.yz) + 0.5) * inv_m);
+    const ivec2 corner_of[4] = ivec2[4](ivec2(0, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, 0));
+    vec3 plane_point[8], plane_normal[8];
+    int planes = 0;
+    for (int k = 0; k < 8; ++k) {
+        vec3 mid = normalize(lf_cube_direction(texel.x, vec2(texel.yz + corner_of[k % 4]) * inv_m) +
+                             lf_cube_direction(texel.x, vec2(texel.yz + corner_of[(k + k / 4) % 4]) * inv_m));
+        ivec3 beside = lf_probe_texel_towards(m, mid + 0.5 * (mid - centre));
+        vec3 nc[4];
+        if (beside == texel || !lf_probe_texel_corners(base, m, beside, nc) || !lf_probe_texel_is_flat(base, m, beside, nc))
+            continue;
+        plane_point[planes] = nc[0];
+        plane_normal[planes] = lf_probe_polygon_normal(nc, lf_cube_direction(beside.x, (vec2(beside.yz) + 0.5) * inv_m));
+        ++planes;
+    }
+    bool inner = planes > 0;
+    for (int p = 0; p < planes; ++p)
+        for (int k = 0; k < 4; ++k)
+            inner = inner && dot(plane_normal[p], c[k] - plane_point[p]) >=
+                                 -lf_probe_on_surface_tolerance(length(plane_point[p]));
+    if (inner) {
+        for (int p = 0; p < planes; ++p)
+            if (dot(plane_normal[p], r - plane_point[p]) < -tolerance) return false;
+        return true;
+    }
+    return !(wall > 0.0) || distance <= wall + lf_probe_polygon_reach(c);
 }
 
 // Irradiance / π at x (unit normal n) from probe `probe` (index into the
@@ -194,16 +299,19 @@ vec3 lf_grid_probe_position(ivec3 counts, vec3 origin, vec3 spacing, int k) {
     return origin + vec3(i) * spacing;
 }
 
-// When every corner of x's cell is invalid: the nearest valid probes (up to
-// 8), weighted ((r − d) / (r·d))² with r the distance of the next one (or
-// 1.5 × the farthest's when there is no next), as lf::ProbeEvaluator::weights.
+// When no corner of x's cell is valid and sees x: the nearest valid probes
+// that see it (up to 8), weighted ((r − d) / (r·d))² with r the distance of
+// the next one (or 1.5 × the farthest's when there is no next), as
+// lf::ProbeEvaluator::visible_weights; 0 when no probe sees x.
 vec3 lf_probe_grid_nearest(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 x, vec3 n) {
     float d[9];
     int k9[9];
     int found = 0;
     for (int k = 0; k < counts.x * counts.y * counts.z; ++k) {
         if (!lf_probe_valid(uint(k), m)) continue;
-        float dk = length(lf_grid_probe_position(counts, origin, spacing, k) - x);
+        vec3 position = lf_grid_probe_position(counts, origin, spacing, k);
+        if (!lf_probe_sees(uint(k) * lf_probe_stride(m), m, position, x)) continue;
+        float dk = length(position - x);
         int at = min(found, 8);  // insertion into the 9 nearest, sorted
         if (found == 9 && dk >= d[8]) continue;
         while (at > 0 && d[at - 1] > dk) {
@@ -234,10 +342,10 @@ vec3 lf_probe_grid_nearest(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 
     return sum / float(count);
 }
 
-// Irradiance / π at (x, n) from a grid: the valid corners of x's cell
-// blended trilinearly (weights renormalised over the valid ones), the
-// nearest valid probes where none of the cell's is, as the C++
-// lf::ProbeEvaluator does for a lattice.
+// Irradiance / π at (x, n) from a grid: the valid corners of x's cell that
+// see x (lf_probe_sees) blended trilinearly (weights renormalised over
+// them), the nearest valid probes that see x where none of the cell's
+// does, as the C++ lf::ProbeEvaluator does for a lattice.
 vec3 lf_probe_grid_polygon_to_point(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 x, vec3 n) {
     ivec3 i0 = ivec3(0);
     vec3 f = vec3(0.0);
@@ -256,8 +364,10 @@ vec3 lf_probe_grid_polygon_to_point(ivec3 counts, vec3 origin, vec3 spacing, int
         float w = w3.x * w3.y * w3.z;
         ivec3 i = i0 + bit;
         int k = (i.z * counts.y + i.y) * counts.x + i.x;
-        if (w <= 0.0 || !lf_probe_valid(uint(k), m)) continue;
-        sum += w * lf_probe_polygon_to_point(uint(k), m, origin + vec3(i) * spacing, x, n);
+        vec3 position = origin + vec3(i) * spacing;
+        if (w <= 0.0 || !lf_probe_valid(uint(k), m) || !lf_probe_sees(uint(k) * lf_probe_stride(m), m, position, x))
+            continue;
+        sum += w * lf_probe_polygon_to_point(uint(k), m, position, x, n);
         total += w;
     }
     return total > 0.0 ? sum / total : lf_probe_grid_nearest(counts, origin, spacing, m, x, n);

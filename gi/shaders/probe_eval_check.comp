@@ -5,6 +5,7 @@
 //   mode 1: probe `probe` at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 //   mode 2: cube direction; cases[i] = (face, u, v) -> results[i].xyz
 //   mode 4: probe `probe`'s SH9 irradiance at normal cases[i] -> results[i].rgb
+//   mode 5: whether probe `probe` sees cases[i].xyz -> results[i].x (1 or 0)
 //   mode 3: the grid (grid_counts, grid_origin, grid_spacing) at (x, n) = cases[2i], cases[2i+1] -> results[i].rgb
 layout(local_size_x = 64) in;
 
@@ -30,6 +31,9 @@ void main() {
         results[i] = vec4(f, 0.0, 0.0, 0.0);
     } else if (mode == 1u) {
         results[i] = vec4(lf_probe_polygon_to_point(probe, m, probe_position(), cases[2u * i].xyz, cases[2u * i + 1u].xyz), 0.0);
+    } else if (mode == 5u) {
+        bool sees = lf_probe_sees(probe * lf_probe_stride(m), m, probe_position(), cases[i].xyz);
+        results[i] = vec4(sees ? 1.0 : 0.0, 0.0, 0.0, 0.0);
     } else if (mode == 4u) {
         results[i] = vec4(lf_probe_sh9(probe, m, cases[i].xyz), 0.0);
     } else if (mode == 3u) {
