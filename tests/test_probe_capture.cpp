@@ -28,6 +28,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <random>
 
 namespace lf {
 namespace {
@@ -375,6 +376,64 @@ TEST(ProbeCapture, PlatesPolygonToPointHoldsAwayFromTheProbe) {
         std::printf("  plates, off-centre probe, M 8, y %.3f: polygon_to_point worst %.4f\n", y, worst);
         EXPECT_LT(worst, bound) << "off-centre probe, y " << y;
     }
+}
+
+// A see-through sheet between the plates' probe and their emitter (issue
+// #52): a 4 x 4 m sheet at a drawn height between the probe (0.25 m) and
+// the emitter (0.5 m), a black blend of drawn alpha or clear glass of drawn
+// transmission, the probe at the defaults (R 32, M 8, 64 passes). Below the
+// sheet the truth is the sheet's transmittance times the plates' closed
+// form. The capture's distances and the corner and centre rays pass the
+// sheet, so the polygons lie on the emitter with its radiance times the
+// transmittance; before, a blend's rays stopped on the sheet at random and
+// its polygons lay between: -39% on the floor, -55% 0.3 m aside (the
+// issue's measure). Seed printed; errors on the issue's scale,
+// |estimate - truth| / max(truth, 10% of the family's brightest).
+TEST(ProbeCapture, ASheetBetweenTheProbeAndTheEmitterDoesNotMoveItsPolygons) {
+    const unsigned seed = 5201;
+    std::printf("  seed %u\n", seed);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    struct Reading {
+        double estimate, truth;
+    };
+    std::vector<Reading> readings;
+    for (int config = 0; config < 6; ++config) {
+        const bool blend = config % 2 == 0;
+        const float amount = blend ? 0.9f * u(rng) : 0.05f + 0.95f * u(rng);  // alpha, or transmission
+        const float height = 0.3f + 0.15f * u(rng);
+        const double passes = blend ? 1.0 - amount : amount;
+        std::printf("  %s %.3f at %.3f m\n", blend ? "blend, alpha" : "glass, transmission", amount, height);
+        Scene s;
+        const uint32_t black = test::add_material(s, glm::vec3(0.0f));
+        const uint32_t light = test::add_material(s, glm::vec3(0.0f), glm::vec3(2.0f));
+        const uint32_t sheet = test::add_material(s, glm::vec3(blend ? 0.0f : 1.0f), glm::vec3(0.0f), true);
+        s.materials[sheet].alpha_mode = blend ? Material::AlphaMode::Blend : Material::AlphaMode::Opaque;
+        s.materials[sheet].base_color.a = blend ? amount : 1.0f;
+        s.materials[sheet].transmission = blend ? 0.0f : amount;
+        test::add_quad(s, {-2, 0, 2}, {4, 0, 0}, {0, 0, -4}, black);
+        test::add_quad(s, {-0.5f, 0.5f, -0.5f}, {1, 0, 0}, {0, 0, 1}, light);
+        test::add_quad(s, {-2, height, -2}, {4, 0, 0}, {0, 0, 4}, sheet);  // facing the probe
+        const ProbeSet set = capture(s, {glm::vec3(0, 0.25f, 0)}, 32, 8, 64);
+        ASSERT_TRUE(set.probes[0].valid) << set.probes[0].why;
+        const ProbeEvaluator eval(set);
+        for (int i = 0; i < 30; ++i) {
+            const glm::vec3 x(-0.45f + 0.9f * u(rng), i % 3 == 0 ? 0.0f : (height - 0.01f) * u(rng),
+                              -0.45f + 0.9f * u(rng));
+            readings.push_back({eval.evaluate(x, {0, 1, 0}).polygon_to_point.g,
+                                passes * 2.0 * emitter_form_factor(x.x, x.z, 0.5 - x.y)});
+        }
+    }
+    double brightest = 0.0;
+    for (const Reading& r : readings) brightest = std::max(brightest, r.truth);
+    std::vector<double> errors;
+    for (const Reading& r : readings)
+        errors.push_back(std::abs(r.estimate - r.truth) / std::max(r.truth, 0.1 * brightest));
+    std::sort(errors.begin(), errors.end());
+    const double p95 = errors[size_t(0.95 * double(errors.size() - 1))], worst = errors.back();
+    std::printf("  under the sheet: p95 %.4f, worst %.4f over %zu points\n", p95, worst, errors.size());
+    EXPECT_LE(p95, 0.05);
+    EXPECT_LE(worst, 0.10);
 }
 
 // A closed room turned about (1, 1, 0) by 0, 30 and 60 degrees, so that its

@@ -46,17 +46,23 @@ void main() {
     vec3 radiance = vec3(0.0);
     float distance = 0.0, hit = 0.0, backface = 0.0;
     uint rays = 1u;
-    Hit h = trace_closest(origin, dir, far);
+    // The distance is that of the closest surface that passes no light: a
+    // see-through sheet that stopped this ray (a blend's draw) or passed it
+    // does not move the texel's depth, so its polygons lie on what is seen
+    // through the sheet, with that radiance times the sheet's transmittance
+    // (probe_corners.comp's rays go there too).
+    float opaque_t;
+    Hit h = trace_closest_and_opaque(origin, dir, far, opaque_t);
+    if (opaque_t < far) {
+        distance = opaque_t;
+        hit = 1.0;
+    }
     if (h.triangle == LF_NO_HIT) {
         radiance = h.tint * lf_background(dir);
     } else if (h.front || hit_is_double_sided(h)) {
-        distance = h.t;
-        hit = 1.0;
         radiance = h.tint * (hit_emission(h) + path_radiance(h, origin, dir, rng, rays));
     } else {
         // The back of a one-sided surface: the probe sees the inside of something.
-        distance = h.t;
-        hit = 1.0;
         backface = 1.0;
     }
     vec4 a = probe_texels[2u * i], b = probe_texels[2u * i + 1u];

@@ -37,6 +37,9 @@ void main() {
     int face = int(in_probe / per_face);
     uint b = (in_probe % per_face) / side, a = in_probe % side;
     vec3 dir = lf_cube_direction(face, (vec2(float(a), float(b)) + offset) / float(m));
-    Hit hit = trace_closest(probe_positions[probe].xyz, dir, miss_distance);
+    // Past see-through surfaces, to what lies behind them: the capture's
+    // radiance through a sheet is what is behind it, times the sheet's
+    // transmittance, and belongs at that depth (probe_capture.comp too).
+    Hit hit = trace_closest_opaque(probe_positions[probe].xyz, dir, miss_distance);
     corner_distances[i] = hit.triangle == LF_NO_HIT ? miss_distance : hit.t;
 }

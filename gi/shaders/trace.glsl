@@ -311,10 +311,14 @@ Hit lf_walk_see_through(vec3 org, vec3 dir, float t_max, bool expected, inout ve
 
 // Closest hit along org + t dir, 0 < t < t_max, that stops the ray (dir
 // need not be unit length; t is in units of |dir|), with the tint of the
-// light through the see-through surfaces passed on the way.
-Hit trace_closest(vec3 org, vec3 dir, float t_max) {
+// light through the see-through surfaces passed on the way; opaque_t is the
+// closest surface that no light passes (t_max where there is none), behind
+// whatever see-through surface stopped the ray: the probes' distance (a
+// sheet that passes light does not move what lies behind it).
+Hit trace_closest_and_opaque(vec3 org, vec3 dir, float t_max, out float opaque_t) {
     float see_through_t;
     Hit hit = lf_traverse(org, dir, 0.0, t_max, LF_QUERY_CLOSEST, see_through_t);
+    opaque_t = hit.t;
 #if LF_SEE_THROUGH
     if (see_through_t < hit.t) {
         vec3 tint = vec3(1.0);
@@ -324,6 +328,18 @@ Hit trace_closest(vec3 org, vec3 dir, float t_max) {
     }
 #endif
     return hit;
+}
+
+Hit trace_closest(vec3 org, vec3 dir, float t_max) {
+    float opaque_t;
+    return trace_closest_and_opaque(org, dir, t_max, opaque_t);
+}
+
+// The closest surface along org + t dir that no light passes (see-through
+// ones passed over, whatever their draw), 0 < t < t_max.
+Hit trace_closest_opaque(vec3 org, vec3 dir, float t_max) {
+    float unused;
+    return lf_traverse(org, dir, 0.0, t_max, LF_QUERY_CLOSEST, unused);
 }
 
 // True if something along org + t dir, 0 < t < t_max, stops the ray.
