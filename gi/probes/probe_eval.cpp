@@ -293,6 +293,10 @@ bool texel_is_flat(const std::array<glm::vec3, 4>& corners, glm::vec3 probe, con
 
 }  // namespace
 
+namespace {
+void split_bridges(PreparedProbe& p);
+}  // namespace
+
 PreparedProbe prepare_probe(const Probe& probe, int m) {
     const size_t texels = size_t(6) * m * m;
     if (m < 1 || probe.radiance.size() != texels || probe.distance.size() != texels)
@@ -344,6 +348,7 @@ PreparedProbe prepare_probe(const Probe& probe, int m) {
                 const float facing = std::max(glm::dot(normal, -t.direction), 0.02f);
                 t.area = t.solid_angle * centre_distance * centre_distance / facing;
             }
+    split_bridges(p);
     return p;
 }
 
@@ -435,9 +440,11 @@ namespace {
 // (1 mm at 4 m).
 double on_surface_tolerance(double distance) { return 2e-4 * distance + 5e-5; }
 
-// A plane (a point on it and its unit normal towards the probe).
+// A plane (a point on it and its unit normal towards the probe), as the
+// flat texel `texel` sees it.
 struct FacingPlane {
     dvec3 point, normal;
+    size_t texel;
     double ahead(dvec3 y) const { return glm::dot(normal, y - point); }  // > 0 on the probe's side
 };
 
@@ -450,11 +457,73 @@ std::vector<FacingPlane> neighbour_planes(const PreparedProbe& p, const Prepared
         const dvec3 a(t.corner_directions[k % 4]), b(t.corner_directions[(k + k / 4) % 4]);
         const dvec3 mid = glm::normalize(a + b);                      // an edge's midpoint (k < 4), or a corner
         const dvec3 across = mid + 0.5 * (mid - dvec3(t.direction));  // into the texel beyond it
-        const PreparedProbe::Texel& n = p.texels[texel_towards(p.m, across)];
+        const size_t beside = texel_towards(p.m, across);
+        const PreparedProbe::Texel& n = p.texels[beside];
         if (&n == &t || !n.planar) continue;
-        planes.push_back({dvec3(n.corners[0]) - dvec3(p.position), dvec3(n.normal)});
+        planes.push_back({dvec3(n.corners[0]) - dvec3(p.position), dvec3(n.normal), beside});
     }
     return planes;
+}
+
+// Whether t sees a room's inner edge or corner: every corner of t on or in
+// front of each of the planes beside it (the walls enclose the probe).
+bool inner_edge(const PreparedProbe& p, const PreparedProbe::Texel& t, const std::vector<FacingPlane>& planes) {
+    for (const FacingPlane& plane : planes)
+        for (int k = 0; k < 4; ++k)
+            if (plane.ahead(dvec3(t.corners[k]) - dvec3(p.position)) < -on_surface_tolerance(glm::length(plane.point)))
+                return false;
+    return !planes.empty();
+}
+
+// The distance from the probe along unit d to the plane, 0 where d does not meet it ahead.
+double depth_along(const FacingPlane& plane, dvec3 d) {
+    const double along = glm::dot(plane.normal, d);
+    const double depth = along == 0.0 ? 0.0 : glm::dot(plane.normal, plane.point) / along;
+    return depth > 0.0 && depth < kMissDistance ? depth : 0.0;
+}
+
+// A texel whose corners lie on two surfaces, neither enclosing the other (a
+// depth jump: a partition's top edge against the ceiling behind it, an
+// emitter's edge against the floor; or an outer edge), has a polygon that
+// bridges the two: seen from beside, it is a wall from the nearer surface's
+// edge to the farther surface, where the probe saw neither. In a uniformly
+// bright room that is right (the polygons stay closed, and exact: the
+// furnace tests), but with the texel's mean radiance an emitter's edge
+// texel hangs a lit curtain from the emitter to the floor (+160% 5 cm under
+// a tilted emitter's low edge, issue #52). So the bridge carries the farther
+// surface's radiance (its flat neighbour's: what the probe could not see
+// behind the edge is most like it), and the rest of the texel's radiance,
+// its own less that, lies on the nearer surface's plane across the texel's
+// cone: the probe still sees the texel's mean (the two polygons subtend the
+// same solid angle from it), a uniform room still gets a zero rest, and the
+// emitter's light stays in the emitter's plane.
+void split_bridges(PreparedProbe& p) {
+    for (PreparedProbe::Texel& t : p.texels) {
+        if (!t.corners_traced || t.planar) continue;
+        const std::vector<FacingPlane> planes = neighbour_planes(p, t);
+        if (planes.empty() || inner_edge(p, t, planes)) continue;
+        const FacingPlane *nearest = nullptr, *farthest = nullptr;
+        double near_depth = 0.0, far_depth = 0.0;
+        for (const FacingPlane& plane : planes) {
+            const double depth = depth_along(plane, dvec3(t.direction));
+            if (depth <= 0.0) continue;
+            if (!nearest || depth < near_depth) nearest = &plane, near_depth = depth;
+            if (!farthest || depth > far_depth) farthest = &plane, far_depth = depth;
+        }
+        if (!nearest || nearest == farthest) continue;
+        std::array<glm::vec3, 4> near_corners{};
+        bool all = true;
+        for (int k = 0; k < 4 && all; ++k) {
+            const dvec3 d(t.corner_directions[k]);
+            const double depth = depth_along(*nearest, d);
+            all = depth > 0.0;
+            near_corners[size_t(k)] = p.position + glm::vec3(d * depth);
+        }
+        if (!all) continue;
+        t.split = true;
+        t.near_corners = near_corners;
+        t.bridge_radiance = p.texels[farthest->texel].radiance;
+    }
 }
 
 }  // namespace
@@ -493,11 +562,7 @@ bool probe_sees(const PreparedProbe& p, glm::vec3 x) {
     const double wall = polygon_depth(t, probe, r / distance);
     if (t.planar) return !(wall > 0.0) || distance <= wall + tolerance;
     const std::vector<FacingPlane> planes = neighbour_planes(p, t);
-    bool inner = !planes.empty();
-    for (const FacingPlane& plane : planes)
-        for (int k = 0; k < 4 && inner; ++k)
-            inner = plane.ahead(dvec3(t.corners[k]) - probe) >= -on_surface_tolerance(glm::length(plane.point));
-    if (inner) {
+    if (inner_edge(p, t, planes)) {
         for (const FacingPlane& plane : planes)
             if (plane.ahead(r) < -tolerance) return false;
         return true;
@@ -522,24 +587,39 @@ bool probe_sees(const PreparedProbe& p, glm::vec3 x) {
 // behind an occluder twice (+35% 1 cm from a block's foot in the Cornell
 // box; tests/test_probes.cpp). The total is clamped at 0 (a point outside the
 // surface, where the signed terms cancel, up to noise).
+namespace {
+
+// The form factor from x (unit normal n) to a texel's polygon, as its two
+// triangles (split along corners 0-2) each clipped to x's horizon, signed.
+double clipped_texel_form_factor(const std::array<glm::vec3, 4>& corners, dvec3 x, dvec3 n) {
+    dvec3 r[4];
+    for (int c = 0; c < 4; ++c) r[c] = dvec3(corners[c]) - x;
+    int above = 0;
+    for (const dvec3& c : r) above += glm::dot(n, c) >= 0.0;
+    if (above == 0) return 0.0;
+    // Wholly above, the two triangles' shared edge cancels: the quad's own sum.
+    const dvec3 second[3] = {r[0], r[2], r[3]};
+    return above == 4 ? lambert_sum(r, 4, n) : clipped_sum(r, 3, n) + clipped_sum(second, 3, n);
+}
+
+}  // namespace
+
 glm::vec3 probe_polygon_to_point(const PreparedProbe& p, glm::vec3 x, glm::vec3 n, bool clip_to_horizon) {
     const dvec3 xd(probe_point_inside(p, x)), nd(glm::normalize(n));
     dvec3 sum(0.0);
     for (const PreparedProbe::Texel& t : p.texels) {
-        if (t.radiance == glm::vec3(0.0f)) continue;
-        dvec3 r[4];
-        for (int c = 0; c < 4; ++c) r[c] = dvec3(t.corners[c]) - xd;
-        if (clip_to_horizon) {
-            int above = 0;
-            for (const dvec3& c : r) above += glm::dot(nd, c) >= 0.0;
-            if (above == 0) continue;
-            // Wholly above, the two triangles' shared edge cancels: the quad's own sum.
-            const dvec3 second[3] = {r[0], r[2], r[3]};
-            const double f = above == 4 ? lambert_sum(r, 4, nd) : clipped_sum(r, 3, nd) + clipped_sum(second, 3, nd);
-            sum += dvec3(t.radiance) * f;
-        } else {
+        if (!clip_to_horizon) {  // the paper's: max(F, 0) of the whole quad
+            dvec3 r[4];
+            for (int c = 0; c < 4; ++c) r[c] = dvec3(t.corners[c]) - xd;
             sum += dvec3(t.radiance) * std::max(lambert_sum(r, 4, nd), 0.0);
+            continue;
         }
+        // A split texel: the bridge at the farther surface's radiance, the
+        // rest on the nearer surface's plane (split_bridges).
+        const glm::vec3 radiance = t.split ? t.bridge_radiance : t.radiance;
+        if (radiance != glm::vec3(0.0f)) sum += dvec3(radiance) * clipped_texel_form_factor(t.corners, xd, nd);
+        if (t.split && t.radiance != t.bridge_radiance)
+            sum += dvec3(t.radiance - t.bridge_radiance) * clipped_texel_form_factor(t.near_corners, xd, nd);
     }
     return glm::vec3(glm::max(sum, dvec3(0.0)));
 }
@@ -760,7 +840,8 @@ ProbeEvaluation evaluate(const ProbeSet& set, glm::vec3 x, glm::vec3 n, const Pr
 }
 
 size_t probe_buffer_stride(int m) {
-    return size_t(6) * m * m + (size_t(6) * (m + 1) * (m + 1) + 3) / 4 + (size_t(6) * m * m + 3) / 4 + 9;
+    const size_t texels = size_t(6) * m * m;
+    return texels + (size_t(6) * (m + 1) * (m + 1) + 3) / 4 + (texels + 3) / 4 + 2 * texels + 9;
 }
 
 std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
@@ -780,6 +861,17 @@ std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
         if (p.centre_distance.size() == texels) {
             glm::vec4* centres = block + texels + (corners.size() + 3) / 4;
             for (size_t t = 0; t < texels; ++t) centres[t / 4][int(t % 4)] = p.centre_distance[t];
+        }
+        // The split texels (split_bridges): the bridge's radiance and 1, then
+        // the nearer plane's corners as distances along the corner directions.
+        const PreparedProbe prepared = prepare_probe(p, m);
+        glm::vec4* splits = block + texels + (corners.size() + 3) / 4 + (texels + 3) / 4;
+        for (size_t t = 0; t < texels; ++t) {
+            const PreparedProbe::Texel& texel = prepared.texels[t];
+            if (!texel.split) continue;
+            splits[2 * t] = glm::vec4(texel.bridge_radiance, 1.0f);
+            for (int c = 0; c < 4; ++c)
+                splits[2 * t + 1][c] = glm::length(texel.near_corners[size_t(c)] - prepared.position);
         }
         glm::vec4* sh9 = block + stride - 9;
         for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], 0.0f);

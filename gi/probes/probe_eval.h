@@ -171,6 +171,14 @@ struct PreparedProbe {
         // Its four corners traced and on one plane: the texel sees one flat
         // surface, and that surface is the polygon (probe_sees is exact there).
         bool planar = false;
+        // Its corners on two surfaces, neither enclosing the other (a depth
+        // jump, an outer edge: split_bridges says why): its polygon, the
+        // bridge from the nearer surface to the farther, carries the farther
+        // one's radiance, and a polygon on the nearer one's plane across the
+        // texel the rest.
+        bool split = false;
+        glm::vec3 bridge_radiance{0.0f};
+        std::array<glm::vec3, 4> near_corners{};  // world space, wound as corners
     };
     glm::vec3 position{0.0f};
     int m = 0;
@@ -259,7 +267,9 @@ nlohmann::json evaluate_at_points(const ProbeSet& set, const std::vector<Shading
 // distances of probe_corner_distances packed four to a vec4 (negated where
 // the corner's own ray met no surface: Texel::corners_traced), then the
 // 6·M·M centre distances (Probe::centre_distance, 0 where the set has none)
-// packed four to a vec4, then the 9 SH9
+// packed four to a vec4, then per texel two vec4: (the bridge's radiance, 1)
+// and the nearer plane's four corner distances for a split texel
+// (Texel::split; zero otherwise), then the 9 SH9
 // coefficients (RGB); probe k starts at vec4 k · probe_buffer_stride(M).
 // Invalid probes' blocks are zero.
 size_t probe_buffer_stride(int m);

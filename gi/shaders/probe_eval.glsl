@@ -9,7 +9,9 @@
 // corner distances (corner (f, a, b) at (f·(M+1) + b)·(M+1) + a) packed four
 // to a vec4 (negative where the corner's own ray met no surface), then the
 // 6·M·M texel centre distances packed four to a vec4 (0 where the set has
-// none), then the probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
+// none), then per texel two vec4 (a split texel's bridge radiance and 1, and
+// its nearer plane's corner distances; zero for the others), then the
+// probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
 // k · lf_probe_stride(M), at binding LF_BINDING_PROBE_SET.
 #ifndef LF_PROBE_EVAL_GLSL
 #define LF_PROBE_EVAL_GLSL
@@ -25,7 +27,12 @@ const float LF_TWO_PI = 6.283185307179586;
 const float LF_PROBE_MISS = 1e6;
 
 uint lf_probe_stride(int m) {
-    return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + uint(6 * m * m + 3) / 4u + 9u;
+    return uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + uint(6 * m * m + 3) / 4u + uint(12 * m * m) + 9u;
+}
+
+// Where texel t's split (lf::split_bridges) starts: (bridge radiance, 1 if split), then its nearer-plane corner distances.
+uint lf_probe_split(uint base, int m, uint t) {
+    return base + uint(6 * m * m) + uint(6 * (m + 1) * (m + 1) + 3) / 4u + uint(6 * m * m + 3) / 4u + 2u * t;
 }
 
 // Irradiance / π at normal n from the probe's SH9 environment, convolved with
@@ -247,40 +254,53 @@ bool lf_probe_sees(uint base, int m, vec3 probe_position, vec3 x) {
     return !(wall > 0.0) || distance <= wall + lf_probe_polygon_reach(c);
 }
 
+// The form factor from x (unit normal n) to the quad r0..r3 (relative to
+// x), as its two triangles split along r0-r2, each clipped to x's horizon,
+// signed (lf::clipped_texel_form_factor).
+float lf_clipped_quad_form_factor(vec3 r0, vec3 r1, vec3 r2, vec3 r3, vec3 n) {
+    vec4 h = vec4(dot(n, r0), dot(n, r1), dot(n, r2), dot(n, r3));
+    if (all(lessThan(h, vec4(0.0)))) return 0.0;  // below the horizon
+    if (all(greaterThanEqual(h, vec4(0.0))))       // above: the two triangles' shared edge cancels
+        return (lf_edge_term(r0, r1, n) + lf_edge_term(r1, r2, n) + lf_edge_term(r2, r3, n) + lf_edge_term(r3, r0, n)) /
+               LF_TWO_PI;
+    return lf_clipped_triangle_form_factor(r0, r1, r2, n) + lf_clipped_triangle_form_factor(r0, r2, r3, n);
+}
+
 // Irradiance / π at x (unit normal n) from probe `probe` (index into the
 // buffer, M texels per face side, reference point probe_position): every
 // texel a quad with corners at the corner distances, as its two triangles
 // split along corners 0-2, each clipped to x's horizon; Σ L_i · F_i signed,
-// clamped at 0 in total (lf::probe_polygon_to_point says why).
+// clamped at 0 in total (lf::probe_polygon_to_point says why). A split
+// texel's quad carries the bridge's radiance and its nearer plane's quad
+// the rest (lf::split_bridges).
 vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, vec3 n) {
     uint base = probe * lf_probe_stride(m);
     float inv_m = 1.0 / float(m);
     x = lf_probe_point_inside(base, m, probe_position, x);
     vec3 sum = vec3(0.0);
+    const ivec2 corner_of[4] = ivec2[4](ivec2(0, 0), ivec2(0, 1), ivec2(1, 1), ivec2(1, 0));
     for (int face = 0; face < 6; ++face)
         for (int j = 0; j < m; ++j)
             for (int i = 0; i < m; ++i) {
-                vec3 radiance = lf_probe_texels[base + uint((face * m + j) * m + i)].rgb;
-                if (radiance == vec3(0.0)) continue;
+                uint t = uint((face * m + j) * m + i);
+                vec3 radiance = lf_probe_texels[base + t].rgb;
+                vec4 split = lf_probe_texels[lf_probe_split(base, m, t)];
+                if (radiance == vec3(0.0) && split.w == 0.0) continue;
                 // (i, j), (i, j+1), (i+1, j+1), (i+1, j): counter-clockwise about the outward direction.
-                vec3 c0 = probe_position + lf_probe_corner_distance(base, m, face, i, j) *
-                                               lf_cube_direction(face, vec2(i, j) * inv_m);
-                vec3 c1 = probe_position + lf_probe_corner_distance(base, m, face, i, j + 1) *
-                                               lf_cube_direction(face, vec2(i, j + 1) * inv_m);
-                vec3 c2 = probe_position + lf_probe_corner_distance(base, m, face, i + 1, j + 1) *
-                                               lf_cube_direction(face, vec2(i + 1, j + 1) * inv_m);
-                vec3 c3 = probe_position + lf_probe_corner_distance(base, m, face, i + 1, j) *
-                                               lf_cube_direction(face, vec2(i + 1, j) * inv_m);
-                vec3 r0 = c0 - x, r1 = c1 - x, r2 = c2 - x, r3 = c3 - x;
-                vec4 h = vec4(dot(n, r0), dot(n, r1), dot(n, r2), dot(n, r3));
-                if (all(lessThan(h, vec4(0.0)))) continue;  // below the horizon
-                float f;
-                if (all(greaterThanEqual(h, vec4(0.0))))  // above: the two triangles' shared edge cancels
-                    f = (lf_edge_term(r0, r1, n) + lf_edge_term(r1, r2, n) + lf_edge_term(r2, r3, n) +
-                         lf_edge_term(r3, r0, n)) / LF_TWO_PI;
-                else
-                    f = lf_clipped_triangle_form_factor(r0, r1, r2, n) + lf_clipped_triangle_form_factor(r0, r2, r3, n);
-                sum += radiance * f;
+                vec3 d[4], r[4];
+                for (int k = 0; k < 4; ++k) {
+                    ivec2 ab = ivec2(i, j) + corner_of[k];
+                    d[k] = lf_cube_direction(face, vec2(ab) * inv_m);
+                    r[k] = probe_position + lf_probe_corner_distance(base, m, face, ab.x, ab.y) * d[k] - x;
+                }
+                vec3 bridge = split.w > 0.0 ? split.rgb : radiance;
+                if (bridge != vec3(0.0)) sum += bridge * lf_clipped_quad_form_factor(r[0], r[1], r[2], r[3], n);
+                if (split.w > 0.0 && radiance != bridge) {
+                    vec4 near = lf_probe_texels[lf_probe_split(base, m, t) + 1u];
+                    vec3 q = probe_position - x;
+                    sum += (radiance - bridge) * lf_clipped_quad_form_factor(q + near.x * d[0], q + near.y * d[1],
+                                                                             q + near.z * d[2], q + near.w * d[3], n);
+                }
             }
     return max(sum, vec3(0.0));
 }
