@@ -910,6 +910,65 @@ TEST(ProbeEstimators, TiltedEmitterFamily) {
     EXPECT_LE(worst, 6.0);
 }
 
+// A partition under a ceiling light (issue #52): a closed 2 x 2 x 2 m room
+// whose ceiling emits 1, the rest black, split by a 1 cm black partition
+// across its whole depth, of drawn height 0.3-1.2 m at a drawn x; one probe
+// at a drawn point, in the partition's plane above it or beside it (R 32,
+// M 8). Points on the floor 1 mm-1 m from the partition, normal up, on
+// both sides, against the ceiling's form factor cut by the shadow plane
+// through the partition's top edge (the ceiling is lit, nothing else is).
+// A figure, not a check (issue #52's open item): measured p95 3.35, worst
+// 6.0 (the probe above the partition: a floor point beside its foot reads
+// the whole ceiling). The signed sum occludes only where the occluder is as
+// bright as what it hides (L1 - L2 + L3 = L3 there): the black partition,
+// seen edge-on as a spike of bridges, hides nothing. An estimator that takes
+// only the first polygon along each direction from the point would.
+//   build/tests/test_probes --gtest_also_run_disabled_tests --gtest_filter='*Partition*'
+TEST(ProbeEstimators, DISABLED_FiguresPartitionFamily) {
+    const unsigned seed = 5203;
+    std::printf("  seed %u\n", seed);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    const auto log_uniform = [&](float lo, float hi) { return lo * std::pow(hi / lo, u(rng)); };
+    struct Reading {
+        double estimate, truth;
+    };
+    std::vector<Reading> readings;
+    for (int config = 0; config < 12; ++config) {
+        const float px = -0.3f + 0.6f * u(rng), height = 0.3f + 0.9f * u(rng), thick = 0.01f;
+        const glm::vec3 black(0.0f);
+        std::vector<Patch> scene = box({-1, 0, -1}, {1, 2, 1}, {black, black, glm::vec3(1.0f), black, black, black});
+        scene.push_back({{px, 0, -1}, {0, height, 0}, {0, 0, 2}, black});          // its -x face
+        scene.push_back({{px + thick, 0, -1}, {0, height, 0}, {0, 0, 2}, black});  // its +x face
+        scene.push_back({{px, height, -1}, {thick, 0, 0}, {0, 0, 2}, black});      // its top
+        const bool in_plane = config % 2 == 0;
+        const glm::vec3 probe(in_plane ? px + thick / 2 : px + (u(rng) < 0.5f ? -1.0f : 1.0f) * (0.1f + 0.4f * u(rng)),
+                              height + 0.1f + (1.8f - height) * u(rng), -0.5f + u(rng));
+        const PreparedProbe p = prepare_probe(capture(scene, probe, 32, 8), 8);
+        for (int i = 0; i < 20; ++i) {
+            const float side = i % 2 ? -1.0f : 1.0f, gap = log_uniform(0.001f, 0.7f);
+            const float x = side < 0.0f ? px - gap : px + thick + gap;
+            const glm::vec3 at(x, 0.0f, -0.9f + 1.8f * u(rng));
+            // The shadow plane through the top edge: the ceiling beyond x_cut is hidden.
+            const float edge = side < 0.0f ? px : px + thick;
+            const float cut = edge + (edge - x) * (2.0f - height) / height;
+            const float lo = side < 0.0f ? -1.0f : std::max(-1.0f, cut), hi = side < 0.0f ? std::min(1.0f, cut) : 1.0f;
+            const std::vector<Patch> seen = {{{lo, 2, -1}, {hi - lo, 0, 0}, {0, 0, 2}, glm::vec3(1.0f)}};
+            readings.push_back(
+                {probe_polygon_to_point(p, at, {0, 1, 0}).g, hi > lo ? exact_irradiance(seen, at, {0, 1, 0}).g : 0.0});
+        }
+    }
+    double brightest = 0.0;
+    for (const Reading& r : readings) brightest = std::max(brightest, r.truth);
+    std::vector<double> errors;
+    for (const Reading& r : readings)
+        errors.push_back(std::abs(r.estimate - r.truth) / std::max(r.truth, 0.1 * brightest));
+    std::sort(errors.begin(), errors.end());
+    const double p95 = errors[size_t(0.95 * double(errors.size() - 1))], worst = errors.back();
+    std::printf("  partition: p95 %.4f, worst %.4f over %zu points\n", p95, worst, errors.size());
+    EXPECT_GT(errors.size(), 200u);
+}
+
 // ------------------------------------------------------ GLSL = C++ ----
 
 TEST(ProbeGlsl, IncludeMatchesTheCpp) {
