@@ -1022,7 +1022,7 @@ void expect_round_trip(const fs::path& file, const fs::path& out, bool turn = fa
             written.triangle_turned[t] = 1;
         }
     }
-    write_lightmapped_glb(file, written, out);
+    write_lightmapped_glb(file, written, out, false);
     const Scene back = load_scene(out);
 
     ASSERT_EQ(back.instances.size(), original.instances.size()) << file;

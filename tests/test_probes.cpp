@@ -901,13 +901,14 @@ TEST(ProbeEstimators, TiltedEmitterFamily) {
     std::sort(errors.begin(), errors.end());
     const double p95 = errors[size_t(0.95 * double(errors.size() - 1))], worst = errors.back();
     std::printf("  tilted emitter: p95 %.4f, worst %.4f over %zu points\n", p95, worst, errors.size());
-    // Measured p95 0.63, worst 5.3 (the worst at 68° tilts, the probe beside
+    // Measured p95 0.65, worst 4.4 (the worst at 68° tilts, the probe beside
     // the emitter seeing it edge-on); with the bridges at the texel's mean
     // radiance (before split_bridges) 1.84 and 7.3. Issue #52 asks for 5%
     // and 10%: what is left is the emitter's edges blurred over a texel and
-    // seen edge-on, this guards what holds.
+    // seen edge-on, and the signed sum's occlusion (the partition's figure
+    // below); this guards what holds.
     EXPECT_LE(p95, 0.8);
-    EXPECT_LE(worst, 6.0);
+    EXPECT_LE(worst, 5.0);
 }
 
 // A partition under a ceiling light (issue #52): a closed 2 x 2 x 2 m room

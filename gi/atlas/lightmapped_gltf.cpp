@@ -583,9 +583,45 @@ std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scen
 }
 
 // write_glb_with_vertex_attributes, and the lightmap embedded when given.
+// A light counts once (DESIGN.md "Outputs"): where the glb's lightmap holds
+// the punctual lights' direct light, an engine or viewer that lit the
+// lightmapped materials with them again would count it twice (a sun through
+// a window came out twice as bright, monkey.glb 23%). So they leave the
+// file, nodes' references and the extension's declarations with them, and
+// the asset's extras name them, "lightfarm_baked_lights": [{"name", "type",
+// "node"}], for an engine that wants to know what the lightmap holds.
+void drop_baked_lights(tinygltf::Model& model) {
+    if (model.lights.empty()) return;
+    tinygltf::Value::Array baked;
+    for (size_t n = 0; n < model.nodes.size(); ++n) {
+        tinygltf::Node& node = model.nodes[n];
+        const auto it = node.extensions.find("KHR_lights_punctual");
+        if (it == node.extensions.end()) continue;
+        const tinygltf::Value& index = it->second.Get("light");
+        if (index.IsInt() && index.Get<int>() >= 0 && size_t(index.Get<int>()) < model.lights.size()) {
+            const tinygltf::Light& light = model.lights[size_t(index.Get<int>())];
+            tinygltf::Value::Object entry;
+            entry["name"] = tinygltf::Value(light.name);
+            entry["type"] = tinygltf::Value(light.type);
+            entry["node"] = tinygltf::Value(int(n));
+            baked.emplace_back(entry);
+        }
+        node.extensions.erase(it);
+    }
+    model.lights.clear();
+    model.extensions.erase("KHR_lights_punctual");
+    for (std::vector<std::string>* list : {&model.extensionsUsed, &model.extensionsRequired})
+        list->erase(std::remove(list->begin(), list->end(), "KHR_lights_punctual"), list->end());
+    tinygltf::Value::Object extras;
+    if (model.asset.extras.IsObject())
+        for (const std::string& key : model.asset.extras.Keys()) extras[key] = model.asset.extras.Get(key);
+    extras["lightfarm_baked_lights"] = tinygltf::Value(baked);
+    model.asset.extras = tinygltf::Value(extras);
+}
+
 void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
                const std::vector<std::vector<VertexAttribute>>& per_instance, const std::filesystem::path& out_glb,
-               bool unlit_materials, const LitSceneMaps& maps, const ColourImage* look = nullptr) {
+               bool unlit_materials, const LitSceneMaps& maps, bool lights_baked, const ColourImage* look = nullptr) {
     if (per_instance.size() != scene.instances.size())
         fail(source_gltf, "attributes for " + std::to_string(per_instance.size()) + " primitives, the scene has " +
                               std::to_string(scene.instances.size()));
@@ -594,6 +630,7 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
     tinygltf::Model& model = loaded.model;
     merge_buffers(model);
     embed_images(loaded);
+    if (lights_baked) drop_baked_lights(model);
 
     std::map<int, int> mesh_of_node = mesh_per_node(model, scene, source_gltf);
     std::vector<std::array<int, 3>> pieces;  // (mesh, primitive, page) of every baked primitive
@@ -672,24 +709,24 @@ ColourImage unlit_look(const TexelSamples& texels, const std::vector<float>& lig
 }
 
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
-                           const std::filesystem::path& out_glb) {
-    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {});
+                           const std::filesystem::path& out_glb, bool lights_baked) {
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {}, lights_baked);
 }
 
 void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const LitSceneMaps& maps,
                    const std::filesystem::path& out_glb) {
-    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, maps);
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, maps, maps.lightmap != nullptr);
 }
 
 void write_unlit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const ColourImage& look,
                      const std::filesystem::path& out_glb) {
-    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {}, &look);
+    write_glb(source_gltf, scene, lightmap_uvs(scene), out_glb, false, {}, true, &look);
 }
 
 void write_glb_with_vertex_attributes(const std::filesystem::path& source_gltf, const Scene& scene,
                                       const std::vector<std::vector<VertexAttribute>>& per_instance,
                                       const std::filesystem::path& out_glb, bool unlit_materials) {
-    write_glb(source_gltf, scene, per_instance, out_glb, unlit_materials, {});
+    write_glb(source_gltf, scene, per_instance, out_glb, unlit_materials, {}, false);
 }
 
 }  // namespace lf

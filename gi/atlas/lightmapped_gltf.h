@@ -22,8 +22,11 @@ namespace lf {
 // placement has its own atlas region. Buffers are merged into the GLB's
 // binary chunk and external images embedded. The write is atomic (temporary
 // file in the same directory, then rename). Throws std::runtime_error.
+// With `lights_baked` (the job's lightmap holds the punctual lights' direct
+// light), the file's KHR_lights_punctual lights leave it, named in the
+// asset's extras ("lightfarm_baked_lights"): a light counts once.
 void write_lightmapped_glb(const std::filesystem::path& source_gltf, const Scene& scene,
-                           const std::filesystem::path& out_glb);
+                           const std::filesystem::path& out_glb, bool lights_baked);
 
 // An 8-bit grey map (rows from the top), e.g. ambient occlusion.
 struct GreyImage {
@@ -48,7 +51,8 @@ struct LitSceneMaps {
     const GreyImage* occlusion = nullptr;
 };
 
-// scene.lit.glb: write_lightmapped_glb's file with `maps` embedded.
+// scene.lit.glb: write_lightmapped_glb's file with `maps` embedded (the
+// punctual lights dropped when `maps` has a lightmap).
 // Primitives without a material get a white, rough, non-metallic one to
 // carry them.
 void write_lit_glb(const std::filesystem::path& source_gltf, const Scene& scene, const LitSceneMaps& maps,

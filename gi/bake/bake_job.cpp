@@ -690,8 +690,15 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     emit(started);
     // The geometry a viewer needs to show the lightmap's snapshots on the
     // scene (the status page's 3D view), there before the first snapshot.
-    if (prepared->atlas_scene)
-        write_lightmapped_glb(job.scene, *prepared->atlas_scene, job.out / "scene.lightmapped.glb");
+    // Its lights leave it when the job bakes the lightmap, which holds their
+    // direct light (a light counts once; its viewer would add them again).
+    if (prepared->atlas_scene) {
+        const bool lights_baked = std::any_of(protocol::output_registry().begin(), protocol::output_registry().end(),
+                                              [&](const protocol::OutputKind& o) {
+                                                  return o.lit_scene_slot == "lightmap" && job.settings.output(o.name);
+                                              });
+        write_lightmapped_glb(job.scene, *prepared->atlas_scene, job.out / "scene.lightmapped.glb", lights_baked);
+    }
 
     protocol::DoneEvent done;
     nlohmann::json manifest = manifest_of_preparation(job, *prepared);

@@ -511,15 +511,28 @@ void split_bridges(PreparedProbe& p) {
             if (!farthest || depth > far_depth) farthest = &plane, far_depth = depth;
         }
         if (!nearest || nearest == farthest) continue;
+        // The nearer plane across the texel must stay in front of the
+        // texel's farthest corner (a plane seen at a grazing angle, continued
+        // across a coarse texel, can run off far beyond it).
+        double farthest_corner = 0.0;
+        for (const glm::vec3& c : t.corners)
+            farthest_corner = std::max(farthest_corner, double(glm::length(c - p.position)));
         std::array<glm::vec3, 4> near_corners{};
         bool all = true;
         for (int k = 0; k < 4 && all; ++k) {
             const dvec3 d(t.corner_directions[k]);
             const double depth = depth_along(*nearest, d);
-            all = depth > 0.0;
+            all = depth > 0.0 && depth <= farthest_corner;
             near_corners[size_t(k)] = p.position + glm::vec3(d * depth);
         }
         if (!all) continue;
+        // Only where the nearer surface adds light (an emitter's or a lit
+        // edge against a darker background): a darker one's rest would be
+        // negative light across the whole texel's cone, subtracted in
+        // directions the occluder does not cover (the Cornell box at M 4:
+        // 57% off halfway to the red wall, 0.13 -> 0.18 over random points).
+        const glm::vec3 rest = t.radiance - p.texels[farthest->texel].radiance;
+        if (std::min({rest.r, rest.g, rest.b}) < 0.0f) continue;
         t.split = true;
         t.near_corners = near_corners;
         t.bridge_radiance = p.texels[farthest->texel].radiance;

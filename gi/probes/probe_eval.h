@@ -172,10 +172,11 @@ struct PreparedProbe {
         // surface, and that surface is the polygon (probe_sees is exact there).
         bool planar = false;
         // Its corners on two surfaces, neither enclosing the other (a depth
-        // jump, an outer edge: split_bridges says why): its polygon, the
-        // bridge from the nearer surface to the farther, carries the farther
-        // one's radiance, and a polygon on the nearer one's plane across the
-        // texel the rest.
+        // jump, an outer edge), the nearer brighter than the farther (an
+        // emitter's edge; split_bridges says why): its polygon, the bridge
+        // from the nearer surface to the farther, carries the farther one's
+        // radiance, and a polygon on the nearer one's plane across the texel
+        // the rest.
         bool split = false;
         glm::vec3 bridge_radiance{0.0f};
         std::array<glm::vec3, 4> near_corners{};  // world space, wound as corners
