@@ -1186,6 +1186,78 @@ nlohmann::json glb_json(const fs::path& glb) {
     return nlohmann::json::parse(bytes.substr(20, length));
 }
 
+// Whether a glb's JSON declares or uses KHR_lights_punctual anywhere.
+bool has_punctual_lights(const nlohmann::json& glb) {
+    const auto named = [](const nlohmann::json& list) {
+        for (const nlohmann::json& e : list)
+            if (e == "KHR_lights_punctual") return true;
+        return false;
+    };
+    if (named(glb.value("extensionsUsed", nlohmann::json::array())) ||
+        named(glb.value("extensionsRequired", nlohmann::json::array())))
+        return true;
+    if (glb.value("extensions", nlohmann::json::object()).contains("KHR_lights_punctual")) return true;
+    for (const nlohmann::json& node : glb.value("nodes", nlohmann::json::array()))
+        if (node.value("extensions", nlohmann::json::object()).contains("KHR_lights_punctual")) return true;
+    return false;
+}
+
+// A light counts once (issue #54): every shared scene with punctual lights
+// (monkey.glb, spheres.glb), baked with a lightmap, gets glbs without them
+// (scene.lightmapped.glb, scene.lit.glb, scene.unlit.glb), each naming the
+// lights its lightmap holds in the asset's extras; the file's lights went
+// into the lightmap, and a viewer or engine would add them again (the
+// status page's view, which adds no light of its own, lit monkey 23% too
+// bright). Baked without a lightmap (ambient occlusion alone), the lights
+// stay: nothing holds them. Every glb passes the Khronos validator.
+TEST(CliOutputs, APunctualLightTheLightmapHoldsLeavesEveryGlb) {
+    const fs::path out = fresh_dir("lights-once");
+    std::vector<fs::path> glbs;
+    for (const std::string scene : {"monkey.glb", "spheres.glb"}) {
+        SCOPED_TRACE(scene);
+        const nlohmann::json input = glb_json(test::shared_scene(scene));
+        ASSERT_TRUE(has_punctual_lights(input)) << "the scene has a punctual light";
+        const auto& lights = input["extensions"]["KHR_lights_punctual"]["lights"];
+        size_t light_nodes = 0;
+        for (const nlohmann::json& node : input["nodes"])
+            light_nodes += node.value("extensions", nlohmann::json::object()).contains("KHR_lights_punctual");
+        ASSERT_GT(light_nodes, 0u);
+
+        const fs::path baked = out / (scene + "-lightmap");
+        const CliRun bake = run_lightfarm("bake " + test::shared_scene(scene) +
+                                          " --lightmap --passes 1 --res 256 --out " + baked.string());
+        ASSERT_EQ(bake.exit_code, 0) << bake.err;
+        for (const char* file : {"scene.lightmapped.glb", "scene.lit.glb", "scene.unlit.glb"}) {
+            SCOPED_TRACE(file);
+            glbs.push_back(baked / file);
+            const nlohmann::json glb = glb_json(baked / file);
+            EXPECT_FALSE(has_punctual_lights(glb));
+            const nlohmann::json named = glb["asset"]["extras"]["lightfarm_baked_lights"];
+            ASSERT_EQ(named.size(), light_nodes) << glb["asset"].dump();
+            for (const nlohmann::json& light : named) {
+                const nlohmann::json& source =
+                    lights[input["nodes"][light["node"].get<size_t>()]["extensions"]["KHR_lights_punctual"]["light"]
+                               .get<size_t>()];
+                EXPECT_EQ(light["type"], source["type"]);
+                EXPECT_EQ(light["name"], source.value("name", ""));
+            }
+        }
+
+        const fs::path occlusion = out / (scene + "-ao");
+        const CliRun ao = run_lightfarm("bake " + test::shared_scene(scene) + " --ao --ao-passes 1 --res 256 --out " +
+                                        occlusion.string());
+        ASSERT_EQ(ao.exit_code, 0) << ao.err;
+        for (const char* file : {"scene.lightmapped.glb", "scene.lit.glb"}) {
+            SCOPED_TRACE(std::string(file) + " without a lightmap");
+            glbs.push_back(occlusion / file);
+            EXPECT_TRUE(has_punctual_lights(glb_json(occlusion / file)));
+        }
+    }
+    std::string report;
+    EXPECT_TRUE(khronos_valid(glbs, report)) << report;
+    fs::remove_all(out);
+}
+
 // The ao output needs no light: a scene without one (and without UVs, so
 // the atlas is generated) bakes it alone, into ao.exr and scene.lit.glb's
 // occlusionTexture on TEXCOORD_1, a valid glb; beside the lightmap, the lit
