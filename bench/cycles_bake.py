@@ -1,5 +1,5 @@
 """An independent reference: Blender Cycles bakes a glTF scene's lightmap
-atlas (TEXCOORD_1) the way shared/scenes/SOURCES.md describes its Cornell
+atlas (TEXCOORD_1) the way examples/SOURCES.md describes its Cornell
 box reference, so that other scenes (a variant of the box, a test scene)
 can be checked against a second renderer. Run it inside Blender 3.4
 (Debian 12's `blender` package):

@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${LIGHTFARM:-build/client_cli/lightfarm}
-SCENES=$(realpath ../shared/scenes)
+SCENES=$(realpath examples)
 OUT=${1:-/tmp/lf-default-bias}
 REF_PASSES=${REF_PASSES:-512}
 mkdir -p "$OUT"

@@ -8,7 +8,7 @@ per scheme and resolution).
     bench/error_vs_time.py --scene monkey.glb --reference-passes 4096 --res 64
 
 The Cornell box is measured against the Blender Cycles reference of
-shared/scenes; any other scene against the project's own brute-force path
+examples; any other scene against the project's own brute-force path
 tracer (--scheme pathtrace) at --reference-passes, baked first at each
 resolution (DESIGN.md: a reference is analytic, an independent renderer, or
 our path tracer at high sample count).
@@ -25,7 +25,7 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LIGHTFARM = os.path.join(ROOT, "build", "client_cli", "lightfarm")
-SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "..", "shared", "scenes"))
+SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "examples"))
 
 
 def run(cmd):
@@ -89,7 +89,7 @@ def bake_and_measure(scene, scheme, res, passes, out, device, reference, env=Non
 
 
 # Blender Cycles on the same kind of machine (2 cores, no GPU), Cornell box
-# 256², relative RMSE against its own 32768-sample bake: shared/scenes/SOURCES.md.
+# 256², relative RMSE against its own 32768-sample bake: examples/SOURCES.md.
 CYCLES_256 = [(0.83, 0.201), (2.88, 0.0948), (9.14, 0.0453), (38.8, 0.0226), (155, 0.0118)]
 
 
@@ -121,7 +121,7 @@ def plot(csv_path, png_path, series, scene):
 
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("--scene", default="cornell_box.gltf", help="a file in shared/scenes")
+    p.add_argument("--scene", default="cornell_box.gltf", help="a file in examples")
     p.add_argument("--reference-passes", type=int, default=4096, help="path-tracing passes of a reference")
     p.add_argument("--res", nargs="+", default=["64", "128", "256", "512"],
                    help="atlas sides, or auto (the bake's own choice, as a default bake makes it)")

@@ -7,7 +7,7 @@
 # --quick: small sizes, to check the script itself on llvmpipe (--device cpu).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
-scenes="${LIGHTFARM_SCENES:-$root/../shared/scenes}"
+scenes="${LIGHTFARM_SCENES:-$root/examples}"
 lightfarm="$root/build/client_cli/lightfarm"
 out="$1"; shift
 device=gpu quick=0

@@ -4,7 +4,7 @@
 #   bench/raybench.sh [--device auto|gpu|cpu] [--seconds S]
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
-scenes="${LIGHTFARM_SCENES:-$root/../shared/scenes}"
+scenes="${LIGHTFARM_SCENES:-$root/examples}"
 lightfarm="$root/build/client_cli/lightfarm"
 for scene in cornell_box.gltf monkey.glb spheres.glb real/wooden_staircase/wooden_staircase.gltf; do
   "$lightfarm" raybench "$scenes/$scene" "$@" | python3 -c '

@@ -7,7 +7,7 @@ continues after its last snapshot) and once without (from pass 0). Prints the
 wall times, the pass each second run started after, and whether the resumed
 bake's lightmap equals the uninterrupted one (`lightfarm compare`: RMSE 0).
 
-  python3 bench/resume_after_kill.py ../shared/scenes/cornell_box.gltf \\
+  python3 bench/resume_after_kill.py examples/cornell_box.gltf \\
       --passes 1024 --kill-at 8 -- --res 256
 """
 import argparse

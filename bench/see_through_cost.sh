@@ -8,7 +8,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${LIGHTFARM:-build/client_cli/lightfarm}
-SCENE=$(realpath ../shared/scenes/real/wooden_staircase/wooden_staircase.gltf)
+SCENE=$(realpath examples/real/wooden_staircase/wooden_staircase.gltf)
 OUT=${1:-/tmp/lf-see-through}
 shift || true
 mkdir -p "$OUT"

@@ -16,7 +16,7 @@ import time
 import urllib.request
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "..", "shared", "scenes"))
+SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "examples"))
 
 
 def call(url, token, method="GET", body=None, content_type="application/json"):
@@ -32,7 +32,7 @@ def main():
     p.add_argument("--jobs", type=int, default=8)
     p.add_argument("--res", type=int, default=512)
     p.add_argument("--passes", type=int, default=800)
-    p.add_argument("--scene", default="cornell_box.gltf", help="a self-contained .gltf or .glb in shared/scenes")
+    p.add_argument("--scene", default="cornell_box.gltf", help="a self-contained .gltf or .glb in examples")
     p.add_argument("--workers", type=int, help="lightfarmd's --workers (default: its own choice)")
     a = p.parse_args()
     os.makedirs(a.data, exist_ok=True)

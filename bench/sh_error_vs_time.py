@@ -20,7 +20,7 @@ import subprocess
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LIGHTFARM = os.path.join(ROOT, "build", "client_cli", "lightfarm")
-SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "..", "shared", "scenes"))
+SCENES = os.environ.get("LIGHTFARM_SCENES", os.path.join(ROOT, "examples"))
 
 
 def bake(scene, passes, out_dir, device, seed):

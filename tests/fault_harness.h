@@ -36,9 +36,9 @@ namespace lf::test {
 
 inline const std::vector<std::string> kErrors = {"ENOSPC", "EIO"};
 
-inline fs::path shared_scene(const std::string& name) {
+inline fs::path example_scene(const std::string& name) {
     const char* env = std::getenv("LIGHTFARM_SCENES");
-    return fs::path(env ? env : LIGHTFARM_SHARED_SCENES) / name;
+    return fs::path(env ? env : LIGHTFARM_EXAMPLES) / name;
 }
 
 // The shim's settings, as environment variables of the processes this test

@@ -26,9 +26,9 @@ inline GpuContext& gpu() {
     return *context;
 }
 
-inline std::string shared_scene(const std::string& name) {
+inline std::string example_scene(const std::string& name) {
     const char* env = std::getenv("LIGHTFARM_SCENES");
-    return std::string(env ? env : LIGHTFARM_SHARED_SCENES) + "/" + name;
+    return std::string(env ? env : LIGHTFARM_EXAMPLES) + "/" + name;
 }
 
 // Runs a *_check.comp program (gi/shaders) on `cases`, `vec4s_per_case`

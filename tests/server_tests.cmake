@@ -65,7 +65,7 @@ add_executable(test_server_load ${CMAKE_CURRENT_LIST_DIR}/test_server_load.cpp)
 target_include_directories(test_server_load PRIVATE ${CMAKE_CURRENT_LIST_DIR})
 target_link_libraries(test_server_load PRIVATE GTest::gtest_main lightfarm_server_harness)
 target_compile_definitions(test_server_load PRIVATE
-  LIGHTFARM_SHARED_SCENES="${LIGHTFARM_SHARED_SCENES}")
+  LIGHTFARM_EXAMPLES="${LIGHTFARM_EXAMPLES}")
 if(TARGET lightfarm)
   target_compile_definitions(test_server_load PRIVATE LIGHTFARM_ENGINE="$<TARGET_FILE:lightfarm>")
 endif()

@@ -35,7 +35,7 @@ namespace lf {
 namespace {
 
 namespace fs = std::filesystem;
-const fs::path kScenes = LIGHTFARM_SHARED_SCENES;
+const fs::path kScenes = LIGHTFARM_EXAMPLES;
 
 // A scene with flat, curved, thin and tiny parts.
 Scene mixed_scene() {

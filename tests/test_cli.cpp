@@ -92,7 +92,7 @@ void expect_preparation_events_then_start(const std::vector<nlohmann::json>& lin
 
 TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
     const fs::path out = fresh_dir("cornell");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+    const CliRun r = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + out.string() +
                                    " --res 64 --passes 9 --json --seed 3");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     std::vector<nlohmann::json> lines = json_lines(r.out);
@@ -171,7 +171,7 @@ TEST(CliBake, WritesTheFilesOfDesignAndOneJsonLinePerPass) {
 TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
     const fs::path out = fresh_dir("monkey");
     const CliRun r =
-        run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() + " --res 128 --passes 2");
+        run_lightfarm("bake " + test::example_scene("monkey.glb") + " --out " + out.string() + " --res 128 --passes 2");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     EXPECT_TRUE(fs::exists(out / "scene.lightmapped.glb"));
     const CliRun inspect = run_lightfarm("inspect --json " + (out / "scene.lightmapped.glb").string());
@@ -187,7 +187,7 @@ TEST(CliBake, GeneratesAnAtlasAndWritesTheLightmappedScene) {
 TEST(CliBake, LightDensityIsAskedAndSaid) {
     for (const bool asked : {false, true}) {
         const fs::path out = fresh_dir(asked ? "light-density" : "uniform-density");
-        const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
+        const CliRun r = run_lightfarm("bake " + test::example_scene("monkey.glb") + " --out " + out.string() +
                                        " --res 128 --passes 1" + (asked ? " --light-density" : ""));
         ASSERT_EQ(r.exit_code, 0) << r.err;
         std::ifstream in(out / "manifest.json");
@@ -210,7 +210,7 @@ TEST(CliBake, LightDensityIsAskedAndSaid) {
 // asked --light-density is not applied, and the bake says so.
 TEST(CliBake, LightDensityOnAFilesOwnUvsIsSaidNotApplied) {
     const fs::path out = fresh_dir("light-density-own-uvs");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+    const CliRun r = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + out.string() +
                                    " --res 64 --passes 1 --light-density");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     EXPECT_NE(r.err.find("light_density is not applied"), std::string::npos) << r.err;
@@ -237,7 +237,7 @@ TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
     for (const Case& c : {Case{"--max-pages 1", "does not fit in a 256² (max_pages, max_res): baked at", 1},
                           Case{"", "does not fit in 8 pages of 256² (max_pages, max_res): baked at", 5}}) {
         SCOPED_TRACE(c.flags);
-        const CliRun r = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() +
+        const CliRun r = run_lightfarm("bake " + test::example_scene("monkey.glb") + " --out " + out.string() +
                                        " --texel-density 2000 --max-res 256 --passes 1 " + c.flags);
         ASSERT_EQ(r.exit_code, 0) << r.err;
         std::ifstream manifest_in(out / "manifest.json");
@@ -258,7 +258,7 @@ TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
     }
     // A density that fits, or none asked: no warning.
     for (const std::string density : {"--texel-density 20", ""}) {
-        const CliRun fits = run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + out.string() + " " +
+        const CliRun fits = run_lightfarm("bake " + test::example_scene("monkey.glb") + " --out " + out.string() + " " +
                                           density + " --max-res 256 --passes 1 --json");
         ASSERT_EQ(fits.exit_code, 0) << fits.err;
         for (const nlohmann::json& line : json_lines(fits.out)) {
@@ -268,7 +268,7 @@ TEST(CliBake, MaxResBoundsAnAtlasSizedByTexelDensity) {
         EXPECT_FALSE(nlohmann::json::parse(again).contains("warnings")) << density;
     }
     // Charts that cannot fit within max_res: refused, naming what would fit.
-    const CliRun small = run_lightfarm("bake " + test::shared_scene("real/wooden_staircase/wooden_staircase.gltf") +
+    const CliRun small = run_lightfarm("bake " + test::example_scene("real/wooden_staircase/wooden_staircase.gltf") +
                                        " --out " + out.string() + " --max-res 256 --passes 1");
     EXPECT_EQ(small.exit_code, 3) << small.err;
     const size_t at = small.err.find("smallest resolution that fits is ");
@@ -318,7 +318,7 @@ TEST(CliUsage, EveryCommandAnswersHelpAndTyposGetASuggestion) {
 
 TEST(CliBake, StopsAtTheTargetError) {
     const fs::path out = fresh_dir("target");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+    const CliRun r = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + out.string() +
                                    " --res 32 --passes 10000 --target-error 0.05 --json");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto done = json_lines(r.out).back();
@@ -329,7 +329,7 @@ TEST(CliBake, StopsAtTheTargetError) {
 
 TEST(CliBake, StopsAtTheTimeLimit) {
     const fs::path out = fresh_dir("time");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+    const CliRun r = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + out.string() +
                                    " --res 64 --passes 1000000 --time-limit 1 --json");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto done = json_lines(r.out).back();
@@ -359,7 +359,7 @@ void expect_clean_failure(const std::string& args, const std::string& must_menti
 // and no texel can see more than the whole sky (E/pi <= 1 for radiance 1).
 TEST(CliBake, AUniformSkyLightsASceneWithoutLights) {
     const fs::path out = fresh_dir("sky");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") +
+    const CliRun r = run_lightfarm("bake " + test::example_scene("real/grey_white_room/grey_white_room.gltf") +
                                    " --out " + out.string() + " --res 256 --passes 4 --env 1,1,1 --no-stitch --json");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const FloatImage image = read_exr(out / "lightmap.exr");
@@ -421,7 +421,7 @@ TEST(CliBake, AnEnvironmentMapLightsAsTheSkyItHolds) {
 // density the atlas grows. A mesh the scene does not draw is the job's
 // input, named; a scale over 64 a usage error.
 TEST(CliBake, AMeshScaleFromTheJobGivesThatMeshItsDensity) {
-    const std::string scene = test::shared_scene("monkey.glb");  // 5 meshes, no lightmap UVs of its own
+    const std::string scene = test::example_scene("monkey.glb");  // 5 meshes, no lightmap UVs of its own
     auto bake = [&](const std::string& extra, const fs::path& out) {
         return run_lightfarm("bake " + scene + " --out " + out.string() + " --passes 1 --texel-density 20 --json" +
                              extra);
@@ -469,13 +469,13 @@ TEST(CliBake, APlanIsTheAtlasTheBakeMakesAndTheReadmesSizesAreItsOwn) {
         at = readme.find(said, at);
         ASSERT_NE(at, std::string::npos) << "README.md no longer says \"" << said << "N²\"";
         const int readme_side = std::atoi(readme.c_str() + at + said.size());
-        const CliRun plan = run_lightfarm("bake " + test::shared_scene(scene) + extra + " --plan --json");
+        const CliRun plan = run_lightfarm("bake " + test::example_scene(scene) + extra + " --plan --json");
         ASSERT_EQ(plan.exit_code, 0) << plan.err;
         const nlohmann::json atlas = nlohmann::json::parse(plan.out)["atlas"];
         EXPECT_EQ(atlas["width"].get<int>(), readme_side) << "README.md: \"" << said << readme_side << "²\"";
         EXPECT_TRUE(atlas["density_from_scene"].get<bool>());
     }
-    const std::string monkey = test::shared_scene("monkey.glb");
+    const std::string monkey = test::example_scene("monkey.glb");
     const CliRun plan = run_lightfarm("bake " + monkey + " --texel-density 30 --plan --json");
     ASSERT_EQ(plan.exit_code, 0) << plan.err;
     const fs::path out = fresh_dir("planned");
@@ -487,7 +487,7 @@ TEST(CliBake, APlanIsTheAtlasTheBakeMakesAndTheReadmesSizesAreItsOwn) {
     fs::remove_all(out);
     // Without the atlas, nothing to plan; a bad input fails as the bake would.
     expect_clean_failure("bake " + monkey + " --sh --plan", "nothing to plan", 3);
-    expect_clean_failure("bake " + test::shared_scene("real/grey_white_room/grey_white_room.gltf") + " --plan",
+    expect_clean_failure("bake " + test::example_scene("real/grey_white_room/grey_white_room.gltf") + " --plan",
                          "nothing to bake", 3);
 }
 
@@ -510,7 +510,7 @@ TEST(CliBake, APlanIsTheAtlasTheBakeMakesAndTheReadmesSizesAreItsOwn) {
 // 256 passes of the path tracer, +0.19% against 128, the truth here
 // (2026-11-28, llvmpipe; 27 s, where 256 passes took 52).
 TEST(CliBake, FinalGatherOnMouldingsAgreesWithThePathTracer) {
-    const std::string scene = test::shared_scene("real/grey_white_room/grey_white_room.gltf");
+    const std::string scene = test::example_scene("real/grey_white_room/grey_white_room.gltf");
     const fs::path out = fresh_dir("fg_mouldings");
     auto bake = [&](const std::string& name, const std::string& options) {
         const CliRun r = run_lightfarm("bake " + scene + " --out " + (out / name).string() +
@@ -531,25 +531,25 @@ TEST(CliBake, FinalGatherOnMouldingsAgreesWithThePathTracer) {
 // (the service fails such a job at once instead of retrying it).
 TEST(CliBake, FailuresAreOneClearLine) {
     constexpr int kUsage = 2, kInput = 3;
-    expect_clean_failure("bake " + test::shared_scene("real/breakfast_room/breakfast_room.gltf"), "--env R,G,B",
+    expect_clean_failure("bake " + test::example_scene("real/breakfast_room/breakfast_room.gltf"), "--env R,G,B",
                          kInput);
-    expect_clean_failure("bake " + test::shared_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf",
+    expect_clean_failure("bake " + test::example_scene("bad/index_out_of_range.gltf"), "index_out_of_range.gltf",
                          kInput);
     expect_clean_failure("bake /no/such/file.glb", "file.glb", kInput);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 0", "--res", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --device tpu", "tpu", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --passes many", "many", kUsage);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --res 0", "--res", kUsage);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --device tpu", "tpu", kUsage);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --passes many", "many", kUsage);
     // A map file it cannot read is the job's input, named (every output takes a map).
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --env sky.exr", "sky.exr", kInput);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --sh --env sky.exr", "sky.exr", kInput);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --sh-bands 0", "--sh-bands", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --seed 4294967296", "--seed", kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --res 64 --texel-density 10", "res",
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --env sky.exr", "sky.exr", kInput);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --sh --env sky.exr", "sky.exr", kInput);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --sh-bands 0", "--sh-bands", kUsage);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --seed 4294967296", "--seed", kUsage);
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --res 64 --texel-density 10", "res",
                          kUsage);
-    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-occluders 99", "mesh 99", kInput);
-    expect_clean_failure("bake " + test::shared_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices",
+    expect_clean_failure("bake " + test::example_scene("monkey.glb") + " --sh --sh-occluders 99", "mesh 99", kInput);
+    expect_clean_failure("bake " + test::example_scene("monkey.glb") + " --sh --sh-receivers 1,x", "mesh indices",
                          kUsage);
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --spec /no/such/spec.json", "spec.json",
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --spec /no/such/spec.json", "spec.json",
                          kUsage);
     // A spec that is there but not whole (a writer's full disk: empty, or cut
     // short) is its writer's trouble, not bad settings: its own exit code,
@@ -559,7 +559,7 @@ TEST(CliBake, FailuresAreOneClearLine) {
     for (const std::string& text : {std::string(""), std::string("{\"outputs\": {\"lightmap\": {\"pass")}) {
         std::ofstream(cut / "spec.json") << text;
         expect_clean_failure(
-            "bake " + test::shared_scene("cornell_box.gltf") + " --spec " + (cut / "spec.json").string(),
+            "bake " + test::example_scene("cornell_box.gltf") + " --spec " + (cut / "spec.json").string(),
             "not whole JSON", lf::protocol::kExitSpecUnreadable);
     }
 }
@@ -570,7 +570,7 @@ TEST(CliBake, FailuresAreOneClearLine) {
 // touched.
 TEST(CliBake, ABakeIntoAnOlderBakesFolderRemovesItsSnapshotsAndPages) {
     const fs::path out = fresh_dir("rebake");
-    const std::string scene = test::shared_scene("cornell_box.gltf");
+    const std::string scene = test::example_scene("cornell_box.gltf");
     ASSERT_EQ(run_lightfarm("bake " + scene + " --res 32 --passes 8 --out " + out.string()).exit_code, 0);
     // An older bake's snapshots of every kind, at passes this one does not
     // reach, and its pages of every atlas output.
@@ -592,7 +592,7 @@ TEST(CliBake, ABakeIntoAnOlderBakesFolderRemovesItsSnapshotsAndPages) {
 // resolution would, and that answer holds (the same number the service's
 // upload summary reports as min_atlas_res).
 TEST(CliBake, AnAtlasThatCannotFitNamesTheSmallestThatDoes) {
-    const std::string staircase = test::shared_scene("real/wooden_staircase/wooden_staircase.gltf");
+    const std::string staircase = test::example_scene("real/wooden_staircase/wooden_staircase.gltf");
     const fs::path out = fresh_dir("atlas");
     const CliRun r = run_lightfarm("bake " + staircase + " --res 64 --passes 1 --out " + out.string());
     EXPECT_EQ(r.exit_code, 3) << r.err;
@@ -614,7 +614,7 @@ TEST(CliBake, ABakeThatCannotFitInMemoryIsRefusedUpFront) {
     const fs::path out = fresh_dir("huge");
     const auto start = std::chrono::steady_clock::now();
     const CliRun r =
-        run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --res 16384 --out " + out.string());
+        run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --res 16384 --out " + out.string());
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     EXPECT_EQ(r.exit_code, 3) << r.err;
     // The message gives the estimate (protocol::estimated_bake_bytes, 2 subsamples by default).
@@ -639,7 +639,7 @@ std::string read_file(const fs::path& path) {
 // exactly) and says so, with what to do for relighting (it was silent).
 TEST(CliBake, AutoShBandsSayWhyTheyChoseOne) {
     const fs::path out = fresh_dir("sh-bands");
-    ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("monkey.glb") +
+    ASSERT_EQ(run_lightfarm("bake " + test::example_scene("monkey.glb") +
                             " --sh --sh-passes 2 --env 0.5,0.5,0.5 --out " + out.string())
                   .exit_code,
               0);
@@ -647,7 +647,7 @@ TEST(CliBake, AutoShBandsSayWhyTheyChoseOne) {
     EXPECT_EQ(sh["bands"], 1);
     EXPECT_NE(sh["bands_why"].get<std::string>().find("uniform sky has no direction"), std::string::npos) << sh;
     EXPECT_NE(sh["bands_why"].get<std::string>().find("--sh-bands 4"), std::string::npos) << sh;
-    ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --sh --sh-passes 2 --sh-bands 3 --out " +
+    ASSERT_EQ(run_lightfarm("bake " + test::example_scene("monkey.glb") + " --sh --sh-passes 2 --sh-bands 3 --out " +
                             out.string())
                   .exit_code,
               0);
@@ -661,7 +661,7 @@ TEST(CliBake, AutoShBandsSayWhyTheyChoseOne) {
 // pixels as the same settings given as flags, flags beside it win, and a
 // manifest's "settings" is itself a spec that reproduces the bake.
 TEST(CliBake, SpecFileBakesExactlyWhatFlagsBake) {
-    const std::string scene = test::shared_scene("cornell_box.gltf");
+    const std::string scene = test::example_scene("cornell_box.gltf");
     const fs::path by_flags = fresh_dir("flags"), by_spec = fresh_dir("spec"), by_manifest = fresh_dir("manifest");
     const CliRun a = run_lightfarm("bake " + scene + " --out " + by_flags.string() +
                                    " --res 32 --passes 5 --seed 7 --scheme thesis --light-samples 2");
@@ -690,7 +690,7 @@ TEST(CliBake, SpecFileBakesExactlyWhatFlagsBake) {
 // the manifest) and bakes each output exactly as it alone would: the shared
 // tracer, built from the atlas's copy of the scene, changes no bit of the SH.
 TEST(CliBake, LightmapAndShShareOnePreparation) {
-    const std::string scene = test::shared_scene("monkey.glb");
+    const std::string scene = test::example_scene("monkey.glb");
     const fs::path both = fresh_dir("both"), lightmap = fresh_dir("lightmap"), sh = fresh_dir("sh");
     const std::string common = " --res 64 --passes 2 --sh-passes 2 --seed 5 --json";
     const CliRun r = run_lightfarm("bake " + scene + " --lightmap --sh --out " + both.string() + common);
@@ -722,7 +722,7 @@ TEST(CliBake, LightmapAndShShareOnePreparation) {
 TEST(CliBake, DenoiseKeepsTheRawBake) {
     const fs::path raw = fresh_dir("raw"), denoised = fresh_dir("denoised"), asked = fresh_dir("asked");
     const std::string common = " --res 64 --passes 8 --seed 3";
-    const std::string scene = test::shared_scene("cornell_box.gltf");
+    const std::string scene = test::example_scene("cornell_box.gltf");
     ASSERT_EQ(run_lightfarm("bake " + scene + " --out " + raw.string() + common + " --no-denoise").exit_code, 0);
     const CliRun r = run_lightfarm("bake " + scene + " --out " + denoised.string() + common);
     ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -1020,7 +1020,7 @@ TEST(OutputComparison, ComparesTwoLightmapFilesAsTheCliPrintsThem) {
 TEST(CliCompare, TwoBakeFoldersWithDifferentAtlasesCompareAtSurfacePoints) {
     const fs::path coarse = fresh_dir("surface-64"), fine = fresh_dir("surface-128"), other = fresh_dir("surface-box");
     for (const auto& [dir, res] : {std::pair{coarse, "64"}, std::pair{fine, "128"}})
-        ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --out " + dir.string() + " --res " +
+        ASSERT_EQ(run_lightfarm("bake " + test::example_scene("monkey.glb") + " --out " + dir.string() + " --res " +
                                 res + " --passes 16")
                       .exit_code,
                   0);
@@ -1048,7 +1048,7 @@ TEST(CliCompare, TwoBakeFoldersWithDifferentAtlasesCompareAtSurfacePoints) {
     const CliRun block = run_lightfarm("compare " + coarse.string() + " " + fine.string() + " --block 8");
     EXPECT_EQ(block.exit_code, 2);
     EXPECT_NE(block.err.find("points of the surface"), std::string::npos) << block.err;
-    ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + other.string() +
+    ASSERT_EQ(run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + other.string() +
                             " --res 64 --passes 4")
                   .exit_code,
               0);
@@ -1064,7 +1064,7 @@ TEST(CliCompare, TwoBakeFoldersWithDifferentAtlasesCompareAtSurfacePoints) {
 TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {
     const fs::path a = fresh_dir("layer-a"), b = fresh_dir("layer-b");
     for (const auto& [dir, seed] : {std::pair{a, "3"}, std::pair{b, "4"}})
-        ASSERT_EQ(run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + dir.string() +
+        ASSERT_EQ(run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + dir.string() +
                                 " --res 64 --passes 8 --seed " + seed)
                       .exit_code,
                   0);
@@ -1109,7 +1109,7 @@ TEST(CliCompare, ALayerOfTwoBakesIsComparedOnItsOwn) {
 // --directional: the L1 layers in lightmap.exr, and the manifest says so.
 TEST(CliBake, DirectionalWritesTheL1Layers) {
     const fs::path out = fresh_dir("directional");
-    const CliRun r = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") + " --out " + out.string() +
+    const CliRun r = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + out.string() +
                                    " --res 64 --passes 4 --directional");
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const FloatImage image = read_exr(out / "lightmap.exr");
@@ -1140,7 +1140,7 @@ bool khronos_valid(const std::vector<fs::path>& files, std::string& report) {
 // embedded), the SH scene and sh-shade's vertex colours (clamped to [0, 1]).
 TEST(CliOutputs, EveryGlbPassesTheKhronosValidator) {
     const fs::path out = fresh_dir("validator");
-    const std::string scene = test::shared_scene("monkey.glb");
+    const std::string scene = test::example_scene("monkey.glb");
     const CliRun bake = run_lightfarm("bake " + scene + " --lightmap --sh --out " + out.string() +
                                       " --res 64 --passes 2 --sh-passes 2 --seed 5");
     ASSERT_EQ(bake.exit_code, 0) << bake.err;
@@ -1166,7 +1166,7 @@ TEST(CliOutputs, EverySharedScenesGlbsPassTheKhronosValidator) {
     for (const char* name :
          {"cornell_box.gltf", "monkey.glb", "spheres.glb", "packuv.glb", "flower.glb", "random.glb", "noisy.glb"}) {
         const fs::path dir = out / name;
-        const CliRun bake = run_lightfarm("bake " + test::shared_scene(name) + " --lightmap --ao --env 0.5,0.5,0.5" +
+        const CliRun bake = run_lightfarm("bake " + test::example_scene(name) + " --lightmap --ao --env 0.5,0.5,0.5" +
                                           " --max-res 256 --passes 1 --ao-passes 1 --no-stitch --out " + dir.string());
         ASSERT_EQ(bake.exit_code, 0) << name << ": " << bake.err;
         glbs.push_back(dir / "scene.lit.glb");
@@ -1215,7 +1215,7 @@ TEST(CliOutputs, APunctualLightTheLightmapHoldsLeavesEveryGlb) {
     std::vector<fs::path> glbs;
     for (const std::string scene : {"monkey.glb", "spheres.glb"}) {
         SCOPED_TRACE(scene);
-        const nlohmann::json input = glb_json(test::shared_scene(scene));
+        const nlohmann::json input = glb_json(test::example_scene(scene));
         ASSERT_TRUE(has_punctual_lights(input)) << "the scene has a punctual light";
         const auto& lights = input["extensions"]["KHR_lights_punctual"]["lights"];
         size_t light_nodes = 0;
@@ -1224,7 +1224,7 @@ TEST(CliOutputs, APunctualLightTheLightmapHoldsLeavesEveryGlb) {
         ASSERT_GT(light_nodes, 0u);
 
         const fs::path baked = out / (scene + "-lightmap");
-        const CliRun bake = run_lightfarm("bake " + test::shared_scene(scene) +
+        const CliRun bake = run_lightfarm("bake " + test::example_scene(scene) +
                                           " --lightmap --passes 1 --res 256 --out " + baked.string());
         ASSERT_EQ(bake.exit_code, 0) << bake.err;
         for (const char* file : {"scene.lightmapped.glb", "scene.lit.glb", "scene.unlit.glb"}) {
@@ -1244,7 +1244,7 @@ TEST(CliOutputs, APunctualLightTheLightmapHoldsLeavesEveryGlb) {
         }
 
         const fs::path occlusion = out / (scene + "-ao");
-        const CliRun ao = run_lightfarm("bake " + test::shared_scene(scene) + " --ao --ao-passes 1 --res 256 --out " +
+        const CliRun ao = run_lightfarm("bake " + test::example_scene(scene) + " --ao --ao-passes 1 --res 256 --out " +
                                         occlusion.string());
         ASSERT_EQ(ao.exit_code, 0) << ao.err;
         for (const char* file : {"scene.lightmapped.glb", "scene.lit.glb"}) {
@@ -1264,7 +1264,7 @@ TEST(CliOutputs, APunctualLightTheLightmapHoldsLeavesEveryGlb) {
 // scene carries both, from one atlas.
 TEST(CliBake, AmbientOcclusionBakesWithoutALightIntoTheLitScene) {
     const fs::path out = fresh_dir("ao");
-    const CliRun alone = run_lightfarm("bake " + test::shared_scene("packuv.glb") +
+    const CliRun alone = run_lightfarm("bake " + test::example_scene("packuv.glb") +
                                        " --ao --ao-passes 4 --res 64 --out " + out.string());
     ASSERT_EQ(alone.exit_code, 0) << alone.err;
     const FloatImage ao = read_exr(out / "ao.exr");
@@ -1289,7 +1289,7 @@ TEST(CliBake, AmbientOcclusionBakesWithoutALightIntoTheLitScene) {
     EXPECT_NE(manifest["files"]["scene.lit.glb"].get<std::string>().find("ambient occlusion"), std::string::npos);
 
     const fs::path both = fresh_dir("ao_and_lightmap");
-    const CliRun lit_too = run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") +
+    const CliRun lit_too = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") +
                                          " --lightmap --ao --passes 2 --ao-passes 2 --res 64 --out " + both.string());
     ASSERT_EQ(lit_too.exit_code, 0) << lit_too.err;
     const nlohmann::json lit_both = glb_json(both / "scene.lit.glb");  // held: the loop reads into it
@@ -1328,7 +1328,7 @@ TEST(CliOutputs, AMeshWithoutALightmapHasNoneInAnyGlb) {
     for (const Case& c : cases) {
         SCOPED_TRACE(c.name);
         const fs::path dir = out / c.name;
-        const CliRun bake = run_lightfarm("bake " + test::shared_scene(c.scene) + " --lightmap --ao --passes 1" +
+        const CliRun bake = run_lightfarm("bake " + test::example_scene(c.scene) + " --lightmap --ao --passes 1" +
                                           " --ao-passes 1 --mesh-scale " + std::to_string(c.mesh) + "=0" + c.flags +
                                           " --out " + dir.string());
         ASSERT_EQ(bake.exit_code, 0) << bake.err;
@@ -1383,7 +1383,7 @@ TEST(CliOutputs, AMeshWithoutALightmapHasNoneInAnyGlb) {
     }
     std::string report;
     EXPECT_TRUE(khronos_valid(glbs, report)) << report;
-    expect_clean_failure("bake " + test::shared_scene("cornell_box.gltf") + " --mesh-scale 0=0,1=0,2=0,3=0",
+    expect_clean_failure("bake " + test::example_scene("cornell_box.gltf") + " --mesh-scale 0=0,1=0,2=0,3=0",
                          "every mesh has lightmap scale 0", 3);
     fs::remove_all(out);
 }

@@ -501,7 +501,7 @@ struct DirectionalErrors {
 DirectionalErrors directional_against_probes(const std::string& file, int res, int passes, size_t texel_count,
                                              int probe_res, int probe_passes) {
     gpu();
-    Scene scene = load_scene(test::shared_scene(file));
+    Scene scene = load_scene(test::example_scene(file));
     AtlasOptions atlas;
     atlas.resolution = res;
     prepare_lightmap_atlas(scene, atlas);
@@ -632,7 +632,7 @@ TEST(ProbeCapture, AProbeInsideGeometryIsDropped) {
 // failure is the paper's, reproduced); the SH9 environment ignores where the
 // point is and drifts.
 TEST(ProbeCapture, CornellBoxPolygonToPointHoldsNearAWall) {
-    const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
+    const Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
     const glm::vec3 centre = scene.bounds.centre() + glm::vec3(0.0f, 0.08f, 0.0f);  // above the blocks
     const glm::vec3 wall_normal(-1.0f, 0.0f, 0.0f);                                 // the red wall at x = bounds.lo.x
     const float to_wall = centre.x - scene.bounds.lo.x;
@@ -682,7 +682,7 @@ TEST(ProbeCapture, CornellBoxPolygonToPointHoldsNearAWall) {
 // with the weights is the covariance term alone (+1.9%, -5.3%, +1.5%, -0.6%):
 // a coarse texel cannot follow the cosine across itself.
 TEST(ProbeCapture, EveryMConservesTheCaptureAtTheReferencePoint) {
-    const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
+    const Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
     const glm::vec3 at(0.1f, scene.bounds.lo.y + 0.005f, 0.45f);  // open floor, beside the tall block
     const glm::vec3 up(0.0f, 1.0f, 0.0f);
     const int r = 32;
@@ -749,7 +749,7 @@ TEST(ProbeCapture, EveryMConservesTheCaptureAtTheReferencePoint) {
 // promises, measured, and the paper's finding in its wall sweep.
 TEST(ProbeBench, ReportsCaptureThroughputAndErrorRows) {
     gpu();
-    const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
+    const Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
     ProbeBenchOptions options;
     options.at = scene.bounds.centre() + glm::vec3(0.0f, 0.08f, 0.0f);
     options.capture_resolutions = {16};

@@ -262,7 +262,7 @@ TEST(RadiosityMap, FinalGatherConvergesInTheFurnace) {
 // 512 passes, baked once), on monkey.glb's generated 64² atlas: charts small
 // against texels, the case where reading the map is at its worst.
 std::vector<double> monkey_indirect_ratios(const std::vector<RadiosityScheme>& schemes, int passes) {
-    Scene s = load_scene(test::shared_scene("monkey.glb"));
+    Scene s = load_scene(test::example_scene("monkey.glb"));
     AtlasOptions options;
     options.resolution = 64;
     prepare_lightmap_atlas(s, options);
@@ -1756,7 +1756,7 @@ TEST(RadiosityMap, StitchedSeamsAgreeToTheNoiseFloor) {
 }
 
 // The Cornell box at 256² against Blender Cycles (32768 samples per texel,
-// shared/scenes/SOURCES.md), over the reference's mask.
+// examples/SOURCES.md), over the reference's mask.
 // Two quads textured with random colours (37 x 23 texels, odd sizes), one
 // reflecting, one emitting, their texture coordinates reaching outside
 // [0, 1] on both sides (REPEAT).
@@ -1937,7 +1937,7 @@ TEST(SurfaceTextures, GlslMatchesTheSceneOnTheCpu) {
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     const std::vector<std::pair<std::string, Scene>> scenes = {
         {"random textures", randomly_textured_quads()},
-        {"staircase", load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf"))}};
+        {"staircase", load_scene(test::example_scene("real/wooden_staircase/wooden_staircase.gltf"))}};
     for (const auto& [name, scene] : scenes) {
         SCOPED_TRACE(name);
         const SurfaceTextures textures(scene);
@@ -1985,9 +1985,9 @@ TEST(SurfaceTextures, GlslMatchesTheSceneOnTheCpu) {
 }
 
 TEST(RadiosityMap, CornellBoxAgreesWithCyclesReference) {
-    const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
-    const FloatImage reference = read_exr(test::shared_scene("cornell_box.ref256.exr"));
-    const FloatImage mask = read_pfm(test::shared_scene("cornell_box.mask256.pfm"));
+    const Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
+    const FloatImage reference = read_exr(test::example_scene("cornell_box.ref256.exr"));
+    const FloatImage mask = read_pfm(test::example_scene("cornell_box.mask256.pfm"));
     const int passes = 256;
     const BakeResult r = bake(scene, 256, passes);
     const ReferenceError e = compare_to_reference(r.image, reference, &mask);
@@ -2015,9 +2015,9 @@ TEST(RadiosityMap, CornellBoxAgreesWithCyclesReference) {
 // reference's 0.39%), and without a bias beyond what that noise allows over
 // 33 k texels.
 TEST(RadiosityMap, PathTracerAgreesWithCyclesOnTheCornellBox) {
-    const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
-    const FloatImage reference = read_exr(test::shared_scene("cornell_box.ref256.exr"));
-    const FloatImage mask = read_pfm(test::shared_scene("cornell_box.mask256.pfm"));
+    const Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
+    const FloatImage reference = read_exr(test::example_scene("cornell_box.ref256.exr"));
+    const FloatImage mask = read_pfm(test::example_scene("cornell_box.mask256.pfm"));
     RadiosityMapSettings settings;
     settings.scheme = RadiosityScheme::PathTracing;
     const BakeResult r = bake(scene, 256, 64, settings);

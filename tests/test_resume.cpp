@@ -127,7 +127,7 @@ bool same_bits(const std::vector<T>& a, const std::vector<T>& b) {
 // with the state.
 TEST(ResumeBaker, ARadiosityMapRestoredMidEpochContinuesBitForBit) {
     test::gpu();
-    Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
+    Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
     generate_lightmap_uvs(scene, {.resolution = 64});
     const TexelSamples texels = rasterize_texel_samples(scene, 64, 64, 2);
     const Tracer tracer(scene);
@@ -170,7 +170,7 @@ TEST(ResumeBaker, ARadiosityMapRestoredMidEpochContinuesBitForBit) {
             EXPECT_EQ(a.error_estimate, b.error_estimate) << to_string(scheme);
         }
     // A state of other texels is refused, and changes nothing.
-    Scene other = load_scene(test::shared_scene("cornell_box.gltf"));
+    Scene other = load_scene(test::example_scene("cornell_box.gltf"));
     generate_lightmap_uvs(other, {.resolution = 48});
     const TexelSamples other_texels = rasterize_texel_samples(other, 48, 48, 2);
     RadiosityMapBaker elsewhere(other, other_texels, tracer, {});
@@ -182,7 +182,7 @@ TEST(ResumeBaker, ARadiosityMapRestoredMidEpochContinuesBitForBit) {
 
 TEST(ResumeBaker, ShTransferRestoredMidBakeContinuesBitForBit) {
     test::gpu();
-    const Scene scene = load_scene(test::shared_scene("cornell_box.gltf"));
+    const Scene scene = load_scene(test::example_scene("cornell_box.gltf"));
     const Tracer tracer(scene);
     ShTransferSettings settings;
     settings.samples_per_pass = 16;
@@ -268,7 +268,7 @@ protected:
         test::gpu();
         root = fs::temp_directory_path() / ("lf_resume_" + std::to_string(::getpid()));
         fs::remove_all(root);
-        job.scene = test::shared_scene("cornell_box.gltf");
+        job.scene = test::example_scene("cornell_box.gltf");
         // Every output, each with state beyond one buffer: directional
         // lightmap (L1 sums), SH with a bounce (two blocks), two probes.
         job.settings = protocol::parse_bake_settings(

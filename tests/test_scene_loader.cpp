@@ -38,7 +38,7 @@ using test::TempDir;
 using test::textured_quad;
 namespace fs = std::filesystem;
 
-const fs::path kScenes = LIGHTFARM_SHARED_SCENES;
+const fs::path kScenes = LIGHTFARM_EXAMPLES;
 
 // The SceneError message of loading `file`, or a test failure if it loads.
 std::string load_error(const fs::path& file, const LoadLimits& limits = {}) {

@@ -426,7 +426,7 @@ TEST(SeeThrough, GlassGetsFewTexelsUnlessAsked) {
     const fs::path dir = fs::temp_directory_path() / ("lightfarm_glass_texels_" + std::to_string(::getpid()));
     fs::remove_all(dir);
     fs::create_directories(dir);
-    nlohmann::json doc = nlohmann::json::parse(std::ifstream(test::shared_scene("cornell_box.gltf")));
+    nlohmann::json doc = nlohmann::json::parse(std::ifstream(test::example_scene("cornell_box.gltf")));
     ASSERT_NEAR(doc["materials"][2]["pbrMetallicRoughness"]["baseColorFactor"][1].get<double>(), 0.45, 1e-6)
         << "material 2 is the green wall's";
     doc["materials"][2]["extensions"]["KHR_materials_transmission"] = {{"transmissionFactor", 1.0}};

@@ -35,7 +35,7 @@ const std::string kToken = "e2e-token";
 
 fs::path scenes_dir() {
     const char* env = std::getenv("LIGHTFARM_SCENES");
-    return env && *env ? fs::path(env) : fs::path(LIGHTFARM_SHARED_SCENES);
+    return env && *env ? fs::path(env) : fs::path(LIGHTFARM_EXAMPLES);
 }
 
 // Every channel of an EXR (RGB, and the direct/indirect layers, sample counts

@@ -158,7 +158,7 @@ std::map<std::string, std::string> ServerScenario::run() {
     leave();
     enter("upload");
     std::string scene, job;
-    const std::string glb = read_text(shared_scene("flower.glb"));
+    const std::string glb = read_text(example_scene("flower.glb"));
     effects_["upload"] = post("/v1/scenes?name=flower.glb", glb, "model/gltf-binary", scene);
     leave();
     if (scene.empty()) return gave_up();
@@ -391,7 +391,7 @@ TEST(StoreFaults, EveryWalCallOfPostgreSQLUnderTheServer) {
 // client to fetch: its id.
 std::string finished_job(Lightfarmd& server) {
     auto c = server.client(kToken);
-    auto up = c.Post("/v1/scenes?name=flower.glb", read_text(shared_scene("flower.glb")), "model/gltf-binary");
+    auto up = c.Post("/v1/scenes?name=flower.glb", read_text(example_scene("flower.glb")), "model/gltf-binary");
     EXPECT_TRUE(up && up->status == 201) << (up ? up->body : "no answer");
     if (!up || up->status != 201) return "";
     const json spec = {{"scene", json::parse(up->body)["id"]}, {"outputs", {{"lightmap", {{"passes", 2}}}}}};

@@ -605,7 +605,7 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
     std::filesystem::remove_all(out);
     gpu();
     BakeJob job;
-    job.scene = test::shared_scene("monkey.glb");
+    job.scene = test::example_scene("monkey.glb");
     job.out = out;
     job.settings = protocol::parse_bake_settings(
         {{"outputs", {{"sh", {{"sh_bands", "auto"}, {"sh_passes", 3}}}}}, {"env", {0.2, 0.4, 1.0}}});
@@ -669,7 +669,7 @@ TEST(ShBake, PerTexelWritesTheTransferExr) {
     std::filesystem::remove_all(out);
     gpu();
     BakeJob job;
-    job.scene = test::shared_scene("monkey.glb");
+    job.scene = test::example_scene("monkey.glb");
     job.out = out;
     job.settings = protocol::parse_bake_settings(
         {{"outputs", {{"sh", {{"sh_bands", 2}, {"sh_per_texel", true}, {"sh_passes", 2}}}}},
@@ -728,7 +728,7 @@ TEST(ShBench, DISABLED_VerticesAndRaysPerSecond) {
         const std::string name = entry.substr(0, c1);
         const int passes = std::stoi(entry.substr(c1 + 1, c2 - c1 - 1)), per_pass = std::stoi(entry.substr(c2 + 1));
         const auto t0 = std::chrono::steady_clock::now();
-        const Scene scene = load_scene(test::shared_scene(name));
+        const Scene scene = load_scene(test::example_scene(name));
         const auto t1 = std::chrono::steady_clock::now();
         const Tracer tracer(scene);
         ShTransferBaker baker(scene, tracer, settings(per_pass));

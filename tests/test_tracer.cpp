@@ -106,17 +106,17 @@ void expect_matches_brute_force(const Scene& scene, size_t ray_count) {
 
 TEST(Tracer, MatchesBruteForceOnCornellBox) {
     gpu();
-    expect_matches_brute_force(load_scene(test::shared_scene("cornell_box.gltf")), 20000);
+    expect_matches_brute_force(load_scene(test::example_scene("cornell_box.gltf")), 20000);
 }
 
 TEST(Tracer, MatchesBruteForceOnMonkey) {
     gpu();
-    expect_matches_brute_force(load_scene(test::shared_scene("monkey.glb")), 4000);
+    expect_matches_brute_force(load_scene(test::example_scene("monkey.glb")), 4000);
 }
 
 TEST(Tracer, MatchesBruteForceOnRealStaircase) {
     gpu();
-    expect_matches_brute_force(load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf")), 600);
+    expect_matches_brute_force(load_scene(test::example_scene("real/wooden_staircase/wooden_staircase.gltf")), 600);
 }
 
 // A tracer that takes a scene's winding after every other triangle was
@@ -125,7 +125,7 @@ TEST(Tracer, MatchesBruteForceOnRealStaircase) {
 // the turned triangles' barycentrics (their 2nd and 3rd vertices swapped).
 TEST(Tracer, RewoundTrianglesHitAsARebuiltTree) {
     gpu();
-    const Scene scene = load_scene(test::shared_scene("monkey.glb"));
+    const Scene scene = load_scene(test::example_scene("monkey.glb"));
     Scene turned = scene;
     for (size_t t = 0; t < turned.triangles.size(); t += 2) std::swap(turned.triangles[t].y, turned.triangles[t].z);
     Tracer rewound(scene);
@@ -312,7 +312,7 @@ TEST(Tracer, OffsetOriginsDoNotSelfIntersect) {
 
 TEST(Tracer, OcclusionAgreesWithClosestHit) {
     gpu();
-    const Scene scene = load_scene(test::shared_scene("monkey.glb"));
+    const Scene scene = load_scene(test::example_scene("monkey.glb"));
     Tracer tracer(scene);
     std::vector<Ray> rays = random_rays(scene, 4000, 99);
     std::vector<Ray> shadow = rays;
@@ -368,7 +368,7 @@ TEST(Tracer, EmptySceneMissesEverything) {
 }
 
 TEST(Bvh, BoundsContainTheirTrianglesAndEveryTriangleIsInOneLeaf) {
-    const Scene scene = load_scene(test::shared_scene("monkey.glb"));
+    const Scene scene = load_scene(test::example_scene("monkey.glb"));
     const Bvh bvh = build_bvh(scene);
     std::vector<int> seen(scene.triangles.size(), 0);
     auto check_leaf = [&](glm::vec3 lo, glm::vec3 hi, uint32_t first, uint32_t count) {
@@ -396,7 +396,7 @@ TEST(Bvh, BoundsContainTheirTrianglesAndEveryTriangleIsInOneLeaf) {
 // node list of its own) and comes out the same, node for node, as on one:
 // the breakfast room (269,538 triangles) on one thread and on four.
 TEST(Bvh, TheSameTreeOnOneThreadAsOnFour) {
-    const Scene scene = load_scene(test::shared_scene("real/breakfast_room/breakfast_room.gltf"));
+    const Scene scene = load_scene(test::example_scene("real/breakfast_room/breakfast_room.gltf"));
     auto build = [&](const char* threads) {
         const test::ThreadCount count(threads);
         return build_bvh(scene);
@@ -410,7 +410,7 @@ TEST(Bvh, TheSameTreeOnOneThreadAsOnFour) {
 }
 
 TEST(Bvh, FourWideNodesAreFullAndFormOneTree) {
-    const Scene scene = load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf"));
+    const Scene scene = load_scene(test::example_scene("real/wooden_staircase/wooden_staircase.gltf"));
     const Bvh bvh = build_bvh(scene);
     std::vector<int> parents(bvh.nodes.size(), 0);
     size_t interior_children = 0;
@@ -440,7 +440,7 @@ TEST(Bvh, FourWideNodesAreFullAndFormOneTree) {
 // bounds by less than one step on each side, a step being under 2/255 of
 // its node's extent (or the smallest normal float, for a flat axis).
 TEST(Bvh, QuantizedBoxesContainTheirTrianglesWithinAStep) {
-    const Scene scene = load_scene(test::shared_scene("real/wooden_staircase/wooden_staircase.gltf"));
+    const Scene scene = load_scene(test::example_scene("real/wooden_staircase/wooden_staircase.gltf"));
     const Bvh bvh = build_bvh(scene);
     auto triangle_bounds = [&](uint32_t first, uint32_t count) {
         Bounds b;

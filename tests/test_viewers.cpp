@@ -114,7 +114,7 @@ double exposure_of(const FloatImage& lightmap) {
 TEST(AnyViewer, AStockThreeJsShowsTheUnlitSceneAsLightfarmsViewShowsTheLitOne) {
     const fs::path out = fs::temp_directory_path() / ("lightfarm-any-viewer-" + std::to_string(getpid()));
     fs::remove_all(out);
-    const test::CliRun bake = test::run_lightfarm("bake " + test::shared_scene("cornell_box.gltf") +
+    const test::CliRun bake = test::run_lightfarm("bake " + test::example_scene("cornell_box.gltf") +
                                                   " --res 128 --passes 64 --out " + out.string());
     ASSERT_EQ(bake.exit_code, 0) << bake.err;
     const double exposure = exposure_of(read_exr(out / "lightmap.exr"));
@@ -169,7 +169,7 @@ TEST(AnyViewer, ABakeOnPagesLooksAsTheSameBakeOnOnePage) {
     fs::remove_all(out);
     for (const char* max_res : {"256", "512"}) {
         const test::CliRun bake =
-            test::run_lightfarm("bake " + test::shared_scene("monkey.glb") + " --texel-density 70 --max-res " +
+            test::run_lightfarm("bake " + test::example_scene("monkey.glb") + " --texel-density 70 --max-res " +
                                 max_res + " --passes 16 --out " + (out / max_res).string());
         ASSERT_EQ(bake.exit_code, 0) << bake.err;
     }

@@ -30,7 +30,7 @@ std::vector<WorkerScenario> worker_scenarios(const fs::path& dir) {
 }
 
 CliRun bake(const WorkerScenario& scenario, const fs::path& out) {
-    return run_lightfarm("bake " + shared_scene("cornell_box.gltf").string() + " --out " + out.string() + " --json " +
+    return run_lightfarm("bake " + example_scene("cornell_box.gltf").string() + " --out " + out.string() + " --json " +
                          scenario.flags);
 }
 

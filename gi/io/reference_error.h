@@ -1,7 +1,7 @@
 // Error of a lightmap against a reference (DESIGN.md "Conventions"): RMSE over
 // the covered texels and the three channels, relative to the reference's mean
 // there; bias = mean / reference mean - 1. The same definition as the Cycles
-// reference figures in shared/scenes/SOURCES.md, so numbers compare directly.
+// reference figures in examples/SOURCES.md, so numbers compare directly.
 #pragma once
 
 #include "io/image_files.h"
