@@ -101,8 +101,7 @@ TEST(Load, FiftyJobsFromTenClientsWithTwoHundredReadersEachFinishExactlyOnce) {
     // (equal bytes, so one stored scene owned by every token), a distinct
     // tiny .glb per client for the fake one.
     const char* scenes_env = std::getenv("LIGHTFARM_SCENES");
-    const fs::path cornell =
-        fs::path(scenes_env && *scenes_env ? scenes_env : LIGHTFARM_EXAMPLES) / "cornell_box.gltf";
+    const fs::path cornell = fs::path(scenes_env && *scenes_env ? scenes_env : LIGHTFARM_EXAMPLES) / "cornell_box.gltf";
     const std::string real_scene = real ? read_text(cornell) : "";
 
     std::mutex mutex;
