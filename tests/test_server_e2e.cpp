@@ -434,6 +434,51 @@ TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
     EXPECT_EQ(png->body.substr(1, 3), "PNG");
 }
 
+// A probes job through the service (issue #52): the same probes as
+// `lightfarm bake --probes` with the same settings and seed (probes.exr
+// pixel for pixel: radiance, distances, corner and centre rays), so
+// `lightfarm probe-eval` gives the same numbers from either, at points by a
+// wall, on the floor between the blocks and behind one.
+TEST_F(EndToEnd, AProbesJobThroughTheServiceEqualsTheCli) {
+    const json positions = json::array({json{{"position", {0.278, 0.3545, 0.2795}}},
+                                        json{{"position", {0.1, 0.05, 0.45}}}, json{{"position", {0.45, 0.45, 0.1}}}});
+    const json probes = {{"probe_positions", positions}, {"probe_res", 32}, {"probe_m", 8}, {"probe_passes", 4}};
+    const std::string id = submit({{"scene", upload_cornell_box()}, {"outputs", {{"probes", probes}}}, {"seed", 3}});
+    ASSERT_EQ(wait_finished(id)["state"], "succeeded");
+    const fs::path served = tmp.path / "served-probes";
+    fs::create_directories(served);
+    fs::copy_file(download(id, "probes.json", "probes"), served / "probes.json");
+    fs::copy_file(download(id, "probes.exr", "probes"), served / "probes.exr");
+
+    const fs::path local = tmp.path / "local-probes", positions_file = tmp.path / "probe-positions.json";
+    write_text(positions_file, positions.dump());
+    const server::RunResult cli =
+        server::run_command({LIGHTFARM_ENGINE, "bake", (scenes_dir() / "cornell_box.gltf").string(), "--probes",
+                             "--probe-positions", positions_file.string(), "--probe-res", "32", "--probe-m", "8",
+                             "--probe-passes", "4", "--seed", "3", "--out", local.string()},
+                            std::chrono::seconds(300));
+    ASSERT_TRUE(cli.status.success()) << cli.status.describe() << ": " << cli.err_last_line;
+    EXPECT_TRUE(same_pixels(served / "probes.exr", local / "probes.exr"));
+
+    const fs::path points = tmp.path / "shading-points.json";
+    write_text(points, json::array({json{{"position", {0.01, 0.2, 0.3}}, {"normal", {1, 0, 0}}},
+                                    json{{"position", {0.3, 0.001, 0.45}}, {"normal", {0, 1, 0}}},
+                                    json{{"position", {0.4, 0.01, 0.5}}, {"normal", {0, 0, 1}}},
+                                    json{{"position", {0.2, 0.4, 0.2}}, {"normal", {0, -1, 0}}}})
+                           .dump());
+    const auto evaluate = [&](const fs::path& dir) {
+        const server::RunResult r =
+            server::run_command({LIGHTFARM_ENGINE, "probe-eval", (dir / "probes.json").string(), points.string()},
+                                std::chrono::seconds(60));
+        EXPECT_TRUE(r.status.success()) << r.status.describe() << ": " << r.err_last_line;
+        return json::parse(r.out);
+    };
+    const json from_server = evaluate(served), from_cli = evaluate(local);
+    ASSERT_EQ(from_server["points"].size(), 4u);
+    EXPECT_EQ(from_server, from_cli);
+    EXPECT_GT(from_server["points"][1]["polygon_to_point"][1].get<double>(), 0.0) << "the floor is lit";
+}
+
 // `node SCRIPT ARGS...` from tests/web (its packages in web/node_modules,
 // installed by the scripts); stdout and stderr in `output`.
 int run_node(const std::string& script, const std::vector<std::string>& args, std::string& output) {
