@@ -204,20 +204,32 @@ lf::protocol::BakeSettings bake_settings(const Args& args, const std::string& sc
     }
 }
 
-// SIGTERM (lightfarmd cancelling the job, or anyone's kill): once the
-// passes run, one last snapshot of where the bake stands, then exit
-// kExitStopped; before, nothing to save: exit at once. A second SIGTERM
-// ends it at once (SA_RESETHAND).
-void on_sigterm(int) {
+// SIGTERM (lightfarmd cancelling the job, or anyone's kill) and SIGINT
+// (Ctrl-C): once the passes run, one last snapshot of where the bake stands
+// and its state saved, then exit kExitStopped; before, nothing to save: exit
+// at once. A second signal ends it at once (SA_RESETHAND).
+void on_stop_signal(int) {
     if (!lf::request_stop()) _exit(lf::protocol::kExitStopped);
 }
 
-void stop_on_sigterm() {
+void stop_on_signals() {
     struct sigaction action {};
-    action.sa_handler = on_sigterm;
+    action.sa_handler = on_stop_signal;
     action.sa_flags = SA_RESETHAND | SA_RESTART;
     sigemptyset(&action.sa_mask);
     sigaction(SIGTERM, &action, nullptr);
+    sigaction(SIGINT, &action, nullptr);
+}
+
+// The command that goes on from where a stopped bake stands: this one, with --resume.
+std::string resume_command(int argc, char** argv) {
+    std::string command = "lightfarm";
+    bool resume = false;
+    for (int i = 1; i < argc; ++i) {
+        command += std::string(" ") + argv[i];
+        resume = resume || std::string(argv[i]) == "--resume";
+    }
+    return resume ? command : command + " --resume";
 }
 
 // `bake --plan`: the atlas the bake would make, and its warnings, without baking.
@@ -258,12 +270,14 @@ int bake(int argc, char** argv) {
     job.resume = args.flag("--resume");
 
     lf::cli::BakeReporter report(args.flag("--json"), job.settings);
-    stop_on_sigterm();
+    stop_on_signals();
     lf::protocol::DoneEvent done;
     try {
         done = lf::run_bake_job(job, std::ref(report));
     } catch (const lf::BakeStopped& e) {
-        std::cerr << "lightfarm bake: " << e.what() << "\n";
+        std::cerr << "\nlightfarm bake: " << e.what() << "\nlightfarm bake: its state is saved in " << job.out.string()
+                  << "; to go on from " << e.output << "'s pass " << e.pass << ":\n  " << resume_command(argc, argv)
+                  << "\n";
         return lf::protocol::kExitStopped;
     }
     if (!args.flag("--json")) {

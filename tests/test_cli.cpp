@@ -25,6 +25,8 @@
 #include <fstream>
 #include <iterator>
 #include <optional>
+#include <fcntl.h>
+#include <signal.h>
 #include <unistd.h>
 #include <sys/wait.h>
 #include <sstream>
@@ -1184,6 +1186,68 @@ nlohmann::json glb_json(const fs::path& glb) {
     uint32_t length = 0;
     std::memcpy(&length, bytes.data() + 12, 4);
     return nlohmann::json::parse(bytes.substr(20, length));
+}
+
+// Ctrl-C on `lightfarm bake` (issue #54): SIGINT, sent when the bake
+// reports its second pass, ends it as a stop request does (a last snapshot
+// of the pass it stood at, its state saved, exit 6), and stderr says how to
+// go on: the same command with --resume, which then continues from that pass.
+TEST(CliBake, CtrlCSavesWhereTheBakeStandsAndSaysHowToResume) {
+    const fs::path out = fresh_dir("ctrl-c"),
+                   err = fs::temp_directory_path() / ("lf-ctrl-c-" + std::to_string(getpid()));
+    const std::vector<std::string> args = {LIGHTFARM_BIN, "bake",      test::example_scene("cornell_box.gltf"),
+                                           "--lightmap",  "--res",     "64",
+                                           "--passes",    "400",       "--json",
+                                           "--out",       out.string()};
+    int pipe_fds[2];
+    ASSERT_EQ(pipe(pipe_fds), 0);
+    const pid_t pid = fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+        dup2(pipe_fds[1], 1);
+        const int e = ::open(err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        dup2(e, 2);
+        close(pipe_fds[0]);
+        std::vector<char*> argv;
+        for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+        argv.push_back(nullptr);
+        execv(argv[0], argv.data());
+        _exit(127);
+    }
+    close(pipe_fds[1]);
+    FILE* events = fdopen(pipe_fds[0], "r");
+    char line[1 << 16];
+    int interrupted_at = 0;
+    while (fgets(line, sizeof line, events)) {
+        const nlohmann::json e = nlohmann::json::parse(line, nullptr, false);
+        if (interrupted_at == 0 && e.value("event", "") == "progress" && e.value("pass", 0) >= 2) {
+            interrupted_at = e["pass"];
+            ASSERT_EQ(::kill(pid, SIGINT), 0);
+        }
+    }
+    fclose(events);
+    int status = 0;
+    ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    ASSERT_GT(interrupted_at, 0) << "no second pass reported";
+    ASSERT_TRUE(WIFEXITED(status)) << "ended by a signal";
+    EXPECT_EQ(WEXITSTATUS(status), protocol::kExitStopped);
+    std::ifstream in(err);
+    const std::string said((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(said.find("stopped on request"), std::string::npos) << said;
+    EXPECT_NE(said.find("--out " + out.string() + " --resume"), std::string::npos) << said;
+
+    // The command it printed goes on from where it stood.
+    std::string again;
+    for (size_t i = 1; i < args.size(); ++i) again += args[i] + " ";
+    const CliRun resumed = run_lightfarm(again + "--resume");
+    ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+    const std::vector<nlohmann::json> lines = json_lines(resumed.out);
+    const auto start =
+        std::find_if(lines.begin(), lines.end(), [](const nlohmann::json& l) { return l["event"] == "start"; });
+    ASSERT_NE(start, lines.end());
+    EXPECT_GE((*start)["resumed"]["lightmap"]["pass"].get<int>(), interrupted_at) << start->dump();
+    fs::remove_all(out);
+    fs::remove(err);
 }
 
 // Whether a glb's JSON declares or uses KHR_lights_punctual anywhere.
