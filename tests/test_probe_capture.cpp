@@ -607,6 +607,46 @@ TEST(ProbePlacement, ExplicitThenTheFilesNodesThenAGrid) {
     EXPECT_EQ(ProbesMethod::place(s, settings, &spacing).size(), 2u);
 }
 
+// A grid probe 1 cm under a shelf (a double-sided slab over a quarter of
+// the furnace's cells) is moved away from it first, to the clearance (10 cm
+// here, a quarter spacing being 12.5 cm), straight down: the shelf is met
+// nearest by the ray up. probes.json keeps where the grid put it
+// (moved_from), so the set is still a grid, blended on the lattice, each
+// probe's light from where it was captured; the others stay on the lattice.
+TEST(ProbePlacement, AGridProbeBesideASurfaceIsMovedAwayFromIt) {
+    Scene s = furnace(0.5f, 1.0f);
+    test::add_quad(s, {0, 0.26f, 0}, {0, 0, 0.5f}, {0.5f, 0, 0},
+                   test::add_material(s, glm::vec3(0.5f), glm::vec3(1.0f), true));
+    gpu();
+    PreparedScene prepared;
+    prepared.file = "shelf.glb";
+    prepared.scene = s;
+    prepared.tracer = std::make_unique<Tracer>(prepared.scene);
+    const protocol::BakeSettings settings =
+        protocol::parse_bake_settings({{"outputs", {{"probes", {{"probe_res", 16}, {"probe_m", 4}}}}}, {"seed", 1}});
+    ProbesMethod method(prepared, settings);
+    PassStats stats = method.step();
+    const std::filesystem::path dir =
+        std::filesystem::temp_directory_path() / ("lf-probes-moved-" + std::to_string(getpid()));
+    std::filesystem::create_directories(dir);
+    method.finish(dir, stats);
+    const ProbeSet set = read_probe_set(dir / "probes.json");
+    std::filesystem::remove_all(dir);
+    ASSERT_EQ(set.probes.size(), 64u);
+    int moved = 0;
+    for (const Probe& p : set.probes) {
+        if (!p.moved_from) continue;
+        ++moved;
+        EXPECT_EQ(*p.moved_from, glm::vec3(0.25f, 0.25f, 0.25f));
+        EXPECT_NEAR(p.position.x, 0.25f, 1e-5f);
+        EXPECT_NEAR(p.position.y, 0.16f, 1e-4f) << "0.1 m under the shelf";
+        EXPECT_NEAR(p.position.z, 0.25f, 1e-5f);
+        EXPECT_TRUE(p.valid) << p.why;
+    }
+    EXPECT_EQ(moved, 1);
+    EXPECT_TRUE(ProbeEvaluator(set).is_grid());
+}
+
 // A probe inside a solid box sees the backs of its one-sided faces: it is
 // dropped, and says why.
 TEST(ProbeCapture, AProbeInsideGeometryIsDropped) {

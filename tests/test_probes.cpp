@@ -1165,7 +1165,12 @@ TEST(ProbeGlsl, IncludeMatchesTheCpp) {
     // sees each point, and the blend of the probes that do.
     {
         const ThinWall rooms = thin_wall(-0.05f, 0.01f);
-        const ProbeSet set = thin_wall_probes(rooms, 16, 4);
+        ProbeSet set = thin_wall_probes(rooms, 16, 4);
+        // One probe moved off its lattice point, as the bake moves one near a
+        // surface: blended at its lattice point, its light from where it is.
+        const glm::vec3 lattice = set.probes[5].position;
+        set.probes[5] = capture(rooms.scene, lattice + glm::vec3(0.03f, -0.05f, 0.04f), 16, 4);
+        set.probes[5].moved_from = lattice;
         const ProbeEvaluator cpu(set);
         ASSERT_TRUE(cpu.is_grid());
         GpuBuffer probes(pack_probe_buffer(set));
@@ -1237,6 +1242,7 @@ ProbeSet small_set() {
                   capture(scene, {0.0f, 0.5f, 0.5f}, 16, 2)};
     set.probes[1].corner_distance.clear();  // as in a file written before corners were traced
     set.probes[1].centre_distance.clear();  // and before centres were
+    set.probes[0].moved_from = glm::vec3(-0.3f, 0.05f, 0.0f);  // moved away from a surface by the bake
     set.probes[2].valid = false;
     set.probes[2].why = "inside geometry";
     set.probes[2].backface_fraction = 0.75f;
@@ -1256,6 +1262,7 @@ TEST(ProbeFiles, WriteThenReadRoundTrips) {
     for (size_t k = 0; k < set.probes.size(); ++k) {
         const Probe &a = set.probes[k], &b = back.probes[k];
         EXPECT_EQ(a.position, b.position);
+        EXPECT_EQ(a.moved_from, b.moved_from);
         EXPECT_EQ(a.valid, b.valid);
         EXPECT_EQ(a.why, b.why);
         EXPECT_FLOAT_EQ(a.backface_fraction, b.backface_fraction);

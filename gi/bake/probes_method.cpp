@@ -82,12 +82,14 @@ ProbesMethod::ProbesMethod(const PreparedScene& prepared, const protocol::BakeSe
                              std::to_string(settings_.res) + " are " + std::to_string(texels) +
                              " capture texels, more than " + std::to_string(protocol::kMaxCaptureTexels) +
                              "; lower --probe-res or place fewer probes");
+    moved_from_.assign(positions_.size(), std::nullopt);
     std::vector<glm::vec4> points;
     for (const glm::vec3& p : positions_) points.emplace_back(p, 0.0f);
     positions_buffer_ = GpuBuffer(points);
     texels_ = GpuBuffer(size_t(texels) * 2 * sizeof(glm::vec4));
     texels_.clear_zero();
     rays_ = GpuBuffer(std::vector<uint32_t>{0u});
+    if (spacing_ > 0.0f) move_away_from_surfaces();
     corner_distances_ = trace_grid_distances(false);
     centre_distances_ = trace_grid_distances(true);
 }
@@ -119,6 +121,32 @@ std::vector<float> ProbesMethod::trace_grid_distances(bool centres) const {
     program.dispatch_1d(count);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     return corners.read<float>();
+}
+
+void ProbesMethod::move_away_from_surfaces() {
+    const float clearance = std::min(kClearance, 0.25f * spacing_);
+    const int m = settings_.m;
+    const size_t side = size_t(m) + 1, per_probe = 6 * side * side;
+    for (int step = 0; step < 3; ++step) {
+        const std::vector<float> distances = trace_grid_distances(false);
+        bool moved = false;
+        for (size_t k = 0; k < positions_.size(); ++k) {
+            size_t nearest = 0;
+            for (size_t c = 1; c < per_probe; ++c)
+                if (distances[k * per_probe + c] < distances[k * per_probe + nearest]) nearest = c;
+            const float d = distances[k * per_probe + nearest];
+            if (!(d < clearance)) continue;
+            const int face = int(nearest / (side * side)), b = int(nearest % (side * side) / side),
+                      a = int(nearest % side);
+            if (!moved_from_[k]) moved_from_[k] = positions_[k];
+            positions_[k] -= cube_direction(face, float(a) / float(m), float(b) / float(m)) * (clearance - d);
+            moved = true;
+        }
+        if (!moved) return;
+        std::vector<glm::vec4> points;
+        for (const glm::vec3& p : positions_) points.emplace_back(p, 0.0f);
+        positions_buffer_ = GpuBuffer(points);
+    }
 }
 
 nlohmann::json ProbesMethod::description() const {
@@ -213,6 +241,7 @@ ProbeSet ProbesMethod::probe_set(const std::vector<glm::vec4>& acc) const {
         }
         Probe p;
         p.position = positions_[k];
+        p.moved_from = moved_from_[k];
         p.backface_fraction = rays > 0.0 ? float(backfaces / rays) : 0.0f;
         if (p.backface_fraction > kInsideBackfaceFraction) {
             p.valid = false;

@@ -49,6 +49,11 @@ public:
     // A grid probe is far from every surface when its nearest hit is farther
     // than this many grid spacings.
     static constexpr float kFarInSpacings = 1.5f;
+    // A grid probe closer to a surface than this (metres, and at most a
+    // quarter spacing) is moved away from it first (Probe::moved_from): from
+    // 1 cm above a floor the floor fills half its view at grazing angles, and
+    // its polygons carry nothing of what lies beyond the points it serves.
+    static constexpr float kClearance = 0.1f;
 
     // Throws BakeInputError for a grid or capture too large.
     ProbesMethod(const PreparedScene& prepared, const protocol::BakeSettings& settings);
@@ -79,6 +84,10 @@ private:
     // Every probe's corner distances (or with `centres`, its texels' centre
     // distances) by one ray each (probe_corners.comp).
     std::vector<float> trace_grid_distances(bool centres) const;
+    // Grid probes within the clearance of a surface, moved away from it
+    // (along the corner ray that met it nearest) until they are not, in at
+    // most three steps; returns the placement's points of those moved.
+    void move_away_from_surfaces();
     uint64_t state_layout() const { return hash_vector(positions_, uint64_t(settings_.res)); }
     const PreparedScene& prepared_;
     ProbesSettings settings_;
@@ -86,6 +95,7 @@ private:
     uint32_t seed_;
     float spacing_ = 0.0f;  // 0 for explicit points
     std::vector<glm::vec3> positions_;
+    std::vector<std::optional<glm::vec3>> moved_from_;  // per probe: its placement's point, if moved
     SceneShading shading_;
     SurfaceTextures surface_textures_;  // paths reflect the textures where they land
     ComputeProgram capture_;

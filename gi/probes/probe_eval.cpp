@@ -716,17 +716,19 @@ ProbeEvaluator::ProbeEvaluator(const ProbeSet& set, ProbeEvalOptions options) : 
     }
     if (valid_count_ == 0) throw std::invalid_argument("the probe set has no valid probe");
 
-    // A full regular lattice? (All probes, valid or not, on distinct lattice points.)
+    // A full regular lattice? (All probes, valid or not, on distinct lattice
+    // points: where the placement put them, a moved probe's moved_from.)
+    const auto home = [](const Probe& p) { return p.moved_from.value_or(p.position); };
     glm::vec3 lo(1e30f), hi(-1e30f);
     for (const Probe& p : set.probes) {
-        lo = glm::min(lo, p.position);
-        hi = glm::max(hi, p.position);
+        lo = glm::min(lo, home(p));
+        hi = glm::max(hi, home(p));
     }
     const float tolerance = 1e-4f * (1.0f + glm::length(hi - lo));
     size_t cells = 1;
     for (int a = 0; a < 3; ++a) {
         std::vector<float> values;
-        for (const Probe& p : set.probes) values.push_back(p.position[a]);
+        for (const Probe& p : set.probes) values.push_back(home(p)[a]);
         std::sort(values.begin(), values.end());
         for (float v : values)
             if (axis_[a].empty() || v - axis_[a].back() > tolerance) axis_[a].push_back(v);
@@ -744,7 +746,7 @@ ProbeEvaluator::ProbeEvaluator(const ProbeSet& set, ProbeEvalOptions options) : 
         size_t index = 0;
         for (int a = 2; a >= 0; --a) {
             const auto& axis = axis_[a];
-            const auto it = std::lower_bound(axis.begin(), axis.end(), set.probes[k].position[a] - tolerance);
+            const auto it = std::lower_bound(axis.begin(), axis.end(), home(set.probes[k])[a] - tolerance);
             index = index * axis.size() + size_t(it - axis.begin());
         }
         if (index >= n || lattice_[index] != -1) {
@@ -886,8 +888,10 @@ std::vector<glm::vec4> pack_probe_buffer(const ProbeSet& set) {
             for (int c = 0; c < 4; ++c)
                 splits[2 * t + 1][c] = glm::length(texel.near_corners[size_t(c)] - prepared.position);
         }
+        // The SH9, the reference point in the first three's w (a moved
+        // probe's differs from its lattice point: lf_probe_reference_point).
         glm::vec4* sh9 = block + stride - 9;
-        for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], 0.0f);
+        for (int k = 0; k < 9; ++k) sh9[k] = glm::vec4(p.sh9[size_t(k)], k < 3 ? p.position[k] : 0.0f);
     }
     return out;
 }

@@ -270,7 +270,8 @@ nlohmann::json evaluate_at_points(const ProbeSet& set, const std::vector<Shading
 // 6·M·M centre distances (Probe::centre_distance, 0 where the set has none)
 // packed four to a vec4, then per texel two vec4: (the bridge's radiance, 1)
 // and the nearer plane's four corner distances for a split texel
-// (Texel::split; zero otherwise), then the 9 SH9
+// (Texel::split; zero otherwise), then the 9 SH9 (their w: the reference
+// point's x, y, z, then 0)
 // coefficients (RGB); probe k starts at vec4 k · probe_buffer_stride(M).
 // Invalid probes' blocks are zero.
 size_t probe_buffer_stride(int m);

@@ -91,6 +91,7 @@ std::vector<std::string> write_probe_set(const std::filesystem::path& dir, const
                           {"why", p.why},
                           {"backface_fraction", p.backface_fraction},
                           {"sh9", sh9}});
+        if (p.moved_from) probes.back()["moved_from"] = vec3_json(*p.moved_from);
         if (!p.valid || p.radiance.size() != size_t(6) * m * m) continue;
         const bool corners = p.corner_distance.size() == size_t(6) * cell * cell;
         const bool centres = p.centre_distance.size() == size_t(6) * m * m;
@@ -153,6 +154,8 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
         const nlohmann::json& j = probes[k];
         Probe p;
         p.position = json_vec3(j.at("position"), name + ": probe " + std::to_string(k) + " position");
+        if (j.contains("moved_from"))
+            p.moved_from = json_vec3(j["moved_from"], name + ": probe " + std::to_string(k) + " moved_from");
         p.valid = j.value("valid", true);
         p.why = j.value("why", "");
         p.backface_fraction = j.value("backface_fraction", 0.0f);

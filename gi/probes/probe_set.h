@@ -22,7 +22,7 @@
 // Invalid probes' rows are 0. Version 2 (read only): no D. Version 1 (read
 // only): cells of M x M, no C.
 // probes.json: {"format": "lightfarm.probes", "version": 3, "image": "probes.exr",
-//   "m", "capture_resolution", "probes": [{"position": [x,y,z], "valid", "why",
+//   "m", "capture_resolution", "probes": [{"position": [x,y,z], "moved_from" (if moved), "valid", "why",
 //   "backface_fraction", "sh9": [[r,g,b] x 9]}], "settings": {…}}.
 #pragma once
 
@@ -31,6 +31,7 @@
 
 #include <array>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -41,7 +42,11 @@ namespace lf {
 constexpr float kMissDistance = 1e6f;
 
 struct Probe {
-    glm::vec3 position{0.0f};
+    glm::vec3 position{0.0f};  // the reference point: where the cube maps were taken
+    // Where the placement put it, when it was moved away from a surface
+    // closer than the clearance (ProbesMethod::kClearance): a grid probe keeps
+    // its lattice point for blending and its reference point for its light.
+    std::optional<glm::vec3> moved_from;
     bool valid = true;
     std::string why = "kept";         // or why it was dropped: "inside geometry", "far from every surface"
     float backface_fraction = 0.0f;   // of the capture's rays that hit the back of a one-sided surface

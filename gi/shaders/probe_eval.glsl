@@ -11,7 +11,7 @@
 // 6·M·M texel centre distances packed four to a vec4 (0 where the set has
 // none), then per texel two vec4 (a split texel's bridge radiance and 1, and
 // its nearer plane's corner distances; zero for the others), then the
-// probe's 9 SH9 coefficients (RGB). Probe k starts at vec4
+// probe's 9 SH9 coefficients (RGB; the first three's w its reference point). Probe k starts at vec4
 // k · lf_probe_stride(M), at binding LF_BINDING_PROBE_SET.
 #ifndef LF_PROBE_EVAL_GLSL
 #define LF_PROBE_EVAL_GLSL
@@ -307,29 +307,33 @@ vec3 lf_probe_polygon_to_point(uint probe, int m, vec3 probe_position, vec3 x, v
 
 // ----------------------------------------------------------- a grid ----
 // A lattice of probes (the bake's grid placement): counts.x × counts.y ×
-// counts.z probes, probe (ix, iy, iz) at origin + (ix, iy, iz) · spacing and
-// at index (iz·counts.y + iy)·counts.x + ix in the buffer (x fastest, the
-// order probes.json lists a grid in). An invalid probe's block is zero, so
+// counts.z probes, probe (ix, iy, iz) at lattice point origin + (ix, iy,
+// iz) · spacing (the blend's weights) and at index (iz·counts.y +
+// iy)·counts.x + ix in the buffer (x fastest, the order probes.json lists a
+// grid in); its light is evaluated from its reference point (the lattice
+// point, or where the bake moved it). An invalid probe's block is zero, so
 // its first texel's distance is 0 (a valid texel's never is).
 
 bool lf_probe_valid(uint probe, int m) { return lf_probe_texels[probe * lf_probe_stride(m)].w > 0.0; }
 
-vec3 lf_grid_probe_position(ivec3 counts, vec3 origin, vec3 spacing, int k) {
-    ivec3 i = ivec3(k % counts.x, (k / counts.x) % counts.y, k / (counts.x * counts.y));
-    return origin + vec3(i) * spacing;
+// Where the probe's cube maps were taken: its lattice point, or where the
+// bake moved it away from a surface (lf::Probe::moved_from).
+vec3 lf_probe_reference_point(uint probe, int m) {
+    uint base = (probe + 1u) * lf_probe_stride(m) - 9u;
+    return vec3(lf_probe_texels[base].w, lf_probe_texels[base + 1u].w, lf_probe_texels[base + 2u].w);
 }
 
 // When no corner of x's cell is valid and sees x: the nearest valid probes
 // that see it (up to 8), weighted ((r − d) / (r·d))² with r the distance of
 // the next one (or 1.5 × the farthest's when there is no next), as
 // lf::ProbeEvaluator::visible_weights; 0 when no probe sees x.
-vec3 lf_probe_grid_nearest(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 x, vec3 n) {
+vec3 lf_probe_grid_nearest(ivec3 counts, int m, vec3 x, vec3 n) {
     float d[9];
     int k9[9];
     int found = 0;
     for (int k = 0; k < counts.x * counts.y * counts.z; ++k) {
         if (!lf_probe_valid(uint(k), m)) continue;
-        vec3 position = lf_grid_probe_position(counts, origin, spacing, k);
+        vec3 position = lf_probe_reference_point(uint(k), m);
         if (!lf_probe_sees(uint(k) * lf_probe_stride(m), m, position, x)) continue;
         float dk = length(position - x);
         int at = min(found, 8);  // insertion into the 9 nearest, sorted
@@ -345,7 +349,7 @@ vec3 lf_probe_grid_nearest(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 
     }
     if (found == 0) return vec3(0.0);
     if (d[0] < 1e-6 || found == 1)
-        return lf_probe_polygon_to_point(uint(k9[0]), m, lf_grid_probe_position(counts, origin, spacing, k9[0]), x, n);
+        return lf_probe_polygon_to_point(uint(k9[0]), m, lf_probe_reference_point(uint(k9[0]), m), x, n);
     int count = min(found, 8);
     float radius = count < found ? d[count] : d[count - 1] * 1.5;
     vec3 sum = vec3(0.0);
@@ -353,12 +357,12 @@ vec3 lf_probe_grid_nearest(ivec3 counts, vec3 origin, vec3 spacing, int m, vec3 
     for (int i = 0; i < count; ++i) {
         float w = pow(max(0.0, radius - d[i]) / (radius * d[i]), 2.0);
         if (w <= 0.0) continue;
-        sum += w * lf_probe_polygon_to_point(uint(k9[i]), m, lf_grid_probe_position(counts, origin, spacing, k9[i]), x, n);
+        sum += w * lf_probe_polygon_to_point(uint(k9[i]), m, lf_probe_reference_point(uint(k9[i]), m), x, n);
         total += w;
     }
     if (total > 0.0) return sum / total;
     for (int i = 0; i < count; ++i)  // every one as far as the next: equal weights
-        sum += lf_probe_polygon_to_point(uint(k9[i]), m, lf_grid_probe_position(counts, origin, spacing, k9[i]), x, n);
+        sum += lf_probe_polygon_to_point(uint(k9[i]), m, lf_probe_reference_point(uint(k9[i]), m), x, n);
     return sum / float(count);
 }
 
@@ -384,13 +388,13 @@ vec3 lf_probe_grid_polygon_to_point(ivec3 counts, vec3 origin, vec3 spacing, int
         float w = w3.x * w3.y * w3.z;
         ivec3 i = i0 + bit;
         int k = (i.z * counts.y + i.y) * counts.x + i.x;
-        vec3 position = origin + vec3(i) * spacing;
-        if (w <= 0.0 || !lf_probe_valid(uint(k), m) || !lf_probe_sees(uint(k) * lf_probe_stride(m), m, position, x))
-            continue;
+        if (w <= 0.0 || !lf_probe_valid(uint(k), m)) continue;
+        vec3 position = lf_probe_reference_point(uint(k), m);
+        if (!lf_probe_sees(uint(k) * lf_probe_stride(m), m, position, x)) continue;
         sum += w * lf_probe_polygon_to_point(uint(k), m, position, x, n);
         total += w;
     }
-    return total > 0.0 ? sum / total : lf_probe_grid_nearest(counts, origin, spacing, m, x, n);
+    return total > 0.0 ? sum / total : lf_probe_grid_nearest(counts, m, x, n);
 }
 
 #endif
