@@ -1250,6 +1250,48 @@ TEST(CliBake, CtrlCSavesWhereTheBakeStandsAndSaysHowToResume) {
     fs::remove(err);
 }
 
+// File names are data (issue #53): the Cornell box as a .gltf whose own
+// name and whose buffer file's name hold a '+', spaces, non-ASCII letters
+// and a '%', its URI written as a file would be (a raw '+', %20 or a raw
+// space, raw UTF-8, %25), bakes, and so do its glbs, which re-read the file
+// (a '+' there was read as a space: the bake ended in "cannot re-read").
+TEST(CliBake, AnyFileNameAFileSystemAllowsBakes) {
+    const fs::path out = fresh_dir("file-names");
+    nlohmann::json box = nlohmann::json::parse(read_file(test::example_scene("cornell_box.gltf")));
+    const std::string data = box["buffers"][0]["uri"];
+    ASSERT_EQ(data.rfind("data:", 0), 0u);
+    const std::string bytes = test::base64_decode(data.substr(data.find(',') + 1));
+    struct Case {
+        std::string gltf, bin, uri;
+    };
+    const std::vector<Case> cases = {
+        {"box+1.gltf", "box+data.bin", "box+data.bin"},
+        {"a b.gltf", "a b.bin", "a%20b.bin"},
+        {"raw space.gltf", "raw space.bin", "raw space.bin"},
+        {"\xc3\xa9t\xc3\xa9 + \xc3\xbc.gltf", "d\xc3\xa9+j\xc3\xa0 vu.bin", "d\xc3\xa9+j\xc3\xa0 vu.bin"},
+        {"50%.gltf", "50%.bin", "50%25.bin"}};
+    std::vector<fs::path> glbs;
+    for (const Case& c : cases) {
+        SCOPED_TRACE(c.gltf);
+        const fs::path dir = out / ("scene-" + std::to_string(glbs.size()));
+        fs::create_directories(dir);
+        std::ofstream(dir / c.bin, std::ios::binary) << bytes;
+        box["buffers"][0]["uri"] = c.uri;
+        std::ofstream(dir / c.gltf) << box.dump();
+        const fs::path baked = dir / "out";
+        const CliRun bake = run_lightfarm("bake '" + (dir / c.gltf).string() +
+                                          "' --lightmap --passes 1 --res 64 --out '" + baked.string() + "'");
+        ASSERT_EQ(bake.exit_code, 0) << bake.err;
+        for (const char* glb : {"scene.lightmapped.glb", "scene.lit.glb", "scene.unlit.glb"}) {
+            ASSERT_TRUE(fs::exists(baked / glb)) << glb;
+            glbs.push_back(baked / glb);
+        }
+    }
+    std::string report;
+    EXPECT_TRUE(khronos_valid(glbs, report)) << report;
+    fs::remove_all(out);
+}
+
 // Whether a glb's JSON declares or uses KHR_lights_punctual anywhere.
 bool has_punctual_lights(const nlohmann::json& glb) {
     const auto named = [](const nlohmann::json& list) {

@@ -9,7 +9,8 @@
 
 namespace lf {
 
-// Paths are taken verbatim (tinygltf's default expansion runs wordexp);
+// Only the files the document names are read, each found as load_scene
+// finds it (gltf::SceneFiles: no expansion, URIs decoded as RFC 3986 does);
 // each image's encoded bytes go to `image_loader` with `user` (nothing is
 // decoded here). Throws std::runtime_error naming the file.
 tinygltf::Model reread_gltf(const std::filesystem::path& file, tinygltf::LoadImageDataFunction image_loader,
