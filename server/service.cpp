@@ -314,6 +314,11 @@ void Service::install_http_hooks() {
 // handler run, and every failure answered as JSON that names what failed.
 void Service::serve(const Route& route, const httplib::Request& req, httplib::Response& res) {
     current_route = route.path;
+    // Only an artifact's bytes are served by range (get_artifact bounds
+    // them); cpp-httplib would cut any other answer, a listing or an error,
+    // into as many copies as the Range header asks. The request is httplib's
+    // own non-const object, handed to handlers as const.
+    if (route.handler != &Service::get_artifact) const_cast<httplib::Request&>(req).ranges.clear();
     try {
         Caller caller;
         if (route.auth == Auth::Page && req.has_param("token")) {

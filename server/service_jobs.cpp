@@ -369,6 +369,40 @@ void Service::list_artifacts(const httplib::Request& req, httplib::Response& res
     send_json(res, 200, {{"id", job.status.id}, {"state", protocol::to_string(job.status.state)}, {"artifacts", list}});
 }
 
+namespace {
+
+// A download answers at most the file's bytes once: a Range header of many
+// ranges, or of ranges that overlap, made one request of a few bytes send a
+// thousand copies of an artifact (issue #55). Such a request is answered 416.
+// cpp-httplib (0.11) applies a request's ranges to whatever answer it gets,
+// an error's too (the 416's own JSON came back in a thousand parts): the
+// ranges are cleared before the refusal. The request is httplib's own,
+// non-const object, handed to handlers as const.
+constexpr size_t kMaxRanges = 16;
+
+void check_ranges(const httplib::Request& req, size_t size, const std::string& id, const std::string& name) {
+    const httplib::Ranges& ranges = req.ranges;
+    if (ranges.empty()) return;
+    const auto refuse = [&](const std::string& why) {
+        const_cast<httplib::Request&>(req).ranges.clear();
+        throw HttpError(416, "job " + id + " artifact " + name + ": " + why, {{"id", id}, {"name", name}});
+    };
+    if (ranges.size() > kMaxRanges) refuse(std::to_string(ranges.size()) + " ranges, at most 16");
+    std::vector<std::pair<size_t, size_t>> spans;  // [first, last], inclusive
+    for (const auto& [first, last] : ranges) {
+        if (size == 0) refuse("the file is empty");
+        const size_t from = first < 0 ? size - std::min(size, size_t(last)) : size_t(first);
+        const size_t to = first < 0 || last < 0 ? size - 1 : std::min(size_t(last), size - 1);
+        if (from > to || from >= size) refuse("a range past the file's " + std::to_string(size) + " bytes");
+        spans.emplace_back(from, to);
+    }
+    std::sort(spans.begin(), spans.end());
+    for (size_t i = 1; i < spans.size(); ++i)
+        if (spans[i].first <= spans[i - 1].second) refuse("ranges overlap");
+}
+
+}  // namespace
+
 void Service::get_artifact(const httplib::Request& req, httplib::Response& res, const Caller& caller) {
     const JobRecord job = owned_job(req, caller);
     const std::string name = req.matches[2].str();
@@ -389,6 +423,7 @@ void Service::get_artifact(const httplib::Request& req, httplib::Response& res, 
         throw HttpError(404, "job " + job.status.id + " has no artifact " + name,
                         {{"id", job.status.id}, {"name", name}});
     const size_t size = size_t(end);
+    check_ranges(req, size, job.status.id, name);
     file->seekg(0);
     res.set_content_provider(size, protocol::content_type_of(name),
                              [file](size_t offset, size_t length, httplib::DataSink& sink) {

@@ -533,6 +533,32 @@ TEST_F(ServerTest, AJobRunsToDoneWithEventsArtifactsAndPreview) {
     EXPECT_EQ(c.Get("/v1/jobs/" + id + "/artifacts/nothing.exr")->status, 404);
     EXPECT_EQ(c.Get("/v1/jobs/" + id + "/artifacts/..%2Fjobs.sqlite")->status, 404);
 
+    // Ranges (issue #55): one range, or a few apart, are served; a thousand
+    // copies of one range (1,000 times the file for a few bytes asked), more
+    // than 16 ranges, overlapping ranges or one past the end are refused.
+    const std::string artifact = "/v1/jobs/" + id + "/artifacts/lightmap.exr",
+                      whole = read_text(engine.dir / "snapshot.exr");
+    ASSERT_GT(whole.size(), 40u);
+    r = c.Get(artifact, {{"Range", "bytes=0-9"}});
+    ASSERT_EQ(r->status, 206);
+    EXPECT_EQ(r->body, whole.substr(0, 10));
+    EXPECT_EQ(c.Get(artifact, {{"Range", "bytes=0-1,4-5,-3"}})->status, 206);
+    std::string copies = "bytes=0-9";
+    for (int i = 1; i < 1000; ++i) copies += ",0-9";
+    std::string many = "bytes=0-0";
+    for (int i = 1; i < 17; ++i) many += "," + std::to_string(2 * i) + "-" + std::to_string(2 * i);
+    for (const std::string& range :
+         {copies, many, std::string("bytes=0-9,5-14"), "bytes=" + std::to_string(whole.size()) + "-"}) {
+        r = c.Get(artifact, {{"Range", range}});
+        ASSERT_TRUE(r);
+        EXPECT_EQ(r->status, 416) << range.substr(0, 40) << ": " << r->body.size() << " bytes";
+        EXPECT_LT(r->body.size(), 1000u) << range.substr(0, 40);
+    }
+    // Anything else is answered whole, whatever the Range header asks.
+    r = c.Get("/v1/jobs/" + id, {{"Range", copies}});
+    ASSERT_EQ(r->status, 200);
+    EXPECT_EQ(json::parse(r->body)["id"], id);
+
     r = c.Get("/v1/jobs/" + id + "/preview.png");
     ASSERT_EQ(r->status, 200) << r->body;
     EXPECT_EQ(r->get_header_value("Content-Type"), "image/png");
