@@ -7,6 +7,7 @@
 #include "job_store.h"
 #include "metrics.h"
 #include "preview.h"
+#include "preview_cache.h"
 #include "scene_store.h"
 #include "supervisor.h"
 
@@ -165,13 +166,12 @@ private:
     std::map<std::string, int> streams_by_address_;
     int listen_socket_ = -1;
     static constexpr int kListenBacklog = 1024;
+    // What the previews may hold in memory (the status page's three images
+    // of a 2048² lightmap are about 6 MB).
+    static constexpr uint64_t kPreviewCacheBytes = uint64_t(64) << 20;
 
-    struct CachedPreview {
-        std::string source;                       // path + size + mtime of the EXR it came from
-        std::map<PreviewKind, Preview> previews;  // every kind, made from one read
-    };
-    std::mutex preview_mutex_;
-    std::map<std::string, CachedPreview> previews_;  // by job id
+    // Every kind of preview of a job's newest lightmap, made from one read.
+    PreviewCache previews_{kPreviewCacheBytes};
 };
 
 }  // namespace lf::server

@@ -152,19 +152,15 @@ void Service::send_preview(const httplib::Request& req, httplib::Response& res, 
     const std::string source = path.string() + ":" + std::to_string(fs::file_size(path, ec)) + ":" +
                                std::to_string(fs::last_write_time(path, ec).time_since_epoch().count());
     std::map<PreviewKind, Preview> previews;
-    {
-        std::lock_guard lock(preview_mutex_);
-        auto it = previews_.find(job.status.id);
-        if (it != previews_.end() && it->second.source == source) previews = it->second.previews;
-    }
-    if (previews.empty()) {
+    if (auto kept = previews_.find(job.status.id, source)) {
+        previews = std::move(*kept);
+    } else {
         try {
             previews = render_previews(path.string());
         } catch (const std::exception& e) {
             throw HttpError(500, e.what(), {{"id", job.status.id}});
         }
-        std::lock_guard lock(preview_mutex_);
-        previews_[job.status.id] = {source, previews};
+        previews_.keep(job.status.id, source, previews);
     }
     const auto found = previews.find(kind);
     if (found == previews.end())

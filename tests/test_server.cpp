@@ -7,6 +7,7 @@
 
 #include "hash.h"
 #include "http_error.h"
+#include "preview_cache.h"
 #include "service.h"
 #include "supervisor.h"
 
@@ -192,6 +193,37 @@ TEST(Sha256, KnownDigestsInHexAndBase64) {
     EXPECT_EQ(server::sha256_hex("abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
     EXPECT_EQ(server::sha256_base64("abc"), "ungWv48Bz+pBQUDeXa4iI7ADYaOWF3qctBD/YfIAFa0=");
     EXPECT_EQ(server::sha256_base64(""), "47DEQpj8HBSa+/TImW+5JCeuQeRkm5NMpJWZG3hSuFU=");
+}
+
+// The previews kept in memory stay within their budget (issue #55: 240
+// cached jobs' previews held 1 GB for good): the least recently shown job's
+// leave first; a set larger than the budget is not kept; a job's new
+// lightmap replaces its old previews.
+TEST(PreviewCache, KeepsTheRecentlyShownWithinItsBudget) {
+    using server::PreviewCache, server::PreviewKind, server::Preview;
+    const auto previews = [](size_t bytes) {
+        return std::map<PreviewKind, Preview>{{PreviewKind::Tonemapped, {std::string(bytes, 'x'), {}}}};
+    };
+    PreviewCache cache(1000);
+    cache.keep("a", "a.exr:1", previews(400));
+    cache.keep("b", "b.exr:1", previews(400));
+    EXPECT_EQ(cache.bytes(), 800u);
+    ASSERT_TRUE(cache.find("a", "a.exr:1"));  // a shown again: b is now the oldest
+    EXPECT_FALSE(cache.find("a", "a.exr:2")) << "another version of the file";
+    cache.keep("c", "c.exr:1", previews(400));
+    EXPECT_TRUE(cache.find("a", "a.exr:1"));
+    EXPECT_FALSE(cache.find("b", "b.exr:1")) << "the least recently shown left";
+    EXPECT_TRUE(cache.find("c", "c.exr:1"));
+    EXPECT_EQ(cache.bytes(), 800u);
+    cache.keep("a", "a.exr:2", previews(100));  // a's lightmap changed
+    EXPECT_FALSE(cache.find("a", "a.exr:1"));
+    EXPECT_EQ(cache.bytes(), 500u);
+    cache.keep("huge", "huge.exr:1", previews(2000));
+    EXPECT_FALSE(cache.find("huge", "huge.exr:1"));
+    EXPECT_EQ(cache.jobs(), 2u);
+    for (int i = 0; i < 1000; ++i) cache.keep("job" + std::to_string(i), "x", previews(300));
+    EXPECT_LE(cache.bytes(), 1000u);
+    EXPECT_EQ(cache.jobs(), 3u);
 }
 
 TEST(JobIdPrefix, NamesOneJobOrIsAConflict) {
