@@ -1,5 +1,6 @@
 // The probes through the whole pipeline: the GPU capture (ProbesMethod),
 // downsampling, the files, and the evaluation, against closed forms.
+#include "family_errors.h"
 #include "form_factors.h"
 #include "gpu_fixture.h"
 #include "scene_builders.h"
@@ -394,10 +395,7 @@ TEST(ProbeCapture, ASheetBetweenTheProbeAndTheEmitterDoesNotMoveItsPolygons) {
     std::printf("  seed %u\n", seed);
     std::mt19937 rng(seed);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
-    struct Reading {
-        double estimate, truth;
-    };
-    std::vector<Reading> readings;
+    std::vector<test::Reading> readings;
     for (int config = 0; config < 6; ++config) {
         const bool blend = config % 2 == 0;
         const float amount = blend ? 0.9f * u(rng) : 0.05f + 0.95f * u(rng);  // alpha, or transmission
@@ -424,14 +422,8 @@ TEST(ProbeCapture, ASheetBetweenTheProbeAndTheEmitterDoesNotMoveItsPolygons) {
                                 passes * 2.0 * emitter_form_factor(x.x, x.z, 0.5 - x.y)});
         }
     }
-    double brightest = 0.0;
-    for (const Reading& r : readings) brightest = std::max(brightest, r.truth);
-    std::vector<double> errors;
-    for (const Reading& r : readings)
-        errors.push_back(std::abs(r.estimate - r.truth) / std::max(r.truth, 0.1 * brightest));
-    std::sort(errors.begin(), errors.end());
-    const double p95 = errors[size_t(0.95 * double(errors.size() - 1))], worst = errors.back();
-    std::printf("  under the sheet: p95 %.4f, worst %.4f over %zu points\n", p95, worst, errors.size());
+    const auto [p95, worst] = test::family_errors(readings);
+    std::printf("  under the sheet: p95 %.4f, worst %.4f over %zu points\n", p95, worst, readings.size());
     EXPECT_LE(p95, 0.05);
     EXPECT_LE(worst, 0.10);
 }
