@@ -235,4 +235,14 @@ SceneSummary scene_summary_from_json(const json& j) {
     return s;
 }
 
+std::string temporary_file_name(const std::string& name, long pid) {
+    return "." + name + ".tmp-" + std::to_string(pid);
+}
+
+bool is_temporary_file_of(const std::string& file_name, long pid) {
+    const std::string tail = ".tmp-" + std::to_string(pid);
+    return file_name.size() > tail.size() + 1 && file_name[0] == '.' &&
+           file_name.compare(file_name.size() - tail.size(), tail.size(), tail) == 0;
+}
+
 }  // namespace lf::protocol

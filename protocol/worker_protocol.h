@@ -50,6 +50,12 @@ inline bool is_input_error_exit(int code) { return code == kExitUsage || code ==
 // bake/method_state.h), removed once the job is done.
 inline constexpr const char* kResumeDir = ".resume";
 
+// A worker writes each file whole or not at all: first as ".NAME.tmp-PID"
+// beside it, then renamed. One it was killed writing stays behind: the
+// supervisor removes a worker's once it has ended (is_temporary_file_of).
+std::string temporary_file_name(const std::string& name, long pid);
+bool is_temporary_file_of(const std::string& file_name, long pid);
+
 // "<stem>.pass-NNNN.<extension>": an intermediate snapshot's file name (a
 // final file never has ".pass-" in it). Clients tell snapshots from final
 // files by it (`lightfarm fetch` without --snapshots).

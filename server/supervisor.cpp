@@ -642,6 +642,25 @@ struct Supervisor::WorkerEnd {
     bool stopped = false;    // lightfarmd stops: the job went back to the queue, and nothing else is to be done
 };
 
+namespace {
+
+// The files a worker that has ended was writing when it ended (killed, or
+// crashed mid-write): its own temporaries in the job's directory and its
+// saved state's (protocol::temporary_file_name). Nothing else of the
+// directory is touched; a file that cannot be removed is left.
+void remove_temporaries(const fs::path& dir, long pid) {
+    for (const fs::path& folder : {dir, dir / protocol::kResumeDir}) {
+        std::error_code ec;
+        for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+            std::error_code ignored;
+            if (protocol::is_temporary_file_of(it->path().filename().string(), pid) && it->is_regular_file(ignored))
+                fs::remove(it->path(), ignored);
+        }
+    }
+}
+
+}  // namespace
+
 bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     // Validated once, at submit, against the limits of that day: a lower
     // --limit since then applies to new jobs, not to this one.
@@ -679,6 +698,7 @@ bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
     }
 
     const WorkerEnd end = supervise_worker(job, spec.bake, *child);
+    remove_temporaries(job_dir(job.status.id), child->pid());
     return !end.stopped && end_attempt(job, *scene, *child, end);
 }
 

@@ -115,7 +115,10 @@ resumed=""
 echo "{\"event\":\"start\",\"renderer\":\"fake\",\"vendor\":\"tests\",\"triangles\":12,\"prepare_seconds\":0,\"outputs\":{}$resumed}"
 case "$mode" in
   crash_first) if [ $runs -eq 1 ]; then echo "lightfarm bake: error: lost the GPU context" >&2; exit 1; fi;;
-  always_crash) echo "lightfarm bake: error: about to die" >&2; kill -KILL $$;;
+  always_crash) echo "lightfarm bake: error: about to die" >&2
+                # Killed mid-write, as the engine names its temporaries (protocol::temporary_file_name).
+                echo half > "$out/.lightmap.exr.tmp-$$"; mkdir -p "$out/.resume"; echo half > "$out/.resume/.lightmap.state.tmp-$$"
+                kill -KILL $$;;
   hang_first) if [ $runs -eq 1 ]; then sleep 60; fi;;
   hang_always) sleep 60;;
   input_error) echo "lightfarm bake: error: $scene: nothing to bake: no emissive surface (spec $spec)" >&2; exit 3;;

@@ -745,6 +745,11 @@ TEST_F(ServerTest, AWorkerThatAlwaysDiesFailsTheJobWithTheCause) {
     const auto all = events(id);
     EXPECT_EQ(all.back().type, "failed");
     EXPECT_EQ(client().Get("/healthz")->status, 200);
+    // What each killed worker was writing is gone (issue #55: it was left).
+    std::vector<std::string> left;
+    for (const auto& e : fs::recursive_directory_iterator(tmp.path / "data" / "jobs" / id))
+        if (e.path().filename().string().find(".tmp-") != std::string::npos) left.push_back(e.path().string());
+    EXPECT_TRUE(left.empty()) << left.front();
     auto metrics = client().Get("/metrics")->body;
     EXPECT_NE(metrics.find("lightfarm_worker_failures_total 3"), std::string::npos) << metrics;
 }

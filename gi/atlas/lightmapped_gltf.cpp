@@ -1,5 +1,6 @@
 #include "atlas/lightmapped_gltf.h"
 #include "io/write_error.h"
+#include "worker_protocol.h"
 #include "scene/glb.h"
 #include "scene/gltf_reread.h"
 
@@ -319,7 +320,7 @@ void drop_zero_zfar(std::string& glb, const std::filesystem::path& out) {
 
 void write_atomically(tinygltf::Model& model, const std::filesystem::path& out) {
     const std::filesystem::path temp =
-        out.parent_path() / ("." + out.filename().string() + ".tmp-" + std::to_string(::getpid()));
+        out.parent_path() / protocol::temporary_file_name(out.filename().string(), long(::getpid()));
     {
         std::ostringstream encoded;
         tinygltf::TinyGLTF gltf;

@@ -1,6 +1,7 @@
 #include "io/image_files.h"
 
 #include "io/write_error.h"
+#include "worker_protocol.h"
 
 #include <ImfChannelList.h>
 #include <ImfDoubleAttribute.h>
@@ -27,7 +28,7 @@ namespace fs = std::filesystem;
 namespace {
 
 fs::path temp_path_for(const fs::path& path) {
-    return path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(getpid()));
+    return path.parent_path() / protocol::temporary_file_name(path.filename().string(), long(getpid()));
 }
 
 }  // namespace
