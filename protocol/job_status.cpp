@@ -74,6 +74,9 @@ Progress JobProgress::update(const std::string& output, Progress p) {
     const std::optional<double> rest =
         p.seconds > 0.0 ? seconds_to_come(output, double(p.rays) / p.seconds) : std::nullopt;
     if (own && rest) p.eta_seconds = *own + *rest;
+    p.shown_fraction = shown_fraction_;
+    shown_fraction_ = done_fraction(p).value_or(shown_fraction_);
+    p.shown_fraction = shown_fraction_;
     return p;
 }
 

@@ -35,7 +35,9 @@ std::optional<double> estimate_eta(const StopSettings& stop, const Progress& p);
 // passes priced at the rays per second the job traces now and the rays one
 // of its passes traces (the start event's "rays_per_pass"). Unknown while
 // any part is. The done fraction counts preparation and the outputs baked
-// before this one.
+// before this one, and never goes back (Progress::shown_fraction): a lightmap
+// + SH job's bar went from 85% to 11% when SH started and its passes proved
+// slower than priced.
 class JobProgress {
 public:
     JobProgress() = default;
@@ -56,6 +58,7 @@ private:
     double prepare_seconds_ = 0.0;
     std::map<std::string, uint64_t> rays_per_pass_;  // output -> the start event's estimate (absent: unknown)
     std::map<std::string, Progress> latest_;         // output -> its totals so far (resumed, then reported)
+    double shown_fraction_ = 0.0;                    // the most of the job shown so far
 };
 
 // The newest file of one output, as the worker's events named it: a snapshot

@@ -15,6 +15,7 @@ json to_json(const Progress& p) {
     j["eta_seconds"] = p.eta_seconds ? json(*p.eta_seconds) : json(nullptr);
     j["prepare_seconds"] = p.prepare_seconds;
     j["earlier_outputs_seconds"] = p.earlier_outputs_seconds;
+    if (p.shown_fraction > 0.0) j["shown_fraction"] = p.shown_fraction;
     if (!p.preparing.empty()) {
         j["preparing"] = p.preparing;
         j["prepare_eta_seconds"] = p.prepare_eta_seconds ? json(*p.prepare_eta_seconds) : json(nullptr);
@@ -25,11 +26,12 @@ json to_json(const Progress& p) {
 }
 
 std::optional<double> done_fraction(const Progress& p) {
-    if (!p.eta_seconds) return std::nullopt;
+    const double shown = std::clamp(p.shown_fraction, 0.0, 1.0);
+    if (!p.eta_seconds) return shown > 0.0 ? std::optional<double>(shown) : std::nullopt;
     const double done =
         std::max(0.0, p.prepare_seconds) + std::max(0.0, p.earlier_outputs_seconds) + std::max(0.0, p.seconds);
     const double left = std::max(0.0, *p.eta_seconds);
-    return done + left > 0.0 ? done / (done + left) : 1.0;
+    return std::max(shown, done + left > 0.0 ? done / (done + left) : 1.0);
 }
 
 Progress progress_from_json(const json& j) {
@@ -51,6 +53,8 @@ Progress progress_from_json(const json& j) {
         p.prepare_seconds = j["prepare_seconds"].get<double>();
     if (j.contains("earlier_outputs_seconds") && j["earlier_outputs_seconds"].is_number())
         p.earlier_outputs_seconds = j["earlier_outputs_seconds"].get<double>();
+    if (j.contains("shown_fraction") && j["shown_fraction"].is_number())
+        p.shown_fraction = std::clamp(j["shown_fraction"].get<double>(), 0.0, 1.0);
     if (j.contains("preparing") && j["preparing"].is_string()) p.preparing = j["preparing"].get<std::string>();
     if (j.contains("prepare_eta_seconds") && j["prepare_eta_seconds"].is_number())
         p.prepare_eta_seconds = j["prepare_eta_seconds"].get<double>();
@@ -94,8 +98,8 @@ namespace {
 
 json progress_fields(const Progress& p) {
     json j = to_json(p);
-    for (const char* servers :
-         {"eta_seconds", "prepare_seconds", "earlier_outputs_seconds", "fraction", "preparing", "prepare_eta_seconds"})
+    for (const char* servers : {"eta_seconds", "prepare_seconds", "earlier_outputs_seconds", "fraction",
+                                "shown_fraction", "preparing", "prepare_eta_seconds"})
         j.erase(servers);  // not the worker's
     return j;
 }

@@ -88,10 +88,15 @@ struct Progress {
     // size (gi/bake/preparation_estimate.h).
     std::string preparing;
     std::optional<double> prepare_eta_seconds;
+    // The server's: the most of the job the bar has shown so far
+    // (JobProgress): it never goes back, though the ETA may grow (the
+    // outputs still to come priced anew once they run).
+    double shown_fraction = 0.0;
 };
 // How much of the job is done, preparation and earlier outputs included:
 // (preparation + earlier outputs + passes' seconds) over that plus the ETA, 1
-// once the ETA is 0; empty while the ETA is unknown. The bars of the status page and of `lightfarm watch`.
+// once the ETA is 0, and never less than shown_fraction; empty while the ETA
+// is unknown and nothing was shown. The bars of the status page and of `lightfarm watch`.
 std::optional<double> done_fraction(const Progress& p);
 nlohmann::json to_json(const Progress& p);
 Progress progress_from_json(const nlohmann::json& j);

@@ -1043,6 +1043,49 @@ TEST(JobStatus, OneEtaAcrossTheJobsOutputs) {
     EXPECT_DOUBLE_EQ(*done_fraction(shown), (3.0 + 5.0 + 1.0) / (9.0 + 3.0));
 }
 
+// The whole job's bar never goes back (issue #54: a lightmap + SH job's
+// went from 85% to 11% when SH started): SH's passes, priced at the
+// lightmap's rate before it runs, prove ten times slower; the bar holds
+// where it stood until the job catches up with it, and ends at 1. Through
+// JSON too (the status and the events carry it).
+TEST(JobStatus, TheWholeJobsBarNeverGoesBack) {
+    const BakeSettings bake =
+        parse_bake_settings({{"outputs", {{"lightmap", {{"passes", 10}}}, {"sh", {{"sh_passes", 20}}}}}});
+    StartEvent start;
+    start.outputs = {{"lightmap", {{"rays_per_pass", 1000}}}, {"sh", {{"rays_per_pass", 500}}}};
+    JobProgress job(bake);
+    job.start(start);
+    double last = 0.0;
+    std::vector<double> shown;
+    const auto step = [&](const std::string& output, int pass, double seconds, uint64_t rays) {
+        Progress p;
+        p.pass = pass, p.seconds = seconds, p.rays = rays;
+        const Progress out = progress_from_json(to_json(job.update(output, p)));
+        const double fraction = *done_fraction(out);
+        EXPECT_GE(fraction, last) << output << " pass " << pass;
+        last = fraction;
+        shown.push_back(fraction);
+    };
+    for (int pass = 1; pass <= 10; ++pass) step("lightmap", pass, 0.5 * pass, 1000u * pass);  // 2000 rays/s
+    const double before_sh = last;
+    for (int pass = 1; pass <= 20; ++pass) step("sh", pass, 2.5 * pass, 500u * pass);  // 200 rays/s
+    EXPECT_DOUBLE_EQ(before_sh, 0.5);  // 5 s of lightmap, SH priced at 20 x 0.25 s
+    EXPECT_DOUBLE_EQ(shown.back(), 1.0);
+    // What the estimate alone said when SH began: far less than was shown.
+    Progress first_sh;
+    first_sh.pass = 1, first_sh.seconds = 2.5, first_sh.rays = 500;
+    JobProgress fresh(bake);
+    fresh.start(start);
+    for (int pass = 1; pass <= 10; ++pass) {
+        Progress p;
+        p.pass = pass, p.seconds = 0.5 * pass, p.rays = 1000u * pass;
+        fresh.update("lightmap", p);
+    }
+    Progress estimate_only = fresh.update("sh", first_sh);
+    estimate_only.shown_fraction = 0.0;
+    EXPECT_LT(*done_fraction(estimate_only), 0.5 * before_sh);
+}
+
 // An output to come is priced from where it resumes, never past its time
 // limit, and not at all without its rays per pass (unknown, not a guess).
 TEST(JobStatus, JobEtaOfOutputsToComeFollowsTheirStopRulesAndResumption) {
