@@ -186,11 +186,39 @@ std::string preparing_line(const std::string& job, const protocol::PrepareEvent&
     return line;
 }
 
+std::string queued_line(const std::string& job, const protocol::QueuePlace& q) {
+    return job.substr(0, 12) + (job.empty() ? "" : "  ") + "queued: " + std::to_string(q.ahead) +
+           (q.ahead == 1 ? " job" : " jobs") + " ahead of it, " + std::to_string(q.running) + " running";
+}
+
 namespace {
+
+// While the job is queued its events say nothing: its status says where it
+// stands, read once a second and told when it changes (a line on stderr, or
+// with --json a {"event": "queued", "ahead", "running"} line), until it starts.
+void tell_while_queued(Remote& remote, const std::string& job, bool json_lines) {
+    std::optional<std::pair<int, int>> told;
+    for (;;) {
+        auto r = remote.http().Get("/v1/jobs/" + job);
+        if (!r || r->status != 200) return;  // the events say why, or the job's end
+        const protocol::JobStatus status = protocol::status_from_json(json::parse(r->body, nullptr, false));
+        if (status.state != protocol::JobState::Queued || !status.queue) return;
+        const std::pair<int, int> place{status.queue->ahead, status.queue->running};
+        if (place != told) {
+            if (json_lines)
+                std::cout << json{{"event", "queued"}, {"ahead", place.first}, {"running", place.second}}.dump()
+                          << std::endl;
+            else std::cerr << queued_line(job, *status.queue) << "\n" << std::flush;
+            told = place;
+        }
+        std::this_thread::sleep_for(std::chrono::seconds(1));
+    }
+}
 
 // Follows a job's events until its final one, reconnecting with
 // Last-Event-ID when the connection drops. Returns the final event.
 protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_lines) {
+    tell_while_queued(remote, job, json_lines);
     const bool tty = isatty(2);
     int64_t last = 0;
     protocol::JobEvent final_event;

@@ -3,6 +3,7 @@
 // read through protocol/'s one catalog.
 #pragma once
 
+#include "job_status.h"
 #include "worker_protocol.h"
 
 #include <string>
@@ -24,5 +25,7 @@ extern const char* const kRemoteUsage;
 std::string progress_line(const std::string& job, const std::string& output, const protocol::Progress& p);
 // "JOB  preparing: atlas  3.1 s  ETA 12 s": the line before the first pass.
 std::string preparing_line(const std::string& job, const protocol::PrepareEvent& e);
+// "JOB  queued: N jobs ahead of it, R running": while a job waits its turn.
+std::string queued_line(const std::string& job, const protocol::QueuePlace& q);
 
 }  // namespace lf::cli

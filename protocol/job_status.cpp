@@ -167,6 +167,7 @@ json to_json(const JobStatus& s) {
     j["finished_at"] = s.finished_at > 0 ? json(s.finished_at) : json(nullptr);
     if (!s.error.empty()) j["error"] = s.error;
     if (!s.cause.empty()) j["cause"] = s.cause;
+    if (s.queue) j["queue"] = {{"ahead", s.queue->ahead}, {"running", s.queue->running}};
     return j;
 }
 
@@ -187,6 +188,13 @@ JobStatus status_from_json(const json& j) {
     s.created_at = time("created_at");
     s.started_at = time("started_at");
     s.finished_at = time("finished_at");
+    if (j.contains("queue") && j["queue"].is_object()) {
+        const auto count = [&](const char* key) {
+            const json& v = j["queue"].value(key, json());
+            return v.is_number_integer() ? int(std::clamp<int64_t>(v.get<int64_t>(), 0, 1 << 30)) : 0;
+        };
+        s.queue = QueuePlace{count("ahead"), count("running")};
+    }
     return s;
 }
 

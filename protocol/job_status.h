@@ -75,13 +75,23 @@ nlohmann::json to_json(const LatestFile& f);
 nlohmann::json to_json(const std::map<std::string, LatestFile>& latest);
 std::map<std::string, LatestFile> latest_from_json(const nlohmann::json& j);
 
+// Where a queued job stands: the jobs queued before it (the queue is first
+// come, first served) and the jobs running now. The status of a queued job
+// says it, so `watch`, `submit --wait` and the status page tell a person
+// that the job waits, and behind what (issue #54: silent for 131 s).
+struct QueuePlace {
+    int ahead = 0;
+    int running = 0;
+};
+
 struct JobStatus {
     std::string id;
     std::string scene;
     JobState state = JobState::Queued;
     nlohmann::json spec;  // the validated job spec (to_json(JobSpec))
     Progress progress;
-    int attempts = 0;  // worker runs started so far
+    std::optional<QueuePlace> queue;  // while queued: where it stands (the server fills it in)
+    int attempts = 0;                 // worker runs started so far
     int max_attempts = 0;
     std::string error;    // when failed: what went wrong, for a person
     std::string cause;    // when failed: the last attempt's cause (exit status, stderr line, timeout)

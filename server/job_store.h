@@ -110,6 +110,8 @@ public:
     virtual std::optional<JobRecord> job(const std::string& id) = 0;
     virtual std::vector<JobRecord> jobs_of(const std::string& owner) = 0;  // newest first
     virtual int queued_count(const std::string& owner) = 0;
+    // Jobs queued before job `id` (any owner's): the ones to start first.
+    virtual int queued_ahead(const std::string& id) = 0;
     virtual std::map<JobState, int> count_by_state() = 0;
     // A succeeded job with this cache key, if any.
     virtual std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) = 0;

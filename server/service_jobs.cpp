@@ -22,7 +22,14 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 json Service::status_json(const JobRecord& job, std::map<std::string, json>* briefs) const {
-    json j = protocol::to_json(job.status);
+    protocol::JobStatus status = job.status;
+    if (status.state == JobState::Queued) {
+        const std::map<JobState, int> counts = store_->count_by_state();
+        const auto running = counts.find(JobState::Running);
+        status.queue =
+            protocol::QueuePlace{store_->queued_ahead(status.id), running == counts.end() ? 0 : running->second};
+    }
+    json j = protocol::to_json(status);
     // What a person recognises the scene by: its file's name and size (a
     // listing looks each scene up once, however many jobs bake it).
     std::map<std::string, json> own;

@@ -156,6 +156,14 @@ int SqlJobStore::queued_count(const std::string& owner) {
             .integer(0, 0));
 }
 
+int SqlJobStore::queued_ahead(const std::string& id) {
+    std::lock_guard lock(mutex_);
+    return int(
+        db_->run("cannot count the jobs queued before a job",
+                 "SELECT COUNT(*) FROM jobs WHERE state = 'queued' AND seq < (SELECT seq FROM jobs WHERE id = ?)", {id})
+            .integer(0, 0));
+}
+
 std::map<JobState, int> SqlJobStore::count_by_state() {
     std::lock_guard lock(mutex_);
     const SqlResult r = db_->run("cannot count jobs", "SELECT state, COUNT(*) FROM jobs GROUP BY state", {});

@@ -40,6 +40,7 @@ public:
     std::optional<JobRecord> job(const std::string& id) override;
     std::vector<JobRecord> jobs_of(const std::string& owner) override;
     int queued_count(const std::string& owner) override;
+    int queued_ahead(const std::string& id) override;
     std::map<JobState, int> count_by_state() override;
     std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) override;
 

@@ -98,6 +98,45 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
     EXPECT_NE(w.out.find("\"event\":\"done\""), std::string::npos) << w.out;
 }
 
+// `submit --wait` behind a running job says that its job is queued and
+// where (issue #54: it was silent for 131 s): the line comes from the
+// job's status, read as soon as the job exists, before any event. The
+// running job is held at its start until 3 s after the second exists.
+TEST_F(RemoteTest, SubmitWaitSaysWhereAQueuedJobStands) {
+    server->stop();
+    server = std::make_unique<Lightfarmd>(tmp.path / "data-queue", tmp.path / "tokens", engine.script,
+                                          std::vector<std::string>{"--workers", "1"});
+    server->start();
+    engine.set("gate", "");
+    const std::string scene = (tmp.path / "scene.glb").string();
+    const CliRun first = run(with_common({"submit", scene, "--passes", "2", "--seed", "1"}));
+    ASSERT_EQ(first.status, 0) << first.err;
+    const std::string running = first.out.substr(0, first.out.find('\n'));
+    auto c = server->client(kToken);
+    wait_for_job(c, running, [](const json& s) { return s["state"] == "running"; });
+    std::thread open([&] {
+        auto poll = server->client(kToken);
+        for (int i = 0; i < 600; ++i) {
+            auto r = poll.Get("/v1/jobs");
+            if (r && r->status == 200 && json::parse(r->body)["jobs"].size() >= 2) break;
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        }
+        std::this_thread::sleep_for(std::chrono::seconds(3));
+        fs::remove(engine.dir / "gate");
+    });
+    const CliRun second = run(with_common({"submit", scene, "--passes", "2", "--seed", "2", "--wait", "--json", "--out",
+                                           (tmp.path / "second").string()}));
+    open.join();
+    ASSERT_EQ(second.status, 0) << second.err;
+    std::istringstream lines(second.out);
+    std::string id, queued;
+    std::getline(lines, id);
+    std::getline(lines, queued);
+    EXPECT_EQ(json::parse(queued), json({{"event", "queued"}, {"ahead", 0}, {"running", 1}})) << second.out;
+    EXPECT_NE(second.out.find("\"event\":\"done\""), std::string::npos) << second.out;
+    EXPECT_EQ(cli::queued_line("0123456789abcdef", {2, 1}), "0123456789ab  queued: 2 jobs ahead of it, 1 running");
+}
+
 // The terminal's progress line: a bar with its percentage of passes or time,
 // whichever the server's ETA says stops first; nothing claimed before the
 // ETA is known.

@@ -656,6 +656,30 @@ TEST_F(ServerTest, AFullDiskRefusesNewWorkAndStoresNothing) {
     EXPECT_TRUE(json::parse(jobs->body)["jobs"].empty());
 }
 
+// A queued job says where it stands (issue #54: `submit --wait` behind a
+// running job said nothing for 131 s): with one worker held at its start,
+// the job behind it has 0 ahead and 1 running, the next 1 ahead; the running
+// one says nothing of a queue, and neither does any once they are done.
+TEST_F(ServerTest, AQueuedJobSaysWhereItStands) {
+    engine.set("gate", "");
+    start({"--workers", "1"});
+    const std::string scene = upload();
+    const std::string first = submit(scene, {{"passes", 2}}, 1);
+    auto c = client();
+    wait_for_job(c, first, [](const json& s) { return s["state"] == "running"; });
+    const std::string second = submit(scene, {{"passes", 2}}, 2), third = submit(scene, {{"passes", 2}}, 3);
+    const json running = json::parse(c.Get("/v1/jobs/" + first)->body);
+    EXPECT_FALSE(running.contains("queue")) << running.dump();
+    EXPECT_EQ(json::parse(c.Get("/v1/jobs/" + second)->body)["queue"], json({{"ahead", 0}, {"running", 1}}));
+    EXPECT_EQ(json::parse(c.Get("/v1/jobs/" + third)->body)["queue"], json({{"ahead", 1}, {"running", 1}}));
+    fs::remove(engine.dir / "gate");
+    for (const std::string& id : {first, second, third}) {
+        const json done = wait_finished(id);
+        EXPECT_EQ(done["state"], "succeeded") << done.dump();
+        EXPECT_FALSE(done.contains("queue"));
+    }
+}
+
 // Jobs queued when the disk fills up wait, costing no attempt and never
 // failing, and run once it has room again (before, every queued job failed
 // "not retried": its worker read an empty spec).

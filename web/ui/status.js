@@ -66,7 +66,11 @@ function render(jobs) {
     // and preparation's time left; the job's own ETA comes with its passes.
     const preparing = job.state === "running" && !job.progress.pass;
     const stage = job.progress.preparing ? ": " + job.progress.preparing : "";
-    const progress = cell(row, preparing ? "preparing" + stage : percent + "%");
+    // A queued job: where it stands (its status says, issue #54).
+    const place = job.state === "queued" && job.queue
+                      ? "queued: " + job.queue.ahead + " ahead, " + job.queue.running + " running"
+                      : null;
+    const progress = cell(row, place || (preparing ? "preparing" + stage : percent + "%"));
     progress.prepend(bar);
     const known = (seconds) => seconds !== null && seconds !== undefined;
     const eta = preparing && known(job.progress.prepare_eta_seconds)
