@@ -7,6 +7,7 @@
 #include "gpu_fixture.h"
 
 #include "gpu/shader.h"
+#include "io/image_files.h"
 #include "probes/probe_eval.h"
 #include "probes/probe_set.h"
 #include "sh/sh_basis.h"
@@ -1263,6 +1264,36 @@ TEST(ProbeFiles, WriteThenReadRoundTrips) {
             EXPECT_LT(relative_error(b.radiance[t], a.radiance[t]), 1e-3f);
         }
     }
+    fs::remove_all(dir);
+}
+
+// A probes file that says more than it holds is refused naming the file and
+// what is missing: a version-3 set whose image lacks the centres' channel D,
+// a version this build does not know, a malformed moved_from.
+TEST(ProbeFiles, AFileThatDoesNotHoldWhatItSaysIsRefusedNamingIt) {
+    const fs::path dir = fresh_dir("bad-files");
+    write_probe_set(dir, small_set());
+    const nlohmann::json good = nlohmann::json::parse(std::ifstream(dir / "probes.json"));
+    const auto refused = [&](const nlohmann::json& doc, const std::string& says) {
+        std::ofstream(dir / "probes.json") << doc.dump();
+        try {
+            read_probe_set(dir / "probes.json");
+            ADD_FAILURE() << "accepted: " << says;
+        } catch (const std::runtime_error& e) {
+            EXPECT_NE(std::string(e.what()).find("probes.json"), std::string::npos) << e.what();
+            EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
+        }
+    };
+    nlohmann::json future = good;
+    future["version"] = 4;
+    refused(future, "version 4 is not 1, 2 or 3");
+    nlohmann::json moved = good;
+    moved["probes"][0]["moved_from"] = {1, 2};
+    refused(moved, "moved_from must be [x, y, z]");
+    FloatImage image = read_exr(dir / "probes.exr");
+    image.channels.erase("D");
+    write_exr(dir / "probes.exr", image);
+    refused(good, "probes.exr has no channel D");
     fs::remove_all(dir);
 }
 

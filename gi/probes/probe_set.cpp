@@ -147,9 +147,18 @@ ProbeSet read_probe_set(const std::filesystem::path& probes_json) {
     const int m = set.m, cell = version >= 2 ? m + 1 : m;
     if (image.width != 6 * cell || image.height < cell * int(probes.size()))
         throw std::runtime_error(name + ": the image's size does not match m and the probe count");
-    const std::vector<float>*rgb[3] = {&image.at("R"), &image.at("G"), &image.at("B")}, &z = image.at("Z");
-    const std::vector<float>* c = version >= 2 ? &image.at("C") : nullptr;
-    const std::vector<float>* centre = version >= 3 ? &image.at("D") : nullptr;
+    const std::string image_name = doc.value("image", "probes.exr");
+    const auto channel = [&](const std::string& key) -> const std::vector<float>& {
+        const auto it = image.channels.find(key);
+        if (it == image.channels.end())
+            throw std::runtime_error(name + ": " + image_name + " has no channel " + key + " (version " +
+                                     std::to_string(version) + " has R, G, B, Z" + (version >= 2 ? ", C" : "") +
+                                     (version >= 3 ? ", D" : "") + ")");
+        return it->second;
+    };
+    const std::vector<float>*rgb[3] = {&channel("R"), &channel("G"), &channel("B")}, &z = channel("Z");
+    const std::vector<float>* c = version >= 2 ? &channel("C") : nullptr;
+    const std::vector<float>* centre = version >= 3 ? &channel("D") : nullptr;
     for (size_t k = 0; k < probes.size(); ++k) {
         const nlohmann::json& j = probes[k];
         Probe p;
