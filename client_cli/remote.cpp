@@ -201,7 +201,9 @@ void tell_while_queued(Remote& remote, const std::string& job, bool json_lines) 
     for (;;) {
         auto r = remote.http().Get("/v1/jobs/" + job);
         if (!r || r->status != 200) return;  // the events say why, or the job's end
-        const protocol::JobStatus status = protocol::status_from_json(json::parse(r->body, nullptr, false));
+        const json body = json::parse(r->body, nullptr, false);
+        if (!body.is_object()) return;
+        const protocol::JobStatus status = protocol::status_from_json(body);
         if (status.state != protocol::JobState::Queued || !status.queue) return;
         const std::pair<int, int> place{status.queue->ahead, status.queue->running};
         if (place != told) {

@@ -106,9 +106,14 @@ private:
     // The caller's job the path's {id} names: its whole id, or an unambiguous
     // prefix (job_by_id_prefix; 404 when no job of the caller's has it).
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
-    // A job's status for the API; `briefs` (scene id -> its name and size)
-    // spares a listing one store query per job.
-    nlohmann::json status_json(const JobRecord& job, std::map<std::string, nlohmann::json>* briefs = nullptr) const;
+    // What a listing of jobs looks up once, however many jobs it lists.
+    struct StatusLookups {
+        std::map<std::string, nlohmann::json> briefs;  // scene id -> its name and size
+        std::optional<int> running;                    // the jobs running now (a queued job's place)
+    };
+    // A job's status for the API; `lookups` spares a listing the store
+    // queries its jobs share.
+    nlohmann::json status_json(const JobRecord& job, StatusLookups* lookups = nullptr) const;
     nlohmann::json scene_brief(const std::string& scene_id, const std::string& owner) const;
     nlohmann::json jobs_json(const std::string& owner) const;  // GET /v1/jobs's body
 

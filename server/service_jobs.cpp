@@ -21,20 +21,22 @@ namespace lf::server {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-json Service::status_json(const JobRecord& job, std::map<std::string, json>* briefs) const {
+json Service::status_json(const JobRecord& job, StatusLookups* lookups) const {
+    StatusLookups own;
+    if (!lookups) lookups = &own;
     protocol::JobStatus status = job.status;
     if (status.state == JobState::Queued) {
-        const std::map<JobState, int> counts = store_->count_by_state();
-        const auto running = counts.find(JobState::Running);
-        status.queue =
-            protocol::QueuePlace{store_->queued_ahead(status.id), running == counts.end() ? 0 : running->second};
+        if (!lookups->running) {
+            const std::map<JobState, int> counts = store_->count_by_state();
+            const auto running = counts.find(JobState::Running);
+            lookups->running = running == counts.end() ? 0 : running->second;
+        }
+        status.queue = protocol::QueuePlace{store_->queued_ahead(status.id), *lookups->running};
     }
     json j = protocol::to_json(status);
     // What a person recognises the scene by: its file's name and size (a
     // listing looks each scene up once, however many jobs bake it).
-    std::map<std::string, json> own;
-    if (!briefs) briefs = &own;
-    auto [it, fresh] = briefs->try_emplace(job.status.scene);
+    auto [it, fresh] = lookups->briefs.try_emplace(job.status.scene);
     if (fresh) it->second = scene_brief(job.status.scene, job.owner);
     j.update(it->second);
     const std::string base = "/v1/jobs/" + job.status.id;
@@ -177,8 +179,8 @@ bool Service::answer_from_cache(JobRecord& job, const Caller& caller, httplib::R
 
 json Service::jobs_json(const std::string& owner) const {
     json jobs = json::array();
-    std::map<std::string, json> briefs;
-    for (const JobRecord& job : store_->jobs_of(owner)) jobs.push_back(status_json(job, &briefs));
+    StatusLookups lookups;
+    for (const JobRecord& job : store_->jobs_of(owner)) jobs.push_back(status_json(job, &lookups));
     return {{"jobs", jobs}};
 }
 
