@@ -5,6 +5,7 @@
 #include "bake_settings.h"
 #include "worker_protocol.h"
 
+#include <algorithm>
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
@@ -49,6 +50,8 @@ public:
     // An output's totals after a pass, with the job's ETA, preparation and
     // earlier outputs' seconds filled in; remembers them.
     Progress update(const std::string& output, Progress p);
+    // The bar stays at least there (a retried job's, where its last attempt left it).
+    void hold_at_least(double fraction) { shown_fraction_ = std::max(shown_fraction_, std::clamp(fraction, 0.0, 1.0)); }
     double prepare_seconds() const { return prepare_seconds_; }
 
 private:

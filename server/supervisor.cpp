@@ -446,12 +446,16 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         data["attempt"] = attempt;
         u.state.job = protocol::JobProgress(bake);
         u.state.job->start(*start);
+        u.state.job->hold_at_least(state.shown_fraction);
         // A resumed output's rays so far were counted by the attempt that traced them.
         for (const auto& [output, at] : start->resumed) u.state.rays[output] = at.rays;
         u.event = JobEvent{0, "started", data};
     } else if (const auto* progress = std::get_if<protocol::ProgressEvent>(&event)) {
         const std::string output = output_or_only(progress->output, bake);
-        if (!u.state.job) u.state.job = protocol::JobProgress(bake);  // a worker that sent no start event
+        if (!u.state.job) {  // a worker that sent no start event
+            u.state.job = protocol::JobProgress(bake);
+            u.state.job->hold_at_least(state.shown_fraction);
+        }
         const Progress p = u.state.job->update(output, progress->progress);
         // Rays are counted per output: each output's totals start again at 0.
         const uint64_t seen = state.rays.count(output) ? state.rays.at(output) : 0;
@@ -710,6 +714,7 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
         started + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(job.max_seconds));
     auto last_output = started;
     WorkerEnd end;
+    end.state.shown_fraction = job.status.progress.shown_fraction;  // a retry's bar starts where the last stood
     // What the store could not take yet (a full disk): kept, in order, and
     // stored when it can again; the worker bakes on meanwhile. A progress
     // update replaces an unsaved one of the same output, so this stays small.

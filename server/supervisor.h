@@ -38,6 +38,7 @@ struct AttemptState {
     std::map<std::string, int> passes;         // output -> pass its progress reported last
     std::optional<nlohmann::json> done;        // the "done" event's data, once the worker reported done
     std::optional<protocol::JobProgress> job;  // from the start event: the whole job's ETA and done fraction
+    double shown_fraction = 0.0;               // the job's bar as earlier attempts left it (never goes back)
 };
 
 // What applying one worker event asks the supervisor to store. Empty parts

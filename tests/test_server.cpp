@@ -1501,6 +1501,17 @@ TEST(ApplyWorkerEvent, TheDoneFractionIncludesPreparation) {
     const server::AttemptUpdate finished = server::apply_worker_event(u.state, done, bake, "job1", 1);
     EXPECT_DOUBLE_EQ(*protocol::done_fraction(*finished.progress), 1.0);
     EXPECT_FALSE(protocol::done_fraction(protocol::Progress{})) << "no fraction claimed before the ETA is known";
+
+    // A retry starts its passes again (or from its last snapshot), but the
+    // job's bar stays where its last attempt left it (issue #54).
+    server::AttemptState retry;
+    retry.shown_fraction = 10.0 / 12.0;
+    const server::AttemptUpdate again = server::apply_worker_event(retry, start, bake, "job1", 2);
+    protocol::ProgressEvent first{"lightmap", {}};
+    first.progress.pass = 1;
+    first.progress.seconds = 0.2;
+    const server::AttemptUpdate shown = server::apply_worker_event(again.state, first, bake, "job1", 2);
+    EXPECT_DOUBLE_EQ(*protocol::done_fraction(*shown.progress), 10.0 / 12.0);
 }
 
 // Every output of the registry, alone and beside every other, gets its
