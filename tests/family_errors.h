@@ -7,9 +7,17 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <cstdio>
+#include <random>
 #include <vector>
 
 namespace lf::test {
+
+// A family's draws: from a fixed seed, printed so a failure can be replayed.
+inline std::mt19937 family_rng(unsigned seed) {
+    std::printf("  seed %u\n", seed);
+    return std::mt19937(seed);
+}
 
 struct Reading {
     double estimate, truth;

@@ -391,9 +391,7 @@ TEST(ProbeCapture, PlatesPolygonToPointHoldsAwayFromTheProbe) {
 // issue's measure). Seed printed; errors on the scale,
 // |estimate - truth| / max(truth, 10% of the family's brightest).
 TEST(ProbeCapture, ASheetBetweenTheProbeAndTheEmitterDoesNotMoveItsPolygons) {
-    const unsigned seed = 5201;
-    std::printf("  seed %u\n", seed);
-    std::mt19937 rng(seed);
+    std::mt19937 rng = test::family_rng(5201);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     std::vector<test::Reading> readings;
     for (int config = 0; config < 6; ++config) {

@@ -796,9 +796,7 @@ ProbeSet thin_wall_probes(const ThinWall& rooms, int r, int m) {
 // dark side read 11-69% of the lit side; now it reads 0 wherever a probe
 // of the dark room sees the point, which at this grid is everywhere.
 TEST(ProbeVisibility, NoLightThroughAThinWall) {
-    const unsigned seed = 52;
-    std::printf("  seed %u\n", seed);
-    std::mt19937 rng(seed);
+    std::mt19937 rng = test::family_rng(52);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     const auto log_uniform = [&](float lo, float hi) { return lo * std::pow(hi / lo, u(rng)); };
     std::vector<double> dark_errors, lit_errors;
@@ -866,9 +864,7 @@ std::vector<Patch> tilted_emitter_over_a_floor(float tilt, glm::vec3 axis, glm::
 // shadow). Seed printed; errors on the scale, |estimate - truth| /
 // max(truth, 10% of the family's brightest).
 TEST(ProbeEstimators, TiltedEmitterFamily) {
-    const unsigned seed = 5202;
-    std::printf("  seed %u\n", seed);
-    std::mt19937 rng(seed);
+    std::mt19937 rng = test::family_rng(5202);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     std::vector<test::Reading> readings;
     for (int config = 0; config < 12; ++config) {
@@ -919,9 +915,7 @@ TEST(ProbeEstimators, TiltedEmitterFamily) {
 // only the first polygon along each direction from the point would.
 //   build/tests/test_probes --gtest_also_run_disabled_tests --gtest_filter='*Partition*'
 TEST(ProbeEstimators, DISABLED_FiguresPartitionFamily) {
-    const unsigned seed = 5203;
-    std::printf("  seed %u\n", seed);
-    std::mt19937 rng(seed);
+    std::mt19937 rng = test::family_rng(5203);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     const auto log_uniform = [&](float lo, float hi) { return lo * std::pow(hi / lo, u(rng)); };
     std::vector<test::Reading> readings;
