@@ -1783,7 +1783,6 @@ Scene randomly_textured_quads() {
     s.materials[blended].base_color.a = 0.6f;
     const uint32_t glass = test::add_material(s, glm::vec3(0.9f, 0.7f, 0.5f));
     s.materials[glass].transmission = 0.7f;
-    s.materials[glass].transmission_tint = glm::vec3(0.8f, 0.6f, 0.9f);
     for (uint32_t m : {cut_out, blended, glass}) s.materials[m].base_color_texture = 0;
     test::add_quad(s, {0, 0, 0}, {1, 0, 0}, {0, 1, 0}, reflecting);
     test::add_quad(s, {0, 0, 1}, {1, 0, 0}, {0, 1, 0}, emitting);

@@ -531,7 +531,7 @@ TEST(GeneratedScenes, EmissiveStrengthMultipliesTheFactor) {
 // KHR_materials_transmission's factor and KHR_materials_volume's absorption
 // read into the Material, and a note per material saying how light passes
 // it; an opaque material gets none. Absorption: attenuationColor per
-// attenuationDistance, over thicknessFactor (0.25^(0.5 / 0.25) = 0.0625).
+// attenuationDistance: -ln(attenuationColor) / attenuationDistance per metre.
 TEST(GeneratedScenes, SeeThroughMaterialsAreReadAndSaidHowLightPasses) {
     GltfWriter w;
     w.add("materials", {{"name", "leaves"}, {"alphaMode", "MASK"}, {"alphaCutoff", 0.3}});
@@ -564,7 +564,12 @@ TEST(GeneratedScenes, SeeThroughMaterialsAreReadAndSaidHowLightPasses) {
     EXPECT_FLOAT_EQ(s.materials[2].transmission, 0.9f);
     EXPECT_FALSE(s.materials[3].is_see_through());
     EXPECT_FLOAT_EQ(s.materials[4].transmission, 1.0f);
-    expect_near(s.materials[4].transmission_tint, glm::vec3(0.0625f, 0.25f, 1.0f));
+    expect_near(s.materials[4].attenuation, -glm::log(glm::vec3(0.25f, 0.5f, 1.0f)) / 0.25f);
+    EXPECT_FLOAT_EQ(s.materials[4].thickness, 0.5f);
+    EXPECT_TRUE(s.materials[4].has_volume());
+    // One quad closes no volume: its absorption is the thin approximation, and the file is told.
+    EXPECT_FALSE(s.closed_volumes()[4]);
+    EXPECT_TRUE(has_warning(s, "material 4 \"bottle\": KHR_materials_volume on triangles that do not close"));
     // Every point of a quad: 1 - alpha through the curtain, 0.9 through the window.
     expect_near(s.transmittance_at(s.instances[1].first_triangle, glm::vec2(0.25f)), glm::vec3(0.6f));
     expect_near(s.transmittance_at(s.instances[2].first_triangle, glm::vec2(0.25f)), glm::vec3(0.9f));

@@ -28,7 +28,9 @@ struct ChartRays {
 
 ChartRays rays_of_double_sided_charts(const Scene& scene, const std::vector<uint32_t>& chart) {
     const auto triangles_of = triangles_by_chart(scene, chart, scene.positions.size(), [&](size_t t) {
-        return scene.materials[scene.triangle_material[t]].double_sided;
+        // A volume's mesh keeps its winding: its faces say where rays enter it.
+        const Material& m = scene.materials[scene.triangle_material[t]];
+        return m.double_sided && !m.has_volume();
     });
     ChartRays out;
     for (size_t t = 0; t < scene.triangles.size(); ++t)  // charts in first-triangle order

@@ -75,6 +75,15 @@ void add_scene_warnings(Scene& scene) {
     double area = 0.0;
     for (size_t t = 0; t < scene.triangles.size() && area == 0.0; ++t) area += scene.triangle_area(t);
     if (!(area > 0.0)) scene.warnings.push_back("no geometry with area: nothing to bake into");
+    const std::vector<bool> closed = scene.closed_volumes();
+    std::vector<bool> used(scene.materials.size(), false);
+    for (uint32_t m : scene.triangle_material) used[m] = true;
+    for (size_t m = 0; m < scene.materials.size(); ++m)
+        if (used[m] && scene.materials[m].has_volume() && !closed[m])
+            scene.warnings.push_back(Errors::label("material", int(m), scene.materials[m].name) +
+                                     ": KHR_materials_volume on triangles that do not close around a volume: "
+                                     "each surface crossed absorbs over thicknessFactor (" +
+                                     std::to_string(scene.materials[m].thickness) + " m) instead of the path inside");
 }
 
 }  // namespace

@@ -168,8 +168,9 @@ void MaterialBuilder::read_see_through(const tinygltf::Material& m, const std::s
         warnings_->push_back(where + ": KHR_materials_transmission's transmissionTexture is ignored (its factor, " +
                              std::to_string(out.transmission) + ", holds over the whole surface)");
     // Absorption inside the volume (KHR_materials_volume): Beer-Lambert over
-    // the thickness, attenuationColor being what is left after
-    // attenuationDistance. A thin surface (thickness 0) absorbs nothing.
+    // the path inside the mesh, attenuationColor being what is left after
+    // attenuationDistance (Material::attenuation). A thin-walled surface
+    // (thicknessFactor 0) absorbs nothing.
     const auto volume = m.extensions.find("KHR_materials_volume");
     if (volume == m.extensions.end()) return;
     const tinygltf::Value& vol = volume->second;
@@ -183,8 +184,12 @@ void MaterialBuilder::read_see_through(const tinygltf::Material& m, const std::s
             values.push_back(c.Get(int(i)).IsNumber() ? c.Get(int(i)).GetNumberAsDouble() : -1.0);
         color = factor(values, 3, where, "KHR_materials_volume attenuationColor", true);
     }
-    if (thickness > 0.0 && std::isfinite(distance))
-        out.transmission_tint = glm::pow(color, glm::vec3(float(thickness / distance)));
+    if (thickness > 0.0 && std::isfinite(distance)) {
+        // A channel that keeps nothing (colour 0) absorbs at a finite rate
+        // (-ln 1e-30 = 69 per distance), so that 0 x that rate stays 0.
+        for (int c = 0; c < 3; ++c) out.attenuation[c] = float(-std::log(std::max(double(color[c]), 1e-30)) / distance);
+        out.thickness = float(thickness);
+    }
 }
 
 // What a bake does with a see-through material, said per material so that a
@@ -197,10 +202,11 @@ void MaterialBuilder::describe_see_through(const Material& m, const std::string&
         warnings_->push_back(where +
                              ": alphaMode BLEND: light passes in proportion to 1 - base colour alpha, untinted");
     if (m.transmission > 0.0f)
-        warnings_->push_back(where + ": KHR_materials_transmission: " + std::to_string(m.transmission) +
-                             " of the light passes through, tinted by the base colour" +
-                             (m.transmission_tint != glm::vec3(1.0f) ? " and KHR_materials_volume's absorption" : "") +
-                             " (thin: no refraction or reflection off the glass)");
+        warnings_->push_back(
+            where + ": KHR_materials_transmission: " + std::to_string(m.transmission) +
+            " of the light passes through, tinted by the base colour" +
+            (m.has_volume() ? ", and KHR_materials_volume's absorption over the path inside the mesh" : "") +
+            " (no refraction or reflection off the glass)");
 }
 
 const char* kLightTypes[] = {"point", "spot", "directional"};

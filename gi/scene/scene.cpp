@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <unordered_map>
 
 namespace lf {
 
@@ -98,7 +100,40 @@ glm::vec3 Scene::transmittance_at(size_t t, glm::vec2 bary) const {
     float coverage = 1.0f;
     if (m.alpha_mode == Material::AlphaMode::Mask) coverage = base.a >= m.alpha_cutoff ? 1.0f : 0.0f;
     else if (m.alpha_mode == Material::AlphaMode::Blend) coverage = base.a;
-    return glm::vec3(1.0f - coverage) + coverage * m.transmission * glm::vec3(base) * m.transmission_tint;
+    return glm::vec3(1.0f - coverage) + coverage * m.transmission * glm::vec3(base);
+}
+
+std::vector<bool> Scene::closed_volumes() const {
+    std::vector<bool> closed(materials.size(), false);
+    std::vector<std::vector<size_t>> triangles_of(materials.size());
+    for (size_t m = 0; m < materials.size(); ++m) closed[m] = materials[m].has_volume();
+    for (size_t t = 0; t < triangles.size(); ++t)
+        if (closed[triangle_material[t]]) triangles_of[triangle_material[t]].push_back(t);
+    for (size_t m = 0; m < materials.size(); ++m) {
+        if (!closed[m]) continue;
+        // Vertices matched by their position's bits (a mesh's split vertices
+        // share positions exactly), then each directed edge counted.
+        std::unordered_map<std::string, uint32_t> point_id;
+        const auto id_of = [&](uint32_t v) {
+            std::string key(sizeof(glm::vec3), '\0');
+            std::memcpy(key.data(), &positions[v], sizeof(glm::vec3));
+            return point_id.emplace(key, uint32_t(point_id.size())).first->second;
+        };
+        std::unordered_map<uint64_t, int> edges;  // (from << 32 | to) -> times met
+        for (size_t t : triangles_of[m]) {
+            const uint32_t p[3] = {id_of(triangles[t].x), id_of(triangles[t].y), id_of(triangles[t].z)};
+            for (int e = 0; e < 3; ++e) ++edges[uint64_t(p[e]) << 32 | p[(e + 1) % 3]];
+        }
+        closed[m] = !triangles_of[m].empty();
+        for (const auto& [edge, count] : edges) {
+            const auto back = edges.find(edge << 32 | edge >> 32);
+            if (back == edges.end() || back->second != count) {
+                closed[m] = false;
+                break;
+            }
+        }
+    }
+    return closed;
 }
 
 glm::vec3 Scene::emission_at(size_t t, glm::vec2 bary) const {

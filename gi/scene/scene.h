@@ -64,11 +64,24 @@ struct Material {
     float alpha_cutoff = 0.5f;
     // KHR_materials_transmission's transmissionFactor: of the light that
     // meets the surface, the fraction that passes through, tinted by the base
-    // colour and by transmission_tint (KHR_materials_volume's absorption over
-    // its thickness; 1 for a thin surface). Thin and straight through: no
-    // refraction, no Fresnel reflection, as a lightmapper reads a window.
+    // colour. Straight through: no refraction, no Fresnel reflection, as a
+    // lightmapper reads a window.
     float transmission = 0.0f;
-    glm::vec3 transmission_tint{1.0f};
+    // KHR_materials_volume: the mesh bounds a medium that absorbs, per
+    // channel, attenuation per metre of path inside it (Beer-Lambert,
+    // -ln(attenuationColor) / attenuationDistance): a ray crossing a closed
+    // glass slab of thickness d at angle theta keeps exp(-attenuation d /
+    // cos theta). The tracer applies it between where a ray enters the mesh
+    // (a front face) and where it leaves (a back face) or ends
+    // (trace.glsl's lf_cross_medium). 0 for a thin-walled surface
+    // (thicknessFactor 0), which absorbs nothing, and without transmission.
+    glm::vec3 attenuation{0.0f};
+    // thicknessFactor: the path inside that each crossing of the surface is
+    // taken to have where the material's triangles do not close around a
+    // volume (Scene::closed_volumes; an open sheet: the glTF spec's
+    // approximation for rasterizers).
+    float thickness = 0.0f;
+    bool has_volume() const { return transmission > 0.0f && attenuation != glm::vec3(0.0f); }
     bool is_emissive() const { return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f; }
     // Light may pass through some of it: the tracer tests its rays' hits.
     bool is_see_through() const { return alpha_mode != AlphaMode::Opaque || transmission > 0.0f; }
@@ -188,9 +201,15 @@ struct Scene {
     glm::vec3 emission_at(size_t t, glm::vec2 bary) const;
     // The share of the light arriving at triangle t at (b1, b2) that passes
     // through it, per channel: 1 - coverage + coverage x transmission x
-    // (base colour x texture) x transmission_tint, where coverage is how much
-    // of the surface is there (Material::alpha_mode). 0 for an opaque surface.
+    // (base colour x texture), where coverage is how much of the surface is
+    // there (Material::alpha_mode). 0 for an opaque surface. A volume's
+    // absorption is the path's, not the surface's (Material::attenuation).
     glm::vec3 transmittance_at(size_t t, glm::vec2 bary) const;
+    // Per material: whether it bounds a volume that the tracer can follow
+    // (Material::attenuation), i.e. it has one and its triangles close around
+    // it with one orientation: each edge (vertices matched by position) met
+    // once in each direction.
+    std::vector<bool> closed_volumes() const;
     // Their means over triangle t (textures averaged by the midpoint rule on
     // 16 equal sub-triangles; exact without a texture): what one constant per
     // triangle should be, where one texture sample at the centroid could be

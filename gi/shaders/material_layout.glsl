@@ -16,7 +16,8 @@
 #define LF_MAT_ALPHA_MODE 9u          // LF_ALPHA_*
 #define LF_MAT_ALPHA_CUTOFF 10u       // float bits
 #define LF_MAT_TRANSMISSION 11u       // KHR_materials_transmission's factor, float bits
-#define LF_MAT_TRANSMISSION_TINT 12u  // rgb, float bits: KHR_materials_volume's absorption
+#define LF_MAT_ATTENUATION 12u        // rgb, float bits: KHR_materials_volume's absorption per metre
+#define LF_MAT_OPEN_THICKNESS 15u     // float bits: 0 for a closed volume, else the path each crossing absorbs over
 // Material::AlphaMode.
 #define LF_ALPHA_OPAQUE 0u
 #define LF_ALPHA_MASK 1u

@@ -76,8 +76,9 @@ vec3 surface_emission(uint triangle, vec2 bary) {
 // How a see-through surface (Material::is_see_through) passes light at a
 // point: the share of the surface that is there (coverage: alphaMode against
 // base colour alpha x its texture's), and the tint of the light that passes
-// through what is there (transmission x base colour x volume absorption).
-// Scene::transmittance_at is 1 - coverage + coverage x that tint.
+// through what is there (transmission x base colour; the absorption inside
+// a volume is the path's, trace.glsl's lf_cross_medium). Scene::transmittance_at
+// is 1 - coverage + coverage x that tint.
 void surface_see_through(uint triangle, vec2 bary, out float coverage, out vec3 transmitted) {
     uint m = surface_material(triangle);
     uint texture = material_uint(m, LF_MAT_BASE_TEXTURE);
@@ -86,7 +87,7 @@ void surface_see_through(uint triangle, vec2 bary, out float coverage, out vec3 
     uint mode = material_uint(m, LF_MAT_ALPHA_MODE);
     coverage = mode == LF_ALPHA_MASK ? (base.a >= material_float(m, LF_MAT_ALPHA_CUTOFF) ? 1.0 : 0.0)
              : mode == LF_ALPHA_BLEND ? base.a : 1.0;
-    transmitted = material_float(m, LF_MAT_TRANSMISSION) * base.rgb * material_vec3(m, LF_MAT_TRANSMISSION_TINT);
+    transmitted = material_float(m, LF_MAT_TRANSMISSION) * base.rgb;
 }
 
 #endif

@@ -273,24 +273,64 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out fl
 }
 
 #if LF_SEE_THROUGH
+// The volume a ray is inside (KHR_materials_volume, Material::attenuation),
+// for Beer-Lambert over the path in it: its absorption per unit of t and
+// the t where the ray entered it.
+struct LfMedium {
+    vec3 attenuation;  // 0: outside every volume
+    float since;
+    bool crossed;      // a volume's surface was crossed (before it, the origin may be inside one)
+};
+
+// A ray passes see-through surface s: the light is absorbed over the path
+// in the medium up to s.t, and the medium changes where s bounds a volume
+// whose triangles close (Scene::closed_volumes): a front face is the way in,
+// a back face the way out. A back face met before any volume's surface:
+// the ray started inside (a bounce off something in the glass), so the
+// path in it starts at the origin. A volume's open sheet absorbs over its
+// thicknessFactor at each crossing (the glTF spec's approximation). Not
+// followed: a ray between two opaque surfaces inside a volume, which meets
+// no see-through surface and so is not walked (light bounced inside a glass
+// block is not absorbed on that leg).
+void lf_cross_medium(Hit s, float dir_length, inout LfMedium medium, inout vec3 tint) {
+    uint m = surface_material(s.triangle);
+    vec3 attenuation = material_vec3(m, LF_MAT_ATTENUATION);
+    if (attenuation == vec3(0.0)) return;
+    float open_thickness = material_float(m, LF_MAT_OPEN_THICKNESS);
+    if (open_thickness > 0.0) {
+        tint *= exp(-attenuation * open_thickness);
+        return;
+    }
+    attenuation *= dir_length;
+    tint *= exp(-(medium.crossed || s.front ? medium.attenuation : attenuation) * (s.t - medium.since));
+    medium = LfMedium(s.front ? attenuation : vec3(0.0), s.t, true);
+}
+
 // The see-through surfaces along org + t dir before t_max, nearest first,
 // each met once (lf_surface_key), one traversal each (LF_QUERY_SEE_THROUGH,
 // past the last one met): with `expected`, tint is multiplied by each one's
 // transmittance (the expectation: shadow rays) and the walk ends where it
 // reaches 0; without, each surface's choice decides (lf_passes): passed,
 // tint times its draw's tint; stopped, that surface is returned, tint in
-// its Hit.tint. Returns LF_NO_HIT where nothing stopped the ray.
+// its Hit.tint. Returns LF_NO_HIT where nothing stopped the ray. Inside a
+// volume the light is absorbed over the path (lf_cross_medium), up to t_max
+// where the ray ends inside it (a surface within the glass).
 Hit lf_walk_see_through(vec3 org, vec3 dir, float t_max, bool expected, inout vec3 tint) {
     uint ray = lf_ray_hash(org, dir);
     uvec2 counted = uvec2(0u);  // the last two surface points met
     float t_min = 0.0, unused;
+    LfMedium medium = LfMedium(vec3(0.0), 0.0, false);
     while (true) {
         Hit s = lf_traverse(org, dir, t_min, t_max, LF_QUERY_CLOSEST | LF_QUERY_SEE_THROUGH, unused);
-        if (s.triangle == LF_NO_HIT) return s;
+        if (s.triangle == LF_NO_HIT) {
+            if (medium.attenuation != vec3(0.0)) tint *= exp(-medium.attenuation * (t_max - medium.since));
+            return s;
+        }
         t_min = s.t;
         uint key = lf_surface_key(s.triangle, s.t);
         if (key == counted.x || key == counted.y) continue;  // the same surface point, another triangle
         counted = uvec2(key, counted.x);
+        lf_cross_medium(s, length(dir), medium, tint);
         vec3 drawn;
         if (expected) {
             float coverage;

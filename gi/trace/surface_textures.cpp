@@ -32,7 +32,8 @@ void put_vec3(uint32_t* at, glm::vec3 v) {
 }
 
 // One material's record (material_layout.glsl).
-void put_material(const Material& m, uint32_t base_texture, uint32_t emissive_texture, uint32_t* record) {
+void put_material(const Material& m, bool closed_volume, uint32_t base_texture, uint32_t emissive_texture,
+                  uint32_t* record) {
     put_vec3(record + LF_MAT_BASE_COLOR, glm::vec3(m.base_color));
     put_vec3(record + LF_MAT_EMISSION, m.emission);
     record[LF_MAT_BASE_TEXTURE] = base_texture;
@@ -43,7 +44,8 @@ void put_material(const Material& m, uint32_t base_texture, uint32_t emissive_te
                                                                              : LF_ALPHA_OPAQUE;
     record[LF_MAT_ALPHA_CUTOFF] = glm::floatBitsToUint(m.alpha_cutoff);
     record[LF_MAT_TRANSMISSION] = glm::floatBitsToUint(m.transmission);
-    put_vec3(record + LF_MAT_TRANSMISSION_TINT, m.transmission_tint);
+    put_vec3(record + LF_MAT_ATTENUATION, m.has_volume() ? m.attenuation : glm::vec3(0.0f));
+    record[LF_MAT_OPEN_THICKNESS] = glm::floatBitsToUint(closed_volume ? 0.0f : m.thickness);
 }
 
 // MaterialTextures of surface_textures.glsl: materials, the texture table,
@@ -59,9 +61,10 @@ std::vector<uint32_t> material_textures(const Scene& scene, SurfaceTextures::Whi
         return uint32_t(k) + 1u;
     };
     const bool all = which == SurfaceTextures::Which::All;
+    const std::vector<bool> closed = scene.closed_volumes();
     for (size_t i = 0; i < scene.materials.size(); ++i) {
         const Material& m = scene.materials[i];
-        put_material(m, texture_ref(m.base_color_texture, all || m.is_see_through()),
+        put_material(m, closed[i], texture_ref(m.base_color_texture, all || m.is_see_through()),
                      texture_ref(m.emissive_texture, all), &out[LF_MATERIALS_FIRST + LF_MATERIAL_UINTS * i]);
     }
     out[1] = uint32_t(out.size());
