@@ -10,9 +10,18 @@
 // weighs it by how alike the two are:
 //   normal     max(0, n_p . n_q)^64
 //   plane      exp(-|n_p . (x_q - x_p)| / s_p)        s_p: the texel's world size
-//   luminance  exp(-|l_p - l_q| / (4 sigma_p + eps))  sigma_p: the standard error around the texel
-// so flat, alike, noisy texels average and edges the noise cannot explain
-// (a shadow's border, where the error is small against the step) stay.
+//   luminance  exp(-(l_p - l_q)^2 / (2 k^2 (sigma_p^2 + v_q)))   k = 2
+// with sigma_p the standard error around the texel and v_q the tap's
+// variance, so flat, alike, noisy texels average and edges the noise cannot
+// explain (a shadow's border, where the error is small against the step)
+// stay. The luminance weight asks whether the two differ by more than their
+// noise: a difference of two estimates has the sum of their variances, and
+// a Gaussian's tail (issue #53): a thin sunlit line 8 standard errors above
+// the floor beside it lends each floor tap e^-8 of its weight, where the
+// Laplacian exp(-|l_p - l_q| / 4 sigma_p) of SVGF lent e^-2 (and more:
+// sigma_p, the neighbourhood's, grows beside the line with the line's own
+// noise), and the texels three either side of a 3 cm line came out +11% to
+// +19% too bright.
 //
 // Each step fits a plane (value = a + b dx + c dy over the atlas offsets)
 // to its weighted taps and keeps a, rather than their weighted mean: the two
@@ -86,19 +95,26 @@ Texel texel_at(uint i) {
 }
 
 // The weight of tap (dx, dy) for texel p, and its index; 0 where it is off
-// the atlas or in another chart.
-float tap_weight(ivec2 p, const Texel centre, int dx, int dy, out uint j) {
+// the atlas or in another chart. `where` is its part from the guide alone
+// (kernel, chart, normal, plane): whether the tap is there to fit with.
+float tap_weight(ivec2 p, const Texel centre, int dx, int dy, out uint j, out float where) {
     ivec2 q = p + ivec2(dx, dy) * step_size;
     j = 0u;
+    where = 0.0;
     if (q.x < 0 || q.y < 0 || q.x >= int(width) || q.y >= int(height)) return 0.0;
     j = uint(q.y) * width + uint(q.x);
     if (floatBitsToUint(guide[2u * j].w) != centre.chart) return 0.0;
     float w = KERNEL[abs(dx)] * KERNEL[abs(dy)];
+    where = w;
     if (dx == 0 && dy == 0) return w;  // the centre weighs in whole (even with a degenerate normal)
     w *= pow(max(0.0, dot(centre.normal, guide[2u * j + 1u].xyz)), 64.0);
     w *= exp(-abs(dot(centre.normal, guide[2u * j].xyz - centre.position)) / centre.size);
-    if (luminance_weights != 0u)
-        w *= exp(-abs(luminance(colour_in[j].rgb) - centre.luminance) / (4.0 * centre.sigma + 1e-6));
+    where = w;
+    if (luminance_weights != 0u) {
+        float d = luminance(colour_in[j].rgb) - centre.luminance;
+        float pair = centre.sigma * centre.sigma + max(colour_in[j].w, 0.0);
+        w *= exp(-d * d / (2.0 * 4.0 * pair + 1e-12));
+    }
     return w;
 }
 
@@ -116,17 +132,32 @@ void main() {
     // the normal equations of the weighted fit: M = sum of w f f^T, f = (1, dx, dy).
     float w[25];
     uint tap[25];
-    mat3 m = mat3(0.0);
+    mat3 m = mat3(0.0), m_where = mat3(0.0);
     for (int t = 0; t < 25; ++t) {
         int dx = t % 5 - 2, dy = t / 5 - 2;
-        w[t] = tap_weight(p, centre, dx, dy, tap[t]);
+        float where;
+        w[t] = tap_weight(p, centre, dx, dy, tap[t], where);
         vec3 f = vec3(1.0, dx, dy);
         m += w[t] * outerProduct(f, f);
+        m_where += where * outerProduct(f, f);
     }
     // The fit's value at the texel is sum of w (g . f) v with g = M^-1 (1, 0, 0).
-    // Where the taps cannot fix a plane (a chart one texel wide, a lone
-    // texel) it is their weighted mean: g = (1 / sum of w, 0, 0).
-    vec3 g = abs(determinant(m)) > 1e-6 * m[0][0] * m[0][0] * m[0][0] ? inverse(m)[0] : vec3(1.0 / m[0][0], 0.0, 0.0);
+    // Where the chart cannot fix a plane (one texel wide, a lone texel) it is
+    // the taps' weighted mean: g = (1 / sum of w, 0, 0). Where the chart
+    // could but the taps alike the texel do not (at 16 texels, a gradient's
+    // taps unlike the centre but along one line), a ridge (1e-6 of the
+    // weights' sum on the slopes' diagonal) holds the unfixed slope at 0 and
+    // the fit is the one the other taps make, exact along that line; the
+    // mean there pulled such a texel 0.03 up a gradient of 0.8 across the
+    // step. Where both slopes are fixed the ridge moves the value by under
+    // 1e-5 of the gradient.
+    vec3 g = vec3(1.0 / m[0][0], 0.0, 0.0);
+    if (abs(determinant(m_where)) > 1e-6 * m_where[0][0] * m_where[0][0] * m_where[0][0]) {
+        float ridge = 1e-6 * m[0][0];
+        m[1][1] += ridge;
+        m[2][2] += ridge;
+        g = inverse(m)[0];
+    }
 
     vec3 sum = vec3(0.0);
     float variance = 0.0;
