@@ -130,9 +130,17 @@ inline void address_of(const sockaddr_storage& sa, std::string& ip, int& port) {
 }
 
 // The value of header `name` (case-insensitive, as HTTP header names are)
-// in `head`, a request line and its header lines; the first if repeated,
-// without the whitespace around it. Empty when absent.
-inline std::string_view header_value(std::string_view head, std::string_view name) {
+// in `head`, a request line and its header lines, exactly as cpp-httplib
+// reads the same bytes, so that the gate and the service never disagree on
+// what a request says (issue #55: a bare-LF "Content-Length: 0" line before
+// the real one made the gate count no body, while httplib read one):
+// only a line that ends in CRLF is a header line (httplib skips one that
+// ends in a bare LF, an empty one included), the headers end at the first
+// empty CRLF line, the name runs to the first ':', the value is trimmed of
+// spaces and tabs and percent-decoded (httplib decodes header values), and
+// a header with an empty value is not there. The first if repeated. Empty
+// when absent.
+inline std::string header_value(std::string_view head, std::string_view name) {
     auto same = [](std::string_view a, std::string_view b) {
         return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
                    return std::tolower(static_cast<unsigned char>(x)) == std::tolower(static_cast<unsigned char>(y));
@@ -141,14 +149,17 @@ inline std::string_view header_value(std::string_view head, std::string_view nam
     for (size_t at = head.find('\n'); at != std::string_view::npos && at + 1 < head.size();) {
         const size_t begin = at + 1;
         at = head.find('\n', begin);
-        std::string_view line = head.substr(begin, (at == std::string_view::npos ? head.size() : at) - begin);
-        if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+        if (at == std::string_view::npos) break;  // not a whole line
+        std::string_view line = head.substr(begin, at - begin);
+        if (line.empty() || line.back() != '\r') continue;  // a bare LF: httplib skips the line
+        line.remove_suffix(1);
         if (line.empty()) break;  // the end of the headers
-        if (line.size() <= name.size() || line[name.size()] != ':' || !same(line.substr(0, name.size()), name))
-            continue;
-        line.remove_prefix(name.size() + 1);
+        const size_t colon = line.find(':');
+        if (colon == std::string_view::npos || !same(line.substr(0, colon), name)) continue;
+        line.remove_prefix(colon + 1);
         const size_t first = line.find_first_not_of(" \t"), last = line.find_last_not_of(" \t");
-        return first == std::string_view::npos ? std::string_view() : line.substr(first, last - first + 1);
+        if (first == std::string_view::npos) continue;  // an empty value: httplib keeps no such header
+        return httplib::detail::decode_url(std::string(line.substr(first, last - first + 1)), false);
     }
     return {};
 }
@@ -157,15 +168,17 @@ inline std::string_view header_value(std::string_view head, std::string_view nam
 // Content-Length other than 0, or a Transfer-Encoding. A malformed length
 // counts as a body; httplib refuses it.
 inline bool has_body(std::string_view head) {
-    const std::string_view length = header_value(head, "Content-Length");
-    return length.find_first_not_of('0') != std::string_view::npos || !header_value(head, "Transfer-Encoding").empty();
+    const std::string length = header_value(head, "Content-Length");
+    return length.find_first_not_of('0') != std::string::npos || !header_value(head, "Transfer-Encoding").empty();
 }
 
-// The bearer token a request names, as sent (the service checks it; an
-// unknown one is answered 401 before its body is read). Empty when none.
+// The bearer token a request names, as the service reads it (decoded, as
+// httplib decodes the header): the identity the per-token budgets are kept
+// on is the one the service authenticates, so one token spelt 48 ways
+// (percent-escapes) is one token (issue #55). Empty when none.
 inline std::string bearer_token(std::string_view head) {
-    const std::string_view auth = header_value(head, "Authorization");
-    return auth.rfind("Bearer ", 0) == 0 ? std::string(auth.substr(7)) : std::string();
+    const std::string auth = header_value(head, "Authorization");
+    return auth.rfind("Bearer ", 0) == 0 ? auth.substr(7) : std::string();
 }
 
 // Whether the client has sent something the gate has not read yet (or
@@ -216,12 +229,17 @@ public:
     }
     // From a stop: requests in flight have `seconds` more to read and write,
     // then their reads and writes fail (a slow upload held SIGTERM for 32 s).
+    // A second stop keeps the first one's deadline: each repeated stop
+    // pushed it on, and an upload in flight held SIGTERM for 299 s (issue #55).
     void drain_within(double seconds) {
-        drain_deadline_ns_ =
+        const int64_t deadline =
             std::chrono::duration_cast<std::chrono::nanoseconds>(
                 (Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds)))
                     .time_since_epoch())
                 .count();
+        int64_t current = drain_deadline_ns_.load();
+        while (deadline < current && !drain_deadline_ns_.compare_exchange_weak(current, deadline)) {
+        }
     }
     void stop_gate() {
         {

@@ -295,6 +295,20 @@ void Lightfarmd::stop() { stop_process(pid_); }
 
 void Lightfarmd::kill9() { kill_process(pid_); }
 
+bool Lightfarmd::signal_and_wait(int sig, double seconds) {
+    if (pid_ <= 0) return true;
+    ::kill(pid_, sig);
+    for (const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);;) {
+        int status = 0;
+        if (waitpid(pid_, &status, WNOHANG) == pid_) {
+            pid_ = -1;
+            return true;
+        }
+        if (std::chrono::steady_clock::now() >= end) return false;
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+}
+
 std::string Lightfarmd::log() const {
     std::string all;
     for (int i = 1; i <= starts_; ++i)

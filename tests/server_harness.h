@@ -84,6 +84,9 @@ public:
     void start();   // waits (bounded) until it answers /healthz
     void stop();    // SIGTERM, then SIGKILL after a few seconds
     void kill9();   // SIGKILL, as a crash
+    // Sends `sig` (SIGTERM: a stop asked again) and waits up to `seconds`
+    // for lightfarmd to exit by itself: true once it has (then it is gone).
+    bool signal_and_wait(int sig, double seconds);
     bool running() const { return pid_ > 0; }
     pid_t pid() const { return pid_; }
     std::string log() const;

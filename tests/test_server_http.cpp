@@ -6,6 +6,8 @@
 // Every loop here is bounded in count and in time.
 #include "server_harness.h"
 
+#include "http_gate.h"
+
 #include <gtest/gtest.h>
 
 #include <arpa/inet.h>
@@ -18,6 +20,7 @@
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <random>
 #include <sstream>
 #include <thread>
 
@@ -536,10 +539,23 @@ TEST_F(HttpTest, OneTokensSlowBodiesDoNotStopTheApi) {
     const std::string& slow_token = kTokens[2];
     // A thousand bytes announced, ten sent. Header names are any case in
     // HTTP, and the gate reads them so: `lower_case` sends them that way.
-    auto slow_upload = [&](const std::string& token, bool lower_case = false) {
+    // And as the server reads them (issue #55): `disguise` k > 0 spells the
+    // token with its (k - 1)th character percent-escaped (httplib decodes
+    // header values: the same token to the service) and puts a bare-LF
+    // "Content-Length: 0" line first (httplib skips a line without its CR).
+    auto slow_upload = [&](const std::string& token, bool lower_case = false, size_t disguise = 0) {
         auto s = std::make_unique<RawSocket>(server->port, "127.0.0.2");
-        const std::string head =
-            request("POST", "/v1/scenes", token, "Content-Type: model/gltf-binary\r\nContent-Length: 1000\r\n");
+        std::string spelt = token;
+        if (disguise > 0) {
+            char escaped[4];
+            std::snprintf(escaped, sizeof escaped, "%%%02X",
+                          static_cast<unsigned char>(token[(disguise - 1) % token.size()]));
+            spelt = token.substr(0, (disguise - 1) % token.size()) + escaped +
+                    token.substr((disguise - 1) % token.size() + 1);
+        }
+        const std::string head = request("POST", "/v1/scenes", spelt,
+                                         std::string(disguise > 0 ? "Content-Length: 0\n" : "") +
+                                             "Content-Type: model/gltf-binary\r\nContent-Length: 1000\r\n");
         s->send((lower_case ? "POST /v1/scenes HTTP/1.1\r\nhost: 127.0.0.1\r\nauthorization: Bearer " + token +
                                   "\r\ncontent-type: model/gltf-binary\r\ncontent-length: 1000\r\n\r\n"
                             : head) +
@@ -547,8 +563,9 @@ TEST_F(HttpTest, OneTokensSlowBodiesDoNotStopTheApi) {
         return s;
     };
 
+    // Half of them disguised, each spelling another: one token, one budget.
     std::vector<std::unique_ptr<RawSocket>> slow;
-    for (int i = 0; i < 64; ++i) slow.push_back(slow_upload(slow_token));
+    for (int i = 0; i < 64; ++i) slow.push_back(slow_upload(slow_token, false, i % 2 ? size_t(i / 2 + 1) : 0));
     EXPECT_EQ(refused_naming(slow, "body_reads_per_token", 2s), 64 - 8);
     // Another token from the same address: 8 more, and the address is at its
     // 16; a third token's body from there is refused.
@@ -879,6 +896,68 @@ TEST_F(HttpTest, ABodyWrittenInFullBeforeReadingStillGetsItsEarlyRefusal) {
     EXPECT_EQ(r->status, 413) << r->body;
 }
 
+// The gate reads a request's headers exactly as cpp-httplib does (issue
+// #55: a bare-LF "Content-Length: 0" line before the real one made the
+// gate count no body while httplib read one; a percent-escaped token was
+// another budget's key while the service decoded it to the same token).
+// The oracle is httplib itself: a plain httplib::Server in this process
+// echoes what it read for three names, and the gate's header_value reads
+// the same bytes. Drawn heads (seed printed): lines ending in CRLF or a
+// bare LF, bare-LF blank lines, names in any case, repeated names, values
+// padded with spaces and tabs, empty, or holding percent-escapes.
+TEST(HttpGate, ReadsHeadersExactlyAsHttplibDoes) {
+    httplib::Server echo;
+    const std::vector<std::string> names = {"Authorization", "X-Length", "X-Probe"};
+    echo.Get("/", [&](const httplib::Request& req, httplib::Response& res) {
+        nlohmann::json read;
+        for (const std::string& name : names) read[name] = req.get_header_value(name);
+        res.set_content(read.dump(), "application/json");
+    });
+    const int port = echo.bind_to_any_port("127.0.0.1");
+    std::thread serving([&] { echo.listen_after_bind(); });
+    std::mt19937 rng(5505);
+    std::printf("  seed 5505\n");
+    std::uniform_int_distribution<int> pick(0, 1 << 20);
+    const std::vector<std::string> values = {"0", "5", "Bearer abc",    "Bearer a%62c", "%30",   " \t7\t ",
+                                             "",  " ", "Bearer %41%42", "a%2",          "x%zzy", "Bearer"};
+    int compared = 0;
+    for (int draw = 0; draw < 200; ++draw) {
+        std::string head = "GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n";
+        const int lines = 1 + pick(rng) % 6;
+        for (int l = 0; l < lines; ++l) {
+            if (pick(rng) % 8 == 0) {
+                head += "\n";  // a bare-LF blank line
+                continue;
+            }
+            std::string name = names[size_t(pick(rng)) % names.size()];
+            for (char& c : name)
+                if (pick(rng) % 3 == 0) c = char(pick(rng) % 2 ? std::tolower(c) : std::toupper(c));
+            head += name + ":" + values[size_t(pick(rng)) % values.size()] + (pick(rng) % 3 == 0 ? "\n" : "\r\n");
+        }
+        head += "\r\n";
+        RawSocket s(port);
+        ASSERT_TRUE(s.connected());
+        s.send(head);
+        const std::string answer = s.read("");
+        const size_t body = answer.find("\r\n\r\n");
+        ASSERT_NE(body, std::string::npos) << head;
+        const nlohmann::json read = nlohmann::json::parse(answer.substr(body + 4), nullptr, false);
+        ASSERT_TRUE(read.is_object()) << answer;
+        for (const std::string& name : names) {
+            EXPECT_EQ(lf::server::gate::header_value(head, name), read[name].get<std::string>()) << name << " in\n"
+                                                                                                 << head;
+            ++compared;
+        }
+    }
+    echo.stop();
+    serving.join();
+    EXPECT_EQ(compared, 600);
+    // And the budget's key: the token the service authenticates.
+    EXPECT_EQ(lf::server::gate::bearer_token("GET / HTTP/1.1\r\nAuthorization: Bearer a%62c\r\n\r\n"), "abc");
+    EXPECT_TRUE(lf::server::gate::has_body("POST / HTTP/1.1\r\nContent-Length: 0\nContent-Length: 5\r\n\r\n"));
+    EXPECT_FALSE(lf::server::gate::has_body("POST / HTTP/1.1\r\nContent-Length: 5\nContent-Length: 0\r\n\r\n"));
+}
+
 // `curl -X POST -H "$T" $S/v1/jobs/JOB/cancel`: no body, no Content-Length.
 // SIGTERM with a slow upload in flight (issue #33): the upload may take up
 // to request_seconds (300 s by default), but a stop gives requests in flight
@@ -912,6 +991,39 @@ TEST_F(HttpTest, AStopWaitsForRequestsInFlightNoLongerThanTheDrain) {
     EXPECT_TRUE(fs::is_empty(tmp.path / "data" / "scenes")) << "nothing of the cut upload is stored";
     server->start();  // and it starts again
     EXPECT_EQ(client().Get("/healthz")->status, 200);
+}
+
+// A stop asked again and again (issue #55: each stop pushed the drain's
+// deadline on, and an upload in flight held SIGTERM for 299 s): SIGTERM
+// every 0.2 s while an upload trickles in, until lightfarmd is gone. The
+// first stop's deadline holds, so it is gone within drain_seconds (1 s)
+// and the few seconds a stop takes, not after request_seconds (60 s), and
+// it stopped cleanly, not by the harness's SIGKILL.
+TEST_F(HttpTest, AStopAskedAgainKeepsTheFirstStopsDeadline) {
+    start({"--limit", "request_seconds=60", "--limit", "drain_seconds=1"});
+    RawSocket slow(server->port);
+    ASSERT_TRUE(slow.connected());
+    slow.send(request("POST", "/v1/scenes?name=slow.glb", kAlice,
+                      "Content-Type: model/gltf-binary\r\nContent-Length: 67108864\r\n") +
+              glb("slow"));
+    std::atomic<bool> trickling{true};
+    std::thread trickle([&] {
+        for (int i = 0; i < 120 && trickling; ++i) {
+            slow.send(std::string(1024, 'x'));
+            std::this_thread::sleep_for(200ms);
+        }
+    });
+    std::this_thread::sleep_for(1500ms);  // the upload is being read on a request thread
+    const auto stopping = Clock::now();
+    bool gone = false;
+    for (int i = 0; i < 100 && !gone; ++i) gone = server->signal_and_wait(SIGTERM, 0.2);
+    const double took = seconds_since(stopping);
+    trickling = false;
+    trickle.join();
+    ASSERT_TRUE(gone) << "still running after 20 s of stops";
+    EXPECT_LT(took, 4.5) << "each stop pushed the drain on";
+    const std::string log = server->log();
+    EXPECT_NE(log.find("lightfarmd: stopped\n"), std::string::npos) << log;
 }
 
 TEST_F(HttpTest, CancelWithoutABody) {
