@@ -129,6 +129,32 @@ private:
     std::string in_;
 };
 
+// An upload in flight: `head` sent, then 1 KiB every `period` (at most 120
+// times) from a thread of its own until stop().
+class TricklingUpload {
+public:
+    TricklingUpload(int port, const std::string& head, std::chrono::milliseconds period) : socket_(port) {
+        socket_.send(head);
+        trickle_ = std::thread([this, period] {
+            for (int i = 0; i < 120 && trickling_; ++i) {
+                socket_.send(std::string(1024, 'x'));
+                std::this_thread::sleep_for(period);
+            }
+        });
+    }
+    ~TricklingUpload() { stop(); }
+    bool connected() const { return socket_.connected(); }
+    void stop() {
+        trickling_ = false;
+        if (trickle_.joinable()) trickle_.join();
+    }
+
+private:
+    RawSocket socket_;
+    std::atomic<bool> trickling_{true};
+    std::thread trickle_;
+};
+
 // How many of `sockets` are answered within `wait` with a 503 that names
 // `field` (with Retry-After); the others are still sending their bodies.
 int refused_naming(std::vector<std::unique_ptr<RawSocket>>& sockets, const std::string& field,
@@ -230,6 +256,20 @@ protected:
                         const std::string& more_headers = "") {
         return method + " " + path + " HTTP/1.1\r\nHost: 127.0.0.1\r\n" +
                (token.empty() ? "" : "Authorization: Bearer " + token + "\r\n") + more_headers + "\r\n";
+    }
+    // lightfarmd with request_seconds 60 and drain_seconds 1, and a 64 MiB
+    // upload trickling in (TricklingUpload), being read on a request thread.
+    std::unique_ptr<TricklingUpload> upload_in_flight(std::chrono::milliseconds period) {
+        start({"--limit", "request_seconds=60", "--limit", "drain_seconds=1"});
+        auto upload = std::make_unique<TricklingUpload>(
+            server->port,
+            request("POST", "/v1/scenes?name=slow.glb", kAlice,
+                    "Content-Type: model/gltf-binary\r\nContent-Length: 67108864\r\n") +
+                glb("slow"),
+            period);
+        EXPECT_TRUE(upload->connected());
+        std::this_thread::sleep_for(1500ms);
+        return upload;
     }
     double metric(const std::string& name) {
         auto r = client().Get("/metrics");
@@ -958,7 +998,6 @@ TEST(HttpGate, ReadsHeadersExactlyAsHttplibDoes) {
     EXPECT_FALSE(lf::server::gate::has_body("POST / HTTP/1.1\r\nContent-Length: 5\nContent-Length: 0\r\n\r\n"));
 }
 
-// `curl -X POST -H "$T" $S/v1/jobs/JOB/cancel`: no body, no Content-Length.
 // SIGTERM with a slow upload in flight (issue #33): the upload may take up
 // to request_seconds (300 s by default), but a stop gives requests in flight
 // drain_seconds, then closes their connections; it waited 32 s for one.
@@ -966,25 +1005,11 @@ TEST(HttpGate, ReadsHeadersExactlyAsHttplibDoes) {
 // the stop would wait out request_seconds (60 s here); with drain_seconds 1
 // lightfarmd is gone within a few seconds, and nothing of the upload is stored.
 TEST_F(HttpTest, AStopWaitsForRequestsInFlightNoLongerThanTheDrain) {
-    start({"--limit", "request_seconds=60", "--limit", "drain_seconds=1"});
-    RawSocket slow(server->port);
-    ASSERT_TRUE(slow.connected());
-    slow.send(request("POST", "/v1/scenes?name=slow.glb", kAlice,
-                      "Content-Type: model/gltf-binary\r\nContent-Length: 67108864\r\n") +
-              glb("slow"));
-    std::atomic<bool> trickling{true};
-    std::thread trickle([&] {
-        for (int i = 0; i < 120 && trickling; ++i) {
-            slow.send(std::string(1024, 'x'));
-            std::this_thread::sleep_for(1s);
-        }
-    });
-    std::this_thread::sleep_for(1500ms);  // the upload is being read on a request thread
+    const auto slow = upload_in_flight(1s);
     const auto stopping = Clock::now();
     server->stop();
     const double took = seconds_since(stopping);
-    trickling = false;
-    trickle.join();
+    slow->stop();
     EXPECT_LT(took, 4.5) << "the stop waited for the upload";
     const std::string log = server->log();
     EXPECT_NE(log.find("lightfarmd: stopped\n"), std::string::npos) << log;
@@ -1000,32 +1025,19 @@ TEST_F(HttpTest, AStopWaitsForRequestsInFlightNoLongerThanTheDrain) {
 // and the few seconds a stop takes, not after request_seconds (60 s), and
 // it stopped cleanly, not by the harness's SIGKILL.
 TEST_F(HttpTest, AStopAskedAgainKeepsTheFirstStopsDeadline) {
-    start({"--limit", "request_seconds=60", "--limit", "drain_seconds=1"});
-    RawSocket slow(server->port);
-    ASSERT_TRUE(slow.connected());
-    slow.send(request("POST", "/v1/scenes?name=slow.glb", kAlice,
-                      "Content-Type: model/gltf-binary\r\nContent-Length: 67108864\r\n") +
-              glb("slow"));
-    std::atomic<bool> trickling{true};
-    std::thread trickle([&] {
-        for (int i = 0; i < 120 && trickling; ++i) {
-            slow.send(std::string(1024, 'x'));
-            std::this_thread::sleep_for(200ms);
-        }
-    });
-    std::this_thread::sleep_for(1500ms);  // the upload is being read on a request thread
+    const auto slow = upload_in_flight(200ms);
     const auto stopping = Clock::now();
     bool gone = false;
     for (int i = 0; i < 100 && !gone; ++i) gone = server->signal_and_wait(SIGTERM, 0.2);
     const double took = seconds_since(stopping);
-    trickling = false;
-    trickle.join();
+    slow->stop();
     ASSERT_TRUE(gone) << "still running after 20 s of stops";
     EXPECT_LT(took, 4.5) << "each stop pushed the drain on";
     const std::string log = server->log();
     EXPECT_NE(log.find("lightfarmd: stopped\n"), std::string::npos) << log;
 }
 
+// `curl -X POST -H "$T" $S/v1/jobs/JOB/cancel`: no body, no Content-Length.
 TEST_F(HttpTest, CancelWithoutABody) {
     start();
     engine.set("delay", "0.2");
