@@ -8,6 +8,7 @@
 
 #include <httplib.h>
 #include <nlohmann/json.hpp>
+#include <signal.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -217,9 +218,41 @@ void tell_while_queued(Remote& remote, const std::string& job, bool json_lines) 
     }
 }
 
+// While it lives, Ctrl-C (SIGINT) on a command that follows a job says that
+// the job goes on at the server and how to follow or stop it, then exits
+// 130 (issue #54: the command just died, and a user could not tell that
+// the job went on). The message is made before the handler is set: a
+// signal handler may only write() and _exit().
+class SayTheJobGoesOnAtCtrlC {
+public:
+    SayTheJobGoesOnAtCtrlC(const std::string& job, const std::string& server) {
+        const std::string text = "\nlightfarm: job " + job + " goes on at " + server + ": `lightfarm watch " + job +
+                                 " --server " + server + "` follows it again, `lightfarm cancel " + job + " --server " +
+                                 server + "` stops it\n";
+        size_ = std::min(text.size(), sizeof message_);
+        std::memcpy(message_, text.data(), size_);
+        struct sigaction action {};
+        action.sa_handler = [](int) {
+            (void)!::write(2, message_, size_);
+            _exit(130);
+        };
+        sigemptyset(&action.sa_mask);
+        sigaction(SIGINT, &action, &previous_);
+    }
+    ~SayTheJobGoesOnAtCtrlC() { sigaction(SIGINT, &previous_, nullptr); }
+    SayTheJobGoesOnAtCtrlC(const SayTheJobGoesOnAtCtrlC&) = delete;
+    SayTheJobGoesOnAtCtrlC& operator=(const SayTheJobGoesOnAtCtrlC&) = delete;
+
+private:
+    static inline char message_[1024];
+    static inline size_t size_ = 0;
+    struct sigaction previous_ {};
+};
+
 // Follows a job's events until its final one, reconnecting with
 // Last-Event-ID when the connection drops. Returns the final event.
 protocol::JobEvent follow(Remote& remote, const std::string& job, bool json_lines) {
+    const SayTheJobGoesOnAtCtrlC ctrl_c(job, remote.server());
     tell_while_queued(remote, job, json_lines);
     const bool tty = isatty(2);
     int64_t last = 0;

@@ -7,6 +7,12 @@
 
 #include <gtest/gtest.h>
 
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <sstream>
 
 namespace lf::test {
@@ -135,6 +141,59 @@ TEST_F(RemoteTest, SubmitWaitSaysWhereAQueuedJobStands) {
     EXPECT_EQ(json::parse(queued), json({{"event", "queued"}, {"ahead", 0}, {"running", 1}})) << second.out;
     EXPECT_NE(second.out.find("\"event\":\"done\""), std::string::npos) << second.out;
     EXPECT_EQ(cli::queued_line("0123456789abcdef", {2, 1}), "0123456789ab  queued: 2 jobs ahead of it, 1 running");
+}
+
+// Ctrl-C on `submit --wait` (issue #54: the command died, and nothing said
+// that the job went on): it says that the job goes on at the server, how
+// to follow it again and how to stop it, and exits 130; the job is still
+// there, not cancelled. The command runs in a child process (its handler
+// ends the process), queued behind a job held at its start, so that it is
+// following (its "queued" line printed) when SIGINT comes.
+TEST_F(RemoteTest, CtrlCOnSubmitWaitSaysTheJobGoesOn) {
+    server->stop();
+    server = std::make_unique<Lightfarmd>(tmp.path / "data-ctrl-c", tmp.path / "tokens", engine.script,
+                                          std::vector<std::string>{"--workers", "1"});
+    server->start();
+    engine.set("gate", "");
+    const std::string scene = (tmp.path / "scene.glb").string();
+    const CliRun first = run(with_common({"submit", scene, "--passes", "2", "--seed", "1"}));
+    ASSERT_EQ(first.status, 0) << first.err;
+    auto c = server->client(kToken);
+    wait_for_job(c, first.out.substr(0, first.out.find('\n')), [](const json& s) { return s["state"] == "running"; });
+
+    const fs::path out = tmp.path / "ctrl-c.out", err = tmp.path / "ctrl-c.err";
+    std::vector<std::string> args = with_common({"lightfarm", "submit", scene, "--passes", "2", "--seed", "2", "--wait",
+                                                 "--json", "--out", (tmp.path / "second").string()});
+    const pid_t pid = fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+        const int o = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644),
+                  e = ::open(err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        dup2(o, 1);
+        dup2(e, 2);
+        std::vector<char*> argv;
+        for (std::string& a : args) argv.push_back(a.data());
+        _exit(cli::run_remote_command("submit", int(argv.size()), argv.data()));
+    }
+    std::string said;
+    for (int i = 0; i < 600 && std::count(said.begin(), said.end(), '\n') < 2; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        said = read_text(out);
+    }
+    ASSERT_GE(std::count(said.begin(), said.end(), '\n'), 2) << "no id and queued line: " << said << read_text(err);
+    const std::string id = said.substr(0, said.find('\n'));
+    ASSERT_EQ(::kill(pid, SIGINT), 0);
+    int status = 0;
+    ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    ASSERT_TRUE(WIFEXITED(status)) << "ended by the signal itself";
+    EXPECT_EQ(WEXITSTATUS(status), 130);
+    const std::string message = read_text(err);
+    EXPECT_NE(message.find("job " + id + " goes on at " + server->url), std::string::npos) << message;
+    EXPECT_NE(message.find("lightfarm watch " + id + " --server " + server->url), std::string::npos) << message;
+    EXPECT_NE(message.find("lightfarm cancel " + id), std::string::npos) << message;
+    const json job = json::parse(c.Get("/v1/jobs/" + id)->body);
+    EXPECT_TRUE(job["state"] == "queued" || job["state"] == "running") << job.dump();
+    fs::remove(engine.dir / "gate");
 }
 
 // The terminal's progress line: a bar with its percentage of passes or time,
