@@ -301,6 +301,22 @@ json SceneStore::inspect(const fs::path& main_file) {
     return summary;
 }
 
+namespace {
+
+// Every file of an upload is in the stored scene's `dir`, whole (its size),
+// the main one under the name the scene was first stored as (`stored_main`:
+// each tenant names it its own way, SceneRecord::name).
+bool files_on_disk(const std::vector<UploadFile>& files, const UploadFile& main, const std::string& stored_main,
+                   const fs::path& dir) {
+    return std::all_of(files.begin(), files.end(), [&](const UploadFile& f) {
+        std::error_code ec;
+        const fs::path path = dir / (&f == &main ? fs::path(stored_main) : fs::path(f.name).lexically_normal());
+        return fs::is_regular_file(path, ec) && fs::file_size(path, ec) == f.bytes.size() && !ec;
+    });
+}
+
+}  // namespace
+
 SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, const std::string& owner) {
     const UploadFile& main = checked_main_file(files);
     const std::string id = scene_id(files);
@@ -310,7 +326,11 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
     // that the answer takes as long as a first upload's: a cached answer in
     // 1 ms told the second tenant the bytes were known (issue #33). The owner
     // itself gets its own scene back at once, under the name it gave first.
-    if (known)
+    // Files gone from the disk (a dropped mount, a node with a data
+    // directory of its own) are written again from this upload: the record
+    // stays, and the jobs queued on it find their scene (issue #55).
+    const bool on_disk = known && files_on_disk(files, main, known->main_file, DataDir(config_.data_dir).scene(id));
+    if (known && on_disk)
         if (std::optional<SceneRecord> own = store_.scene_for(id, owner)) return {*own, false};
 
     // Write into a private temporary directory, validate there, then move it
@@ -338,11 +358,22 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
         own.name = main_name;
         return Result{store_.scene_for(id, owner).value_or(own), created};
     };
-    if (known) return as_owner_sees_it(*known, store_.add_scene_owner(id, owner, main_name));
+    if (known && on_disk) return as_owner_sees_it(*known, store_.add_scene_owner(id, owner, main_name));
 
     const fs::path final_dir = data.scene(id);
     std::error_code ec;
     fs::create_directories(final_dir.parent_path(), ec);
+    // A scene whose files went missing gets them back as first stored: what
+    // is left of it goes first (a rename onto a directory that is not empty
+    // fails), and its main file takes the name on record.
+    if (known) {
+        fs::remove_all(final_dir, ec);
+        const fs::path stored_main = tmp / fs::path(known->main_file);
+        if (!ec && stored_main != tmp / main_name) {
+            fs::create_directories(stored_main.parent_path(), ec);
+            if (!ec) fs::rename(tmp / main_name, stored_main, ec);
+        }
+    }
     if (!ec) fs::rename(tmp, final_dir, ec);
     const bool moved = !ec;
     // A rename fails harmlessly when a concurrent upload of the same bytes
@@ -358,6 +389,7 @@ SceneStore::Result SceneStore::upload(const std::vector<UploadFile>& files, cons
             throw;
         }
     }
+    if (known) return as_owner_sees_it(*known, store_.add_scene_owner(id, owner, main_name));  // restored
     SceneRecord record{id, main_name, summary};
     try {
         store_.add_scene(record);

@@ -685,6 +685,17 @@ bool Supervisor::run_attempt(const JobRecord& job, const std::string& device) {
         fail_now(job, "scene " + spec.scene + " is missing", "");
         return false;
     }
+    // On record but not on this node's disk (a dropped mount, a node with a
+    // data directory of its own): the machine's fault, not the job's (issue
+    // #55: it failed for good as "these settings"). Queued again; a new
+    // upload of the same bytes puts the files back (SceneStore::upload).
+    if (const fs::path stored = DataDir(config_.data_dir).scene(scene->id) / scene->main_file;
+        !fs::is_regular_file(stored)) {
+        server_fault(job,
+                     "the scene's files are not on this node's disk (a dropped mount? uploading the scene "
+                     "again puts them back)");
+        return true;
+    }
 
     if (const std::string full = disk_full(); !full.empty()) {
         server_fault(job, full);

@@ -738,6 +738,51 @@ TEST_F(ServerTest, ASpecThatCannotBeWrittenCostsTheJobNothing) {
     EXPECT_EQ(s["attempts"], 1) << "the failed spec writes were not attempts: " << s.dump();
 }
 
+// A scene on record whose files are not on the disk of the node that runs
+// its job (issue #55: a dropped mount, a node with a data directory of its
+// own; the job failed for good as "these settings (not retried)", and a new
+// upload answered 200 and restored nothing): the job is given back, no
+// attempt counted and no path of the server's in its cause, until an upload
+// of the same bytes, which puts the files back; then it runs.
+TEST_F(ServerTest, ASceneMissingOnTheNodeWaitsForItsFilesAndCostsTheJobNothing) {
+    start({"--workers", "1"});
+    const std::string scene = upload();
+    const fs::path files = tmp.path / "data" / "scenes" / scene;
+    ASSERT_TRUE(fs::is_directory(files));
+    fs::remove_all(files);
+    const std::string id = submit(scene, {{"passes", 2}}, 1);
+    std::this_thread::sleep_for(std::chrono::seconds(2));
+    json s = json::parse(client().Get("/v1/jobs/" + id)->body);
+    EXPECT_EQ(s["state"], "queued") << s.dump();
+    EXPECT_EQ(engine.runs(), 0) << "no worker starts without the scene's files";
+    const auto so_far = events(id, -1, 2);
+    ASSERT_GE(so_far.size(), 2u);
+    EXPECT_EQ(so_far[1].type, "retrying");
+    EXPECT_EQ(so_far[1].data["server_fault"], true);
+    const std::string cause = so_far[1].data.value("cause", "");
+    EXPECT_NE(cause.find("not on this node's disk"), std::string::npos) << cause;
+    EXPECT_EQ(cause.find((tmp.path / "data").string()), std::string::npos) << "no server path in the cause: " << cause;
+
+    auto again = client().Post("/v1/scenes", glb("scene"), "model/gltf-binary");
+    ASSERT_TRUE(again);
+    EXPECT_EQ(again->status, 200) << again->body;
+    EXPECT_EQ(json::parse(again->body)["id"], scene);
+    EXPECT_TRUE(fs::is_directory(files)) << "the upload put the files back";
+    s = wait_finished(id, std::chrono::seconds(40));
+    EXPECT_EQ(s["state"], "succeeded") << s.dump();
+    EXPECT_EQ(s["attempts"], 1) << "the missing files were not attempts: " << s.dump();
+
+    // Another tenant's upload of the same bytes under its own name puts them
+    // back too, under the name on record.
+    const std::string stored = json::parse(client().Get("/v1/scenes/" + scene)->body)["source"];
+    fs::remove_all(files);
+    auto bobs = client(kBob).Post("/v1/scenes?name=bobs.glb", glb("scene"), "model/gltf-binary");
+    ASSERT_TRUE(bobs);
+    EXPECT_EQ(bobs->status, 201) << bobs->body;
+    EXPECT_TRUE(fs::is_regular_file(files / stored)) << stored;
+    EXPECT_FALSE(fs::exists(files / "bobs.glb"));
+}
+
 // A worker that could not read the spec it was given (exit 4).
 TEST_F(ServerTest, AWorkerThatCannotReadItsSpecIsRetriedAtNoCost) {
     engine.set("mode", "spec_unreadable_first");
