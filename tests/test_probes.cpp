@@ -863,7 +863,7 @@ std::vector<Patch> tilted_emitter_over_a_floor(float tilt, glm::vec3 axis, glm::
 // emitter clipped to the point's horizon (nothing else is lit or casts a
 // shadow). Seed printed; errors on the issue's scale, |estimate - truth| /
 // max(truth, 10% of the family's brightest).
-TEST(ProbeEstimators, TiltedEmitterFamily) {
+test::FamilyErrors tilted_emitter_family(int r, int m) {
     std::mt19937 rng = test::family_rng(5202);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     std::vector<test::Reading> readings;
@@ -875,7 +875,7 @@ TEST(ProbeEstimators, TiltedEmitterFamily) {
         const Patch& emitter = scene.back();
         const glm::vec3 e1 = emitter.e1, e2 = emitter.e2;
         const glm::vec3 probe(0.3f * (u(rng) - 0.5f), 0.2f + 0.1f * u(rng), 0.3f * (u(rng) - 0.5f));
-        const ProbeSet set = one_probe_set(capture(scene, probe, 32, 8), 32, 8);
+        const ProbeSet set = one_probe_set(capture(scene, probe, r, m), r, m);
         const ProbeEvaluator eval(set);
         // The emitter's lowest point: no evaluation point within 5 cm under it.
         float low = 1.0f;
@@ -888,8 +888,14 @@ TEST(ProbeEstimators, TiltedEmitterFamily) {
                 {eval.evaluate(x, {0, 1, 0}).polygon_to_point.g, exact_irradiance({emitter}, x, {0, 1, 0}).g});
         }
     }
-    const auto [p95, worst] = test::family_errors(readings);
-    std::printf("  tilted emitter: p95 %.4f, worst %.4f over %zu points\n", p95, worst, readings.size());
+    const test::FamilyErrors e = test::family_errors(readings);
+    std::printf("  tilted emitter, R %d, M %d: p95 %.4f, worst %.4f over %zu points\n", r, m, e.p95, e.worst,
+                readings.size());
+    return e;
+}
+
+TEST(ProbeEstimators, TiltedEmitterFamily) {
+    const auto [p95, worst] = tilted_emitter_family(32, 8);
     // Measured p95 0.65, worst 4.4 (the worst at 68° tilts, the probe beside
     // the emitter seeing it edge-on); with the bridges at the texel's mean
     // radiance (before split_bridges) 1.84 and 7.3. Issue #52 asks for 5%
@@ -902,12 +908,12 @@ TEST(ProbeEstimators, TiltedEmitterFamily) {
 
 // Off centre (issue #52): a closed 2 x 2 x 2 m black room whose ceiling
 // holds an emitter of radiance 1 of drawn size 0.3-1.8 m a side at a drawn
-// place (its edges on no texel's edge; 1 mm under the ceiling), one probe at a drawn point up to
-// 0.6 m off the centre in each axis (R 32, M 8), points 1 mm-1 m from a
+// place (its edges on no texel's edge; 1 mm under the ceiling), one probe
+// at a drawn point up to 0.6 m off the centre in each axis, points 1 mm-1 m from a
 // drawn wall or the floor with drawn normals, against Lambert's formula of
 // the emitter clipped to the point's horizon (the room is convex: the point
 // sees all of it). Seed printed; errors on the issue's scale.
-TEST(ProbeEstimators, OffCentreProbeFamily) {
+test::FamilyErrors off_centre_probe_family(int r, int m) {
     std::mt19937 rng = test::family_rng(5205);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     const auto log_uniform = [&](float lo, float hi) { return lo * std::pow(hi / lo, u(rng)); };
@@ -920,7 +926,7 @@ TEST(ProbeEstimators, OffCentreProbeFamily) {
         std::vector<Patch> scene = {emitter};
         for (const Patch& wall : box({-1, 0, -1}, {1, 2, 1}, {})) scene.push_back(wall);
         const glm::vec3 probe(1.2f * (u(rng) - 0.5f), 1.0f + 1.2f * (u(rng) - 0.5f), 1.2f * (u(rng) - 0.5f));
-        const ProbeSet set = one_probe_set(capture(scene, probe, 32, 8), 32, 8);
+        const ProbeSet set = one_probe_set(capture(scene, probe, r, m), r, m);
         const ProbeEvaluator eval(set);
         for (int i = 0; i < 25; ++i) {
             // A point `gap` from the floor or from one of the four walls, elsewhere anywhere in the room.
@@ -936,8 +942,15 @@ TEST(ProbeEstimators, OffCentreProbeFamily) {
             readings.push_back({eval.evaluate(x, n).polygon_to_point.g, exact_irradiance({emitter}, x, n).g});
         }
     }
-    const auto [p95, worst] = test::family_errors(readings);
-    std::printf("  off-centre probe: p95 %.4f, worst %.4f over %zu points\n", p95, worst, readings.size());
+    const test::FamilyErrors e = test::family_errors(readings);
+    std::printf("  off-centre probe, R %d, M %d: p95 %.4f, worst %.4f over %zu points\n", r, m, e.p95, e.worst,
+                readings.size());
+    EXPECT_GT(readings.size(), 250u);
+    return e;
+}
+
+TEST(ProbeEstimators, OffCentreProbeFamily) {
+    const auto [p95, worst] = off_centre_probe_family(32, 8);
     // Measured p95 0.137, worst 0.88 (a point 26 cm under the ceiling beside
     // the emitter, its normal turned away: truth 0, read 9% of the family's
     // brightest). At the probe itself every configuration is within 4.4%
@@ -950,7 +963,16 @@ TEST(ProbeEstimators, OffCentreProbeFamily) {
     // are not met; this guards what holds).
     EXPECT_LE(p95, 0.17);
     EXPECT_LE(worst, 1.0);
-    EXPECT_GT(readings.size(), 250u);
+}
+
+// Issue #52's "error against M": the two families above at the default
+// R 32 with M 8, 16 and 32, and at R 64 with M 32 and 64 (docs/BENCHMARKS.md).
+//   build/tests/test_probes --gtest_also_run_disabled_tests --gtest_filter='*FiguresFamiliesAgainstM'
+TEST(ProbeEstimators, DISABLED_FiguresFamiliesAgainstM) {
+    for (const auto& [r, m] : std::vector<std::pair<int, int>>{{32, 8}, {32, 16}, {32, 32}, {64, 32}, {64, 64}}) {
+        off_centre_probe_family(r, m);
+        tilted_emitter_family(r, m);
+    }
 }
 
 // A partition under a ceiling light (issue #52): a closed 2 x 2 x 2 m room
