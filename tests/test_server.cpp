@@ -478,6 +478,36 @@ TEST_F(ServerTest, QueuedJobsPerTokenAreLimited) {
     EXPECT_EQ(post_job({{"scene", upload(kBob)}, {"outputs", {{"lightmap", json::object()}}}}, kBob)->status, 201);
 }
 
+// A listing grows by a job's status, not by its spec (issue #55: one token's
+// 300 cached jobs of a 0.6 MB spec made one listing 881 MB): jobs whose spec
+// names 4,000 probe positions (about 150 KB each) are listed in a few
+// hundred bytes each, without their spec, which each job's own GET has.
+TEST_F(ServerTest, AListingHoldsNoSpecs) {
+    start();
+    const std::string scene = upload();
+    json positions = json::array();
+    for (int i = 0; i < 4000; ++i) positions.push_back({{"position", {0.001 * i, 0.5, -0.25}}});
+    const json spec = {{"scene", scene}, {"outputs", {{"probes", {{"probe_positions", positions}}}}}};
+    std::vector<std::string> ids;
+    for (int seed = 1; seed <= 5; ++seed) {
+        json s = spec;
+        s["seed"] = seed;
+        auto r = post_job(s);
+        ASSERT_TRUE(r && r->status == 201) << (r ? r->body : "no answer");
+        ids.push_back(json::parse(r->body)["id"]);
+    }
+    const size_t spec_bytes = spec.dump().size();
+    auto listing = client().Get("/v1/jobs");
+    ASSERT_EQ(listing->status, 200);
+    const json jobs = json::parse(listing->body)["jobs"];
+    ASSERT_EQ(jobs.size(), ids.size());
+    for (const json& job : jobs) EXPECT_FALSE(job.contains("spec")) << job.dump().substr(0, 200);
+    EXPECT_LT(listing->body.size(), spec_bytes) << "five jobs listed in less than one spec";
+    const json one = json::parse(client().Get("/v1/jobs/" + ids[0])->body);
+    EXPECT_EQ(one["spec"]["outputs"]["probes"]["probe_positions"].size(), 4000u);
+    EXPECT_LT(client().Get("/")->body.size(), spec_bytes) << "the status page lists them without specs too";
+}
+
 // With no --workers, lightfarmd asks the engine how many GPUs there are and
 // runs two workers on each (one job's preparation overlaps another's
 // passes): four jobs at once land two on gpu:0 and two on gpu:1.
