@@ -113,8 +113,11 @@ public:
     // Jobs queued before job `id` (any owner's): the ones to start first.
     virtual int queued_ahead(const std::string& id) = 0;
     virtual std::map<JobState, int> count_by_state() = 0;
-    // A succeeded job with this cache key, if any.
-    virtual std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) = 0;
+    // A succeeded job of `owner` with this cache key, if any. Only the
+    // owner's own: a hit on another tenant's bake (answered in 4 ms where a
+    // bake takes seconds) told a tenant that someone had baked those bytes
+    // with those settings (issue #55).
+    virtual std::optional<JobRecord> succeeded_with_key(const std::string& cache_key, const std::string& owner) = 0;
 
     // The oldest queued job, now running on this node with one more attempt
     // counted and a lease of lease_seconds. Several nodes claiming at once

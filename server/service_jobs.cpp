@@ -107,46 +107,23 @@ protocol::JobSpec Service::accepted_spec(const httplib::Request& req, const Call
     return spec;
 }
 
-namespace {
-// An earlier job's manifest.json as this job's: its `scene` the file name
-// this job's owner uploaded the scene as, which may not be the earlier
-// job's owner's (issue #33: a tenant read another's name in the cached
-// manifest). False, nothing written, when the manifest names no scene or
-// this owner's name already (then it is linked as every other file).
-bool write_own_manifest(const fs::path& from, const fs::path& to, const std::string& scene_name, std::error_code& ec) {
-    std::ifstream in(from, std::ios::binary);
-    json manifest = json::parse(in, nullptr, false);
-    const std::string own = fs::path(scene_name).filename().string();
-    if (!manifest.is_object() || !manifest.contains("scene") || manifest["scene"] == own) return false;
-    manifest["scene"] = own;
-    std::ofstream out(to, std::ios::binary);
-    out << manifest.dump(2) << "\n";
-    out.close();
-    if (!out) ec = std::make_error_code(std::errc::io_error);
-    return true;
-}
-}  // namespace
-
-// The same scene bytes, outputs and seed were baked before: `job` succeeds
-// at once with those artifacts (hard links, so each job directory stands
-// alone) and is answered; false (nothing changed) when there is none, or
-// the copy failed.
+// The same scene bytes, outputs and seed were baked before by the same
+// owner: `job` succeeds at once with those artifacts (hard links, so each
+// job directory stands alone) and is answered; false (nothing changed) when
+// there is none, or the copy failed. Another owner's bake is never used: its
+// answer's speed would tell that someone had baked those bytes so (issue
+// #55), so each tenant bakes its own (and its files name the scene as it
+// uploaded it).
 bool Service::answer_from_cache(JobRecord& job, const Caller& caller, httplib::Response& res) {
-    const std::optional<JobRecord> earlier = store_->succeeded_with_key(job.cache_key);
+    const std::optional<JobRecord> earlier = store_->succeeded_with_key(job.cache_key, caller.owner);
     if (!earlier) return false;
     const fs::path from = supervisor_->job_dir(earlier->status.id);
     const fs::path to = supervisor_->job_dir(job.status.id);
     const fs::path tmp = DataDir(config_.data_dir).tmp("cache-" + job.status.id);
     std::error_code ec;
     fs::create_directories(tmp, ec);
-    const std::optional<SceneRecord> scene = store_->scene_for(job.status.scene, caller.owner);
     std::vector<std::string> files;
     for (const Artifact& a : artifacts_in(from)) {
-        if (a.name == "manifest.json" && scene && write_own_manifest(from / a.name, tmp / a.name, scene->name, ec)) {
-            if (ec) break;
-            files.push_back(a.name);
-            continue;
-        }
         fs::create_hard_link(from / a.name, tmp / a.name, ec);
         if (ec) fs::copy_file(from / a.name, tmp / a.name, fs::copy_options::overwrite_existing, ec);
         if (ec) break;
@@ -169,8 +146,7 @@ bool Service::answer_from_cache(JobRecord& job, const Caller& caller, httplib::R
     for (const auto& [output, latest] : job.status.latest)
         if (latest.final_file) done.final_files[output] = latest.file;
     done.cached = true;
-    // Another token's job is not this caller's to know of.
-    if (earlier->owner == caller.owner) done.cached_from = earlier->status.id;
+    done.cached_from = earlier->status.id;  // the caller's own job
     store_->insert_job(job, {protocol::job_event(done)});
     changes_.notify();
     send_json(res, 201, {{"id", job.status.id}, {"state", "succeeded"}, {"cached", true}});

@@ -173,11 +173,12 @@ std::map<JobState, int> SqlJobStore::count_by_state() {
     return counts;
 }
 
-std::optional<JobRecord> SqlJobStore::succeeded_with_key(const std::string& cache_key) {
+std::optional<JobRecord> SqlJobStore::succeeded_with_key(const std::string& cache_key, const std::string& owner) {
     std::lock_guard lock(mutex_);
-    return first(select_jobs("cannot look up the cache",
-                             "WHERE cache_key = ? AND state = 'succeeded' AND cached = 0 ORDER BY seq LIMIT 1",
-                             {cache_key}));
+    return first(
+        select_jobs("cannot look up the cache",
+                    "WHERE cache_key = ? AND owner = ? AND state = 'succeeded' AND cached = 0 ORDER BY seq LIMIT 1",
+                    {cache_key, owner}));
 }
 
 std::optional<JobRecord> SqlJobStore::claim_next() {

@@ -42,7 +42,7 @@ public:
     int queued_count(const std::string& owner) override;
     int queued_ahead(const std::string& id) override;
     std::map<JobState, int> count_by_state() override;
-    std::optional<JobRecord> succeeded_with_key(const std::string& cache_key) override;
+    std::optional<JobRecord> succeeded_with_key(const std::string& cache_key, const std::string& owner) override;
 
     std::optional<JobRecord> claim_next() override;
     bool renew_lease(const std::string& id) override;
