@@ -485,6 +485,59 @@ TEST(SeeThrough, AVolumeAbsorbsByBeerLambertOverThePathInside) {
     EXPECT_LT(worst, 1e-4);
 }
 
+// Surfaces that meet: two closed glass slabs stacked, the top face of one
+// the bottom face of the other (a ray leaves the first and enters the
+// second at the same t), each with its own colour and absorption; and a
+// blended sheet lying on a glass pane's plane. Under a sun straight down,
+// exact: the product of what each passes, base² exp(-attenuation d) per
+// slab, and (1 - alpha) times the pane's colour for the sheets. A walk that
+// met one surface per t passed over the second: the second slab's
+// absorption was lost (or counted from the ray's origin), one of the two
+// sheets never seen.
+TEST(SeeThrough, SurfacesThatMeetAreEachCrossed) {
+    std::mt19937 rng = test::family_rng(5306);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (int config = 0; config < 4; ++config) {
+        SCOPED_TRACE("config " + std::to_string(config));
+        Scene s;
+        const uint32_t black = test::add_material(s, glm::vec3(0.0f));
+        test::add_quad(s, {-1, 0, 1}, {2, 0, 0}, {0, 0, -2}, black, grid_cell(0, 2, kRes));
+        glm::vec3 passes(1.0f);
+        if (config % 2 == 0) {
+            float y = 0.5f;
+            for (int slab = 0; slab < 2; ++slab) {
+                const float d = 0.02f + 0.2f * u(rng);
+                Material glass = sheet_material(glm::vec3(0.6f) + 0.4f * glm::vec3(u(rng), u(rng), u(rng)));
+                glass.transmission = 1.0f;
+                glass.attenuation = 3.0f * glm::vec3(u(rng), u(rng), u(rng));
+                glass.thickness = 1.0f;
+                s.materials.push_back(glass);
+                test::add_box(s, {-3, y, -3}, {3, y + d, 3}, uint32_t(s.materials.size() - 1));
+                passes *= glm::vec3(glass.base_color) * glm::vec3(glass.base_color) * glm::exp(-glass.attenuation * d);
+                y += d;
+            }
+        } else {
+            Material pane = sheet_material(glm::vec3(0.6f) + 0.4f * glm::vec3(u(rng), u(rng), u(rng)));
+            pane.transmission = 1.0f;
+            Material curtain = sheet_material(glm::vec3(0.0f), 0.2f + 0.6f * u(rng));
+            curtain.alpha_mode = Material::AlphaMode::Blend;
+            int cell = 2;  // each its own cell of the atlas, apart from the floor's
+            for (const Material& m : {pane, curtain}) {
+                s.materials.push_back(m);
+                test::add_quad(s, {-1.5f, 0.5f, -1.5f}, {3, 0, 0}, {0, 0, 3}, uint32_t(s.materials.size() - 1),
+                               grid_cell(cell++, 2, kRes));
+            }
+            passes = glm::vec3(pane.base_color) * (1.0f - curtain.base_color.a);
+        }
+        test::add_sun(s, glm::vec3(0, -1, 0), 2.0f);
+        const FloorTexels f = floor_texels(bake(s, kRes, 4), [](glm::vec3) { return 2.0 / M_PI; });
+        ASSERT_GT(f.baked.size(), 500u);
+        for (const glm::vec3& texel : f.baked)
+            for (int c = 0; c < 3; ++c)
+                ASSERT_NEAR(texel[c], passes[c] * 2.0 / M_PI, 1e-4 * 2.0 / M_PI) << "channel " << c;
+    }
+}
+
 // The same through the drawn rays: a closed slab (y 0.6 to 0.6 + d, wider
 // than the floor's view of the light) under the 1 x 1 m emitter at y = 1,
 // drawn thickness, colour and absorption. Light reaching floor point x from

@@ -199,12 +199,18 @@ bool lf_passes(uint triangle, vec2 bary, uint choice, out vec3 tint) {
 // leaf loop cost every ray its registers, see-through or not: the real
 // interiors traced at 0.4-0.5x the rays/s on llvmpipe with it there
 // (docs/BENCHMARKS.md, "No material code in the traversal").
-Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out float see_through_t) {
+// With LF_QUERY_SEE_THROUGH, `passed` are triangles the walk has met at
+// t_min already (LF_NO_HIT for none): passed over, while t_min itself counts
+// as a hit when they are given, so that a second surface at the same place
+// (a slab's face on the next slab's, a sheet on a pane) is met too.
+Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, uvec4 passed, out float see_through_t) {
     Hit hit = Hit(t_max, LF_NO_HIT, vec2(0.0), false, vec3(0.0), vec3(1.0));
     see_through_t = LF_INFINITY;
     bool materials = (query & LF_QUERY_GEOMETRY) == 0u;
     bool walking = (query & LF_QUERY_SEE_THROUGH) != 0u;
     bool any_hit = (query & LF_QUERY_ANY) != 0u;
+    // t_min inclusive for the walk past surfaces it met there: the float just below it.
+    float t_low = walking && passed.x != LF_NO_HIT ? uintBitsToFloat(floatBitsToUint(t_min) - 1u) : t_min;
     RayShear sh = ray_shear(dir);
     vec3 inv_dir = safe_inverse(dir);
     uint stack[LF_BVH_STACK_SIZE];
@@ -230,8 +236,11 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out fl
                 bool see_through = materials && floatBitsToUint(w1.w) != 0u;
                 if (walking && !see_through) continue;
 #endif
+#if LF_SEE_THROUGH
+                if (walking && any(equal(uvec4(floatBitsToUint(w0.w)), passed))) continue;
+#endif
                 vec3 v0 = w0.xyz, v1 = w1.xyz, v2 = lf_bvh_tris[3u * i + 2u].xyz;
-                if (!intersect_triangle(org, sh, v0, v1, v2, t_min, hit.t, t, b)) continue;
+                if (!intersect_triangle(org, sh, v0, v1, v2, t_low, hit.t, t, b)) continue;
 #if LF_SEE_THROUGH
                 if (see_through && !walking) {
                     see_through_t = min(see_through_t, t);
@@ -272,6 +281,10 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out fl
     return hit;
 }
 
+Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out float see_through_t) {
+    return lf_traverse(org, dir, t_min, t_max, query, uvec4(LF_NO_HIT), see_through_t);
+}
+
 #if LF_SEE_THROUGH
 // The volume a ray is inside (KHR_materials_volume, Material::attenuation),
 // for Beer-Lambert over the path in it: its absorption per unit of t and
@@ -279,6 +292,7 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, out fl
 struct LfMedium {
     vec3 attenuation;  // 0: outside every volume
     float since;
+    uint material;     // whose volume it is
     bool crossed;      // a volume's surface was crossed (before it, the origin may be inside one)
 };
 
@@ -287,7 +301,9 @@ struct LfMedium {
 // whose triangles close (Scene::closed_volumes): a front face is the way in,
 // a back face the way out. A back face met before any volume's surface:
 // the ray started inside (a bounce off something in the glass), so the
-// path in it starts at the origin. A volume's open sheet absorbs over its
+// path in it starts at the origin. Leaving a volume other than the one the
+// ray is in (two that touch, the next one's front face met first at the
+// same point) keeps the ray in the one it entered. A volume's open sheet absorbs over its
 // thicknessFactor at each crossing (the glTF spec's approximation). Not
 // followed: a ray between two opaque surfaces inside a volume, which meets
 // no see-through surface and so is not walked (light bounced inside a glass
@@ -303,7 +319,9 @@ void lf_cross_medium(Hit s, float dir_length, inout LfMedium medium, inout vec3 
     }
     attenuation *= dir_length;
     tint *= exp(-(medium.crossed || s.front ? medium.attenuation : attenuation) * (s.t - medium.since));
-    medium = LfMedium(s.front ? attenuation : vec3(0.0), s.t, true);
+    if (s.front) medium = LfMedium(attenuation, s.t, m, true);
+    else if (!medium.crossed || medium.material == m) medium = LfMedium(vec3(0.0), s.t, m, true);
+    else medium.since = s.t;
 }
 
 // The see-through surfaces along org + t dir before t_max, nearest first,
@@ -319,12 +337,25 @@ Hit lf_walk_see_through(vec3 org, vec3 dir, float t_max, bool expected, inout ve
     uint ray = lf_ray_hash(org, dir);
     uvec2 counted = uvec2(0u);  // the last two surface points met
     float t_min = 0.0, unused;
-    LfMedium medium = LfMedium(vec3(0.0), 0.0, false);
+    // The triangles met at t_min: the next traversal passes over them but not
+    // over another surface there. Past four (a fan of one surface's triangles
+    // through a vertex) the walk goes on beyond t_min.
+    uvec4 met = uvec4(LF_NO_HIT);
+    LfMedium medium = LfMedium(vec3(0.0), 0.0, LF_NO_HIT, false);
     while (true) {
-        Hit s = lf_traverse(org, dir, t_min, t_max, LF_QUERY_CLOSEST | LF_QUERY_SEE_THROUGH, unused);
+        Hit s = lf_traverse(org, dir, t_min, t_max, LF_QUERY_CLOSEST | LF_QUERY_SEE_THROUGH,
+                            met.w == LF_NO_HIT ? met : uvec4(LF_NO_HIT), unused);
         if (s.triangle == LF_NO_HIT) {
             if (medium.attenuation != vec3(0.0)) tint *= exp(-medium.attenuation * (t_max - medium.since));
             return s;
+        }
+        if (s.t == t_min && met.w == LF_NO_HIT) {
+            met = met.x == LF_NO_HIT ? uvec4(s.triangle, met.yzw)
+                : met.y == LF_NO_HIT ? uvec4(met.x, s.triangle, met.zw)
+                : met.z == LF_NO_HIT ? uvec4(met.xy, s.triangle, met.w)
+                                     : uvec4(met.xyz, s.triangle);
+        } else {
+            met = uvec4(s.triangle, LF_NO_HIT, LF_NO_HIT, LF_NO_HIT);
         }
         t_min = s.t;
         uint key = lf_surface_key(s.triangle, s.t);
