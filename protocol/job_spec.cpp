@@ -110,6 +110,13 @@ void check_mesh_indices(const BakeSettings& bake, const SceneSummary& scene, con
         for (const char* list : {"sh_occluders", "sh_receivers"})
             for (const json& m : sh->values.at(list)) check(std::string("sh.") + list, m.get<int64_t>());
     for (const auto& [mesh, scale] : bake.atlas.mesh_scale) check("atlas.mesh_scale", mesh);
+    // Every mesh at scale 0 leaves the atlas no texel: the worker would fail
+    // after preparing (issue #55), so it is said here.
+    const bool none_scaled = meshes > 0 && std::all_of(bake.atlas.mesh_scale.begin(), bake.atlas.mesh_scale.end(),
+                                                       [](const auto& m) { return m.second == 0.0; });
+    if (bake.uses_atlas() && none_scaled && int64_t(bake.atlas.mesh_scale.size()) == meshes)
+        throw SpecError("atlas.mesh_scale", "every mesh of " + name + " (0 to " + std::to_string(meshes - 1) +
+                                                ") has scale 0: no texel is left to bake (give one a scale above 0)");
 }
 
 // The probes a job would place: its own points, else (a file without probe

@@ -1380,6 +1380,13 @@ TEST_F(ServerTest, EveryKnowableMistakeIsA400AtSubmitNamingTheField) {
     EXPECT_EQ(unscaled->status, 400) << unscaled->body;
     EXPECT_EQ(json::parse(unscaled->body)["field"], "atlas.mesh_scale");
     EXPECT_NE(unscaled->body.find("mesh 4 is not drawn"), std::string::npos) << unscaled->body;
+    // Every mesh at scale 0: no texel to bake (issue #55: the worker failed after preparing).
+    auto nothing = post_job({{"scene", scene},
+                             {"outputs", {{"lightmap", json::object()}}},
+                             {"atlas", {{"mesh_scale", {{"0", 0}, {"1", 0}, {"2", 0}, {"3", 0}}}}}});
+    EXPECT_EQ(nothing->status, 400) << nothing->body;
+    EXPECT_EQ(json::parse(nothing->body)["field"], "atlas.mesh_scale");
+    EXPECT_NE(nothing->body.find("no texel is left"), std::string::npos) << nothing->body;
     auto instant =
         post_job({{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"limits", {{"max_seconds", 1e-9}}}});
     EXPECT_EQ(instant->status, 400) << instant->body;
@@ -1408,6 +1415,10 @@ TEST_F(ServerTest, EveryKnowableMistakeIsA400AtSubmitNamingTheField) {
             {{"scene", scene}, {"outputs", {{"lightmap", json::object()}}}, {"atlas", {{"mesh_scale", {{"3", 2}}}}}})
             ->status,
         201);
+    auto one_left = post_job({{"scene", scene},
+                              {"outputs", {{"lightmap", json::object()}}},
+                              {"atlas", {{"mesh_scale", {{"0", 0}, {"1", 0}, {"2", 0}}}}}});
+    EXPECT_EQ(one_left->status, 201) << "one mesh keeps its texels: " << one_left->body;
 }
 
 // ---- Supervision: input errors, deadlines, stored specs, the newest snapshot.
