@@ -153,6 +153,9 @@ std::vector<Setting> build_catalog() {
               "in all"),
 
         integer("", "seed", 1, 0, 4294967295.0, "", "random seed: the same seed bakes the same pixels"),
+        integer("", "keep_snapshots", 0, 0, 1e6, "",
+                "keep the intermediate snapshots of each output's newest N passes, removing older ones as newer "
+                "ones are written (0: keep all)"),
         typed("", "env", T::Environment, nullptr,
               "environment: a uniform sky R,G,B (W/(sr m^2)), or an .exr/.hdr equirectangular map (CLI only)"),
     };
@@ -476,6 +479,7 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
     BakeSettings b;
     const json job = settings_of_group("", j, limits);
     b.seed = job.at("seed").get<uint32_t>();
+    b.keep_snapshots = job.at("keep_snapshots").get<int>();
     if (job.contains("env")) {
         const json& e = job["env"];
         if (e.is_array()) b.env.sky = std::array<float, 3>{e[0].get<float>(), e[1].get<float>(), e[2].get<float>()};
@@ -507,6 +511,7 @@ BakeSettings parse_bake_settings(const json& j, const SpecLimits& limits) {
 json to_json(const BakeSettings& b) {
     auto or_auto = [](const auto& v) { return v ? json(*v) : json("auto"); };
     json j = {{"outputs", json::object()}, {"seed", b.seed}};
+    j["keep_snapshots"] = b.keep_snapshots;
     j["atlas"] = {{"res", or_auto(b.atlas.res)},          {"texel_density", or_auto(b.atlas.texel_density)},
                   {"subsamples", b.atlas.subsamples},     {"max_res", or_auto(b.atlas.max_res)},
                   {"max_pages", b.atlas.max_pages},       {"mesh_scale", json::object()},

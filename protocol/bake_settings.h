@@ -159,6 +159,9 @@ struct BakeSettings {
     std::map<std::string, OutputSettings> outputs;
     AtlasSettings atlas;
     uint32_t seed = 1;
+    // Each output's snapshots of its newest N passes are kept, older ones
+    // removed as newer ones are written; 0 keeps all.
+    int keep_snapshots = 0;
     EnvironmentSetting env;
 
     // The output `name`'s settings, or null when it was not asked for.

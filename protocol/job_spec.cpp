@@ -35,12 +35,16 @@ double check_limit(const json& v, bool integer, const SpecLimits& limits, const 
 
 JobSpec parse_job_spec(const json& j, const SpecLimits& limits) {
     if (!j.is_object()) throw SpecError("", "a job spec must be a JSON object, not " + json_type_name(j));
-    for (auto it = j.begin(); it != j.end(); ++it) {
-        static const char* const known[] = {"scene", "outputs", "atlas", "seed", "env", "limits"};
-        bool found = false;
-        for (const char* k : known) found = found || it.key() == k;
-        if (!found) throw SpecError(it.key(), "unknown field (known: scene, outputs, atlas, seed, env, limits)");
-    }
+    // The spec's own fields, then the job's settings from the catalog (seed, env, ...).
+    std::vector<std::string> known = {"scene", "outputs", "atlas", "limits"};
+    for (const Setting& s : setting_catalog())
+        if (s.group.empty()) known.push_back(s.name);
+    for (auto it = j.begin(); it != j.end(); ++it)
+        if (std::find(known.begin(), known.end(), it.key()) == known.end()) {
+            std::string list;
+            for (const std::string& k : known) list += (list.empty() ? "" : ", ") + k;
+            throw SpecError(it.key(), "unknown field (known: " + list + ")");
+        }
     JobSpec spec;
     if (!j.contains("scene")) throw SpecError("scene", "is required");
     if (!j["scene"].is_string()) throw SpecError("scene", "must be a string, not " + json_type_name(j["scene"]));
@@ -181,6 +185,7 @@ std::string bake_identity(const JobSpec& spec) {
     // nlohmann::json objects keep keys sorted, so dump() is canonical.
     json j = to_json(spec);
     j.erase("limits");
+    j.erase("keep_snapshots");  // which files stay, not what they hold
     return j.dump();
 }
 

@@ -24,7 +24,9 @@
 #include <chrono>
 #include <fstream>
 #include <iterator>
+#include <map>
 #include <optional>
+#include <set>
 #include <fcntl.h>
 #include <signal.h>
 #include <unistd.h>
@@ -338,6 +340,49 @@ TEST(CliBake, StopsAtTheTimeLimit) {
     EXPECT_GE(done["seconds"].get<double>(), 1.0);
     EXPECT_LT(done["seconds"].get<double>(), 3.0);
     fs::remove_all(out);
+}
+
+// `--keep-snapshots N` (issue #54: every snapshot stayed, 40 MB beside a
+// 3.4 MB result): a lightmap and an AO bake of 64 passes announce snapshots
+// (the first pass, the last, and between as the schedule says), and the folder keeps each output's
+// newest N passes only, every one announced; the resume state names those
+// alone. Without it, every announced snapshot stays.
+TEST(CliBake, KeepSnapshotsKeepsEachOutputsNewest) {
+    for (const int keep : {0, 1, 2}) {
+        SCOPED_TRACE("keep " + std::to_string(keep));
+        const fs::path out = fresh_dir("keep-" + std::to_string(keep));
+        const CliRun r = run_lightfarm("bake " + test::example_scene("cornell_box.gltf") + " --out " + out.string() +
+                                       " --lightmap --ao --res 32 --passes 64 --ao-passes 64 --json" +
+                                       (keep ? " --keep-snapshots " + std::to_string(keep) : std::string()));
+        ASSERT_EQ(r.exit_code, 0) << r.err;
+        std::map<std::string, std::set<int>> announced;  // output -> passes
+        std::set<std::string> announced_files;
+        for (const nlohmann::json& l : json_lines(r.out))
+            if (l["event"] == "snapshot") {
+                announced[l["output"].get<std::string>()].insert(l["pass"].get<int>());
+                announced_files.insert(l["file"].get<std::string>());
+            }
+        ASSERT_EQ(announced.size(), 2u) << r.out;
+        std::set<std::string> on_disk;
+        for (const auto& entry : fs::directory_iterator(out))
+            if (protocol::is_snapshot_file(entry.path().filename().string()))
+                on_disk.insert(entry.path().filename().string());
+        std::set<std::string> expected;
+        for (const std::string& file : announced_files) {
+            const std::string output = file.rfind("ao.", 0) == 0 ? "ao" : "lightmap";
+            const std::set<int>& passes = announced.at(output);
+            const int pass = std::atoi(file.c_str() + file.find(".pass-") + 6);
+            const int newer = int(std::count_if(passes.begin(), passes.end(), [&](int p) { return p > pass; }));
+            if (keep == 0 || newer < keep) expected.insert(file);
+        }
+        EXPECT_EQ(on_disk, expected);
+        // The first pass and the last are always announced: something was removed.
+        ASSERT_GE(announced.at("lightmap").size(), 2u);
+        if (keep == 1) {
+            EXPECT_LT(on_disk.size(), announced_files.size());
+        }
+        fs::remove_all(out);
+    }
 }
 
 // Failures: non-zero exit, one line on stderr that says what and where, and

@@ -418,16 +418,49 @@ ResumePoint resume_point(const fs::path& out, ProgressiveMethod& method, const s
 // The snapshot's write, then the method's state beside it (naming every
 // snapshot so far), on the writer thread: a run resumed from it starts after
 // that snapshot's pass.
+// The snapshot files in `names` of passes older than the newest `keep`
+// passes there (`--keep-snapshots`; keep 0: none), in their order.
+std::vector<std::string> snapshots_past(const std::vector<std::string>& names, int keep) {
+    const auto pass_of = [](const std::string& name) {
+        const size_t at = name.find(".pass-");
+        return at == std::string::npos ? -1 : std::atoi(name.c_str() + at + 6);
+    };
+    std::set<int> passes;
+    for (const std::string& name : names) passes.insert(pass_of(name));
+    if (keep <= 0 || int(passes.size()) <= keep) return {};
+    const int oldest_kept = *std::next(passes.rbegin(), keep - 1);
+    std::vector<std::string> past;
+    for (const std::string& name : names)
+        if (pass_of(name) < oldest_kept) past.push_back(name);
+    return past;
+}
+
+// `names` without the entries of `gone`.
+void remove_names(std::vector<std::string>& names, const std::vector<std::string>& gone) {
+    names.erase(
+        std::remove_if(names.begin(), names.end(),
+                       [&](const std::string& n) { return std::find(gone.begin(), gone.end(), n) != gone.end(); }),
+        names.end());
+}
+
+// The snapshot's write, then what resuming needs saved with it: the method
+// state, naming the snapshots kept (older ones beyond `keep` removed first).
 SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state,
-                         std::shared_ptr<std::vector<std::string>> snapshots, fs::path path) {
-    return
-        [write = std::move(write), state = std::move(state), snapshots = std::move(snapshots), path = std::move(path)] {
-            std::vector<std::string> names = write();
-            snapshots->insert(snapshots->end(), names.begin(), names.end());
-            state->files = *snapshots;
-            write_method_state(path, *state);
-            return names;
-        };
+                         std::shared_ptr<std::vector<std::string>> snapshots, fs::path path, fs::path dir, int keep) {
+    return [write = std::move(write), state = std::move(state), snapshots = std::move(snapshots),
+            path = std::move(path), dir = std::move(dir), keep] {
+        std::vector<std::string> names = write();
+        snapshots->insert(snapshots->end(), names.begin(), names.end());
+        const std::vector<std::string> past = snapshots_past(*snapshots, keep);
+        for (const std::string& name : past) {
+            std::error_code ignored;
+            fs::remove(dir / name, ignored);
+        }
+        remove_names(*snapshots, past);
+        state->files = *snapshots;
+        write_method_state(path, *state);
+        return names;
+    };
 }
 
 // Runs one method through the progressive loop from `from`: progress after
@@ -436,7 +469,7 @@ SnapshotWrite with_state(SnapshotWrite write, std::shared_ptr<MethodState> state
 // writer thread while the passes go on, announced once written (their names
 // appended to `files`).
 PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs::path& out, const BakeEventSink& emit,
-                     std::vector<std::string>& files, const ResumePoint& from) {
+                     std::vector<std::string>& files, const ResumePoint& from, int keep_snapshots) {
     const std::string output = method.output();
     const Stopwatch clock;
     SnapshotSchedule schedule;
@@ -451,6 +484,7 @@ PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs
                 emit(protocol::SnapshotEvent{output, file, w.pass});
             }
         }
+        remove_names(files, snapshots_past(files, keep_snapshots));  // as the writer removed them
     };
     int taken = 0;  // the pass of the newest snapshot handed to the writer
     // The device holds the state after a batch's last pass: only there can a snapshot be read.
@@ -467,7 +501,8 @@ PassStats run_method(ProgressiveMethod& method, const std::string& key, const fs
             auto state = std::make_shared<MethodState>(method.state());
             state->key = key;
             read_seconds = read_clock.seconds();
-            writer.submit(output, stats.pass, with_state(std::move(write), state, snapshots, state_path(out, output)));
+            writer.submit(output, stats.pass,
+                          with_state(std::move(write), state, snapshots, state_path(out, output), out, keep_snapshots));
             taken = stats.pass;
         }
         if (!stop) return;
@@ -500,7 +535,7 @@ void save_finished(const fs::path& out, const ProgressiveMethod& method, const s
 // One output from where it resumes: its passes (unless an earlier run
 // finished it) and its final files, added to `done`; returns its manifest section.
 nlohmann::json bake_output(ProgressiveMethod& m, const std::string& key, const ResumePoint& from, const fs::path& out,
-                           const BakeEventSink& emit, protocol::DoneEvent& done,
+                           int keep_snapshots, const BakeEventSink& emit, protocol::DoneEvent& done,
                            std::shared_ptr<const FloatImage>& final_image) {
     std::vector<std::string> snapshots = from.snapshots;
     PassStats last = from.stats;
@@ -508,7 +543,7 @@ nlohmann::json bake_output(ProgressiveMethod& m, const std::string& key, const R
     if (result) {
         emit(protocol::ProgressEvent{m.output(), last});
     } else {
-        last = run_method(m, key, out, emit, snapshots, from);
+        last = run_method(m, key, out, emit, snapshots, from, keep_snapshots);
         result = m.finish(out, last);
         save_finished(out, m, key, last, snapshots, *result);
     }
@@ -709,7 +744,8 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
     for (size_t i = 0; i < methods.size(); ++i) {
         manifest["prepared"]["outputs"].push_back(methods[i]->output());
         manifest[methods[i]->output()] =
-            bake_output(*methods[i], keys[i], resumed[i], job.out, emit, done, final_images[methods[i]->output()]);
+            bake_output(*methods[i], keys[i], resumed[i], job.out, job.settings.keep_snapshots, emit, done,
+                        final_images[methods[i]->output()]);
     }
     std::optional<std::string> lit_scene;
     if (prepared->atlas_scene) {
