@@ -638,12 +638,14 @@ bool Supervisor::lease_lost(const std::string& job_id) {
 
 // How a worker's run ended, as supervise_worker saw it.
 struct Supervisor::WorkerEnd {
-    AttemptState state;      // what the worker reported
-    ExitStatus status;       // its exit
-    std::string cause;       // why we ended it ourselves (its deadline, a stall); "" = we did not
-    bool cancelled = false;  // the job was cancelled
-    bool lost = false;       // the job no longer runs on this node
-    bool stopped = false;    // lightfarmd stops: the job went back to the queue, and nothing else is to be done
+    AttemptState state;          // what the worker reported
+    ExitStatus status;           // its exit
+    std::string cause;           // why we ended it ourselves (its deadline, a stall); "" = we did not
+    bool past_deadline = false;  // ended at the job's own deadline
+    bool saved = false;          // it announced a snapshot: a retry resumes from further on
+    bool cancelled = false;      // the job was cancelled
+    bool lost = false;           // the job no longer runs on this node
+    bool stopped = false;        // lightfarmd stops: the job went back to the queue, and nothing else is to be done
 };
 
 namespace {
@@ -773,6 +775,7 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
         // The limits hold on every turn, however much the worker prints.
         const auto now = Clock::now();
         if (end.cause = limit_exceeded(job, now, deadline, last_output); !end.cause.empty()) {
+            end.past_deadline = now > deadline;
             worker.kill();
             break;
         }
@@ -799,6 +802,7 @@ Supervisor::WorkerEnd Supervisor::supervise_worker(const JobRecord& job, const p
         end.state = update.state;
         if (update.progress) seen.progress = update.progress;
         for (const auto& [output, file] : update.latest) seen.latest[output] = file;
+        end.saved = end.saved || !update.latest.empty();
         metrics_.rays_total += update.new_rays;
         if (update.rays_per_second) metrics_.set_job_rate(id, *update.rays_per_second);
         if (!unsaved.empty() && progress_only(update) && progress_only(unsaved.back()) &&
@@ -887,6 +891,17 @@ bool Supervisor::end_attempt(const JobRecord& job, const SceneRecord& scene, con
         log_line("job " + id +
                  ": no longer runs on this node (cancelled elsewhere, or taken over after its lease "
                  "expired); worker killed");
+        return false;
+    }
+    // Past the job's own deadline before its first snapshot of this attempt:
+    // a retry would start from the same place and end the same way (issue
+    // #55: max_seconds 1 cost three worker runs), so the job fails now.
+    if (end.past_deadline && !end.saved) {
+        ++metrics_.worker_failures;
+        fail_now(job,
+                 "the job's deadline (limits.max_seconds " + json(job.max_seconds).dump() +
+                     ") passed before its first snapshot; raise it (not retried)",
+                 end.cause);
         return false;
     }
     if (!end.cause.empty()) {

@@ -869,13 +869,19 @@ TEST_F(ServerTest, AHungWorkerIsKilledAndRetried) {
     EXPECT_NE(all[1].data["cause"].get<std::string>().find("printed nothing for 1 s"), std::string::npos);
 }
 
+// An attempt past its job's deadline is killed; one that saved no snapshot
+// before it is not retried (issue #55: max_seconds 1 cost three worker runs,
+// each ending where the last did), and the error says to raise the limit.
 TEST_F(ServerTest, AnAttemptPastItsDeadlineIsKilled) {
     engine.set("mode", "hang_always");
     start();
-    const std::string id = submit(upload(), {{"passes", 1}}, 1, kAlice, {{"max_seconds", 1}, {"max_attempts", 1}});
+    const std::string id = submit(upload(), {{"passes", 1}}, 1, kAlice, {{"max_seconds", 1}, {"max_attempts", 3}});
     const json status = wait_finished(id);
     EXPECT_EQ(status["state"], "failed");
     EXPECT_NE(status["cause"].get<std::string>().find("deadline of 1 s"), std::string::npos) << status.dump();
+    EXPECT_NE(status["error"].get<std::string>().find("raise it (not retried)"), std::string::npos) << status.dump();
+    EXPECT_EQ(status["attempts"], 1) << status.dump();
+    EXPECT_EQ(engine.runs(), 1);
 }
 
 TEST_F(ServerTest, CancelKillsTheWorker) {
