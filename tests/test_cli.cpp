@@ -344,7 +344,7 @@ TEST(CliBake, StopsAtTheTimeLimit) {
 
 // `--keep-snapshots N` (issue #54: every snapshot stayed, 40 MB beside a
 // 3.4 MB result): a lightmap and an AO bake of 64 passes announce snapshots
-// (the first pass, the last, and between as the schedule says), and the folder keeps each output's
+// (when the schedule says), and the folder keeps each output's
 // newest N passes only, every one announced; the resume state names those
 // alone. Without it, every announced snapshot stays.
 TEST(CliBake, KeepSnapshotsKeepsEachOutputsNewest) {
@@ -376,11 +376,11 @@ TEST(CliBake, KeepSnapshotsKeepsEachOutputsNewest) {
             if (keep == 0 || newer < keep) expected.insert(file);
         }
         EXPECT_EQ(on_disk, expected);
-        // The first pass and the last are always announced: something was removed.
-        ASSERT_GE(announced.at("lightmap").size(), 2u);
-        if (keep == 1) {
-            EXPECT_LT(on_disk.size(), announced_files.size());
-        }
+        // Where an output announced more passes than it keeps (how many it
+        // announces is the schedule's, by time: at least one), files went.
+        bool beyond = false;
+        for (const auto& [output, passes] : announced) beyond = beyond || (keep > 0 && int(passes.size()) > keep);
+        EXPECT_EQ(on_disk.size() < announced_files.size(), beyond);
         fs::remove_all(out);
     }
 }
