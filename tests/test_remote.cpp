@@ -53,6 +53,25 @@ protected:
         write_text(tmp.path / "gltf" / "bin" / "data a.bin", "abcd");
     }
     std::vector<std::string> common() { return {"--server", server->url, "--token", kToken}; }
+    // A lightfarmd on `data` with one worker, running a job of scene.glb
+    // held at its start (the fake engine's gate, until engine.dir/gate goes):
+    // the next job queues behind it. Returns the running job's id ("" when
+    // it could not be submitted).
+    std::string one_worker_busy(const std::string& data) {
+        server->stop();
+        server = std::make_unique<Lightfarmd>(tmp.path / data, tmp.path / "tokens", engine.script,
+                                              std::vector<std::string>{"--workers", "1"});
+        server->start();
+        engine.set("gate", "");
+        const CliRun first =
+            run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "2", "--seed", "1"}));
+        EXPECT_EQ(first.status, 0) << first.err;
+        if (first.status != 0) return "";
+        const std::string running = first.out.substr(0, first.out.find('\n'));
+        auto c = server->client(kToken);
+        wait_for_job(c, running, [](const json& s) { return s["state"] == "running"; });
+        return running;
+    }
     std::vector<std::string> with_common(std::vector<std::string> args) {
         for (const std::string& a : common()) args.push_back(a);
         return args;
@@ -109,17 +128,8 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
 // job's status, read as soon as the job exists, before any event. The
 // running job is held at its start until 3 s after the second exists.
 TEST_F(RemoteTest, SubmitWaitSaysWhereAQueuedJobStands) {
-    server->stop();
-    server = std::make_unique<Lightfarmd>(tmp.path / "data-queue", tmp.path / "tokens", engine.script,
-                                          std::vector<std::string>{"--workers", "1"});
-    server->start();
-    engine.set("gate", "");
     const std::string scene = (tmp.path / "scene.glb").string();
-    const CliRun first = run(with_common({"submit", scene, "--passes", "2", "--seed", "1"}));
-    ASSERT_EQ(first.status, 0) << first.err;
-    const std::string running = first.out.substr(0, first.out.find('\n'));
-    auto c = server->client(kToken);
-    wait_for_job(c, running, [](const json& s) { return s["state"] == "running"; });
+    ASSERT_FALSE(one_worker_busy("data-queue").empty());
     std::thread open([&] {
         auto poll = server->client(kToken);
         for (int i = 0; i < 600; ++i) {
@@ -150,16 +160,9 @@ TEST_F(RemoteTest, SubmitWaitSaysWhereAQueuedJobStands) {
 // ends the process), queued behind a job held at its start, so that it is
 // following (its "queued" line printed) when SIGINT comes.
 TEST_F(RemoteTest, CtrlCOnSubmitWaitSaysTheJobGoesOn) {
-    server->stop();
-    server = std::make_unique<Lightfarmd>(tmp.path / "data-ctrl-c", tmp.path / "tokens", engine.script,
-                                          std::vector<std::string>{"--workers", "1"});
-    server->start();
-    engine.set("gate", "");
     const std::string scene = (tmp.path / "scene.glb").string();
-    const CliRun first = run(with_common({"submit", scene, "--passes", "2", "--seed", "1"}));
-    ASSERT_EQ(first.status, 0) << first.err;
+    ASSERT_FALSE(one_worker_busy("data-ctrl-c").empty());
     auto c = server->client(kToken);
-    wait_for_job(c, first.out.substr(0, first.out.find('\n')), [](const json& s) { return s["state"] == "running"; });
 
     const fs::path out = tmp.path / "ctrl-c.out", err = tmp.path / "ctrl-c.err";
     std::vector<std::string> args = with_common({"lightfarm", "submit", scene, "--passes", "2", "--seed", "2", "--wait",
