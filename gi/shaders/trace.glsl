@@ -209,7 +209,8 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, uvec4 
     bool materials = (query & LF_QUERY_GEOMETRY) == 0u;
     bool walking = (query & LF_QUERY_SEE_THROUGH) != 0u;
     bool any_hit = (query & LF_QUERY_ANY) != 0u;
-    // t_min inclusive for the walk past surfaces it met there: the float just below it.
+    // t_min inclusive for the walk past surfaces it met there (boxes and
+    // triangles alike: a flat node ends exactly there): the float just below it.
     float t_low = walking && passed.x != LF_NO_HIT ? uintBitsToFloat(floatBitsToUint(t_min) - 1u) : t_min;
     RayShear sh = ray_shear(dir);
     vec3 inv_dir = safe_inverse(dir);
@@ -223,7 +224,7 @@ Hit lf_traverse(vec3 org, vec3 dir, float t_min, float t_max, uint query, uvec4 
         uvec4 child = lf_bvh_nodes[base + 3u];
         uvec4 count = (planes_z_counts.zzww >> uvec4(0u, 16u, 0u, 16u)) & 0xffffu;
         vec4 t_enter = intersect_boxes(org, inv_dir, lf_bvh_nodes[base], lf_bvh_nodes[base + 1u],
-                                       planes_z_counts.xy, t_min, hit.t);
+                                       planes_z_counts.xy, t_low, hit.t);
         t_enter = mix(t_enter, vec4(LF_INFINITY), equal(child | count, uvec4(0u)));  // unused slots
         // Leaves are tested right away; only interior children are traversed.
         for (int c = 0; c < 4; ++c) {
