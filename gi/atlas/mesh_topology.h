@@ -7,6 +7,7 @@
 #pragma once
 
 #include "scene/scene.h"
+#include "scene/weld.h"
 
 #include <glm/glm.hpp>
 
@@ -15,13 +16,9 @@
 
 namespace lf::atlas_detail {
 
-// Distance under which two vertices count as one point: 1e-5 of the scene's
-// bounding-box diagonal (a 10 m room: 0.1 mm).
-float weld_tolerance(const Scene& scene);
-
-// weld[v] is the representative of v: the first vertex (in index order)
-// within `tolerance` of it. Vertices closer than the tolerance get one representative.
-std::vector<uint32_t> weld_positions(const std::vector<glm::vec3>& positions, float tolerance);
+// Vertices welded by position: scene/weld.h.
+using lf::weld_positions;
+using lf::weld_tolerance;
 
 // Edge k of a triangle runs from corner k to corner (k+1) % 3.
 struct EdgeRef {

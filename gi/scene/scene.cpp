@@ -1,8 +1,9 @@
 #include "scene/scene.h"
 
+#include "scene/weld.h"
+
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <unordered_map>
 
 namespace lf {
@@ -111,14 +112,16 @@ std::vector<bool> Scene::closed_volumes() const {
         if (closed[triangle_material[t]]) triangles_of[triangle_material[t]].push_back(t);
     for (size_t m = 0; m < materials.size(); ++m) {
         if (!closed[m]) continue;
-        // Vertices matched by their position's bits (a mesh's split vertices
-        // share positions exactly), then each directed edge counted.
-        std::unordered_map<std::string, uint32_t> point_id;
-        const auto id_of = [&](uint32_t v) {
-            std::string key(sizeof(glm::vec3), '\0');
-            std::memcpy(key.data(), &positions[v], sizeof(glm::vec3));
-            return point_id.emplace(key, uint32_t(point_id.size())).first->second;
-        };
+        // The material's vertices welded as the atlas welds them (scene/weld.h),
+        // then each directed edge counted.
+        std::vector<glm::vec3> points;
+        std::unordered_map<uint32_t, uint32_t> local;  // scene vertex -> index into points
+        for (size_t t : triangles_of[m])
+            for (int k = 0; k < 3; ++k)
+                if (local.try_emplace(triangles[t][k], uint32_t(points.size())).second)
+                    points.push_back(positions[triangles[t][k]]);
+        const std::vector<uint32_t> weld = weld_positions(points, weld_tolerance(*this));
+        const auto id_of = [&](uint32_t v) { return weld[local.at(v)]; };
         std::unordered_map<uint64_t, int> edges;  // (from << 32 | to) -> times met
         for (size_t t : triangles_of[m]) {
             const uint32_t p[3] = {id_of(triangles[t].x), id_of(triangles[t].y), id_of(triangles[t].z)};

@@ -207,8 +207,8 @@ struct Scene {
     glm::vec3 transmittance_at(size_t t, glm::vec2 bary) const;
     // Per material: whether it bounds a volume that the tracer can follow
     // (Material::attenuation), i.e. it has one and its triangles close around
-    // it with one orientation: each edge (vertices matched by position) met
-    // once in each direction.
+    // it with one orientation: each edge (vertices welded by position,
+    // scene/weld.h) met once in each direction.
     std::vector<bool> closed_volumes() const;
     // Their means over triangle t (textures averaged by the midpoint rule on
     // 16 equal sub-triangles; exact without a texture): what one constant per
