@@ -544,24 +544,29 @@ std::map<int, int> mesh_per_node(tinygltf::Model& model, const Scene& scene, con
 // primitive index, page) of each piece; a primitive without a lightmap
 // stays whole, on kNoLightmap, and says so in its extras
 // (lightfarm_no_lightmap: a file's own TEXCOORD_1 may still be there).
-std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst,
-                                              int mesh) {
-    std::vector<std::array<int, 3>> pieces;
+struct PrimitivePiece {
+    int mesh, primitive, page;
+    uint32_t triangles;
+};
+
+std::vector<PrimitivePiece> split_by_page(tinygltf::Model& model, const Scene& scene, const PrimitiveInstance& inst,
+                                          int mesh) {
+    std::vector<PrimitivePiece> pieces;
     if (!inst.has_lightmap()) {
         tinygltf::Primitive& primitive = model.meshes[size_t(mesh)].primitives[size_t(inst.primitive)];
         tinygltf::Value::Object extras =
             primitive.extras.IsObject() ? primitive.extras.Get<tinygltf::Value::Object>() : tinygltf::Value::Object();
         extras["lightfarm_no_lightmap"] = tinygltf::Value(true);
         primitive.extras = tinygltf::Value(extras);
-        return {{mesh, inst.primitive, kNoLightmap}};
+        return {{mesh, inst.primitive, kNoLightmap, inst.triangle_count}};
     }
-    if (scene.lightmap_pages.count == 1) return {{mesh, inst.primitive, 0}};
-    std::set<int> pages;
-    for (uint32_t i = 0; i < inst.triangle_count; ++i) pages.insert(triangle_page(scene, inst.first_triangle + i));
+    if (scene.lightmap_pages.count == 1) return {{mesh, inst.primitive, 0, inst.triangle_count}};
+    std::map<int, uint32_t> pages;  // page -> its triangles
+    for (uint32_t i = 0; i < inst.triangle_count; ++i) ++pages[triangle_page(scene, inst.first_triangle + i)];
     auto& primitives = model.meshes[size_t(mesh)].primitives;
-    for (int page : pages) {
+    for (const auto& [page, triangles] : pages) {
         int index = inst.primitive;
-        if (page != *pages.begin()) {
+        if (page != pages.begin()->first) {
             primitives.push_back(primitives[size_t(inst.primitive)]);
             index = int(primitives.size() - 1);
         }
@@ -578,9 +583,34 @@ std::vector<std::array<int, 3>> split_by_page(tinygltf::Model& model, const Scen
             tinygltf::Value::Array{tinygltf::Value(double(page) * layout.stride() / layout.total_rows()),
                                    tinygltf::Value(double(layout.rows) / layout.total_rows())});
         piece.extras = tinygltf::Value(extras);
-        pieces.push_back({mesh, index, page});
+        pieces.push_back({mesh, index, page, triangles});
     }
     return pieces;
+}
+
+// Each mesh also says, in its own extras, the page of each of its
+// primitives in order (lightfarm_lightmap_pages, -1 without a lightmap) and
+// their triangles (lightfarm_primitive_triangles): importers that drop
+// primitives' extras keep a mesh's (Blender's, which joins a mesh's
+// primitives into one mesh in their order: the add-on in blender/ finds
+// each triangle's page so).
+void describe_pieces_per_mesh(tinygltf::Model& model, const std::vector<PrimitivePiece>& pieces) {
+    std::map<int, std::map<int, const PrimitivePiece*>> by_mesh;
+    for (const PrimitivePiece& piece : pieces) by_mesh[piece.mesh][piece.primitive] = &piece;
+    for (const auto& [mesh, primitives] : by_mesh) {
+        tinygltf::Mesh& m = model.meshes[size_t(mesh)];
+        if (primitives.size() != m.primitives.size()) continue;  // not every primitive baked: say nothing
+        tinygltf::Value::Array pages, triangles;
+        for (const auto& [index, piece] : primitives) {
+            pages.push_back(tinygltf::Value(piece->page));  // kNoLightmap: -1
+            triangles.push_back(tinygltf::Value(int(piece->triangles)));
+        }
+        tinygltf::Value::Object extras =
+            m.extras.IsObject() ? m.extras.Get<tinygltf::Value::Object>() : tinygltf::Value::Object();
+        extras["lightfarm_lightmap_pages"] = tinygltf::Value(pages);
+        extras["lightfarm_primitive_triangles"] = tinygltf::Value(triangles);
+        m.extras = tinygltf::Value(extras);
+    }
 }
 
 // write_glb_with_vertex_attributes, and the lightmap embedded when given.
@@ -634,7 +664,7 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
     if (lights_baked) drop_baked_lights(model);
 
     std::map<int, int> mesh_of_node = mesh_per_node(model, scene, source_gltf);
-    std::vector<std::array<int, 3>> pieces;  // (mesh, primitive, page) of every baked primitive
+    std::vector<PrimitivePiece> pieces;  // every baked primitive, on its page
     for (size_t i = 0; i < scene.instances.size(); ++i) {
         const PrimitiveInstance& inst = scene.instances[i];
         const int mesh = mesh_of_node[inst.node];
@@ -644,10 +674,11 @@ void write_glb(const std::filesystem::path& source_gltf, const Scene& scene,
         add_vertex_attributes(model, primitives[size_t(inst.primitive)], scene, inst, per_instance[i], source_gltf);
         for (const auto& piece : split_by_page(model, scene, inst, mesh)) pieces.push_back(piece);
     }
+    describe_pieces_per_mesh(model, pieces);
     // Pointers once every piece is in place (a split appends primitives).
     std::vector<BakedPrimitive> baked;
-    for (const auto& [mesh, primitive, page] : pieces)
-        baked.push_back({&model.meshes[size_t(mesh)].primitives[size_t(primitive)], page});
+    for (const PrimitivePiece& piece : pieces)
+        baked.push_back({&model.meshes[size_t(piece.mesh)].primitives[size_t(piece.primitive)], piece.page});
     if (unlit_materials && !model.materials.empty()) {
         for (tinygltf::Material& m : model.materials)
             m.extensions["KHR_materials_unlit"] = tinygltf::Value(tinygltf::Value::Object());
