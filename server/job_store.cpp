@@ -23,6 +23,7 @@ JobStore::JobStore(NodeIdentity node) : node_(std::move(node)) {
 }
 
 bool permanent_progress(const nlohmann::json& data) {
+    if (data.is_object() && data.value(kAgain, false)) return false;
     const int64_t pass =
         data.is_object() && data.contains("pass") && data["pass"].is_number_integer() ? data["pass"].get<int64_t>() : 0;
     return pass <= kKeepProgressUpTo || (pass & (pass - 1)) == 0;
@@ -30,7 +31,13 @@ bool permanent_progress(const nlohmann::json& data) {
 
 std::string progress_key(const JobEvent& event) {
     const nlohmann::json& d = event.data;
+    if (event.type == "preparing") return "preparing";
     return d.is_object() && d.contains("output") && d["output"].is_string() ? d["output"].get<std::string>() : "";
+}
+
+bool coalesced_event(const JobEvent& event) {
+    return event.type == "progress" ||
+           (event.type == "preparing" && event.data.is_object() && event.data.value(kAgain, false));
 }
 
 double now_seconds() {

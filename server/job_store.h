@@ -193,11 +193,19 @@ private:
 
 // ---- rules the store keeps
 
+// An event's data field marking it as the worker's last line said again
+// (a long stage or pass: gi/bake/event_heartbeat.h): "again": true.
+inline constexpr const char* kAgain = "again";
+
 // Progress events of passes 1..32 and of every power of two are kept; of the
-// others only the newest per output (append_event).
+// others only the newest per output (append_event); a progress or preparing
+// event said again is kept only until the next of its kind.
 bool permanent_progress(const nlohmann::json& data);
-// The output a progress event is about: what it replaces an older one of.
+// What a progress event replaces an older one of: its output; for a
+// preparing event said again, "preparing". Empty for other events.
 std::string progress_key(const JobEvent& event);
+// Whether the store coalesces `event` (progress, and preparing said again).
+bool coalesced_event(const JobEvent& event);
 double now_seconds();  // since the epoch
 
 }  // namespace lf::server

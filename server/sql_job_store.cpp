@@ -324,7 +324,7 @@ int64_t SqlJobStore::insert_event_locked(const std::string& id, const JobEvent& 
     // A progress event replaces the older non-permanent one of its output
     // (append_event's coalescing). The new id is taken while the replaced
     // event still counts: it may be the newest, and an id is never given twice.
-    const bool progress = event.type == "progress";
+    const bool progress = coalesced_event(event);
     const SqlValue key = progress ? SqlValue(progress_key(event)) : SqlValue(nullptr);
     const int64_t permanent = progress && !permanent_progress(event.data) ? 0 : 1;
     const std::string next_id = "next AS (SELECT COALESCE(MAX(id), 0) + 1 AS id FROM events WHERE job = ?)";

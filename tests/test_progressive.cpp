@@ -1,5 +1,6 @@
 // The progressive loop's snapshot schedule and the writer thread that takes
 // snapshots off the passes (issue #12): pure logic, no GL.
+#include "bake/event_heartbeat.h"
 #include "bake/method_state.h"
 #include "bake/preparation_estimate.h"
 #include "bake/progressive.h"
@@ -13,6 +14,8 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
+#include <mutex>
 #include <future>
 #include <stdexcept>
 #include <thread>
@@ -30,6 +33,76 @@ std::vector<int> taken(SnapshotSchedule& schedule, int n, double pass_seconds, d
             schedule.record_cost(cost);
         }
     return passes;
+}
+
+// Events with no long silence (issue #54): a stage of preparation or a
+// pass that runs long has its last prepare or progress event said again,
+// its seconds moved on by the time since (and a prepare event's time left
+// moved down); start, snapshot and done are said once; nothing after
+// stop(). Waits for what it expects (bounded at 30 s) rather than timing
+// it, so a busy machine only makes it slower.
+TEST(EventHeartbeat, SaysTheLastPrepareOrProgressAgainAndFactsOnce) {
+    std::mutex mutex;
+    std::condition_variable arrived;
+    std::vector<protocol::WorkerEvent> events;
+    EventHeartbeat heartbeat([&](const protocol::WorkerEvent& e) {
+        const std::lock_guard<std::mutex> lock(mutex);
+        events.push_back(e);
+        arrived.notify_all();
+    });
+    const BakeEventSink emit = heartbeat.sink();
+    const auto wait_for_events = [&](size_t n) {
+        std::unique_lock<std::mutex> lock(mutex);
+        return arrived.wait_for(lock, std::chrono::seconds(30), [&] { return events.size() >= n; });
+    };
+
+    emit(protocol::PrepareEvent{"methods", 3.0, 20.0});
+    ASSERT_TRUE(wait_for_events(2)) << "a long stage is said again";
+    {
+        const std::lock_guard<std::mutex> lock(mutex);
+        const auto& again = std::get<protocol::PrepareEvent>(events[1]);
+        EXPECT_EQ(again.stage, "methods");
+        EXPECT_GE(again.seconds, 3.0 + EventHeartbeat::kPeriodSeconds);
+        ASSERT_TRUE(again.eta_seconds.has_value());
+        EXPECT_NEAR(*again.eta_seconds + again.seconds, 23.0, 1e-6) << "time left moves down as seconds move on";
+    }
+
+    protocol::StartEvent start;
+    start.renderer = "test";
+    emit(start);
+    protocol::Progress at;
+    at.pass = 16;
+    at.rays = 1000;
+    at.seconds = 5.0;
+    emit(protocol::ProgressEvent{"lightmap", at});
+    emit(protocol::SnapshotEvent{"lightmap", "lightmap.pass-0016.exr", 16});
+    size_t said = 0;
+    {
+        const std::lock_guard<std::mutex> lock(mutex);
+        said = events.size();
+    }
+    ASSERT_TRUE(wait_for_events(said + 1)) << "a long pass, or the final writes, say the last progress again";
+    {
+        const std::lock_guard<std::mutex> lock(mutex);
+        const auto& again = std::get<protocol::ProgressEvent>(events[said]);
+        EXPECT_EQ(again.output, "lightmap");
+        EXPECT_EQ(again.progress.pass, 16);
+        EXPECT_EQ(again.progress.rays, 1000u);
+        EXPECT_GE(again.progress.seconds, 5.0 + EventHeartbeat::kPeriodSeconds);
+        const auto count = [&](auto is) { return std::count_if(events.begin(), events.end(), is); };
+        EXPECT_EQ(count([](const auto& e) { return std::holds_alternative<protocol::StartEvent>(e); }), 1);
+        EXPECT_EQ(count([](const auto& e) { return std::holds_alternative<protocol::SnapshotEvent>(e); }), 1);
+    }
+
+    heartbeat.stop();
+    size_t at_stop = 0;
+    {
+        const std::lock_guard<std::mutex> lock(mutex);
+        at_stop = events.size();
+    }
+    std::this_thread::sleep_for(std::chrono::duration<double>(2.5 * EventHeartbeat::kPeriodSeconds));
+    const std::lock_guard<std::mutex> lock(mutex);
+    EXPECT_EQ(events.size(), at_stop) << "nothing after stop()";
 }
 
 TEST(SnapshotSchedule, FreeSnapshotsFollowTheDoublingPasses) {

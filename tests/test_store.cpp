@@ -212,6 +212,33 @@ TEST_P(StoreTest, ProgressEventsAreCoalescedSoTheStoreGrowsWithJobsNotPasses) {
     EXPECT_EQ(events.back().id, 1 + 5000 + 13);
 }
 
+// Lines said again (a long stage or pass, marked "again" by the
+// supervisor) do not pile up: the store keeps the first of each stage and
+// pass, and only the newest line said again.
+TEST_P(StoreTest, LinesSaidAgainKeepOnlyTheNewest) {
+    JobStore& store = this->store();
+    store.insert_job(queued_job("j1"), {});
+    ASSERT_TRUE(store.claim_next());
+    for (const char* stage : {"atlas", "methods"}) {
+        store.append_event("j1", {0, "preparing", {{"stage", stage}, {"seconds", 1.0}}});
+        for (int i = 0; i < 5; ++i)
+            store.append_event("j1",
+                               {0, "preparing", {{"stage", stage}, {"seconds", 2.0 + i}, {server::kAgain, true}}});
+    }
+    store.append_event("j1", {0, "started", {{"attempt", 1}}});
+    store.append_event("j1", {0, "progress", progress_data(16)});
+    for (int i = 0; i < 5; ++i) {
+        json again = progress_data(16);
+        again[server::kAgain] = true;
+        store.append_event("j1", {0, "progress", again});
+    }
+    std::vector<std::string> kept;
+    for (const auto& e : store.events_after("j1", 0))
+        kept.push_back(e.type + (e.data.value(server::kAgain, false) ? " again" : ""));
+    EXPECT_EQ(kept, (std::vector<std::string>{"preparing", "preparing", "preparing again", "started", "progress",
+                                              "progress again"}));
+}
+
 TEST_P(StoreTest, ResumingAfterAnyEventGetsEveryLaterEventOnceAndNoReplacedProgress) {
     JobStore& store = this->store();
     store.insert_job(queued_job("j1"), {});

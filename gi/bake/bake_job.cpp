@@ -2,6 +2,7 @@
 
 #include "atlas/atlas.h"
 #include "bake/double_sided.h"
+#include "bake/event_heartbeat.h"
 #include "bake/method_state.h"
 #include "bake/light_density.h"
 #include "bake/unlit_charts.h"
@@ -702,7 +703,9 @@ nlohmann::json manifest_of_preparation(const BakeJob& job, const PreparedScene& 
     return manifest;
 }
 
-protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) {
+protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& to_caller) {
+    EventHeartbeat heartbeat(to_caller);
+    const BakeEventSink emit = heartbeat.sink();
     const Stopwatch clock;
     make_directories(job.out);
     const std::unique_ptr<PreparedScene> prepared = prepare(job, prepare_events(job, emit, clock));
@@ -765,7 +768,8 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit) 
             "leaving each texel as lightfarm's 3D view shows it (sRGB, TEXCOORD_1; see README)";
     write_file_atomic(job.out / "manifest.json", manifest.dump(2) + "\n");
     fs::remove_all(resume_dir(job.out));  // the job is done: nothing to resume
-    emit(done);
+    heartbeat.stop();
+    to_caller(done);
     return done;
 }
 
