@@ -29,7 +29,7 @@ def bake(scene, passes, out_dir, device, seed):
                            check=True, capture_output=True, text=True).stdout.splitlines()
     events = [json.loads(l) for l in lines]
     start = next(e for e in events if e["event"] == "start")  # after the "prepare" events
-    return {e["pass"]: e for e in events if e["event"] == "progress"}, start
+    return {e["pass"]: e for e in events if e["event"] == "progress" and not e.get("again")}, start
 
 
 def main():

@@ -104,6 +104,8 @@ json progress_fields(const Progress& p) {
     return j;
 }
 
+bool said_again(const json& j) { return j.contains("again") && j["again"].is_boolean() && j["again"].get<bool>(); }
+
 std::string string_field(const json& j, const char* key) {
     if (!j.contains(key) || !j[key].is_string())
         throw std::invalid_argument(std::string("worker event without a string \"") + key + "\"");
@@ -132,6 +134,7 @@ json to_json(const WorkerEvent& e) {
     if (const auto* p = std::get_if<PrepareEvent>(&e)) {
         json j = {{"event", "prepare"}, {"stage", p->stage}, {"seconds", p->seconds}};
         j["eta_seconds"] = p->eta_seconds ? json(*p->eta_seconds) : json(nullptr);
+        if (p->again) j["again"] = true;
         return j;
     }
     if (const auto* s = std::get_if<StartEvent>(&e)) {
@@ -150,6 +153,7 @@ json to_json(const WorkerEvent& e) {
         json j = progress_fields(p->progress);
         j["event"] = "progress";
         j["output"] = p->output;
+        if (p->again) j["again"] = true;
         return j;
     }
     if (const auto* s = std::get_if<SnapshotEvent>(&e))
@@ -170,6 +174,7 @@ WorkerEvent parse_worker_event(const json& j) {
         p.stage = string_field(j, "stage");
         if (j.contains("seconds") && j["seconds"].is_number()) p.seconds = j["seconds"].get<double>();
         if (j.contains("eta_seconds") && j["eta_seconds"].is_number()) p.eta_seconds = j["eta_seconds"].get<double>();
+        p.again = said_again(j);
         return p;
     }
     if (kind == "start") {
@@ -190,7 +195,7 @@ WorkerEvent parse_worker_event(const json& j) {
                 if (w.is_string()) s.warnings.push_back(w.get<std::string>());
         return s;
     }
-    if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j)};
+    if (kind == "progress") return ProgressEvent{optional_string(j, "output"), progress_from_json(j), said_again(j)};
     if (kind == "snapshot") {
         const Progress at = progress_from_json(j);
         if (!j.contains("pass") || at.pass != j["pass"])

@@ -3,10 +3,12 @@
 // what a worker's exit status means. The engine encodes these types and the
 // server decodes them; neither side writes or reads the JSON by hand.
 //
-//   {"event":"prepare", "stage":"atlas", "seconds", "eta_seconds"}   (before "start", as each stage begins)
+//   {"event":"prepare", "stage":"atlas", "seconds", "eta_seconds"}   (before "start", as each stage begins;
+//    said again each second while it runs, with "again": true)
 //   {"event":"start", "vendor", "renderer", "triangles", "prepare_seconds", "outputs": {NAME: {...}},
 //    "resumed": {NAME: {"pass", "rays", "seconds", "error_estimate"}}, "not_resumed": {NAME: "why"}}
-//   {"event":"progress", "output":"lightmap", "pass", "rays", "seconds", "error_estimate"}
+//   {"event":"progress", "output":"lightmap", "pass", "rays", "seconds", "error_estimate"}   (per pass; the
+//    last said again each second while a pass or the final writes run long, with "again": true)
 //   {"event":"snapshot", "output":"lightmap", "file":"lightmap.pass-0004.exr", "pass":4}
 //   {"event":"done", "pass", "rays", "seconds", "error_estimate", "files":[...], "final":{NAME: FILE}}
 #pragma once
@@ -108,6 +110,9 @@ struct PrepareEvent {
     std::string stage;
     double seconds = 0.0;               // preparation so far
     std::optional<double> eta_seconds;  // preparation's time left, from the scene's size; empty: unknown yet
+    // The stage said again while it runs long ("again": true; the worker
+    // lets no line get older than a second: gi/bake/event_heartbeat.h).
+    bool again = false;
 };
 struct StartEvent {
     std::string vendor, renderer;
@@ -126,6 +131,7 @@ struct StartEvent {
 struct ProgressEvent {
     std::string output;
     Progress progress;
+    bool again = false;  // the last pass said again while a pass or the final writes run long
 };
 struct SnapshotEvent {
     std::string output;

@@ -441,8 +441,8 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         data.erase("event");
         // A long stage said again (gi/bake/event_heartbeat.h): the stream
         // gets it, the store keeps only the newest such (kAgain).
-        if (prepare->stage == state.preparing) data[kAgain] = true;
-        u.state.preparing = prepare->stage;
+        data.erase("again");
+        if (prepare->again) data[kAgain] = true;
         u.event = JobEvent{0, "preparing", data};
     } else if (const auto* start = std::get_if<protocol::StartEvent>(&event)) {
         json data = protocol::to_json(protocol::WorkerEvent(*start));
@@ -461,9 +461,6 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
             u.state.job->hold_at_least(state.shown_fraction);
         }
         const Progress p = u.state.job->update(output, progress->progress);
-        // The same pass said again while a pass or the final writes run long.
-        const bool again = state.passes.count(output) && state.passes.at(output) == p.pass &&
-                           state.rays.count(output) && state.rays.at(output) == p.rays;
         // Rays are counted per output: each output's totals start again at 0.
         const uint64_t seen = state.rays.count(output) ? state.rays.at(output) : 0;
         u.new_rays = p.rays >= seen ? p.rays - seen : p.rays;
@@ -473,7 +470,7 @@ AttemptUpdate apply_worker_event(const AttemptState& state, const protocol::Work
         u.progress = p;
         json data = protocol::to_json(p);
         if (!output.empty()) data["output"] = output;
-        if (again) data[kAgain] = true;
+        if (progress->again) data[kAgain] = true;  // the last pass said again: kept until the next
         u.event = JobEvent{0, "progress", data};
     } else if (const auto* snapshot = std::get_if<protocol::SnapshotEvent>(&event)) {
         if (!plain_file_name(snapshot->file)) {

@@ -36,7 +36,6 @@ namespace lf::server {
 struct AttemptState {
     std::map<std::string, uint64_t> rays;      // output -> rays its progress reported last
     std::map<std::string, int> passes;         // output -> pass its progress reported last
-    std::string preparing;                     // the stage its last prepare event named
     std::optional<nlohmann::json> done;        // the "done" event's data, once the worker reported done
     std::optional<protocol::JobProgress> job;  // from the start event: the whole job's ETA and done fraction
     double shown_fraction = 0.0;               // the job's bar as earlier attempts left it (never goes back)

@@ -62,6 +62,8 @@ TEST(EventHeartbeat, SaysTheLastPrepareOrProgressAgainAndFactsOnce) {
         const std::lock_guard<std::mutex> lock(mutex);
         const auto& again = std::get<protocol::PrepareEvent>(events[1]);
         EXPECT_EQ(again.stage, "methods");
+        EXPECT_TRUE(again.again) << "marked as said again";
+        EXPECT_FALSE(std::get<protocol::PrepareEvent>(events[0]).again);
         EXPECT_GE(again.seconds, 3.0 + EventHeartbeat::kPeriodSeconds);
         ASSERT_TRUE(again.eta_seconds.has_value());
         EXPECT_NEAR(*again.eta_seconds + again.seconds, 23.0, 1e-6) << "time left moves down as seconds move on";
@@ -86,6 +88,7 @@ TEST(EventHeartbeat, SaysTheLastPrepareOrProgressAgainAndFactsOnce) {
         const std::lock_guard<std::mutex> lock(mutex);
         const auto& again = std::get<protocol::ProgressEvent>(events[said]);
         EXPECT_EQ(again.output, "lightmap");
+        EXPECT_TRUE(again.again);
         EXPECT_EQ(again.progress.pass, 16);
         EXPECT_EQ(again.progress.rays, 1000u);
         EXPECT_GE(again.progress.seconds, 5.0 + EventHeartbeat::kPeriodSeconds);
@@ -103,6 +106,24 @@ TEST(EventHeartbeat, SaysTheLastPrepareOrProgressAgainAndFactsOnce) {
     std::this_thread::sleep_for(std::chrono::duration<double>(2.5 * EventHeartbeat::kPeriodSeconds));
     const std::lock_guard<std::mutex> lock(mutex);
     EXPECT_EQ(events.size(), at_stop) << "nothing after stop()";
+}
+
+// What the sink throws on a line said again (a closed pipe) reaches the
+// bake's own thread at its next event, and nothing is said after.
+TEST(EventHeartbeat, WhatTheSinkThrowsOnARepeatReachesTheBake) {
+    std::atomic<int> calls{0};
+    EventHeartbeat heartbeat([&](const protocol::WorkerEvent&) {
+        if (++calls == 2) throw std::runtime_error("pipe closed");
+    });
+    const BakeEventSink emit = heartbeat.sink();
+    emit(protocol::PrepareEvent{"methods", 0.0, 5.0});
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+    while (calls < 2 && std::chrono::steady_clock::now() < until)
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    ASSERT_EQ(calls, 2) << "the stage was said again";
+    EXPECT_THROW(emit(protocol::SnapshotEvent{"lightmap", "x.exr", 1}), std::runtime_error);
+    heartbeat.stop();
+    EXPECT_EQ(calls, 2);
 }
 
 TEST(SnapshotSchedule, FreeSnapshotsFollowTheDoublingPasses) {

@@ -610,12 +610,14 @@ TEST(ShBake, WritesFilesThatReloadAndShade) {
     job.settings = protocol::parse_bake_settings(
         {{"outputs", {{"sh", {{"sh_bands", "auto"}, {"sh_passes", 3}}}}}, {"env", {0.2, 0.4, 1.0}}});
     std::vector<std::string> events;
-    const protocol::DoneEvent done =
-        run_bake_job(job, [&](const protocol::WorkerEvent& e) { events.push_back(protocol::to_json(e)["event"]); });
+    const protocol::DoneEvent done = run_bake_job(job, [&](const protocol::WorkerEvent& e) {
+        const nlohmann::json j = protocol::to_json(e);  // a line said again while it ran long: "… again"
+        events.push_back(j["event"].get<std::string>() + (j.value("again", false) ? " again" : ""));
+    });
     // The stages of preparation first, then the start event, once.
     const auto start = std::find(events.begin(), events.end(), "start");
     ASSERT_NE(start, events.end());
-    EXPECT_TRUE(std::all_of(events.begin(), start, [](const std::string& e) { return e == "prepare"; }));
+    EXPECT_TRUE(std::all_of(events.begin(), start, [](const std::string& e) { return e.rfind("prepare", 0) == 0; }));
     EXPECT_GT(start - events.begin(), 0) << "preparation's stages are said";
     EXPECT_EQ(std::count(events.begin(), events.end(), "start"), 1);
     EXPECT_EQ(events.back(), "done");

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <exception>
+#include <utility>
 
 namespace lf {
 
@@ -26,7 +28,16 @@ BakeEventSink EventHeartbeat::sink() {
 
 void EventHeartbeat::pass_on(const protocol::WorkerEvent& e) {
     const std::lock_guard<std::mutex> lock(mutex_);
-    emit_(e);
+    // The sink may throw (a closed pipe; a test that stops a bake at a
+    // pass): on the caller's thread, as if there were no heartbeat.
+    if (failure_) std::rethrow_exception(std::exchange(failure_, nullptr));
+    try {
+        emit_(e);
+    } catch (...) {
+        stopped_ = true;  // the bake is ending: nothing more is repeated
+        wake_.notify_all();
+        throw;
+    }
     since_said_ = Stopwatch();
     if (std::holds_alternative<protocol::PrepareEvent>(e) || std::holds_alternative<protocol::ProgressEvent>(e)) {
         last_ = e;
@@ -45,12 +56,19 @@ void EventHeartbeat::repeat() {
         const double moved = since_last_.seconds();
         protocol::WorkerEvent again = *last_;
         if (auto* prepare = std::get_if<protocol::PrepareEvent>(&again)) {
+            prepare->again = true;
             prepare->seconds += moved;
             if (prepare->eta_seconds) prepare->eta_seconds = std::max(0.0, *prepare->eta_seconds - moved);
         } else if (auto* progress = std::get_if<protocol::ProgressEvent>(&again)) {
+            progress->again = true;
             progress->progress.seconds += moved;
         }
-        emit_(again);
+        try {
+            emit_(again);
+        } catch (...) {
+            failure_ = std::current_exception();  // for the bake's own thread, at its next event
+            break;
+        }
         since_said_ = Stopwatch();
     }
 }

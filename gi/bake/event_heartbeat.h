@@ -13,6 +13,7 @@
 #include "util/stopwatch.h"
 
 #include <condition_variable>
+#include <exception>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -30,6 +31,8 @@ public:
 
     // Where the bake says its events: passed on at once, one at a time
     // (the heartbeat's own thread and a snapshot writer's never overlap it).
+    // What the sink throws reaches the thread that said the event, or, for a
+    // line said again, the bake's next event; nothing is repeated after.
     BakeEventSink sink();
     // Nothing more is repeated (returns once the repeating thread ended).
     void stop();
@@ -45,6 +48,7 @@ private:
     std::optional<protocol::WorkerEvent> last_;  // the last prepare or progress event said
     Stopwatch since_said_;                       // the last event of any kind
     Stopwatch since_last_;                       // last_
+    std::exception_ptr failure_;                 // what the sink threw on the repeating thread
     std::thread thread_;
 };
 
