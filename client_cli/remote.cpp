@@ -189,14 +189,17 @@ std::string preparing_line(const std::string& job, const protocol::PrepareEvent&
 
 std::string queued_line(const std::string& job, const protocol::QueuePlace& q) {
     return job.substr(0, 12) + (job.empty() ? "" : "  ") + "queued: " + std::to_string(q.ahead) +
-           (q.ahead == 1 ? " job" : " jobs") + " ahead of it, " + std::to_string(q.running) + " running";
+           (q.ahead == 1 ? " job" : " jobs") + " ahead of it, " + std::to_string(q.running) + " running, " +
+           (q.starts_in_seconds ? "starts in about " + format_seconds(*q.starts_in_seconds)
+                                : "no estimate of its start yet (no job has finished here)");
 }
 
 namespace {
 
 // While the job is queued its events say nothing: its status says where it
 // stands, read once a second and told when it changes (a line on stderr, or
-// with --json a {"event": "queued", "ahead", "running"} line), until it starts.
+// with --json a {"event": "queued", "ahead", "running", "starts_in_seconds"}
+// line), until it starts.
 void tell_while_queued(Remote& remote, const std::string& job, bool json_lines) {
     std::optional<std::pair<int, int>> told;
     for (;;) {
@@ -209,7 +212,12 @@ void tell_while_queued(Remote& remote, const std::string& job, bool json_lines) 
         const std::pair<int, int> place{status.queue->ahead, status.queue->running};
         if (place != told) {
             if (json_lines)
-                std::cout << json{{"event", "queued"}, {"ahead", place.first}, {"running", place.second}}.dump()
+                std::cout << json{{"event", "queued"},
+                                  {"ahead", place.first},
+                                  {"running", place.second},
+                                  {"starts_in_seconds",
+                                   status.queue->starts_in_seconds ? json(*status.queue->starts_in_seconds) : json()}}
+                                 .dump()
                           << std::endl;
             else std::cerr << queued_line(job, *status.queue) << "\n" << std::flush;
             told = place;

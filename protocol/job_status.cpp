@@ -167,7 +167,10 @@ json to_json(const JobStatus& s) {
     j["finished_at"] = s.finished_at > 0 ? json(s.finished_at) : json(nullptr);
     if (!s.error.empty()) j["error"] = s.error;
     if (!s.cause.empty()) j["cause"] = s.cause;
-    if (s.queue) j["queue"] = {{"ahead", s.queue->ahead}, {"running", s.queue->running}};
+    if (s.queue)
+        j["queue"] = {{"ahead", s.queue->ahead},
+                      {"running", s.queue->running},
+                      {"starts_in_seconds", s.queue->starts_in_seconds ? json(*s.queue->starts_in_seconds) : json()}};
     return j;
 }
 
@@ -193,7 +196,9 @@ JobStatus status_from_json(const json& j) {
             const json& v = j["queue"].value(key, json());
             return v.is_number_integer() ? int(std::clamp<int64_t>(v.get<int64_t>(), 0, 1 << 30)) : 0;
         };
-        s.queue = QueuePlace{count("ahead"), count("running")};
+        s.queue = QueuePlace{count("ahead"), count("running"), std::nullopt};
+        const json& starts = j["queue"].value("starts_in_seconds", json());
+        if (starts.is_number() && starts.get<double>() >= 0.0) s.queue->starts_in_seconds = starts.get<double>();
     }
     return s;
 }

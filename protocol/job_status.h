@@ -85,6 +85,10 @@ std::map<std::string, LatestFile> latest_from_json(const nlohmann::json& j);
 struct QueuePlace {
     int ahead = 0;
     int running = 0;
+    // The server's estimate of when it starts, in seconds from now
+    // (server/queue_estimate.h); empty when nothing prices the jobs before
+    // it yet (no job has finished on this farm).
+    std::optional<double> starts_in_seconds;
 };
 
 struct JobStatus {

@@ -154,6 +154,10 @@ public:
                         const JobEvent& event) = 0;
     // Every running job, on any node.
     virtual std::vector<JobRecord> running_jobs() = 0;
+    // Wall seconds (its last attempt's start to its end) of the `n` jobs
+    // that succeeded last after running (not answered from the cache), any
+    // owner's: what prices a queued job's wait (queue_estimate.h).
+    virtual std::vector<double> recent_job_seconds(int n) = 0;
     // True when the store holds no job and no scene (a new store, or one that
     // lost its records: lightfarmd checks this against the data directory).
     virtual bool empty() = 0;

@@ -107,10 +107,18 @@ private:
     // prefix (job_by_id_prefix; 404 when no job of the caller's has it).
     JobRecord owned_job(const httplib::Request& req, const Caller& caller);
     // What a listing of jobs looks up once, however many jobs it lists.
+    // What a queued job's place and start depend on, read once (a listing).
+    struct QueueOutlook {
+        int running = 0;                                  // the jobs running now
+        int slots = 0;                                    // the farm's workers (alive nodes')
+        std::vector<std::optional<double>> running_left;  // each running job's ETA, where it has one
+        std::optional<double> typical_seconds;            // queue_estimate.h
+    };
     struct StatusLookups {
         std::map<std::string, nlohmann::json> briefs;  // scene id -> its name and size
-        std::optional<int> running;                    // the jobs running now (a queued job's place)
+        std::optional<QueueOutlook> queue;
     };
+    QueueOutlook queue_outlook() const;
     // A job's status for the API; `lookups` spares a listing the store
     // queries its jobs share.
     nlohmann::json status_json(const JobRecord& job, StatusLookups* lookups = nullptr) const;

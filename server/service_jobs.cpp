@@ -7,6 +7,7 @@
 #include "hash.h"
 #include "http_error.h"
 #include "log.h"
+#include "queue_estimate.h"
 
 #include <httplib.h>
 
@@ -21,17 +22,18 @@ namespace lf::server {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
+constexpr int kTypicalJobs = 20;  // the jobs that finished last, whose median prices a queued one
+
 json Service::status_json(const JobRecord& job, StatusLookups* lookups) const {
     StatusLookups own;
     if (!lookups) lookups = &own;
     protocol::JobStatus status = job.status;
     if (status.state == JobState::Queued) {
-        if (!lookups->running) {
-            const std::map<JobState, int> counts = store_->count_by_state();
-            const auto running = counts.find(JobState::Running);
-            lookups->running = running == counts.end() ? 0 : running->second;
-        }
-        status.queue = protocol::QueuePlace{store_->queued_ahead(status.id), *lookups->running};
+        if (!lookups->queue) lookups->queue = queue_outlook();
+        const QueueOutlook& q = *lookups->queue;
+        const int ahead = store_->queued_ahead(status.id);
+        status.queue = protocol::QueuePlace{ahead, q.running,
+                                            queued_start_estimate(ahead, q.slots, q.running_left, q.typical_seconds)};
     }
     json j = protocol::to_json(status);
     // What a person recognises the scene by: its file's name and size (a
@@ -47,6 +49,19 @@ json Service::status_json(const JobRecord& job, StatusLookups* lookups) const {
                   {"lightmap_rgbm", base + "/lightmap.rgbm.png"},
                   {"error_map", base + "/error.png"}};
     return j;
+}
+
+// The jobs running on the farm and their time left, the workers of its
+// alive nodes, and a typical job's time: what a queued job waits for.
+Service::QueueOutlook Service::queue_outlook() const {
+    QueueOutlook q;
+    for (const JobRecord& job : store_->running_jobs()) q.running_left.push_back(job.status.progress.eta_seconds);
+    q.running = int(q.running_left.size());
+    for (const NodeRecord& node : store_->nodes())
+        if (node.alive() && node.info.is_object()) q.slots += node.info.value("workers", 0);
+    q.slots = std::max(q.slots, q.running);
+    q.typical_seconds = typical_job_seconds(store_->recent_job_seconds(kTypicalJobs));
+    return q;
 }
 
 // POST /v1/jobs: a spec checked against this server's caps and the scene's

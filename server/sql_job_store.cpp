@@ -306,6 +306,17 @@ std::vector<JobRecord> SqlJobStore::running_jobs() {
     return select_jobs("cannot list running jobs", "WHERE state = 'running' ORDER BY seq", {});
 }
 
+std::vector<double> SqlJobStore::recent_job_seconds(int n) {
+    std::lock_guard lock(mutex_);
+    const SqlResult r = db_->run("cannot read finished jobs",
+                                 "SELECT finished_at - started_at FROM jobs WHERE state = 'succeeded' AND cached = 0 "
+                                 "AND started_at > 0 AND finished_at >= started_at ORDER BY finished_at DESC LIMIT ?",
+                                 {int64_t(n)});
+    std::vector<double> seconds;
+    for (size_t i = 0; i < r.rows.size(); ++i) seconds.push_back(r.real(i, 0));
+    return seconds;
+}
+
 bool SqlJobStore::empty() {
     std::lock_guard lock(mutex_);
     return db_->run("cannot count jobs and scenes",

@@ -56,6 +56,7 @@ public:
     bool finish(const std::string& id, JobState state, const std::string& error, const std::string& cause,
                 const JobEvent& event) override;
     std::vector<JobRecord> running_jobs() override;
+    std::vector<double> recent_job_seconds(int n) override;
     bool empty() override;
     bool has_job(const std::string& id) override;
 

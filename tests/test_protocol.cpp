@@ -976,8 +976,11 @@ TEST(JobStatus, RoundTripsThroughJson) {
     EXPECT_EQ(to_json(s)["started_at"], nullptr);
     EXPECT_FALSE(to_json(s).contains("queue")) << "only a queued job says where it stands";
     s.state = JobState::Queued;
-    s.queue = QueuePlace{2, 1};
-    EXPECT_EQ(to_json(s)["queue"], json({{"ahead", 2}, {"running", 1}}));
+    s.queue = QueuePlace{2, 1, std::nullopt};
+    EXPECT_EQ(to_json(s)["queue"], json({{"ahead", 2}, {"running", 1}, {"starts_in_seconds", nullptr}}));
+    EXPECT_EQ(to_json(status_from_json(to_json(s))), to_json(s));
+    s.queue->starts_in_seconds = 42.5;
+    EXPECT_EQ(to_json(s)["queue"]["starts_in_seconds"], 42.5);
     EXPECT_EQ(to_json(status_from_json(to_json(s))), to_json(s));
     EXPECT_TRUE(is_final(JobState::Cancelled));
     EXPECT_TRUE(is_final(JobState::Succeeded));

@@ -57,11 +57,20 @@ protected:
     // held at its start (the fake engine's gate, until engine.dir/gate goes):
     // the next job queues behind it. Returns the running job's id ("" when
     // it could not be submitted).
-    std::string one_worker_busy(const std::string& data) {
+    // With `finished_first`, a job of scene.glb runs to its end before: the
+    // one the farm prices a queued job by (server/queue_estimate.h); its id
+    // in *finished_first.
+    std::string one_worker_busy(const std::string& data, std::string* finished_first = nullptr) {
         server->stop();
         server = std::make_unique<Lightfarmd>(tmp.path / data, tmp.path / "tokens", engine.script,
                                               std::vector<std::string>{"--workers", "1"});
         server->start();
+        if (finished_first) {
+            const CliRun done = run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "2", "--seed",
+                                                 "7", "--wait", "--out", (tmp.path / data / "first").string()}));
+            EXPECT_EQ(done.status, 0) << done.err;
+            *finished_first = done.out.substr(0, done.out.find('\n'));
+        }
         engine.set("gate", "");
         const CliRun first =
             run(with_common({"submit", (tmp.path / "scene.glb").string(), "--passes", "2", "--seed", "1"}));
@@ -129,7 +138,13 @@ TEST_F(RemoteTest, SubmitWaitDownloadsTheResults) {
 // running job is held at its start until 3 s after the second exists.
 TEST_F(RemoteTest, SubmitWaitSaysWhereAQueuedJobStands) {
     const std::string scene = (tmp.path / "scene.glb").string();
-    ASSERT_FALSE(one_worker_busy("data-queue").empty());
+    std::string finished;
+    ASSERT_FALSE(one_worker_busy("data-queue", &finished).empty());
+    // The estimate of its start: the running job has no ETA yet (held
+    // before its first event), so it is priced as a typical job, the median
+    // of those that finished: the one job that did.
+    const json first = json::parse(server->client(kToken).Get("/v1/jobs/" + finished)->body);
+    const double typical = first["finished_at"].get<double>() - first["started_at"].get<double>();
     std::thread open([&] {
         auto poll = server->client(kToken);
         for (int i = 0; i < 600; ++i) {
@@ -148,9 +163,18 @@ TEST_F(RemoteTest, SubmitWaitSaysWhereAQueuedJobStands) {
     std::string id, queued;
     std::getline(lines, id);
     std::getline(lines, queued);
-    EXPECT_EQ(json::parse(queued), json({{"event", "queued"}, {"ahead", 0}, {"running", 1}})) << second.out;
+    const json said = json::parse(queued);
+    EXPECT_EQ(said["event"], "queued") << second.out;
+    EXPECT_EQ(said["ahead"], 0);
+    EXPECT_EQ(said["running"], 1);
+    ASSERT_TRUE(said["starts_in_seconds"].is_number()) << second.out;
+    EXPECT_DOUBLE_EQ(said["starts_in_seconds"].get<double>(), typical);
     EXPECT_NE(second.out.find("\"event\":\"done\""), std::string::npos) << second.out;
-    EXPECT_EQ(cli::queued_line("0123456789abcdef", {2, 1}), "0123456789ab  queued: 2 jobs ahead of it, 1 running");
+    EXPECT_EQ(cli::queued_line("0123456789abcdef", {2, 1, 95.0}),
+              "0123456789ab  queued: 2 jobs ahead of it, 1 running, starts in about 1m35s");
+    EXPECT_EQ(cli::queued_line("0123456789abcdef", {0, 1, std::nullopt}),
+              "0123456789ab  queued: 0 jobs ahead of it, 1 running, no estimate of its start yet (no job has "
+              "finished here)");
 }
 
 // Ctrl-C on `submit --wait` (issue #54: the command died, and nothing said

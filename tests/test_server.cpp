@@ -9,12 +9,14 @@
 #include "http_error.h"
 #include "preview_cache.h"
 #include "service.h"
+#include "queue_estimate.h"
 #include "supervisor.h"
 
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <fstream>
+#include <random>
 #include <set>
 #include <thread>
 #include <tuple>
@@ -703,8 +705,12 @@ TEST_F(ServerTest, AQueuedJobSaysWhereItStands) {
     const std::string second = submit(scene, {{"passes", 2}}, 2), third = submit(scene, {{"passes", 2}}, 3);
     const json running = json::parse(c.Get("/v1/jobs/" + first)->body);
     EXPECT_FALSE(running.contains("queue")) << running.dump();
-    EXPECT_EQ(json::parse(c.Get("/v1/jobs/" + second)->body)["queue"], json({{"ahead", 0}, {"running", 1}}));
-    EXPECT_EQ(json::parse(c.Get("/v1/jobs/" + third)->body)["queue"], json({{"ahead", 1}, {"running", 1}}));
+    // No job has finished here: nothing prices the running one (no ETA
+    // before its first pass) or the one ahead, so no start is promised.
+    EXPECT_EQ(json::parse(c.Get("/v1/jobs/" + second)->body)["queue"],
+              json({{"ahead", 0}, {"running", 1}, {"starts_in_seconds", nullptr}}));
+    EXPECT_EQ(json::parse(c.Get("/v1/jobs/" + third)->body)["queue"],
+              json({{"ahead", 1}, {"running", 1}, {"starts_in_seconds", nullptr}}));
     fs::remove(engine.dir / "gate");
     for (const std::string& id : {first, second, third}) {
         const json done = wait_finished(id);
@@ -1526,6 +1532,45 @@ TEST_F(ServerTest, TheNewestSnapshotComesFromTheEventsNotFromNames) {
     EXPECT_EQ(json::parse(r->body)["cached"], true);
     const json cached = wait_finished(json::parse(r->body)["id"]);
     EXPECT_EQ(cached["latest"], status["latest"]);
+}
+
+// ---- queued_start_estimate: when a queued job starts (issue #54).
+
+// Slots free as their jobs end (an ETA, or a typical job's time for one
+// without), the jobs ahead each take the first slot free for a typical
+// job's time; unknown only where a typical job must be priced and none
+// finished. Against a brute-force schedule over drawn farms.
+TEST(QueuedStartEstimate, TheFirstSlotFreeAfterTheJobsAhead) {
+    using server::queued_start_estimate;
+    EXPECT_EQ(queued_start_estimate(0, 2, {}, std::nullopt), 0.0) << "a free worker: at once";
+    EXPECT_EQ(queued_start_estimate(0, 1, {30.0}, std::nullopt), 30.0) << "when the running job ends";
+    EXPECT_EQ(queued_start_estimate(0, 1, {std::nullopt}, std::nullopt), std::nullopt);
+    EXPECT_EQ(queued_start_estimate(0, 1, {std::nullopt}, 50.0), 50.0);
+    EXPECT_EQ(queued_start_estimate(1, 2, {10.0, 40.0}, 100.0), 40.0) << "the one ahead takes the slot free at 10";
+    EXPECT_EQ(queued_start_estimate(2, 2, {10.0, 40.0}, 100.0), 110.0);
+    EXPECT_EQ(queued_start_estimate(1, 1, {5.0}, std::nullopt), std::nullopt) << "nothing prices the one ahead";
+    EXPECT_EQ(queued_start_estimate(0, 0, {}, std::nullopt), 0.0) << "no worker known: the next to come";
+    std::mt19937 rng(54);
+    std::printf("  seed 54\n");
+    for (int trial = 0; trial < 200; ++trial) {
+        const int slots = 1 + int(rng() % 6), running = int(rng() % (slots + 1)), ahead = int(rng() % 12);
+        const double typical = 1.0 + double(rng() % 1000);
+        std::vector<std::optional<double>> left;
+        std::vector<double> free_at(size_t(slots), 0.0);
+        for (int r = 0; r < running; ++r) {
+            left.push_back(rng() % 4 ? std::optional<double>(double(rng() % 500)) : std::nullopt);
+            free_at[size_t(r)] = left.back().value_or(typical);
+        }
+        for (int k = 0; k <= ahead; ++k) {  // the jobs ahead, then this one
+            const auto first = std::min_element(free_at.begin(), free_at.end());
+            if (k == ahead) {
+                EXPECT_DOUBLE_EQ(*queued_start_estimate(ahead, slots, left, typical), *first);
+            }
+            *first += typical;
+        }
+    }
+    EXPECT_EQ(server::typical_job_seconds({}), std::nullopt);
+    EXPECT_EQ(server::typical_job_seconds({30.0, 10.0, 20.0}), 20.0);
 }
 
 // ---- apply_worker_event: one event in, what to store out. No process, no store.

@@ -212,6 +212,31 @@ TEST_P(StoreTest, ProgressEventsAreCoalescedSoTheStoreGrowsWithJobsNotPasses) {
     EXPECT_EQ(events.back().id, 1 + 5000 + 13);
 }
 
+// What prices a queued job's wait (server/queue_estimate.h): the wall
+// times of the jobs that ran and succeeded, newest first; not a cache hit
+// (born succeeded, it never ran), not a failed job.
+TEST_P(StoreTest, RecentJobSecondsAreOfTheJobsThatRanAndSucceeded) {
+    JobStore& store = this->store();
+    EXPECT_TRUE(store.recent_job_seconds(20).empty());
+    for (const char* id : {"ran", "broke"}) {
+        store.insert_job(queued_job(id), {});
+        ASSERT_TRUE(store.claim_next());
+    }
+    ASSERT_TRUE(store.finish("ran", JobState::Succeeded, "", "", {0, "done", json::object()}));
+    ASSERT_TRUE(store.finish("broke", JobState::Failed, "bad", "", {0, "failed", json::object()}));
+    JobRecord hit = queued_job("hit");
+    hit.status.state = JobState::Succeeded;
+    hit.status.cached = true;
+    hit.status.finished_at = hit.status.created_at = server::now_seconds();
+    store.insert_job(hit, {{0, "done", json::object()}});
+    const std::vector<double> seconds = store.recent_job_seconds(20);
+    ASSERT_EQ(seconds.size(), 1u);
+    const JobRecord ran = *store.job("ran");
+    EXPECT_DOUBLE_EQ(seconds[0], ran.status.finished_at - ran.status.started_at);
+    EXPECT_GE(seconds[0], 0.0);
+    EXPECT_TRUE(store.recent_job_seconds(0).empty());
+}
+
 // Lines said again (a long stage or pass, marked "again" by the
 // supervisor) do not pile up: the store keeps the first of each stage and
 // pass, and only the newest line said again.

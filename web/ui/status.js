@@ -73,7 +73,9 @@ function render(jobs) {
     const progress = cell(row, place || (preparing ? "preparing" + stage : percent + "%"));
     progress.prepend(bar);
     const known = (seconds) => seconds !== null && seconds !== undefined;
-    const eta = preparing && known(job.progress.prepare_eta_seconds)
+    const starts = place && known(job.queue.starts_in_seconds) ? job.queue.starts_in_seconds : null;
+    const eta = starts !== null ? "starts in " + fmt(starts, 0) + " s"
+                : preparing && known(job.progress.prepare_eta_seconds)
                     ? fmt(job.progress.prepare_eta_seconds, 0) + " s (preparing)"
                     : known(job.progress.eta_seconds) ? fmt(job.progress.eta_seconds, 0) + " s" : "–";
     cell(row, eta);
