@@ -1,6 +1,7 @@
 #include "preview.h"
 
 #include "display_tone.h"
+#include "lightmap_preview.h"
 #include "lightmap_rgbm.h"
 
 #include <OpenEXR/ImfChannelList.h>
@@ -68,15 +69,6 @@ std::string rgb_png(const std::vector<unsigned char>& rgb, int width, int height
     }
 }
 
-std::vector<unsigned char> tonemapped(const LightmapPixels& image, float exposure) {
-    std::vector<unsigned char> out(image.rgb.size());
-    for (size_t i = 0; i < image.rgb.size(); ++i) {
-        float v = std::isfinite(image.rgb[i]) ? std::max(0.0f, image.rgb[i]) * exposure : 0.0f;
-        out[i] = protocol::encode_srgb8(v / (1.0f + v));
-    }
-    return out;
-}
-
 // Blue (low) through green and yellow to red (high): a scale read without a legend's help.
 void error_colour(double t, unsigned char* rgb) {
     static const float stops[5][3] = {
@@ -117,7 +109,12 @@ std::map<PreviewKind, Preview> render_previews(const std::string& exr_path) {
     const LightmapPixels image = read_lightmap(exr_path);
     const double exposure = protocol::automatic_exposure(image.rgb);
     std::map<PreviewKind, Preview> out;
-    out[PreviewKind::Tonemapped].png = rgb_png(tonemapped(image, float(exposure)), image.width, image.height, exr_path);
+    try {
+        out[PreviewKind::Tonemapped].png =
+            protocol::lightmap_preview_png(image.rgb, image.width, image.height, exposure);
+    } catch (const std::exception& e) {
+        throw std::runtime_error("cannot encode a PNG preview of " + exr_path + ": " + e.what());
+    }
     const protocol::RgbmImage rgbm = protocol::encode_rgbm(image.rgb, image.width, image.height);
     out[PreviewKind::Rgbm].png = protocol::rgbm_png(rgbm);
     out[PreviewKind::Rgbm].headers["X-Lightfarm-Rgbm-Range"] = number(rgbm.range);

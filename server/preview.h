@@ -24,7 +24,8 @@ struct Preview {
 // each of them); Error is absent when the file has no "error" channel.
 // Exposure: the geometric mean luminance of the lit texels brought to 0.18
 // (robust to the few very bright texels beside a light). Tonemapped applies
-// it, Reinhard x/(1+x) and the sRGB curve; unlit texels stay black.
+// it as every preview does (protocol/lightmap_preview.h: the preview.png a
+// bake writes is the same image of its final lightmap).
 // Error: relative standard error (the "error" channel over the texel's
 // luminance) on a logarithmic scale from kErrorScaleLow (blue) to
 // kErrorScaleHigh (red), texels without light black, texels with fewer than

@@ -428,10 +428,14 @@ TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
     EXPECT_TRUE(same_pixels(served, tmp.path / "local" / "lightmap.exr"))
         << "the served bake and `lightfarm bake` with the same seed";
 
+    // The service's preview of the final lightmap is the preview.png the
+    // CLI's bake writes beside it (issue #54), and the worker's artifact.
     auto png = client().Get("/v1/jobs/" + id + "/preview.png");
     ASSERT_TRUE(png);
     EXPECT_EQ(png->status, 200);
     EXPECT_EQ(png->body.substr(1, 3), "PNG");
+    EXPECT_EQ(png->body, read_text(tmp.path / "local" / "preview.png")) << "the CLI's preview.png";
+    EXPECT_EQ(png->body, read_text(download(id, "preview.png", "served"))) << "the job's own preview.png";
 }
 
 // A probes job through the service (issue #52): the same probes as

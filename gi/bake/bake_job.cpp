@@ -14,6 +14,8 @@
 #include "gpu/shader.h"
 #include "io/image_files.h"
 #include "io/write_error.h"
+#include "display_tone.h"
+#include "lightmap_preview.h"
 #include "scene/gltf_loader.h"
 #include "util/hash.h"
 #include "util/stopwatch.h"
@@ -589,6 +591,11 @@ std::optional<std::string> write_lit_scene(const BakeJob& job, const PreparedSce
             holds += ", the final lightmap (MOZ_lightmap, RGBM PNG; see README)";
             write_unlit_glb(job.scene, atlas_scene, unlit_look(prepared.texels, rgb), job.out / "scene.unlit.glb");
             done.files.push_back("scene.unlit.glb");
+            // The atlas to look at, as the service's preview.png shows it.
+            write_file_atomic(
+                job.out / "preview.png",
+                protocol::lightmap_preview_png(rgb, image.width, image.height, protocol::automatic_exposure(rgb)));
+            done.files.push_back("preview.png");
         } else if (o.lit_scene_slot == "occlusion") {
             occlusion = GreyImage{image.width, image.height, std::vector<uint8_t>(r.size())};
             for (size_t i = 0; i < r.size(); ++i)
@@ -762,6 +769,10 @@ protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& to_cal
     if (prepared->atlas_scene)
         manifest["files"]["scene.lightmapped.glb"] = "the input scene with TEXCOORD_1 = the lightmap's UVs";
     if (lit_scene) manifest["files"]["scene.lit.glb"] = *lit_scene;
+    if (manifest["files"].contains("preview.png"))
+        manifest["files"]["preview.png"] =
+            "the final lightmap to look at as an atlas: tone-mapped 8-bit sRGB at the "
+            "automatic exposure, as the service's GET /v1/jobs/{id}/preview.png shows it";
     if (manifest["files"].contains("scene.unlit.glb"))
         manifest["files"]["scene.unlit.glb"] =
             "the lit scene for any glTF viewer: each material unlit (KHR_materials_unlit), its base colour the light "
