@@ -35,9 +35,19 @@ namespace lf::server {
 // The store could not read or write (disk full, I/O error, a database file made
 // read-only, locked for too long). Nothing of the failed call was stored. The
 // message names what failed, never a path.
+// What the store could not do. what(): the whole story, for the server's
+// log (the database's own words: a file's path, an address, a HINT);
+// cause(): what a tenant may be told (issue #55: PostgreSQL's file path,
+// HINT and address reached tenants' error messages).
 class StoreError : public std::runtime_error {
 public:
-    using std::runtime_error::runtime_error;
+    static constexpr const char* kFailed = "it failed; the server's log says how";
+    explicit StoreError(const std::string& what, std::string cause = kFailed)
+        : std::runtime_error(what), cause_(std::move(cause)) {}
+    const std::string& cause() const { return cause_; }
+
+private:
+    std::string cause_;
 };
 
 using protocol::JobEvent;

@@ -8,6 +8,21 @@
 
 namespace lf::server {
 
+// SQLSTATE classes (PostgreSQL's appendix A): 53 insufficient resources
+// (53100 disk full), 08 connection exceptions, 25006 a read-only
+// transaction, 57P0x the server shutting down, 55P03 / 57014 a lock or
+// statement timeout.
+std::string postgres_store_cause(const std::string& sqlstate, bool connection_lost) {
+    if (connection_lost || sqlstate.rfind("08", 0) == 0 || sqlstate.rfind("57P0", 0) == 0)
+        return "it cannot be reached";
+    if (sqlstate == "53100") return "its disk is full";
+    if (sqlstate.rfind("53", 0) == 0) return "it is out of resources";
+    if (sqlstate == "25006") return "it is read-only";
+    if (sqlstate == "55P03" || sqlstate == "57014" || sqlstate == "40001" || sqlstate == "40P01") return "it is busy";
+    if (sqlstate.rfind("58", 0) == 0) return "its disk answered with an I/O error";
+    return StoreError::kFailed;
+}
+
 namespace {
 
 // The schema, one migration per version, applied in order at start and
@@ -84,6 +99,8 @@ std::string describe_database(PGconn* conn) {
     return std::string(user ? user : "?") + "@" + (host ? host : "?") + ":" + (port ? port : "?") + "/" +
            (db ? db : "?");
 }
+
+constexpr const char* kUnreachable = "it cannot be reached";
 
 std::string first_line(const char* message) {
     std::string m = message ? message : "";
@@ -174,15 +191,16 @@ void PostgresConnection::connect_if_lost() {
                                 "5",          "3",          "-c lock_timeout=10000 -c statement_timeout=30000",
                                 uri_.c_str(), nullptr};
         conn_ = PQconnectdbParams(keys, values, 1);
-        if (!conn_) throw StoreError("job store: cannot connect to PostgreSQL: out of memory");
+        if (!conn_) throw StoreError("job store: cannot connect to PostgreSQL: out of memory", kUnreachable);
         where_ = describe_database(conn_);
         // Notices ("relation already exists, skipping") are not errors: not for the log.
         PQsetNoticeProcessor(
             conn_, [](void*, const char*) {}, nullptr);
     }
     if (PQstatus(conn_) != CONNECTION_OK)
-        throw StoreError("job store: cannot connect to PostgreSQL at " + where_ + ": " +
-                         first_line(PQerrorMessage(conn_)));
+        throw StoreError(
+            "job store: cannot connect to PostgreSQL at " + where_ + ": " + first_line(PQerrorMessage(conn_)),
+            kUnreachable);
 }
 
 SqlResult PostgresConnection::run(const char* what, const std::string& sql, const std::vector<SqlValue>& params) {
@@ -200,9 +218,11 @@ SqlResult PostgresConnection::run(const char* what, const std::string& sql, cons
     const ExecStatusType status = PQresultStatus(r.get());  // PGRES_FATAL_ERROR for a null result (out of memory)
     if (status != PGRES_COMMAND_OK && status != PGRES_TUPLES_OK) {
         const bool lost = PQstatus(conn_) != CONNECTION_OK;
+        const char* sqlstate = PQresultErrorField(r.get(), PG_DIAG_SQLSTATE);
         throw StoreError(std::string("job store: ") + what + ": " +
-                         (lost ? "lost the connection to PostgreSQL at " + where_ + ": " : "") +
-                         first_line(PQerrorMessage(conn_)));
+                             (lost ? "lost the connection to PostgreSQL at " + where_ + ": " : "") +
+                             first_line(PQerrorMessage(conn_)),
+                         postgres_store_cause(sqlstate ? sqlstate : "", lost));
     }
     return result_of(r.get());
 }

@@ -16,6 +16,10 @@
 
 namespace lf::server {
 
+// What a tenant is told of a failed PostgreSQL statement (StoreError::cause):
+// from its SQLSTATE ("" when there is none), or that the connection is lost.
+std::string postgres_store_cause(const std::string& sqlstate, bool connection_lost);
+
 class PostgresJobStore : public SqlJobStore {
 public:
     // The newest schema this lightfarmd knows (its migrations: postgres_job_store.cpp).

@@ -352,9 +352,10 @@ void Service::serve(const Route& route, const httplib::Request& req, httplib::Re
         // Nothing of the request was stored: say so, never 201.
         log_line(std::string(route.method) + " " + route.path + ": " + e.what());
         res.set_header("Retry-After", "5");
+        // The tenant learns why in the store's terms, not its internals
+        // (a database's paths, address and hints stay in the log).
         send_json(res, 503,
-                  {{"error", std::string("the job store cannot take this now (") + e.what() +
-                                 "); nothing was stored, retry later"},
+                  {{"error", "the job store cannot take this now (" + e.cause() + "); nothing was stored, retry later"},
                    {"retry_after", 5}});
     } catch (const std::exception& e) {
         // The log has the whole message; the client learns what

@@ -34,8 +34,25 @@ CREATE TABLE IF NOT EXISTS nodes(
 )sql";
 
 [[noreturn]] void store_failed(sqlite3* db, const std::string& what) {
-    throw StoreError("job store: " + what + ": " + sqlite3_errmsg(db));
+    throw StoreError("job store: " + what + ": " + sqlite3_errmsg(db), sqlite_store_cause(sqlite3_errcode(db)));
 }
+
+}  // namespace
+
+std::string sqlite_store_cause(int code) {
+    switch (code & 0xff) {  // the primary code of an extended one
+    case SQLITE_FULL: return "its disk is full";
+    case SQLITE_READONLY: return "it is read-only";
+    case SQLITE_IOERR: return "its disk answered with an I/O error";
+    case SQLITE_BUSY:
+    case SQLITE_LOCKED: return "it is busy";
+    case SQLITE_NOMEM: return "the server is out of memory";
+    case SQLITE_CANTOPEN: return "it cannot be opened";
+    default: return StoreError::kFailed;
+    }
+}
+
+namespace {
 
 // ---- the test hook: a VFS over the default one whose writes can fail -------
 std::atomic<bool> g_full_disk{false};
@@ -309,7 +326,7 @@ void SqliteConnection::exec(const char* sql) {
     if (sqlite3_exec(db_, sql, nullptr, nullptr, &message) != SQLITE_OK) {
         const std::string why = message ? message : "unknown error";
         sqlite3_free(message);
-        throw StoreError("job store " + path_ + ": " + why);
+        throw StoreError("job store " + path_ + ": " + why, sqlite_store_cause(sqlite3_errcode(db_)));
     }
 }
 
@@ -342,7 +359,7 @@ void SqliteConnection::commit() {
         // A failed COMMIT may leave the transaction open: end it, so the next
         // call starts clean, and say what failed.
         if (sqlite3_get_autocommit(db_) == 0) rollback();
-        throw StoreError("job store: commit failed: " + why);
+        throw StoreError("job store: commit failed: " + why, sqlite_store_cause(sqlite3_errcode(db_)));
     }
 }
 

@@ -21,4 +21,7 @@ public:
     static void simulate_full_disk_for_tests(bool fail);
 };
 
+// What a tenant is told of an SQLite result code (StoreError::cause).
+std::string sqlite_store_cause(int code);
+
 }  // namespace lf::server

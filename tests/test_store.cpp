@@ -146,6 +146,40 @@ TEST(Store, EveryTransactionFailsWholeOnAFullDisk) {
     EXPECT_EQ(events[1].type, "done");
 }
 
+// A tenant is told why the store refused in its own terms, never the
+// database's internals (issue #55: PostgreSQL's file path, HINT and
+// address reached tenants' messages): StoreError::cause, from SQLite's
+// result code or PostgreSQL's SQLSTATE; what() keeps the whole story for
+// the log.
+TEST(Store, ATenantIsToldWhyInTheStoresTermsNotItsInternals) {
+    TempDir tmp;
+    const std::string path = (tmp.path / "jobs.sqlite").string();
+    SqliteJobStore store(path);
+    {
+        FullDisk full;
+        try {
+            store.insert_job(queued_job("j1"), {});
+            ADD_FAILURE() << "a full disk stored a job";
+        } catch (const StoreError& e) {
+            EXPECT_EQ(e.cause(), "its disk is full");
+            EXPECT_EQ(e.cause().find(tmp.path.string()), std::string::npos);
+            EXPECT_NE(std::string(e.what()).find("job store"), std::string::npos) << "the log's story: " << e.what();
+        }
+    }
+    EXPECT_EQ(server::sqlite_store_cause(SQLITE_FULL), "its disk is full");
+    EXPECT_EQ(server::sqlite_store_cause(SQLITE_IOERR_WRITE), "its disk answered with an I/O error");
+    EXPECT_EQ(server::sqlite_store_cause(SQLITE_READONLY_DBMOVED), "it is read-only");
+    EXPECT_EQ(server::sqlite_store_cause(SQLITE_ERROR), StoreError::kFailed);
+    EXPECT_EQ(server::postgres_store_cause("53100", false), "its disk is full");
+    EXPECT_EQ(server::postgres_store_cause("53200", false), "it is out of resources");
+    EXPECT_EQ(server::postgres_store_cause("08006", false), "it cannot be reached");
+    EXPECT_EQ(server::postgres_store_cause("", true), "it cannot be reached");
+    EXPECT_EQ(server::postgres_store_cause("25006", false), "it is read-only");
+    EXPECT_EQ(server::postgres_store_cause("57014", false), "it is busy");
+    EXPECT_EQ(server::postgres_store_cause("58030", false), "its disk answered with an I/O error");
+    EXPECT_EQ(server::postgres_store_cause("42P01", false), StoreError::kFailed);
+}
+
 // One PostgreSQL server for the whole program, started by the first test that
 // needs it, stopped at exit; each test gets a database of its own.
 PostgresServer& postgres() {
