@@ -5,6 +5,7 @@
 #include "args.h"
 #include "job_spec.h"
 #include "job_status.h"
+#include "percent_decoding.h"
 
 #include <httplib.h>
 #include <nlohmann/json.hpp>
@@ -98,19 +99,6 @@ std::string read_file(const fs::path& path) {
     return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
-std::string percent_decode(const std::string& s) {
-    std::string out;
-    for (size_t i = 0; i < s.size(); ++i) {
-        if (s[i] == '%' && i + 2 < s.size()) {
-            out += char(std::stoi(s.substr(i + 1, 2), nullptr, 16));
-            i += 2;
-        } else {
-            out += s[i];
-        }
-    }
-    return out;
-}
-
 // Uploads a .glb as the body, or a .gltf with every file its buffers and
 // images name as multipart parts. Returns the scene id.
 std::string upload_scene(Remote& remote, const fs::path& scene) {
@@ -139,7 +127,9 @@ std::string upload_scene(Remote& remote, const fs::path& scene) {
                 if (!item.is_object() || !item.contains("uri") || !item["uri"].is_string()) continue;
                 const std::string uri = item["uri"];
                 if (uri.rfind("data:", 0) == 0) continue;
-                const std::string name = percent_decode(uri);
+                const std::optional<std::string> decoded = protocol::percent_decode(uri);
+                if (!decoded) throw RemoteError(scene.string() + ": the URI '" + uri + "' has a malformed %-escape");
+                const std::string& name = *decoded;
                 if (!sent.insert(name).second) continue;
                 items.push_back({"file", read_file(scene.parent_path() / name), name, "application/octet-stream"});
             }

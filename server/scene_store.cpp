@@ -2,6 +2,7 @@
 
 #include "data_dir.h"
 #include "hash.h"
+#include "percent_decoding.h"
 #include "http_error.h"
 #include "log.h"
 #include "subprocess.h"
@@ -83,20 +84,6 @@ bool ends_with(const std::string& s, const std::string& suffix) {
                       [](char a, char b) { return std::tolower(static_cast<unsigned char>(a)) == b; });
 }
 
-std::string percent_decode(const std::string& s) {
-    std::string out;
-    for (size_t i = 0; i < s.size(); ++i) {
-        if (s[i] == '%' && i + 2 < s.size() && std::isxdigit(static_cast<unsigned char>(s[i + 1])) &&
-            std::isxdigit(static_cast<unsigned char>(s[i + 2]))) {
-            out += char(std::stoi(s.substr(i + 1, 2), nullptr, 16));
-            i += 2;
-        } else {
-            out += s[i];
-        }
-    }
-    return out;
-}
-
 // Every external URI of a .gltf must name a file of the same upload. The
 // loader checks this too; the server refuses before a file ever reaches it.
 void check_gltf_uris(const std::string& gltf_name, const std::string& text, const std::set<std::string>& names) {
@@ -113,7 +100,9 @@ void check_gltf_uris(const std::string& gltf_name, const std::string& text, cons
             if (!item["uri"].is_string()) throw HttpError(400, field + ": must be a string", {{"field", field}});
             const std::string uri = item["uri"];
             if (uri.rfind("data:", 0) == 0) continue;
-            const std::string path = percent_decode(uri);
+            const std::optional<std::string> decoded = protocol::percent_decode(uri);
+            if (!decoded) throw HttpError(400, field + ": '" + uri + "' has a malformed %-escape", {{"field", field}});
+            const std::string& path = *decoded;
             const std::string why = unsafe_path_reason(path);
             if (!why.empty()) throw HttpError(400, field + ": '" + uri + "' " + why, {{"field", field}});
             const std::string full = (base / path).lexically_normal().string();

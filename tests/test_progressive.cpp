@@ -2,11 +2,13 @@
 // snapshots off the passes (issue #12): pure logic, no GL.
 #include "bake/event_heartbeat.h"
 #include "bake/method_state.h"
+#include "bake/output_methods.h"
 #include "bake/preparation_estimate.h"
 #include "bake/progressive.h"
 #include "bake/snapshot_writer.h"
 
 #include "bake/bake_job.h"
+#include "outputs.h"
 #include <gtest/gtest.h>
 #include <unistd.h>
 #include <fstream>
@@ -124,6 +126,20 @@ TEST(EventHeartbeat, WhatTheSinkThrowsOnARepeatReachesTheBake) {
     EXPECT_THROW(emit(protocol::SnapshotEvent{"lightmap", "x.exr", 1}), std::runtime_error);
     heartbeat.stop();
     EXPECT_EQ(calls, 2);
+}
+
+// The output registry (protocol/outputs.h) and the methods (issue #56): an
+// output a job can ask for is one a method bakes, with the files it
+// writes listed; a name no output has makes no method.
+TEST(OutputRegistry, EveryOutputHasAMethodAndItsFiles) {
+    ASSERT_FALSE(protocol::output_registry().empty());
+    for (const protocol::OutputKind& o : protocol::output_registry()) {
+        SCOPED_TRACE(o.name);
+        EXPECT_NE(method_factory(o.name), nullptr) << "no method bakes it";
+        EXPECT_FALSE(o.files.empty()) << "no file listed";
+        EXPECT_EQ(protocol::find_output(o.name), &o);
+    }
+    EXPECT_EQ(method_factory("no-such-output"), nullptr);
 }
 
 TEST(SnapshotSchedule, FreeSnapshotsFollowTheDoublingPasses) {

@@ -8,6 +8,7 @@
 #include "job_spec.h"
 #include "job_status.h"
 #include "lightmap_rgbm.h"
+#include "percent_decoding.h"
 #include "worker_protocol.h"
 
 #include <gtest/gtest.h>
@@ -21,6 +22,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <random>
 #include <set>
 #include <sstream>
 
@@ -160,6 +162,33 @@ TEST(Rgbm, RoundTripsWithinHalfAStepOverItsDynamicRange) {
     const std::string png = protocol::rgbm_png(image);
     EXPECT_EQ(png.substr(1, 3), "PNG");
     EXPECT_THROW(protocol::encode_rgbm(rgb, width + 1, 1), std::invalid_argument);
+}
+
+// One percent-decoding for the loader, the server's upload check and the
+// CLI's upload (issue #56: three copies, one of which threw on "%zz"):
+// every byte, escaped in either case or not at all, decodes to itself
+// (drawn strings, seed printed); '+' stays '+'; a malformed escape is
+// refused, never guessed.
+TEST(PercentDecoding, EveryByteRoundTripsAndMalformedEscapesAreRefused) {
+    std::mt19937 rng(56);
+    std::printf("  seed 56\n");
+    for (int trial = 0; trial < 500; ++trial) {
+        std::string plain, escaped;
+        for (int k = int(rng() % 40); k > 0; --k) {
+            const unsigned char c = static_cast<unsigned char>(rng() % 256);
+            plain += char(c);
+            char hex[4];
+            std::snprintf(hex, sizeof hex, rng() % 2 ? "%%%02X" : "%%%02x", c);
+            escaped += c != '%' && rng() % 2 ? std::string(1, char(c)) : std::string(hex);
+        }
+        const std::optional<std::string> decoded = percent_decode(escaped);
+        ASSERT_TRUE(decoded) << escaped;
+        EXPECT_EQ(*decoded, plain);
+    }
+    EXPECT_EQ(percent_decode("a+b%20c"), "a+b c");
+    EXPECT_EQ(percent_decode(""), "");
+    for (const char* bad : {"%", "a%", "%4", "a%4", "%zz", "%g0", "%0g", "%%41"})
+        EXPECT_FALSE(percent_decode(bad)) << bad;
 }
 
 TEST(SnapshotNames, AreStemPassNumberExtension) {

@@ -6,6 +6,8 @@
 // change to the events, the CLI or the server.
 #pragma once
 
+#include "bake/bake_errors.h"   // what run_bake_job throws
+#include "bake/stop_request.h"  // how a running bake is stopped
 #include "bake_settings.h"
 #include "sh/environment.h"
 #include "gpu/context.h"
@@ -31,14 +33,6 @@ struct BakeJob {
     bool resume = false;
 };
 
-// The job's input cannot be baked as asked (no light, an atlas that cannot
-// fit, a mesh that is not there): running it again cannot help. The CLI
-// exits with protocol::kExitInputError for it (and for a SceneError).
-class BakeInputError : public std::runtime_error {
-public:
-    using std::runtime_error::runtime_error;
-};
-
 // The job's environment (--env): its map file (.exr, .hdr), its uniform sky,
 // or none. A map that cannot be read is a BakeInputError naming it.
 std::optional<Environment> read_environment(const protocol::EnvironmentSetting& env);
@@ -58,35 +52,6 @@ using BakeEventSink = std::function<void(const protocol::WorkerEvent&)>;
 // failure; no file is ever left half-written under its final name. Each
 // output's state is saved with its snapshots, for a run with `resume`.
 protocol::DoneEvent run_bake_job(const BakeJob& job, const BakeEventSink& emit);
-
-// Stopping a bake where it stands (the worker's SIGTERM: its job was
-// cancelled). Once asked, the job driver takes one last snapshot of the
-// pass the device holds after the batch in flight (the snapshots being
-// written first), announces it, and throws BakeStopped. Safe to call from a
-// signal handler. Returns whether a bake is passing now and will take that
-// snapshot (armed by StopPoint); false: nothing to save, exit at once.
-// Defined in bake/progressive.cpp, beside the loop.
-bool request_stop() noexcept;
-bool stop_requested() noexcept;
-void clear_stop_request() noexcept;  // for tests
-
-// While one lives, a stop request is taken at the next batch (the job
-// driver holds one from its first pass to its done event).
-class StopPoint {
-public:
-    StopPoint() noexcept;
-    ~StopPoint();
-    StopPoint(const StopPoint&) = delete;
-    StopPoint& operator=(const StopPoint&) = delete;
-};
-
-class BakeStopped : public std::runtime_error {
-public:
-    BakeStopped(std::string output, int pass, std::vector<std::string> files);
-    std::string output;              // the output that was passing
-    int pass = 0;                    // the pass its last snapshot holds
-    std::vector<std::string> files;  // that snapshot's files
-};
 
 // Bytes of memory a bake may use now: MemAvailable of `meminfo`, and under a
 // container's limit (cgroup v2 memory.max of `cgroup_dir`, less its

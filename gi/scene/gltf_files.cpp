@@ -1,5 +1,7 @@
 #include "scene/gltf_files.h"
 
+#include "percent_decoding.h"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -64,24 +66,6 @@ int hex_value(char c) {
     if (c >= 'a' && c <= 'f') return c - 'a' + 10;
     if (c >= 'A' && c <= 'F') return c - 'A' + 10;
     return -1;
-}
-
-// RFC 3986 percent-decoding; false on a malformed escape.
-bool percent_decode(std::string_view in, std::string* out) {
-    out->clear();
-    for (size_t i = 0; i < in.size(); ++i) {
-        if (in[i] != '%') {
-            *out += in[i];
-            continue;
-        }
-        if (i + 2 >= in.size()) return false;
-        const int hi = hex_value(in[i + 1]);
-        const int lo = hex_value(in[i + 2]);
-        if (hi < 0 || lo < 0) return false;
-        *out += char(hi * 16 + lo);
-        i += 2;
-    }
-    return true;
 }
 
 // The path string tinygltf builds for a URI: its JoinPath(base_dir,
@@ -203,11 +187,12 @@ fs::path resolve_scene_file(const fs::path& scene_dir, std::string_view uri, std
         return {};
     }
 
-    std::string decoded;
-    if (!percent_decode(uri, &decoded)) {
+    const std::optional<std::string> decoded_or = protocol::percent_decode(uri);
+    if (!decoded_or) {
         *why = "URI has a malformed %-escape";
         return {};
     }
+    const std::string& decoded = *decoded_or;
     if (decoded.find('\0') != std::string::npos || decoded.find('\\') != std::string::npos) {
         *why = "URI decodes to a NUL byte or a backslash";
         return {};
