@@ -1,5 +1,7 @@
-// What the status page shows of a lightmap, made from its EXR (linear
-// irradiance/pi, rows from the top) without any GL:
+// What the status page shows of a lightmap (or, for a job without one, of
+// its ambient occlusion: the first image output of the registry the job
+// has, or ?output=NAME), made from its EXR (linear, rows from the top)
+// without any GL:
 //   GET /v1/jobs/{id}/preview.png        tone-mapped 8-bit sRGB, to look at as an atlas
 //   GET /v1/jobs/{id}/lightmap.rgbm.png  RGBM (protocol/lightmap_rgbm.h), for the 3D view's lightMap
 //   GET /v1/jobs/{id}/error.png          the per-texel relative error as a colour scale

@@ -5,6 +5,7 @@
 #include "service_rooms.h"
 
 #include "http_error.h"
+#include "outputs.h"
 #include "preview.h"
 #include "web_files.h"
 
@@ -135,14 +136,37 @@ void Service::error_map(const httplib::Request& req, httplib::Response& res, con
     send_preview(req, res, caller, PreviewKind::Error);
 }
 
+namespace {
+
+// The output a preview shows: `?output=NAME`, or the first output of the
+// registry whose image the lit scene carries (lightmap, then ao) that the
+// job has a file of. An AO-only job's preview is its occlusion (issue #56:
+// the previews knew only the lightmap).
+std::string previewed_output(const httplib::Request& req, const protocol::JobStatus& job) {
+    const std::string asked = req.has_param("output") ? req.get_param_value("output") : "";
+    if (!asked.empty()) {
+        const protocol::OutputKind* o = protocol::find_output(asked);
+        if (!o || o->lit_scene_slot.empty())
+            throw HttpError(400, "output=" + asked + ": previews show an image output's (lightmap, ao)",
+                            {{"field", "output"}});
+        return asked;
+    }
+    for (const protocol::OutputKind& o : protocol::output_registry())
+        if (!o.lit_scene_slot.empty() && job.latest.count(o.name)) return o.name;
+    return "lightmap";
+}
+
+}  // namespace
+
 void Service::send_preview(const httplib::Request& req, httplib::Response& res, const Caller& caller,
                            PreviewKind kind) {
     const JobRecord job = owned_job(req, caller);
-    // The newest lightmap, as the worker's events named it (its final file
+    const std::string output = previewed_output(req, job.status);
+    // Its newest file, as the worker's events named it (its final file
     // once done, else its latest snapshot): never guessed from file names.
-    const auto latest = job.status.latest.find("lightmap");
+    const auto latest = job.status.latest.find(output);
     if (latest == job.status.latest.end() || !is_artifact_name(latest->second.file))
-        throw HttpError(404, "job " + job.status.id + " has no lightmap snapshot yet", {{"id", job.status.id}});
+        throw HttpError(404, "job " + job.status.id + " has no " + output + " snapshot yet", {{"id", job.status.id}});
     const std::string chosen = latest->second.file;
 
     const fs::path path = supervisor_->job_dir(job.status.id) / chosen;
@@ -168,6 +192,7 @@ void Service::send_preview(const httplib::Request& req, httplib::Response& res, 
                         {{"id", job.status.id}});
     const Preview& preview = found->second;
     res.set_header("X-Lightfarm-Source", chosen);
+    res.set_header("X-Lightfarm-Output", output);
     res.set_header("X-Lightfarm-Pass", std::to_string(latest->second.pass));
     for (const auto& [name, value] : preview.headers) res.set_header(name.c_str(), value);
     res.set_header("Cache-Control", "no-cache");
