@@ -438,35 +438,6 @@ TEST_F(EndToEnd, CornellBoxThroughTheServiceEqualsTheCli) {
     EXPECT_EQ(png->body, read_text(download(id, "preview.png", "served"))) << "the job's own preview.png";
 }
 
-// The previews follow the output registry (issue #56: an AO-only job had
-// none): the first image output the job has (here its ambient occlusion,
-// the only one), or the one `?output=` names; a preview of an output the
-// job does not bake is a 404 that says which, of one that has no image
-// (SH) a 400.
-TEST_F(EndToEnd, AnAoOnlyJobHasAPreviewOfItsOcclusion) {
-    json spec = Bake{}.spec(upload_cornell_box());
-    spec["outputs"] = {{"ao", {{"ao_passes", 4}}}};
-    const std::string id = submit(spec);
-    ASSERT_FALSE(id.empty());
-    const json status = wait_finished(id);
-    ASSERT_EQ(status["state"], "succeeded") << status.dump();
-    for (const std::string route : {"/preview.png", "/preview.png?output=ao", "/lightmap.rgbm.png"}) {
-        auto png = client().Get("/v1/jobs/" + id + route);
-        ASSERT_TRUE(png);
-        EXPECT_EQ(png->status, 200) << route << ": " << png->body;
-        EXPECT_EQ(png->get_header_value("X-Lightfarm-Output"), "ao") << route;
-        EXPECT_EQ(png->get_header_value("X-Lightfarm-Source"), "ao.exr") << route;
-        EXPECT_EQ(png->body.substr(1, 3), "PNG") << route;
-    }
-    auto none = client().Get("/v1/jobs/" + id + "/preview.png?output=lightmap");
-    ASSERT_TRUE(none);
-    EXPECT_EQ(none->status, 404);
-    EXPECT_NE(none->body.find("no lightmap snapshot"), std::string::npos) << none->body;
-    auto sh = client().Get("/v1/jobs/" + id + "/preview.png?output=sh");
-    ASSERT_TRUE(sh);
-    EXPECT_EQ(sh->status, 400) << sh->body;
-}
-
 // A probes job through the service (issue #52): the same probes as
 // `lightfarm bake --probes` with the same settings and seed (probes.exr
 // pixel for pixel: radiance, distances, corner and centre rays), so
@@ -643,6 +614,43 @@ TEST_F(EndToEnd, AStudioGetsAValidLitSceneAndA3DViewOfIt) {
     const json view = json::parse(browser.substr(browser.find('{')));
     EXPECT_LT(view.value("file_against_job", 255.0), 6.0) << "the file draws as the job: " << browser;
     EXPECT_NE(browser.find("\"probes_file\":{"), std::string::npos) << "probes.json opened in the view: " << browser;
+    EXPECT_GT(fs::exists(screenshot) ? fs::file_size(screenshot) : 0u, 1000u) << browser;
+}
+
+// The previews follow the output registry (issue #56: an AO-only job had
+// none, and the status page said "No lightmap or probes snapshot yet"): the
+// first image output the job has (here its ambient occlusion, the only
+// one), or the one `?output=` names; a preview of an output the job does
+// not bake is a 404 that says which, of one that has no image (SH) a 400.
+// The status page's 3D view draws the job's occlusion on its scene in each
+// of its modes, with no error.
+TEST_F(EndToEnd, AnAoOnlyJobHasAPreviewOfItsOcclusion) {
+    json spec = Bake{}.spec(upload_cornell_box());
+    spec["outputs"] = {{"ao", {{"ao_passes", 4}}}};
+    const std::string id = submit(spec);
+    ASSERT_FALSE(id.empty());
+    const json status = wait_finished(id);
+    ASSERT_EQ(status["state"], "succeeded") << status.dump();
+    for (const std::string route : {"/preview.png", "/preview.png?output=ao", "/lightmap.rgbm.png"}) {
+        auto png = client().Get("/v1/jobs/" + id + route);
+        ASSERT_TRUE(png);
+        EXPECT_EQ(png->status, 200) << route << ": " << png->body;
+        EXPECT_EQ(png->get_header_value("X-Lightfarm-Output"), "ao") << route;
+        EXPECT_EQ(png->get_header_value("X-Lightfarm-Source"), "ao.exr") << route;
+        EXPECT_EQ(png->body.substr(1, 3), "PNG") << route;
+    }
+    auto none = client().Get("/v1/jobs/" + id + "/preview.png?output=lightmap");
+    ASSERT_TRUE(none);
+    EXPECT_EQ(none->status, 404);
+    EXPECT_NE(none->body.find("no lightmap snapshot"), std::string::npos) << none->body;
+    auto sh = client().Get("/v1/jobs/" + id + "/preview.png?output=sh");
+    ASSERT_TRUE(sh);
+    EXPECT_EQ(sh->status, 400) << sh->body;
+
+    const fs::path screenshot = tmp.path / "ao-view.png";
+    const std::string url = "http://" + server->host + ":" + std::to_string(server->port);
+    std::string browser;
+    EXPECT_EQ(run_node("status_page_3d.mjs", {url, kToken, id, screenshot.string()}, browser), 0) << browser;
     EXPECT_GT(fs::exists(screenshot) ? fs::file_size(screenshot) : 0u, 1000u) << browser;
 }
 

@@ -222,7 +222,10 @@ if (THREE) {
 
   async function load(job) {
     const probes = await jobProbes(job);
-    if (!job.latest.lightmap) {  // probes alone: no atlas, no scene to show them in
+    // The light the view lays on the scene: the lightmap, else the ambient
+    // occlusion (the server's RGBM and error map follow the same order).
+    const image = job.latest.lightmap || job.latest.ao;
+    if (!image) {  // probes alone: no atlas, no scene to show them in
       showProbesAlone(probes);
       state.job = job.id;
       status.textContent = state.probes + " probes · drag to orbit, scroll to zoom";
@@ -230,7 +233,7 @@ if (THREE) {
       state.ready = true;
       return;
     }
-    const pass = job.latest.lightmap.pass;
+    const pass = image.pass;
     if (state.job !== job.id) {
       status.textContent = "loading the scene…";
       const gltf = await new GLTFLoader().loadAsync(job.links.artifacts + "/scene.lightmapped.glb");
@@ -343,8 +346,8 @@ if (THREE) {
 
   view.show = (job) => {
     if (state.file) return;  // an opened file stays until a job is clicked
-    if (!job.latest || (!job.latest.lightmap && !job.latest.probes)) {
-      status.textContent = "No lightmap or probes snapshot yet.";
+    if (!job.latest || (!job.latest.lightmap && !job.latest.ao && !job.latest.probes)) {
+      status.textContent = "No lightmap, ambient occlusion or probes snapshot yet.";
       return;
     }
     if (loading) return;  // the next refresh (2 s) catches up

@@ -101,16 +101,18 @@ async function show(job) {
   // it has loaded, else when it does.
   if (window.lightfarmView) window.lightfarmView.show(job); else window.lightfarmPendingJob = job;
   const preview = document.getElementById("preview");
-  const hasImage = job.latest && job.latest.lightmap;
-  if (hasImage) {
+  // The server's preview shows the job's first image output (lightmap, else
+  // ambient occlusion: the output registry's order).
+  const image = job.latest && (job.latest.lightmap || job.latest.ao);
+  if (image) {
     let img = preview.querySelector("img");
     if (!img) { img = document.createElement("img"); img.alt = "preview"; preview.replaceChildren(img); }
-    img.src = job.links.preview + "?pass=" + job.latest.lightmap.pass;
+    img.src = job.links.preview + "?pass=" + image.pass;
   } else {
     preview.replaceChildren();
     const p = document.createElement("p");
     p.className = "muted";
-    p.textContent = "No lightmap snapshot yet.";
+    p.textContent = "No lightmap or ambient occlusion snapshot yet.";
     preview.appendChild(p);
   }
   const key = job.id + ":" + job.state + ":" + JSON.stringify(job.latest || {});
