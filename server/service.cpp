@@ -310,6 +310,28 @@ void Service::install_http_hooks() {
     });
 }
 
+namespace {
+
+// Whether a browser says the request came from another site's page: its
+// Sec-Fetch-Site (cross-site or same-site; "none" is the address bar), else
+// an Origin or Referer naming another host than the one asked.
+bool from_another_site(const httplib::Request& req) {
+    const std::string site = req.get_header_value("Sec-Fetch-Site");
+    if (!site.empty()) return site != "none" && site != "same-origin";
+    const std::string host = req.get_header_value("Host");
+    for (const char* header : {"Origin", "Referer"}) {
+        const std::string from = req.get_header_value(header);
+        if (from.empty()) continue;
+        const size_t start = from.find("://");
+        if (start == std::string::npos) return true;
+        const std::string authority = from.substr(start + 3, from.find('/', start + 3) - start - 3);
+        if (authority != host) return true;
+    }
+    return false;
+}
+
+}  // namespace
+
 // One request on `route`: the caller authenticated as the route asks, the
 // handler run, and every failure answered as JSON that names what failed.
 void Service::serve(const Route& route, const httplib::Request& req, httplib::Response& res) {
@@ -324,6 +346,14 @@ void Service::serve(const Route& route, const httplib::Request& req, httplib::Re
         if (route.auth == Auth::Page && req.has_param("token")) {
             // A person opening /?token=T: keep T in a cookie (the
             // page's fetches and <img> send it), drop it from the URL.
+            // Only from the address bar or this server's own pages: a link
+            // on another site would log the victim in as its author (login
+            // CSRF, issue #55), and their jobs would be the attacker's.
+            if (from_another_site(req))
+                throw HttpError(403,
+                                "a link from another site cannot sign you in: open this server's address "
+                                "(with ?token=) yourself",
+                                {{"field", "token"}});
             const std::string token = req.get_param_value("token");
             if (owners_.count(owner_of(token))) {
                 res.set_header("Set-Cookie", "lightfarm_token=" + token + "; Path=/; HttpOnly; SameSite=Strict");

@@ -1150,6 +1150,27 @@ TEST_F(ServerTest, MetricsAndTheStatusPage) {
     const httplib::Headers with_cookie = {{"Cookie", cookie.substr(0, cookie.find(';'))}};
     EXPECT_EQ(browser.Get("/v1/jobs", with_cookie)->status, 200);
     EXPECT_EQ(browser.Post("/v1/jobs/" + id + "/cancel", with_cookie, "", "application/json")->status, 401);
+
+    // Login CSRF (issue #55): a link on another site to /?token=ATTACKER
+    // must not replace a person's cookie; the address bar and this
+    // server's own pages may sign in.
+    const std::string self = "http://" + server->host + ":" + std::to_string(server->port);
+    const std::vector<std::pair<httplib::Headers, int>> cases = {{{{"Sec-Fetch-Site", "cross-site"}}, 403},
+                                                                 {{{"Sec-Fetch-Site", "same-site"}}, 403},
+                                                                 {{{"Referer", "https://evil.example/page"}}, 403},
+                                                                 {{{"Origin", "https://evil.example"}}, 403},
+                                                                 {{{"Sec-Fetch-Site", "none"}}, 303},
+                                                                 {{{"Sec-Fetch-Site", "same-origin"}}, 303},
+                                                                 {{{"Referer", self + "/"}}, 303},
+                                                                 {{}, 303}};
+    for (const auto& [headers, status] : cases) {
+        auto r = browser.Get("/?token=" + kAlice, headers);
+        ASSERT_TRUE(r);
+        const std::string said =
+            headers.empty() ? "no header" : headers.begin()->first + ": " + headers.begin()->second;
+        EXPECT_EQ(r->status, status) << said;
+        EXPECT_EQ(r->has_header("Set-Cookie"), status == 303);
+    }
 }
 
 // The page's three.js is behind the API's rules (a token or the page's
