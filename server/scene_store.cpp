@@ -52,6 +52,26 @@ std::string text_reason(const std::string& text) {
 
 }  // namespace
 
+std::string shown_name(const std::string& name) {
+    std::string out;
+    for (size_t i = 0; i < name.size();) {
+        const unsigned char c = static_cast<unsigned char>(name[i]);
+        const int extra = c < 0x80 ? 0 : (c >> 5) == 6 ? 1 : (c >> 4) == 14 ? 2 : (c >> 3) == 30 ? 3 : -1;
+        bool whole = extra >= 0 && name.size() - i > size_t(extra);
+        for (int k = 1; whole && k <= extra; ++k) whole = (static_cast<unsigned char>(name[i + size_t(k)]) >> 6) == 2;
+        if (!whole || c < 0x20 || c == 0x7f) {
+            char hex[8];
+            std::snprintf(hex, sizeof hex, "\\x%02X", c);
+            out += hex;
+            ++i;
+            continue;
+        }
+        out.append(name, i, size_t(extra) + 1);
+        i += size_t(extra) + 1;
+    }
+    return out;
+}
+
 std::string unsafe_path_reason(const std::string& path) {
     if (path.empty()) return "is empty";
     if (path.size() > 1024) return "is longer than 1024 bytes";
@@ -101,13 +121,16 @@ void check_gltf_uris(const std::string& gltf_name, const std::string& text, cons
             const std::string uri = item["uri"];
             if (uri.rfind("data:", 0) == 0) continue;
             const std::optional<std::string> decoded = protocol::percent_decode(uri);
-            if (!decoded) throw HttpError(400, field + ": '" + uri + "' has a malformed %-escape", {{"field", field}});
+            if (!decoded)
+                throw HttpError(400, field + ": '" + shown_name(uri) + "' has a malformed %-escape",
+                                {{"field", field}});
             const std::string& path = *decoded;
             const std::string why = unsafe_path_reason(path);
-            if (!why.empty()) throw HttpError(400, field + ": '" + uri + "' " + why, {{"field", field}});
+            if (!why.empty()) throw HttpError(400, field + ": '" + shown_name(uri) + "' " + why, {{"field", field}});
             const std::string full = (base / path).lexically_normal().string();
             if (!names.count(full))
-                throw HttpError(400, field + ": '" + uri + "' is not part of the upload", {{"field", field}});
+                throw HttpError(400, field + ": '" + shown_name(uri) + "' is not part of the upload",
+                                {{"field", field}});
         }
     }
 }
@@ -174,10 +197,11 @@ const UploadFile& checked_main_file(const std::vector<UploadFile>& files) {
     std::vector<const UploadFile*> mains;
     for (const UploadFile& f : files) {
         const std::string why = unsafe_path_reason(f.name);
-        if (!why.empty()) throw HttpError(400, "file name '" + f.name + "' " + why, {{"field", f.name}});
+        if (!why.empty())
+            throw HttpError(400, "file name '" + shown_name(f.name) + "' " + why, {{"field", shown_name(f.name)}});
         const std::string name = fs::path(f.name).lexically_normal().string();
         if (!names.insert(name).second)
-            throw HttpError(400, "file '" + f.name + "' appears twice", {{"field", f.name}});
+            throw HttpError(400, "file '" + shown_name(f.name) + "' appears twice", {{"field", shown_name(f.name)}});
         if (ends_with(name, ".gltf") || ends_with(name, ".glb")) mains.push_back(&f);
     }
     // A name that is also another's folder ("a" and "a/b") cannot be both.

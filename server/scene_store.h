@@ -60,4 +60,10 @@ private:
 // refused, or "" when it is fine.
 std::string unsafe_path_reason(const std::string& path);
 
+// A name a tenant sent, as a message shows it: control characters and bytes
+// that are not UTF-8 as \xNN, so that a message neither stops at a NUL
+// (issue #55: a NUL name's message was cut there) nor holds bytes its JSON
+// cannot carry; any other text as it is.
+std::string shown_name(const std::string& name);
+
 }  // namespace lf::server

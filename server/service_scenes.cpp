@@ -43,7 +43,7 @@ void Service::post_scene(const httplib::Request& req, httplib::Response& res, co
         std::string name = req.has_param("name") ? req.get_param_value("name") : "scene" + kind;
         if (name.size() < kind.size() || name.compare(name.size() - kind.size(), kind.size(), kind) != 0)
             throw HttpError(400,
-                            "name: '" + name + "' must end in " + kind + " for this body (a " +
+                            "name: '" + shown_name(name) + "' must end in " + kind + " for this body (a " +
                                 (json_body ? "JSON glTF" : "binary glTF") + ")",
                             {{"field", "name"}});
         files.push_back({name, req.body});
