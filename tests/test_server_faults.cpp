@@ -105,15 +105,21 @@ std::string ServerScenario::start() {
 }
 
 // POSTs until it is not a 503 (at most 5 times): every answer 2xx or 503
-// (the machine's trouble, retried), never an input error or a 500.
+// (the machine's trouble, retried), never an input error or a 500. The
+// outcome is told by class, each status once in the order first met
+// ("503, then 201"), not by how many retries it took: on a busy machine a
+// store restarting under the test answered 503 twice where it usually
+// answers once (issue #55: the table compared as text failed under load).
 std::string ServerScenario::post(const std::string& path, const std::string& body, const std::string& type,
                                  std::string& id) {
     auto c = server_.client(kToken);
     std::string answers;
+    int last = -1;
     for (int i = 0; i < 5; ++i) {
         auto r = c.Post(path, body, type);
         const int status = r ? r->status : 0;
-        answers += (answers.empty() ? "" : ", then ") + std::to_string(status);
+        if (status != last) answers += (answers.empty() ? "" : ", then ") + std::to_string(status);
+        last = status;
         EXPECT_TRUE(status == 200 || status == 201 || status == 503)
             << phase_ << ": " << path << " answered " << status << ": " << (r ? r->body : "nothing");
         if (status == 503) {
