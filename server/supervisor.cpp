@@ -342,6 +342,13 @@ void Supervisor::worker_loop(const std::string& device) {
         bool machine_fault = false;
         try {
             machine_fault = run_attempt(*job, device);
+        } catch (const StoreError& e) {
+            // The store failed where the attempt does not retry it (reading
+            // the job's scene as a database restarts): the machine's fault,
+            // never the job's, so no attempt is counted (a PostgreSQL restart
+            // right after a claim cost one: ScaleOut.ADatabaseRestarted…).
+            server_fault(*job, std::string("the job store failed: ") + e.what());
+            machine_fault = true;
         } catch (const std::exception& e) {
             // The server's own trouble (a store error) still ends the
             // attempt cleanly rather than leaving the job running forever.
